@@ -1,0 +1,3 @@
+fn main() {
+    let _ = shaderc::Compiler::new();
+}

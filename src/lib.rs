@@ -1,0 +1,5 @@
+//! meshchar: surface-mesh characterization of static and animated scenes for ray tracing, on Vulkan compute.
+#![deny(missing_docs)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
+
+pub mod mesh;

@@ -1,0 +1,71 @@
+use std::path::PathBuf;
+
+/// Everything that can go wrong reading or checking a mesh. Every variant names the file (or mesh) and the place.
+#[derive(Debug, thiserror::Error)]
+pub enum MeshError {
+    /// The file could not be read.
+    #[error("{path}: cannot read: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The file's extension or content is not a format this crate reads.
+    #[error("{path}: unknown mesh format (expected .obj or .ply)")]
+    UnknownFormat {
+        /// The file.
+        path: PathBuf,
+    },
+    /// The file could not be parsed.
+    #[error("{file}: parse error at {place}: {reason}")]
+    Parse {
+        /// The file.
+        file: String,
+        /// Where (line, element, face ...).
+        place: String,
+        /// What the parser said.
+        reason: String,
+    },
+    /// A triangle refers to a vertex that does not exist.
+    #[error("{file}: triangle {triangle} refers to vertex {index}, but there are only {vertices} vertices")]
+    IndexOutOfRange {
+        /// The file or mesh name.
+        file: String,
+        /// The triangle.
+        triangle: usize,
+        /// The bad index.
+        index: u64,
+        /// How many vertices exist.
+        vertices: usize,
+    },
+    /// A coordinate is NaN or infinite.
+    #[error("{file}: vertex {vertex} has a non-finite coordinate {value:?}")]
+    NonFinite {
+        /// The file or mesh name.
+        file: String,
+        /// The vertex.
+        vertex: usize,
+        /// Its position.
+        value: [f32; 3],
+    },
+    /// Frames of an animation do not share one topology.
+    #[error("{other}: topology differs from the first frame {first}: {detail}")]
+    TopologyMismatch {
+        /// The first frame.
+        first: String,
+        /// The frame that differs.
+        other: String,
+        /// What differs.
+        detail: String,
+    },
+    /// Anything else that makes a mesh unusable.
+    #[error("{file}: {reason}")]
+    Invalid {
+        /// The file or mesh name.
+        file: String,
+        /// Why.
+        reason: String,
+    },
+}

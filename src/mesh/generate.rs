@@ -1,0 +1,1 @@
+//! Synthetic scenes for tests, benchmarks and the failure study.
