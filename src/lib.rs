@@ -2,4 +2,5 @@
 #![deny(missing_docs)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
+pub mod keys;
 pub mod mesh;
