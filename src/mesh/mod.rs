@@ -31,11 +31,7 @@ pub struct Mesh {
 
 impl Mesh {
     /// Builds a mesh and checks it: every index in range, every coordinate finite.
-    pub fn new(
-        name: impl Into<String>,
-        positions: Vec<[f32; 3]>,
-        indices: Vec<[u32; 3]>,
-    ) -> Result<Self, MeshError> {
+    pub fn new(name: impl Into<String>, positions: Vec<[f32; 3]>, indices: Vec<[u32; 3]>) -> Result<Self, MeshError> {
         let mesh = Mesh { name: name.into(), positions, indices, object_ids: None };
         mesh.validate()?;
         Ok(mesh)

@@ -1,0 +1,85 @@
+//! Lists every Vulkan device with the properties meshchar relies on, and which one it would pick.
+//!
+//! `cargo run --release --example devices -- [--json]`
+
+use meshchar::gpu::enumerate_devices;
+use std::process::ExitCode;
+
+const HELP: &str = "devices: list Vulkan devices and the one meshchar would use
+
+USAGE: devices [--json]
+
+  --json     one JSON object: {\"devices\": [...], \"selected\": index or null}
+  -h, --help this text
+
+MESHCHAR_DEVICE=<index or name substring> overrides the choice; VK_DRIVER_FILES selects drivers.";
+
+fn main() -> ExitCode {
+    let mut json = false;
+    for a in std::env::args().skip(1) {
+        match a.as_str() {
+            "--json" => json = true,
+            "-h" | "--help" => {
+                println!("{HELP}");
+                return ExitCode::SUCCESS;
+            }
+            other => {
+                eprintln!("devices: unknown argument {other:?}\n\n{HELP}");
+                return ExitCode::from(2);
+            }
+        }
+    }
+    let (list, selected) = match enumerate_devices() {
+        Ok(x) => x,
+        Err(e) => {
+            eprintln!("devices: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    if json {
+        let v = serde_json::json!({ "devices": list, "selected": selected });
+        println!("{v}");
+        return ExitCode::SUCCESS;
+    }
+    if list.is_empty() {
+        println!("no Vulkan device found");
+    }
+    for d in &list {
+        let c = &d.caps;
+        let mark = if Some(d.index) == selected { "*" } else { " " };
+        println!("{mark} [{}] {} ({}, Vulkan {}, driver {})", d.index, c.name, c.device_type, c.api_version, c.driver);
+        println!(
+            "      subgroup size {} (min {}, max {}), ops: {}{}",
+            c.subgroup_size,
+            c.min_subgroup_size,
+            c.max_subgroup_size,
+            c.subgroup_operations.join(" "),
+            if c.subgroup_in_compute { "" } else { " (not in compute!)" }
+        );
+        println!(
+            "      workgroups per dispatch {:?}, workgroup size {:?} / {} invocations, shared memory {} KiB",
+            c.max_workgroup_count,
+            c.max_workgroup_size,
+            c.max_workgroup_invocations,
+            c.max_shared_memory / 1024
+        );
+        println!(
+            "      storage-buffer range {} MiB, allocation {} MiB, buffer {}",
+            c.max_storage_buffer_range >> 20,
+            c.max_memory_allocation_size >> 20,
+            c.max_buffer_size.map(|b| format!("{} MiB", b >> 20)).unwrap_or_else(|| "n/a".into())
+        );
+        println!(
+            "      float64 {}, int64 {}, int64 atomics {}, buffer device address {}, timestamps {} bits at {} ns",
+            c.float64, c.int64, c.int64_atomics, c.buffer_device_address, c.timestamp_valid_bits, c.timestamp_period
+        );
+        if !d.missing.is_empty() {
+            println!("      cannot run meshchar: missing {}", d.missing.join(", "));
+        }
+    }
+    match selected {
+        Some(i) => println!("selected: [{i}] {}", list[i].caps.name),
+        None => println!("selected: none (the CPU path will be used)"),
+    }
+    ExitCode::SUCCESS
+}

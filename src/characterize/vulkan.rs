@@ -1,0 +1,142 @@
+//! The Vulkan backend: [`crate::ops::characterize`]'s exact GPU passes, finished by this module's host math.
+
+use super::{
+    class_count, class_thresholds, moments, CharError, Characterization, ClassRule, CodeStats, Params, PassTime,
+    PerTriangle,
+};
+use crate::gpu::Context;
+use crate::mesh::{Animation, Mesh};
+use crate::ops::characterize::{CharacterizeGpu, ClassPlan, CodeSums, MeshBuffers, RunError};
+use num_bigint::BigUint;
+use std::time::Instant;
+
+/// Sum of 24-bit limbs (each may hold more than 24 bits) as an exact integer.
+pub fn limbs_to_biguint(limbs: &[u64]) -> BigUint {
+    limbs.iter().rev().fold(BigUint::default(), |acc, &l| (acc << 24u32) + BigUint::from(l))
+}
+
+fn code_stats(s: &CodeSums) -> CodeStats {
+    CodeStats {
+        n: s.n,
+        code_min: s.code_min,
+        code_max: s.code_max,
+        s1: limbs_to_biguint(&s.limbs[0]),
+        s2: limbs_to_biguint(&s.limbs[1]),
+        s3: limbs_to_biguint(&s.limbs[2]),
+    }
+}
+
+/// Characterization on a Vulkan device. Pipelines and buffers are made once and reused for every mesh and frame.
+pub struct VulkanBackend {
+    ctx: Context,
+    gpu: CharacterizeGpu,
+    mesh: Option<MeshBuffers>,
+}
+
+impl VulkanBackend {
+    /// Builds the pipelines on `ctx`'s device.
+    pub fn new(ctx: &Context) -> Result<Self, CharError> {
+        Ok(VulkanBackend { ctx: ctx.clone(), gpu: CharacterizeGpu::new(ctx).map_err(gpu_err)?, mesh: None })
+    }
+
+    /// The context.
+    pub fn context(&self) -> &Context {
+        &self.ctx
+    }
+
+    /// The GPU passes (for their device arrays: keys, codes, classes).
+    pub fn passes(&self) -> &CharacterizeGpu {
+        &self.gpu
+    }
+
+    /// Characterizes one mesh (uploads it).
+    pub fn characterize(&mut self, mesh: &Mesh, params: &Params) -> Result<Characterization, CharError> {
+        self.run(mesh, params, false)
+    }
+
+    /// Characterizes every frame of an animation: the indices are uploaded once, each frame uploads only its
+    /// positions, and pipelines and scratch buffers are reused.
+    pub fn characterize_animation(
+        &mut self,
+        anim: &Animation,
+        params: &Params,
+    ) -> Result<Vec<Characterization>, CharError> {
+        let mut out = Vec::with_capacity(anim.frames.len());
+        for (i, frame) in anim.frames.iter().enumerate() {
+            out.push(self.run(frame, params, i > 0)?);
+        }
+        Ok(out)
+    }
+
+    fn run(&mut self, mesh: &Mesh, params: &Params, same_topology: bool) -> Result<Characterization, CharError> {
+        params.validate()?;
+        mesh.validate().map_err(CharError::Mesh)?;
+        if mesh.triangle_count() == 0 {
+            return Err(CharError::Empty { mesh: mesh.name.clone() });
+        }
+        let start = Instant::now();
+        match &self.mesh {
+            Some(m) if same_topology => m.update_positions(&self.ctx, &mesh.positions).map_err(gpu_err)?,
+            _ => {
+                self.mesh = None;
+                self.mesh = Some(MeshBuffers::upload(&self.ctx, &mesh.positions, &mesh.indices).map_err(gpu_err)?);
+            }
+        }
+        let upload_ms = start.elapsed().as_secs_f64() * 1e3;
+        let Some(buffers) = self.mesh.as_ref() else { return Err(CharError::Gpu("mesh buffers missing".into())) };
+        let rule = params.class_rule;
+        let max_k = self.gpu.max_classes();
+        let plan = move |s: &CodeSums| -> Result<ClassPlan, String> {
+            let stats = code_stats(s);
+            let k = planned_k(rule, &stats).min(max_k);
+            Ok(ClassPlan { k, thresholds: class_thresholds(s.code_min, s.code_max, k) })
+        };
+        let out = self
+            .gpu
+            .run(buffers, params.morton_bits, params.sample_stride as u64, &plan, params.keep_per_triangle)
+            .map_err(|e| match e {
+                RunError::Gpu(g) => gpu_err(g),
+                RunError::Input(i) => CharError::Input { mesh: mesh.name.clone(), reason: i.to_string() },
+            })?;
+        let stats = code_stats(&out.sums);
+        let m = moments(&stats);
+        let k = out.plan.k;
+        let hstats = super::finalize::histogram_stats_exact(
+            out.chi_numerator,
+            out.empty_classes,
+            out.concentrated_classes,
+            out.concentrated_triangles,
+            out.n,
+            k,
+            params.alpha,
+        );
+        let mut timings: Vec<PassTime> = vec![PassTime { name: "upload".into(), ms: upload_ms }];
+        timings.extend(out.timings.iter().map(|(name, ms)| PassTime { name: name.clone(), ms: *ms }));
+        timings.push(PassTime { name: "total".into(), ms: start.elapsed().as_secs_f64() * 1e3 });
+        Ok(Characterization {
+            total_triangles: mesh.triangle_count() as u64,
+            triangles: out.n,
+            params: params.clone(),
+            lo: out.lo,
+            hi: out.hi,
+            code_stats: stats,
+            moments: m,
+            classes: k,
+            histogram: out.histogram,
+            stats: hstats,
+            per_triangle: out.per_triangle.map(|(codes, classes)| PerTriangle { codes, classes }),
+            timings,
+            backend: "vulkan".into(),
+            device: self.ctx.caps().name.clone(),
+        })
+    }
+}
+
+fn planned_k(rule: ClassRule, stats: &CodeStats) -> u32 {
+    let m = moments(stats);
+    class_count(rule, stats.n, &m, stats.code_min == stats.code_max)
+}
+
+fn gpu_err(e: crate::gpu::GpuError) -> CharError {
+    CharError::Gpu(e.to_string())
+}

@@ -1,0 +1,789 @@
+use super::{vk_check, GpuError, Result};
+use ash::vk;
+use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
+use std::ffi::{c_void, CStr};
+use std::mem::ManuallyDrop;
+use std::sync::{Arc, Mutex, MutexGuard};
+
+const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
+
+/// How to create a [`Context`].
+#[derive(Clone, Debug, Default)]
+pub struct ContextDesc {
+    /// Enable the Khronos validation layer and record every warning and error it reports (see
+    /// [`Context::validation_messages`]). Tests always ask for it.
+    pub validation: bool,
+    /// Device to use: an index into [`enumerate_devices`]'s list or a case-insensitive substring of its name. `None`
+    /// reads `MESHCHAR_DEVICE`, and without it picks discrete, then integrated, then virtual, then CPU devices.
+    pub device: Option<String>,
+}
+
+/// The properties and limits of a device that the engine relies on, all queried, none assumed.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct DeviceCaps {
+    /// Device name.
+    pub name: String,
+    /// `discrete`, `integrated`, `virtual`, `cpu` or `other`.
+    pub device_type: String,
+    /// Vulkan API version `major.minor.patch`.
+    pub api_version: String,
+    /// Driver name and version string (from `VkPhysicalDeviceDriverProperties`).
+    pub driver: String,
+    /// Raw driver version.
+    pub driver_version: u32,
+    /// PCI vendor id.
+    pub vendor_id: u32,
+    /// Subgroup size (the default one for compute).
+    pub subgroup_size: u32,
+    /// Smallest subgroup size the device may use (equal to `subgroup_size` without subgroup size control).
+    pub min_subgroup_size: u32,
+    /// Largest subgroup size.
+    pub max_subgroup_size: u32,
+    /// Supported subgroup operations (`basic`, `vote`, `arithmetic`, `ballot`, `shuffle`, ...).
+    pub subgroup_operations: Vec<String>,
+    /// Whether subgroup operations are supported in compute shaders.
+    pub subgroup_in_compute: bool,
+    /// `maxComputeWorkGroupCount`.
+    pub max_workgroup_count: [u32; 3],
+    /// `maxComputeWorkGroupSize`.
+    pub max_workgroup_size: [u32; 3],
+    /// `maxComputeWorkGroupInvocations`.
+    pub max_workgroup_invocations: u32,
+    /// `maxComputeSharedMemorySize` in bytes.
+    pub max_shared_memory: u32,
+    /// `maxStorageBufferRange` in bytes.
+    pub max_storage_buffer_range: u32,
+    /// `maxMemoryAllocationSize` in bytes.
+    pub max_memory_allocation_size: u64,
+    /// `maxBufferSize` (Vulkan 1.3), when reported.
+    pub max_buffer_size: Option<u64>,
+    /// `maxPushConstantsSize` in bytes.
+    pub max_push_constants_size: u32,
+    /// `shaderFloat64`.
+    pub float64: bool,
+    /// `shaderInt64`.
+    pub int64: bool,
+    /// `shaderBufferInt64Atomics`.
+    pub int64_atomics: bool,
+    /// `bufferDeviceAddress`.
+    pub buffer_device_address: bool,
+    /// Nanoseconds per timestamp tick.
+    pub timestamp_period: f32,
+    /// Valid bits of timestamps on the chosen queue family (0: no timestamps).
+    pub timestamp_valid_bits: u32,
+    /// Queue family used for compute.
+    pub queue_family: Option<u32>,
+}
+
+impl DeviceCaps {
+    /// Everything this device lacks for the engine (empty when it can run it).
+    pub fn missing(&self) -> Vec<String> {
+        let mut m = Vec::new();
+        let v: Vec<u32> = self.api_version.split('.').filter_map(|s| s.parse().ok()).collect();
+        if v.len() < 2 || (v[0], v[1]) < (1, 2) {
+            m.push(format!("Vulkan 1.2 (device has {})", self.api_version));
+        }
+        if self.queue_family.is_none() {
+            m.push("a compute queue".into());
+        }
+        if !self.subgroup_in_compute {
+            m.push("subgroup operations in compute shaders".into());
+        }
+        for op in ["basic", "arithmetic", "ballot", "shuffle"] {
+            if !self.subgroup_operations.iter().any(|o| o == op) {
+                m.push(format!("subgroup {op} operations"));
+            }
+        }
+        if !self.int64 {
+            m.push("shaderInt64".into());
+        }
+        if !self.int64_atomics {
+            m.push("shaderBufferInt64Atomics".into());
+        }
+        if !self.buffer_device_address {
+            m.push("bufferDeviceAddress".into());
+        }
+        if self.timestamp_valid_bits == 0 {
+            m.push("timestamps on the compute queue".into());
+        }
+        if self.subgroup_size < 4 || self.max_subgroup_size > 128 || !self.subgroup_size.is_power_of_two() {
+            m.push(format!("a subgroup size between 4 and 128 (device has {})", self.subgroup_size));
+        }
+        m
+    }
+
+    /// Workgroup size the kernels use: 256 invocations where the device allows it (at least one subgroup), never
+    /// more than 64 subgroups of the smallest size.
+    pub fn workgroup_size(&self) -> u32 {
+        let cap = self.max_workgroup_size[0].min(self.max_workgroup_invocations).min(256);
+        let cap = cap.min(64 * self.min_subgroup_size.max(1));
+        cap.max(self.max_subgroup_size.min(self.max_workgroup_size[0]))
+    }
+}
+
+/// A device as listed by [`enumerate_devices`].
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct DeviceSummary {
+    /// Index in enumeration order (what `MESHCHAR_DEVICE=<index>` refers to).
+    pub index: usize,
+    /// Its properties.
+    #[serde(flatten)]
+    pub caps: DeviceCaps,
+    /// What it lacks for the engine.
+    pub missing: Vec<String>,
+}
+
+/// A device handed over by a host engine, for [`Context::from_raw`].
+pub struct RawDevice {
+    /// The engine's instance.
+    pub instance: ash::Instance,
+    /// The engine's logical device, created with [`required_device_extensions`] and [`required_device_features`].
+    pub device: ash::Device,
+    /// The physical device of `device`.
+    pub physical_device: vk::PhysicalDevice,
+    /// A queue family with compute support and timestamps.
+    pub queue_family_index: u32,
+    /// The queue index within that family.
+    pub queue_index: u32,
+}
+
+/// Device extensions a host engine must enable for [`Context::from_raw`]. Everything the engine uses is core in
+/// Vulkan 1.2, so the list is empty; it exists so that engines need not change when that stops being true.
+pub fn required_device_extensions() -> &'static [&'static CStr] {
+    &[]
+}
+
+/// Enables, in the host engine's feature structs, every device feature the engine needs: `shaderInt64`
+/// (Vulkan 1.0), `bufferDeviceAddress` and `shaderBufferInt64Atomics` (Vulkan 1.2). Returns their names.
+pub fn required_device_features(
+    core: &mut vk::PhysicalDeviceFeatures,
+    v12: &mut vk::PhysicalDeviceVulkan12Features<'_>,
+) -> &'static [&'static str] {
+    core.shader_int64 = vk::TRUE;
+    v12.buffer_device_address = vk::TRUE;
+    v12.shader_buffer_int64_atomics = vk::TRUE;
+    &["shaderInt64", "bufferDeviceAddress", "shaderBufferInt64Atomics"]
+}
+
+type Messages = Arc<Mutex<Vec<String>>>;
+type Debug = (ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT, *mut Messages);
+
+pub(crate) struct Inner {
+    pub(crate) instance: ash::Instance,
+    pub(crate) device: ash::Device,
+    pub(crate) physical_device: vk::PhysicalDevice,
+    pub(crate) queue: Mutex<vk::Queue>,
+    pub(crate) queue_family: u32,
+    pub(crate) caps: DeviceCaps,
+    pub(crate) allocator: ManuallyDrop<Mutex<Allocator>>,
+    pub(crate) pool: Mutex<vk::CommandPool>,
+    owned: Option<Owned>,
+    messages: Messages,
+}
+
+struct Owned {
+    _entry: ash::Entry,
+    debug: Option<Debug>,
+}
+
+// SAFETY: the raw pointer in `Owned` is a boxed Arc only touched at creation and destruction, and by the driver's
+// callback, which only locks the mutex inside it.
+unsafe impl Send for Owned {}
+unsafe impl Sync for Owned {}
+
+impl Drop for Inner {
+    fn drop(&mut self) {
+        // SAFETY: all buffers and kernels hold an Arc<Inner>, so none is alive now; the device is idle after the wait.
+        unsafe {
+            let _ = self.device.device_wait_idle();
+            let pool = *self.pool.get_mut().unwrap_or_else(|e| e.into_inner());
+            self.device.destroy_command_pool(pool, None);
+            ManuallyDrop::drop(&mut self.allocator);
+            if let Some(owned) = self.owned.take() {
+                self.device.destroy_device(None);
+                if let Some((du, messenger, ptr)) = owned.debug {
+                    du.destroy_debug_utils_messenger(messenger, None);
+                    drop(Box::from_raw(ptr));
+                }
+                self.instance.destroy_instance(None);
+            }
+        }
+    }
+}
+
+/// A Vulkan device ready for the engine's kernels. Cheap to clone (reference counted); buffers and kernels keep it
+/// alive, so destruction happens in the right order whatever the drop order of the handles.
+#[derive(Clone)]
+pub struct Context {
+    pub(crate) inner: Arc<Inner>,
+}
+
+impl std::fmt::Debug for Context {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Context").field("device", &self.inner.caps.name).finish()
+    }
+}
+
+unsafe extern "system" fn debug_callback(
+    severity: vk::DebugUtilsMessageSeverityFlagsEXT,
+    types: vk::DebugUtilsMessageTypeFlagsEXT,
+    data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
+    user: *mut c_void,
+) -> vk::Bool32 {
+    if data.is_null() || user.is_null() {
+        return vk::FALSE;
+    }
+    // SAFETY: the driver passes a valid callback data pointer; `user` is the boxed Arc created with the messenger.
+    let (data, messages) = unsafe { (&*data, &*(user as *const Messages)) };
+    let text = if data.p_message.is_null() {
+        String::new()
+    } else {
+        // SAFETY: p_message is a NUL-terminated string when not null.
+        unsafe { CStr::from_ptr(data.p_message) }.to_string_lossy().into_owned()
+    };
+    if let Ok(mut m) = messages.lock() {
+        m.push(format!("[{severity:?} {types:?}] {text}"));
+    }
+    vk::FALSE
+}
+
+fn load_entry() -> Result<ash::Entry> {
+    // SAFETY: loading the system Vulkan loader library; ash checks the symbols it resolves.
+    unsafe { ash::Entry::load() }.map_err(|e| GpuError::Loader(e.to_string()))
+}
+
+fn create_instance(entry: &ash::Entry, validation: bool) -> Result<(ash::Instance, Option<Debug>, Messages)> {
+    let messages: Messages = Arc::new(Mutex::new(Vec::new()));
+    // SAFETY: plain queries of the loader.
+    let loader_version =
+        unsafe { entry.try_enumerate_instance_version() }.ok().flatten().unwrap_or(vk::API_VERSION_1_0);
+    if vk::api_version_major(loader_version) == 1 && vk::api_version_minor(loader_version) < 2 {
+        return Err(GpuError::Unsupported {
+            name: "Vulkan loader".into(),
+            missing: vec![format!(
+                "Vulkan 1.2 instance (loader supports {}.{})",
+                vk::api_version_major(loader_version),
+                vk::api_version_minor(loader_version)
+            )],
+        });
+    }
+    let api = if vk::api_version_minor(loader_version) >= 3 { vk::API_VERSION_1_3 } else { vk::API_VERSION_1_2 };
+    let app = vk::ApplicationInfo::default().application_name(c"meshchar").engine_name(c"meshchar").api_version(api);
+    let mut layers = Vec::new();
+    let mut exts = Vec::new();
+    let user: *mut Messages = Box::into_raw(Box::new(messages.clone()));
+    let severity = vk::DebugUtilsMessageSeverityFlagsEXT::WARNING | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR;
+    let types = vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
+        | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+        | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE;
+    let mut messenger_info = vk::DebugUtilsMessengerCreateInfoEXT::default()
+        .message_severity(severity)
+        .message_type(types)
+        .pfn_user_callback(Some(debug_callback))
+        .user_data(user as *mut c_void);
+    if validation {
+        // SAFETY: plain query.
+        let available = unsafe { entry.enumerate_instance_layer_properties() }.unwrap_or_default();
+        let found = available.iter().any(|l| l.layer_name_as_c_str().is_ok_and(|n| n == VALIDATION_LAYER));
+        if !found {
+            // SAFETY: `user` came from Box::into_raw above and was not handed out.
+            drop(unsafe { Box::from_raw(user) });
+            return Err(GpuError::NoValidationLayer);
+        }
+        layers.push(VALIDATION_LAYER.as_ptr());
+        exts.push(ash::ext::debug_utils::NAME.as_ptr());
+    }
+    let mut info = vk::InstanceCreateInfo::default()
+        .application_info(&app)
+        .enabled_layer_names(&layers)
+        .enabled_extension_names(&exts);
+    if validation {
+        info = info.push_next(&mut messenger_info);
+    }
+    // SAFETY: the create info and everything it points to live until the call returns.
+    let instance = match unsafe { entry.create_instance(&info, None) } {
+        Ok(i) => i,
+        Err(result) => {
+            // SAFETY: as above.
+            drop(unsafe { Box::from_raw(user) });
+            return Err(GpuError::Vk { call: "vkCreateInstance", result });
+        }
+    };
+    let debug = if validation {
+        let du = ash::ext::debug_utils::Instance::new(entry, &instance);
+        let messenger_info = vk::DebugUtilsMessengerCreateInfoEXT::default()
+            .message_severity(severity)
+            .message_type(types)
+            .pfn_user_callback(Some(debug_callback))
+            .user_data(user as *mut c_void);
+        // SAFETY: valid instance with VK_EXT_debug_utils enabled.
+        match unsafe { du.create_debug_utils_messenger(&messenger_info, None) } {
+            Ok(m) => Some((du, m, user)),
+            Err(result) => {
+                // SAFETY: the instance is ours and unused; `user` is no longer referenced by any messenger.
+                unsafe {
+                    instance.destroy_instance(None);
+                    drop(Box::from_raw(user));
+                }
+                return Err(GpuError::Vk { call: "vkCreateDebugUtilsMessengerEXT", result });
+            }
+        }
+    } else {
+        // SAFETY: not handed to any messenger.
+        drop(unsafe { Box::from_raw(user) });
+        None
+    };
+    Ok((instance, debug, messages))
+}
+
+fn version_string(v: u32) -> String {
+    format!("{}.{}.{}", vk::api_version_major(v), vk::api_version_minor(v), vk::api_version_patch(v))
+}
+
+fn has_device_extension(instance: &ash::Instance, pdev: vk::PhysicalDevice, name: &CStr) -> bool {
+    // SAFETY: plain query on a valid physical device.
+    unsafe { instance.enumerate_device_extension_properties(pdev) }
+        .unwrap_or_default()
+        .iter()
+        .any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == name))
+}
+
+/// Queries everything the engine needs to know about a physical device.
+pub(crate) fn query_caps(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> DeviceCaps {
+    // SAFETY: all calls are queries on a valid physical device; chained structs are only those the device supports.
+    unsafe {
+        let props = instance.get_physical_device_properties(pdev);
+        let api = props.api_version;
+        let v12 = vk::api_version_major(api) > 1 || vk::api_version_minor(api) >= 2;
+        let v13 = vk::api_version_major(api) > 1 || vk::api_version_minor(api) >= 3;
+        let mut subgroup = vk::PhysicalDeviceSubgroupProperties::default();
+        let mut maint3 = vk::PhysicalDeviceMaintenance3Properties::default();
+        let mut driver = vk::PhysicalDeviceDriverProperties::default();
+        let mut size_control = vk::PhysicalDeviceSubgroupSizeControlProperties::default();
+        let mut maint4 = vk::PhysicalDeviceMaintenance4Properties::default();
+        let has_size_control = v13 || has_device_extension(instance, pdev, ash::ext::subgroup_size_control::NAME);
+        let has_maint4 = v13 || has_device_extension(instance, pdev, ash::khr::maintenance4::NAME);
+        {
+            let mut p2 = vk::PhysicalDeviceProperties2::default().push_next(&mut subgroup).push_next(&mut maint3);
+            if v12 {
+                p2 = p2.push_next(&mut driver);
+            }
+            if has_size_control {
+                p2 = p2.push_next(&mut size_control);
+            }
+            if has_maint4 {
+                p2 = p2.push_next(&mut maint4);
+            }
+            instance.get_physical_device_properties2(pdev, &mut p2);
+        }
+        let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
+        let mut f2 = vk::PhysicalDeviceFeatures2::default();
+        if v12 {
+            f2 = f2.push_next(&mut f12);
+        }
+        instance.get_physical_device_features2(pdev, &mut f2);
+        let features = f2.features;
+        let families = instance.get_physical_device_queue_family_properties(pdev);
+        let queue_family = families
+            .iter()
+            .enumerate()
+            .filter(|(_, f)| f.queue_flags.contains(vk::QueueFlags::COMPUTE) && f.timestamp_valid_bits > 0)
+            .map(|(i, _)| i as u32)
+            .next()
+            .or_else(|| {
+                families.iter().position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE)).map(|i| i as u32)
+            });
+        let timestamp_valid_bits = queue_family.map(|q| families[q as usize].timestamp_valid_bits).unwrap_or(0);
+        let ops = subgroup.supported_operations;
+        let names = [
+            (vk::SubgroupFeatureFlags::BASIC, "basic"),
+            (vk::SubgroupFeatureFlags::VOTE, "vote"),
+            (vk::SubgroupFeatureFlags::ARITHMETIC, "arithmetic"),
+            (vk::SubgroupFeatureFlags::BALLOT, "ballot"),
+            (vk::SubgroupFeatureFlags::SHUFFLE, "shuffle"),
+            (vk::SubgroupFeatureFlags::SHUFFLE_RELATIVE, "shuffle_relative"),
+            (vk::SubgroupFeatureFlags::CLUSTERED, "clustered"),
+            (vk::SubgroupFeatureFlags::QUAD, "quad"),
+        ];
+        let device_type = match props.device_type {
+            vk::PhysicalDeviceType::DISCRETE_GPU => "discrete",
+            vk::PhysicalDeviceType::INTEGRATED_GPU => "integrated",
+            vk::PhysicalDeviceType::VIRTUAL_GPU => "virtual",
+            vk::PhysicalDeviceType::CPU => "cpu",
+            _ => "other",
+        };
+        let (min_sg, max_sg) = if has_size_control && size_control.min_subgroup_size > 0 {
+            (size_control.min_subgroup_size, size_control.max_subgroup_size)
+        } else {
+            (subgroup.subgroup_size, subgroup.subgroup_size)
+        };
+        let driver_name = if v12 {
+            format!(
+                "{} {}",
+                driver.driver_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default(),
+                driver.driver_info_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
+            )
+            .trim()
+            .to_string()
+        } else {
+            String::new()
+        };
+        DeviceCaps {
+            name: props.device_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default(),
+            device_type: device_type.into(),
+            api_version: version_string(api),
+            driver: driver_name,
+            driver_version: props.driver_version,
+            vendor_id: props.vendor_id,
+            subgroup_size: subgroup.subgroup_size,
+            min_subgroup_size: min_sg,
+            max_subgroup_size: max_sg,
+            subgroup_operations: names.iter().filter(|(f, _)| ops.contains(*f)).map(|(_, n)| n.to_string()).collect(),
+            subgroup_in_compute: subgroup.supported_stages.contains(vk::ShaderStageFlags::COMPUTE),
+            max_workgroup_count: props.limits.max_compute_work_group_count,
+            max_workgroup_size: props.limits.max_compute_work_group_size,
+            max_workgroup_invocations: props.limits.max_compute_work_group_invocations,
+            max_shared_memory: props.limits.max_compute_shared_memory_size,
+            max_storage_buffer_range: props.limits.max_storage_buffer_range,
+            max_memory_allocation_size: maint3.max_memory_allocation_size,
+            max_buffer_size: has_maint4.then_some(maint4.max_buffer_size),
+            max_push_constants_size: props.limits.max_push_constants_size,
+            float64: features.shader_float64 == vk::TRUE,
+            int64: features.shader_int64 == vk::TRUE,
+            int64_atomics: v12 && f12.shader_buffer_int64_atomics == vk::TRUE,
+            buffer_device_address: v12 && f12.buffer_device_address == vk::TRUE,
+            timestamp_period: props.limits.timestamp_period,
+            timestamp_valid_bits,
+            queue_family,
+        }
+    }
+}
+
+fn type_rank(t: &str) -> u32 {
+    match t {
+        "discrete" => 0,
+        "integrated" => 1,
+        "virtual" => 2,
+        "cpu" => 3,
+        _ => 4,
+    }
+}
+
+/// Picks a device: `wanted` (an index or a name substring) if given, else the best supported one by type.
+fn pick(list: &[DeviceSummary], wanted: Option<&str>) -> Result<usize> {
+    if list.is_empty() {
+        return Err(GpuError::NoDevice);
+    }
+    if let Some(w) = wanted.map(str::trim).filter(|w| !w.is_empty()) {
+        let names = || list.iter().map(|d| format!("{}: {}", d.index, d.caps.name)).collect::<Vec<_>>().join("; ");
+        let found = match w.parse::<usize>() {
+            Ok(i) => list.iter().position(|d| d.index == i),
+            Err(_) => list.iter().position(|d| d.caps.name.to_lowercase().contains(&w.to_lowercase())),
+        };
+        return found.ok_or_else(|| GpuError::DeviceNotFound(w.to_string(), names()));
+    }
+    let best = list
+        .iter()
+        .enumerate()
+        .filter(|(_, d)| d.missing.is_empty())
+        .min_by_key(|(_, d)| (type_rank(&d.caps.device_type), d.index))
+        .map(|(i, _)| i);
+    match best {
+        Some(i) => Ok(i),
+        // No device is complete: report what the preferred one lacks.
+        None => {
+            let d = list.iter().min_by_key(|d| type_rank(&d.caps.device_type)).ok_or(GpuError::NoDevice)?;
+            Err(GpuError::Unsupported { name: d.caps.name.clone(), missing: d.missing.clone() })
+        }
+    }
+}
+
+/// Lists every Vulkan device with its capabilities, and the index (into the returned list) the engine would pick
+/// (following `MESHCHAR_DEVICE` when set), or `None` when none is usable.
+pub fn enumerate_devices() -> Result<(Vec<DeviceSummary>, Option<usize>)> {
+    let entry = load_entry()?;
+    let (instance, debug, _messages) = create_instance(&entry, false)?;
+    // SAFETY: valid instance.
+    let pdevs = unsafe { instance.enumerate_physical_devices() };
+    let list: Vec<DeviceSummary> = pdevs
+        .unwrap_or_default()
+        .into_iter()
+        .enumerate()
+        .map(|(index, p)| {
+            let caps = query_caps(&instance, p);
+            let missing = caps.missing();
+            DeviceSummary { index, caps, missing }
+        })
+        .collect();
+    debug_assert!(debug.is_none());
+    // SAFETY: nothing created from the instance remains.
+    unsafe { instance.destroy_instance(None) };
+    let wanted = std::env::var("MESHCHAR_DEVICE").ok();
+    let selected = pick(&list, wanted.as_deref()).ok().filter(|&i| list[i].missing.is_empty());
+    Ok((list, selected))
+}
+
+impl Context {
+    /// Creates an instance and a device of its own: validation layer and message recording when asked, device
+    /// chosen as [`ContextDesc::device`] says, every requirement checked (the error lists all that is missing).
+    pub fn new(desc: &ContextDesc) -> Result<Self> {
+        let entry = load_entry()?;
+        let (instance, debug, messages) = create_instance(&entry, desc.validation)?;
+        let cleanup = |instance: &ash::Instance, debug: &Option<Debug>| {
+            // SAFETY: the instance and messenger are ours and nothing else was created from them.
+            unsafe {
+                if let Some((du, m, ptr)) = debug {
+                    du.destroy_debug_utils_messenger(*m, None);
+                    drop(Box::from_raw(*ptr));
+                }
+                instance.destroy_instance(None);
+            }
+        };
+        // SAFETY: valid instance.
+        let pdevs = match unsafe { instance.enumerate_physical_devices() } {
+            Ok(p) => p,
+            Err(result) => {
+                cleanup(&instance, &debug);
+                return Err(GpuError::Vk { call: "vkEnumeratePhysicalDevices", result });
+            }
+        };
+        let list: Vec<DeviceSummary> = pdevs
+            .iter()
+            .enumerate()
+            .map(|(index, &p)| {
+                let caps = query_caps(&instance, p);
+                let missing = caps.missing();
+                DeviceSummary { index, caps, missing }
+            })
+            .collect();
+        let wanted = desc.device.clone().or_else(|| std::env::var("MESHCHAR_DEVICE").ok());
+        let chosen = match pick(&list, wanted.as_deref()) {
+            Ok(i) if list[i].missing.is_empty() => i,
+            Ok(i) => {
+                cleanup(&instance, &debug);
+                return Err(GpuError::Unsupported {
+                    name: list[i].caps.name.clone(),
+                    missing: list[i].missing.clone(),
+                });
+            }
+            Err(e) => {
+                cleanup(&instance, &debug);
+                return Err(e);
+            }
+        };
+        let pdev = pdevs[list[chosen].index];
+        let caps = list[chosen].caps.clone();
+        let Some(family) = caps.queue_family else {
+            cleanup(&instance, &debug);
+            return Err(GpuError::Unsupported { name: caps.name.clone(), missing: vec!["a compute queue".into()] });
+        };
+        let priorities = [1.0f32];
+        let queue_info =
+            [vk::DeviceQueueCreateInfo::default().queue_family_index(family).queue_priorities(&priorities)];
+        let mut core = vk::PhysicalDeviceFeatures::default();
+        let mut v12 = vk::PhysicalDeviceVulkan12Features::default();
+        required_device_features(&mut core, &mut v12);
+        let mut f2 = vk::PhysicalDeviceFeatures2::default().features(core).push_next(&mut v12);
+        let ext_names: Vec<*const std::ffi::c_char> = required_device_extensions().iter().map(|e| e.as_ptr()).collect();
+        let info = vk::DeviceCreateInfo::default()
+            .queue_create_infos(&queue_info)
+            .enabled_extension_names(&ext_names)
+            .push_next(&mut f2);
+        // SAFETY: the physical device supports every enabled feature (checked by `missing`).
+        let device = match unsafe { instance.create_device(pdev, &info, None) } {
+            Ok(d) => d,
+            Err(result) => {
+                cleanup(&instance, &debug);
+                return Err(GpuError::Vk { call: "vkCreateDevice", result });
+            }
+        };
+        let owned = Owned { _entry: entry, debug };
+        Self::finish(instance, device, pdev, family, 0, caps, Some(owned), messages)
+    }
+
+    /// Wraps a host engine's device. The engine keeps ownership: dropping the context (and everything made from it)
+    /// destroys only what the context created (its command pool, allocator, buffers and pipelines), never the
+    /// device or instance.
+    ///
+    /// # Safety
+    ///
+    /// - `raw.device` must have been created from `raw.physical_device` of `raw.instance` with the features named
+    ///   by [`required_device_features`] enabled and the extensions of [`required_device_extensions`], and with a
+    ///   queue at `(queue_family_index, queue_index)` whose family supports compute.
+    /// - The instance and device must outlive the returned context and every buffer, kernel and recorder made
+    ///   from it.
+    /// - The convenience submission paths ([`Context::submit_and_wait`]) submit to that queue: the engine must not
+    ///   use the queue from another thread at the same time (Vulkan requires external synchronization of queues).
+    pub unsafe fn from_raw(raw: RawDevice) -> Result<Self> {
+        let caps = query_caps(&raw.instance, raw.physical_device);
+        let mut missing = caps.missing();
+        missing.retain(|m| !m.contains("compute queue"));
+        if !missing.is_empty() {
+            return Err(GpuError::Unsupported { name: caps.name.clone(), missing });
+        }
+        let mut caps = caps;
+        caps.queue_family = Some(raw.queue_family_index);
+        // SAFETY: per this function's contract.
+        let families = unsafe { raw.instance.get_physical_device_queue_family_properties(raw.physical_device) };
+        caps.timestamp_valid_bits =
+            families.get(raw.queue_family_index as usize).map(|f| f.timestamp_valid_bits).unwrap_or(0);
+        if caps.timestamp_valid_bits == 0 {
+            return Err(GpuError::Unsupported {
+                name: caps.name,
+                missing: vec!["timestamps on the given queue".into()],
+            });
+        }
+        let messages = Arc::new(Mutex::new(Vec::new()));
+        Self::finish(
+            raw.instance,
+            raw.device,
+            raw.physical_device,
+            raw.queue_family_index,
+            raw.queue_index,
+            caps,
+            None,
+            messages,
+        )
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn finish(
+        instance: ash::Instance,
+        device: ash::Device,
+        pdev: vk::PhysicalDevice,
+        family: u32,
+        queue_index: u32,
+        caps: DeviceCaps,
+        owned: Option<Owned>,
+        messages: Messages,
+    ) -> Result<Self> {
+        let destroy_owned = |device: &ash::Device, instance: &ash::Instance, owned: Option<Owned>| {
+            if let Some(owned) = owned {
+                // SAFETY: the device and instance are ours and nothing else was created from them.
+                unsafe {
+                    device.destroy_device(None);
+                    if let Some((du, m, ptr)) = owned.debug {
+                        du.destroy_debug_utils_messenger(m, None);
+                        drop(Box::from_raw(ptr));
+                    }
+                    instance.destroy_instance(None);
+                }
+            }
+        };
+        // SAFETY: valid device and queue family/index (ours, or the engine's per from_raw's contract).
+        let queue = unsafe { device.get_device_queue(family, queue_index) };
+        let pool_info = vk::CommandPoolCreateInfo::default()
+            .queue_family_index(family)
+            .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER | vk::CommandPoolCreateFlags::TRANSIENT);
+        // SAFETY: valid device.
+        let pool = match unsafe { device.create_command_pool(&pool_info, None) } {
+            Ok(p) => p,
+            Err(result) => {
+                destroy_owned(&device, &instance, owned);
+                return Err(GpuError::Vk { call: "vkCreateCommandPool", result });
+            }
+        };
+        let mut debug_settings = gpu_allocator::AllocatorDebugSettings::default();
+        debug_settings.log_leaks_on_shutdown = true;
+        let allocator = Allocator::new(&AllocatorCreateDesc {
+            instance: instance.clone(),
+            device: device.clone(),
+            physical_device: pdev,
+            debug_settings,
+            buffer_device_address: true,
+            allocation_sizes: Default::default(),
+        });
+        let allocator = match allocator {
+            Ok(a) => a,
+            Err(e) => {
+                // SAFETY: the pool is ours.
+                unsafe { device.destroy_command_pool(pool, None) };
+                destroy_owned(&device, &instance, owned);
+                return Err(GpuError::Alloc { name: "allocator".into(), bytes: 0, source: e });
+            }
+        };
+        Ok(Context {
+            inner: Arc::new(Inner {
+                instance,
+                device,
+                physical_device: pdev,
+                queue: Mutex::new(queue),
+                queue_family: family,
+                caps,
+                allocator: ManuallyDrop::new(Mutex::new(allocator)),
+                pool: Mutex::new(pool),
+                owned,
+                messages,
+            }),
+        })
+    }
+
+    /// The device's capabilities and limits.
+    pub fn caps(&self) -> &DeviceCaps {
+        &self.inner.caps
+    }
+
+    /// The logical device (for engines that record the engine's work into their own command buffers).
+    pub fn device(&self) -> &ash::Device {
+        &self.inner.device
+    }
+
+    /// The physical device.
+    pub fn physical_device(&self) -> vk::PhysicalDevice {
+        self.inner.physical_device
+    }
+
+    /// The queue family the context submits to.
+    pub fn queue_family(&self) -> u32 {
+        self.inner.queue_family
+    }
+
+    /// Every warning and error the validation layer reported so far (empty without validation).
+    pub fn validation_messages(&self) -> Vec<String> {
+        lock(&self.inner.messages).clone()
+    }
+
+    /// Records one command buffer with `record`, submits it, waits for it, and returns what `record` returned.
+    pub fn submit_and_wait<T>(&self, record: impl FnOnce(&mut super::Recorder<'_>) -> Result<T>) -> Result<T> {
+        let dev = &self.inner.device;
+        let pool = lock(&self.inner.pool);
+        let alloc = vk::CommandBufferAllocateInfo::default()
+            .command_pool(*pool)
+            .level(vk::CommandBufferLevel::PRIMARY)
+            .command_buffer_count(1);
+        // SAFETY: the pool is externally synchronized by its mutex, held until the command buffer is freed.
+        let cmd = vk_check("vkAllocateCommandBuffers", unsafe { dev.allocate_command_buffers(&alloc) })?[0];
+        let result = (|| {
+            let begin = vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+            // SAFETY: fresh command buffer from our pool.
+            vk_check("vkBeginCommandBuffer", unsafe { dev.begin_command_buffer(cmd, &begin) })?;
+            let mut rec = super::Recorder::new(self, cmd);
+            let value = record(&mut rec)?;
+            // SAFETY: recording state.
+            vk_check("vkEndCommandBuffer", unsafe { dev.end_command_buffer(cmd) })?;
+            // SAFETY: valid device.
+            let fence = vk_check("vkCreateFence", unsafe { dev.create_fence(&vk::FenceCreateInfo::default(), None) })?;
+            let cmds = [cmd];
+            let submit = [vk::SubmitInfo::default().command_buffers(&cmds)];
+            let waited = {
+                let queue = lock(&self.inner.queue);
+                // SAFETY: the queue is externally synchronized by its mutex; the command buffer is executable.
+                vk_check("vkQueueSubmit", unsafe { dev.queue_submit(*queue, &submit, fence) }).and_then(|_| {
+                    // SAFETY: fence from this device.
+                    vk_check("vkWaitForFences", unsafe { dev.wait_for_fences(&[fence], true, u64::MAX) })
+                })
+            };
+            // SAFETY: the fence is signalled or was never submitted.
+            unsafe { dev.destroy_fence(fence, None) };
+            waited?;
+            Ok(value)
+        })();
+        // SAFETY: the command buffer is not pending (waited, or never submitted).
+        unsafe { dev.free_command_buffers(*pool, &[cmd]) };
+        result
+    }
+}
+
+pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}

@@ -1,0 +1,188 @@
+use super::context::Inner;
+use super::shaders::PushConstants;
+use super::{vk_check, Buffer, Context, Kernel, Result};
+use ash::vk;
+use std::sync::Arc;
+
+/// Records the engine's passes into a command buffer: one the engine owns ([`Recorder::new`]) or one of
+/// [`Context::submit_and_wait`].
+///
+/// Synchronization is explicit: [`Recorder::barrier`] makes every earlier compute and transfer write visible to
+/// every later compute and transfer access; the engine's multi-pass operations insert it between their passes and
+/// document what they expect before and after.
+pub struct Recorder<'a> {
+    ctx: &'a Context,
+    cmd: vk::CommandBuffer,
+}
+
+impl<'a> Recorder<'a> {
+    /// Wraps a command buffer in the recording state. It must come from a pool of a queue family with compute
+    /// support on the context's device; the caller submits it and keeps every buffer and kernel used alive until
+    /// it completes.
+    pub fn new(ctx: &'a Context, cmd: vk::CommandBuffer) -> Self {
+        Recorder { ctx, cmd }
+    }
+
+    /// The command buffer.
+    pub fn command_buffer(&self) -> vk::CommandBuffer {
+        self.cmd
+    }
+
+    /// The context.
+    pub fn context(&self) -> &'a Context {
+        self.ctx
+    }
+
+    fn dev(&self) -> &ash::Device {
+        &self.ctx.inner.device
+    }
+
+    /// Dispatches `groups` workgroups of `kernel` (x only; the engine's kernels loop over tiles, so callers clamp
+    /// `groups` with [`Recorder::groups_for`]).
+    pub fn dispatch<P: PushConstants>(&mut self, kernel: &Kernel<P>, push: &P, groups: u32) {
+        let dev = self.dev();
+        // SAFETY: recording command buffer; pipeline and layout of this device; push size checked at creation.
+        unsafe {
+            dev.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, kernel.pipeline);
+            let size = kernel.shader().push_constant_size as usize;
+            if size > 0 {
+                let bytes = &bytemuck::bytes_of(push)[..size];
+                dev.cmd_push_constants(self.cmd, kernel.layout, vk::ShaderStageFlags::COMPUTE, 0, bytes);
+            }
+            dev.cmd_dispatch(self.cmd, groups.max(1), 1, 1);
+        }
+    }
+
+    /// Workgroups to dispatch for `items` items at `per_group` items per workgroup, clamped to the device's
+    /// `maxComputeWorkGroupCount[0]` (kernels loop over the remaining tiles).
+    pub fn groups_for(&self, items: u64, per_group: u64) -> u32 {
+        let needed = items.div_ceil(per_group.max(1)).max(1);
+        needed.min(self.ctx.caps().max_workgroup_count[0] as u64) as u32
+    }
+
+    /// Full compute/transfer memory barrier: every earlier shader or transfer write is visible to every later
+    /// shader or transfer access.
+    pub fn barrier(&mut self) {
+        let mb = [vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE)
+            .dst_access_mask(
+                vk::AccessFlags::SHADER_READ
+                    | vk::AccessFlags::SHADER_WRITE
+                    | vk::AccessFlags::TRANSFER_READ
+                    | vk::AccessFlags::TRANSFER_WRITE,
+            )];
+        let stages = vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER;
+        // SAFETY: recording command buffer.
+        unsafe {
+            self.dev().cmd_pipeline_barrier(self.cmd, stages, stages, vk::DependencyFlags::empty(), &mb, &[], &[])
+        };
+    }
+
+    /// Makes earlier shader and transfer writes visible to the host (after the submission's fence).
+    pub fn host_read_barrier(&mut self) {
+        let mb = [vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE)
+            .dst_access_mask(vk::AccessFlags::HOST_READ)];
+        // SAFETY: recording command buffer.
+        unsafe {
+            self.dev().cmd_pipeline_barrier(
+                self.cmd,
+                vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER,
+                vk::PipelineStageFlags::HOST,
+                vk::DependencyFlags::empty(),
+                &mb,
+                &[],
+                &[],
+            )
+        };
+    }
+
+    /// Fills `bytes` bytes (a multiple of 4, or `None` for the rest) of `buffer` from `offset` with `value`.
+    pub fn fill(&mut self, buffer: &Buffer, offset: u64, bytes: Option<u64>, value: u32) {
+        let size = bytes.unwrap_or(vk::WHOLE_SIZE);
+        // SAFETY: recording command buffer; buffer has TRANSFER_DST usage.
+        unsafe { self.dev().cmd_fill_buffer(self.cmd, buffer.handle(), offset, size, value) };
+    }
+
+    /// Copies `bytes` bytes from `src` at `src_offset` to `dst` at `dst_offset`.
+    pub fn copy(&mut self, src: &Buffer, src_offset: u64, dst: &Buffer, dst_offset: u64, bytes: u64) {
+        if bytes == 0 {
+            return;
+        }
+        let region = [vk::BufferCopy { src_offset, dst_offset, size: bytes }];
+        // SAFETY: recording command buffer; buffers with transfer usage; caller keeps ranges inside the buffers.
+        unsafe { self.dev().cmd_copy_buffer(self.cmd, src.handle(), dst.handle(), &region) };
+    }
+
+    /// Resets `timer` (must be recorded before its first [`Recorder::timestamp`] in this command buffer).
+    pub fn reset_timer(&mut self, timer: &mut Timer) {
+        timer.names.clear();
+        // SAFETY: recording command buffer; query pool of this device.
+        unsafe { self.dev().cmd_reset_query_pool(self.cmd, timer.pool, 0, timer.capacity) };
+    }
+
+    /// Writes a timestamp named `name` after all earlier work completes. Pass times are differences of consecutive
+    /// timestamps (see [`Timer::read`]). Timestamps past the timer's capacity are dropped.
+    pub fn timestamp(&mut self, timer: &mut Timer, name: &str) {
+        if timer.names.len() as u32 >= timer.capacity {
+            return;
+        }
+        let q = timer.names.len() as u32;
+        timer.names.push(name.to_string());
+        // SAFETY: recording command buffer; query index inside the pool, reset earlier in this command buffer.
+        unsafe { self.dev().cmd_write_timestamp(self.cmd, vk::PipelineStageFlags::ALL_COMMANDS, timer.pool, q) };
+    }
+}
+
+/// A pool of timestamp queries: GPU time of each pass.
+pub struct Timer {
+    ctx: Arc<Inner>,
+    pool: vk::QueryPool,
+    capacity: u32,
+    names: Vec<String>,
+}
+
+impl Timer {
+    /// A timer with room for `capacity` timestamps.
+    pub fn new(ctx: &Context, capacity: u32) -> Result<Self> {
+        let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(capacity);
+        // SAFETY: valid device.
+        let pool = vk_check("vkCreateQueryPool", unsafe { ctx.device().create_query_pool(&info, None) })?;
+        Ok(Timer { ctx: ctx.inner.clone(), pool, capacity, names: Vec::new() })
+    }
+
+    /// After the command buffer completed: `(name, milliseconds since the previous timestamp)` for every timestamp
+    /// but the first.
+    pub fn read(&self) -> Result<Vec<(String, f64)>> {
+        let n = self.names.len();
+        if n < 2 {
+            return Ok(Vec::new());
+        }
+        let mut ticks = vec![0u64; n];
+        // SAFETY: queries written by a completed command buffer (callers read after waiting).
+        vk_check("vkGetQueryPoolResults", unsafe {
+            self.ctx.device.get_query_pool_results(
+                self.pool,
+                0,
+                &mut ticks,
+                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+            )
+        })?;
+        let bits = self.ctx.caps.timestamp_valid_bits;
+        let mask = if bits >= 64 { u64::MAX } else { (1u64 << bits) - 1 };
+        let period = self.ctx.caps.timestamp_period as f64;
+        Ok((1..n)
+            .map(|i| {
+                let dt = (ticks[i] & mask).wrapping_sub(ticks[i - 1] & mask) & mask;
+                (self.names[i].clone(), dt as f64 * period * 1e-6)
+            })
+            .collect())
+    }
+}
+
+impl Drop for Timer {
+    fn drop(&mut self) {
+        // SAFETY: query pool of this device, not in use (callers wait before dropping).
+        unsafe { self.ctx.device.destroy_query_pool(self.pool, None) };
+    }
+}

@@ -1,0 +1,484 @@
+//! The characterization passes of `SPEC.md` on the GPU, producing only exact quantities (bounds, codes, their
+//! minimum, maximum and exact power sums, classes, the histogram and the exact chi-square numerator). The host-side
+//! meaning of those numbers (moments, `k`, p-values) lives in [`crate::characterize`].
+//!
+//! Three submissions per mesh or frame, because the host computes what the next pass needs: the quantization scale
+//! after the bounds (SPEC step 3 forbids device division), and `k` with its class thresholds after the moments.
+
+use crate::gpu::{shaders, Buffer, Context, GpuError, Kernel, KernelDesc, MemoryKind, Result, Timer};
+use crate::keys::{from_ordered_bits, quantization_scale, MortonBits};
+
+/// Items per invocation and tile in the per-triangle passes.
+const ITEMS: u32 = 8;
+/// Limbs of the exact sums: 4 for S1, 7 for S2, 10 for S3 (see `glsl/include/wide.glsl`).
+pub const LIMBS: [usize; 3] = [4, 7, 10];
+const NLIMBS: usize = 21;
+/// Largest class count the histogram kernel privatizes in shared memory.
+pub const MAX_GPU_CLASSES: u32 = 4096;
+
+// Byte offsets inside the small result buffer.
+const OFF_BOUNDS: u64 = 0; // uint[6]
+const OFF_MORTON: u64 = 64; // uint64[2 + NLIMBS]
+const OFF_CHI: u64 = OFF_MORTON + 8 * (2 + NLIMBS as u64); // uint64[5]
+const OFF_HIST: u64 = OFF_CHI + 64; // uint[k]
+const RESULT_BYTES: u64 = OFF_HIST + 4 * MAX_GPU_CLASSES as u64;
+
+/// Push constants of `glsl/keys_bounds.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct KeysPush {
+    /// Address of the vertex positions (f32 xyz).
+    pub positions: u64,
+    /// Address of the triangle indices (u32 triples).
+    pub indices: u64,
+    /// Address of the output keys (f32 xyz per sampled triangle).
+    pub keys: u64,
+    /// Address of the `uint[6]` bounds.
+    pub result: u64,
+    /// Sampled triangles.
+    pub count: u64,
+    /// Sample stride.
+    pub stride: u64,
+}
+crate::push_layout!(KeysPush { positions, indices, keys, result, count, stride });
+
+/// Push constants of `glsl/morton_moments.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct MortonPush {
+    /// Address of the keys.
+    pub keys: u64,
+    /// Address of the output codes (u32 for 30-bit, u64 for 63-bit codes).
+    pub codes: u64,
+    /// Address of the `uint64[2 + 21]` result.
+    pub result: u64,
+    /// Number of keys.
+    pub count: u64,
+    /// `lo.x`.
+    pub lo_x: f32,
+    /// `lo.y`.
+    pub lo_y: f32,
+    /// `lo.z`.
+    pub lo_z: f32,
+    /// `scale.x`.
+    pub scale_x: f32,
+    /// `scale.y`.
+    pub scale_y: f32,
+    /// `scale.z`.
+    pub scale_z: f32,
+}
+crate::push_layout!(MortonPush { keys, codes, result, count, lo_x, lo_y, lo_z, scale_x, scale_y, scale_z });
+
+/// Push constants of `glsl/classes_histogram.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct ClassesPush {
+    /// Address of the codes.
+    pub codes: u64,
+    /// Address of the output classes (u32 per code).
+    pub classes: u64,
+    /// Address of the `k - 1` thresholds (u64).
+    pub thresholds: u64,
+    /// Address of the `uint[k]` histogram.
+    pub hist: u64,
+    /// Number of codes.
+    pub count: u64,
+    /// Smallest code.
+    pub code_min: u64,
+    /// Class count.
+    pub k: u32,
+    /// Padding.
+    pub pad: u32,
+}
+crate::push_layout!(ClassesPush { codes, classes, thresholds, hist, count, code_min, k, pad });
+
+/// Push constants of `glsl/chi_square.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct ChiPush {
+    /// Address of the histogram.
+    pub hist: u64,
+    /// Address of the `uint64[5]` output.
+    pub out_addr: u64,
+    /// Number of codes.
+    pub n: u64,
+    /// Class count.
+    pub k: u32,
+    /// Padding.
+    pub pad: u32,
+}
+crate::push_layout!(ChiPush { hist, out_addr, n, k, pad });
+
+/// A mesh on the device: positions and indices, addressable by the kernels (and by a host engine).
+#[derive(Debug)]
+pub struct MeshBuffers {
+    /// Vertex positions, f32 xyz.
+    pub positions: Buffer,
+    /// Triangle indices, u32 triples.
+    pub indices: Buffer,
+    /// Number of vertices.
+    pub vertices: u64,
+    /// Number of triangles.
+    pub triangles: u64,
+}
+
+impl MeshBuffers {
+    /// Uploads positions and indices.
+    pub fn upload(ctx: &Context, positions: &[[f32; 3]], indices: &[[u32; 3]]) -> Result<Self> {
+        let p = if positions.is_empty() { &[[0.0f32; 3]][..] } else { positions };
+        let i = if indices.is_empty() { &[[0u32; 3]][..] } else { indices };
+        Ok(MeshBuffers {
+            positions: ctx.upload("positions", p)?,
+            indices: ctx.upload("indices", i)?,
+            vertices: positions.len() as u64,
+            triangles: indices.len() as u64,
+        })
+    }
+
+    /// Replaces the positions (same vertex count): the next frame of an animation.
+    pub fn update_positions(&self, ctx: &Context, positions: &[[f32; 3]]) -> Result<()> {
+        if positions.len() as u64 != self.vertices {
+            return Err(GpuError::Buffer(format!(
+                "frame has {} vertices, the mesh on the device {}",
+                positions.len(),
+                self.vertices
+            )));
+        }
+        ctx.write_buffer(&self.positions, 0, positions)
+    }
+}
+
+/// What the host decides between the moment pass and the class pass: the class count and its thresholds.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ClassPlan {
+    /// `k`.
+    pub k: u32,
+    /// `t_j = ceil(j (m_max - m_min) / k)` for `j = 1 .. k - 1`.
+    pub thresholds: Vec<u64>,
+}
+
+/// Exact results of the moment pass.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CodeSums {
+    /// Number of codes.
+    pub n: u64,
+    /// Smallest code.
+    pub code_min: u64,
+    /// Largest code.
+    pub code_max: u64,
+    /// `S1`, `S2`, `S3` as little-endian 24-bit limbs (each limb may exceed 24 bits; its weight is `2^(24 j)`).
+    pub limbs: [Vec<u64>; 3],
+}
+
+/// Everything the GPU computed for one mesh or frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GpuCharacterization {
+    /// Sampled triangles `n`.
+    pub n: u64,
+    /// Bounds of the keys.
+    pub lo: [f32; 3],
+    /// Bounds of the keys.
+    pub hi: [f32; 3],
+    /// The moment pass.
+    pub sums: CodeSums,
+    /// The class plan used.
+    pub plan: ClassPlan,
+    /// Histogram of classes.
+    pub histogram: Vec<u64>,
+    /// `T = sum (k O_i - n)^2`.
+    pub chi_numerator: u128,
+    /// Classes with no triangle.
+    pub empty_classes: u32,
+    /// Classes with `k O_i > n`.
+    pub concentrated_classes: u32,
+    /// Triangles in concentrated classes.
+    pub concentrated_triangles: u64,
+    /// Codes and classes read back, when asked for.
+    pub per_triangle: Option<(Vec<u64>, Vec<u32>)>,
+    /// GPU time of each pass (ms), from timestamps.
+    pub timings: Vec<(String, f64)>,
+}
+
+/// Errors of the GPU characterization that are about the input, not the device.
+#[derive(Debug, thiserror::Error)]
+pub enum InputError {
+    /// Nothing to characterize.
+    #[error("no triangles to characterize")]
+    Empty,
+    /// Centroid keys overflow f32 or their range does.
+    #[error("coordinates too large for f32 centroid keys: bounds {lo:?} .. {hi:?}")]
+    Overflow {
+        /// Lower bound of the keys.
+        lo: [f32; 3],
+        /// Upper bound of the keys.
+        hi: [f32; 3],
+    },
+    /// Too many triangles for 32-bit class counts.
+    #[error("{0} sampled triangles: at most 2^32 - 1 are supported")]
+    TooMany(u64),
+    /// The class plan is unusable.
+    #[error("class plan: {0}")]
+    Plan(String),
+}
+
+/// Error of [`CharacterizeGpu::run`].
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// Device failure.
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    /// Bad input.
+    #[error(transparent)]
+    Input(#[from] InputError),
+}
+
+struct Scratch {
+    capacity: u64,
+    keys: Buffer,
+    codes: Buffer,
+    classes: Buffer,
+}
+
+/// The characterization pipelines and their buffers, reused across meshes and frames (buffers grow when needed).
+pub struct CharacterizeGpu {
+    ctx: Context,
+    keys: Kernel<KeysPush>,
+    morton: [Kernel<MortonPush>; 2],
+    classes: [Kernel<ClassesPush>; 2],
+    chi: Kernel<ChiPush>,
+    max_k: u32,
+    result: Buffer,
+    thresholds: Buffer,
+    readback: Buffer,
+    scratch: Option<Scratch>,
+    timer: Timer,
+}
+
+impl CharacterizeGpu {
+    /// Builds the pipelines for the context's device.
+    pub fn new(ctx: &Context) -> Result<Self> {
+        let caps = ctx.caps();
+        // Shared memory: the histogram plus a margin for the compiler's own use.
+        let max_k = MAX_GPU_CLASSES.min((caps.max_shared_memory / 4).saturating_sub(256)).max(1);
+        let mk = |bits63: u32| -> Result<(Kernel<MortonPush>, Kernel<ClassesPush>)> {
+            Ok((
+                Kernel::new(
+                    ctx,
+                    &KernelDesc::new(&shaders::morton_moments::INFO)
+                        .constant("ITEMS", ITEMS)
+                        .constant("BITS63", bits63),
+                )?,
+                Kernel::new(
+                    ctx,
+                    &KernelDesc::new(&shaders::classes_histogram::INFO)
+                        .constant("ITEMS", ITEMS)
+                        .constant("BITS63", bits63)
+                        .constant("MAX_K", max_k),
+                )?,
+            ))
+        };
+        let (m30, c30) = mk(0)?;
+        let (m63, c63) = mk(1)?;
+        Ok(CharacterizeGpu {
+            ctx: ctx.clone(),
+            keys: Kernel::new(ctx, &KernelDesc::new(&shaders::keys_bounds::INFO).constant("ITEMS", ITEMS))?,
+            morton: [m30, m63],
+            classes: [c30, c63],
+            chi: Kernel::new(ctx, &KernelDesc::new(&shaders::chi_square::INFO))?,
+            max_k,
+            result: ctx.create_buffer("characterize result", RESULT_BYTES, MemoryKind::DeviceLocal)?,
+            thresholds: ctx.create_buffer("class thresholds", 8 * max_k as u64, MemoryKind::Upload)?,
+            readback: ctx.create_buffer("characterize readback", RESULT_BYTES, MemoryKind::Readback)?,
+            scratch: None,
+            timer: Timer::new(ctx, 16)?,
+        })
+    }
+
+    /// Largest class count this device's histogram kernel accepts.
+    pub fn max_classes(&self) -> u32 {
+        self.max_k
+    }
+
+    fn scratch(&mut self, n: u64) -> Result<&Scratch> {
+        if self.scratch.as_ref().is_none_or(|s| s.capacity < n) {
+            self.scratch = None; // free the old buffers first
+            let ctx = &self.ctx;
+            self.scratch = Some(Scratch {
+                capacity: n,
+                keys: ctx.create_buffer("keys", 12 * n, MemoryKind::DeviceLocal)?,
+                codes: ctx.create_buffer("codes", 8 * n, MemoryKind::DeviceLocal)?,
+                classes: ctx.create_buffer("classes", 4 * n, MemoryKind::DeviceLocal)?,
+            });
+        }
+        self.scratch.as_ref().ok_or_else(|| GpuError::Buffer("scratch".into()))
+    }
+
+    /// The device buffers of the last run's keys (f32 xyz), codes (u32 or u64) and classes (u32), for later passes
+    /// (a BVH builder, a renderer of classes). `None` before the first run.
+    pub fn device_arrays(&self) -> Option<(&Buffer, &Buffer, &Buffer)> {
+        self.scratch.as_ref().map(|s| (&s.keys, &s.codes, &s.classes))
+    }
+
+    /// Characterizes the mesh on the device: every `stride`-th triangle, `bits` Morton codes; `plan` turns the exact
+    /// code sums into the class count and thresholds (see [`crate::characterize`]). With `read_back`, the codes and
+    /// classes are copied to the host too.
+    pub fn run(
+        &mut self,
+        mesh: &MeshBuffers,
+        bits: MortonBits,
+        stride: u64,
+        plan: &dyn Fn(&CodeSums) -> std::result::Result<ClassPlan, String>,
+        read_back: bool,
+    ) -> std::result::Result<GpuCharacterization, RunError> {
+        let stride = stride.max(1);
+        let n = mesh.triangles.div_ceil(stride);
+        if n == 0 {
+            return Err(InputError::Empty.into());
+        }
+        if n > u32::MAX as u64 {
+            return Err(InputError::TooMany(n).into());
+        }
+        let b63 = usize::from(bits == MortonBits::Bits63);
+        self.scratch(n)?;
+        let ctx = self.ctx.clone();
+        let (scratch, timer) = match (&self.scratch, &mut self.timer) {
+            (Some(s), t) => (s, t),
+            (None, _) => return Err(GpuError::Buffer("scratch".into()).into()),
+        };
+        let (result, readback) = (&self.result, &self.readback);
+        let wg = self.keys.workgroup_size() as u64;
+        let per_group = wg * ITEMS as u64;
+
+        // Pass 1: keys and bounds.
+        ctx.submit_and_wait(|rec| {
+            rec.reset_timer(timer);
+            rec.fill(result, OFF_BOUNDS, Some(12), u32::MAX);
+            rec.fill(result, OFF_BOUNDS + 12, Some(12), 0);
+            rec.barrier();
+            rec.timestamp(timer, "-");
+            let push = KeysPush {
+                positions: mesh.positions.address(),
+                indices: mesh.indices.address(),
+                keys: scratch.keys.address(),
+                result: result.address() + OFF_BOUNDS,
+                count: n,
+                stride,
+            };
+            let groups = rec.groups_for(n, per_group);
+            rec.dispatch(&self.keys, &push, groups);
+            rec.timestamp(timer, "keys_bounds");
+            rec.barrier();
+            rec.copy(result, OFF_BOUNDS, readback, OFF_BOUNDS, 24);
+            rec.host_read_barrier();
+            Ok(())
+        })?;
+        let u: Vec<u32> = readback.read(OFF_BOUNDS, 6)?;
+        let lo = [from_ordered_bits(u[0]), from_ordered_bits(u[1]), from_ordered_bits(u[2])];
+        let hi = [from_ordered_bits(u[3]), from_ordered_bits(u[4]), from_ordered_bits(u[5])];
+        let finite = lo.iter().chain(hi.iter()).all(|x| x.is_finite());
+        let scale = quantization_scale(lo, hi, bits).filter(|_| finite).ok_or(InputError::Overflow { lo, hi })?;
+
+        // Pass 2: codes, their range and exact power sums.
+        ctx.submit_and_wait(|rec| {
+            rec.fill(result, OFF_MORTON, Some(8), u32::MAX);
+            rec.fill(result, OFF_MORTON + 8, Some(8 * (1 + NLIMBS as u64)), 0);
+            rec.barrier();
+            rec.timestamp(timer, "-");
+            let push = MortonPush {
+                keys: scratch.keys.address(),
+                codes: scratch.codes.address(),
+                result: result.address() + OFF_MORTON,
+                count: n,
+                lo_x: lo[0],
+                lo_y: lo[1],
+                lo_z: lo[2],
+                scale_x: scale[0],
+                scale_y: scale[1],
+                scale_z: scale[2],
+            };
+            let groups = rec.groups_for(n, per_group);
+            rec.dispatch(&self.morton[b63], &push, groups);
+            rec.timestamp(timer, "morton_moments");
+            rec.barrier();
+            rec.copy(result, OFF_MORTON, readback, OFF_MORTON, 8 * (2 + NLIMBS as u64));
+            rec.host_read_barrier();
+            Ok(())
+        })?;
+        let m: Vec<u64> = readback.read(OFF_MORTON, 2 + NLIMBS)?;
+        let limbs = [
+            m[2..2 + LIMBS[0]].to_vec(),
+            m[2 + LIMBS[0]..2 + LIMBS[0] + LIMBS[1]].to_vec(),
+            m[2 + LIMBS[0] + LIMBS[1]..2 + NLIMBS].to_vec(),
+        ];
+        let sums = CodeSums { n, code_min: m[0], code_max: m[1], limbs };
+        let class_plan = plan(&sums).map_err(InputError::Plan)?;
+        let k = class_plan.k;
+        if k == 0 || k > self.max_k || class_plan.thresholds.len() != k as usize - 1 {
+            return Err(InputError::Plan(format!(
+                "k = {k} with {} thresholds (this device supports k <= {})",
+                class_plan.thresholds.len(),
+                self.max_k
+            ))
+            .into());
+        }
+        self.thresholds.write(0, &class_plan.thresholds)?;
+
+        // Pass 3: classes, histogram, chi-square numerator.
+        let thresholds = &self.thresholds;
+        ctx.submit_and_wait(|rec| {
+            rec.fill(result, OFF_HIST, Some(4 * k as u64), 0);
+            rec.barrier();
+            rec.timestamp(timer, "-");
+            let push = ClassesPush {
+                codes: scratch.codes.address(),
+                classes: scratch.classes.address(),
+                thresholds: thresholds.address(),
+                hist: result.address() + OFF_HIST,
+                count: n,
+                code_min: sums.code_min,
+                k,
+                pad: 0,
+            };
+            let groups = rec.groups_for(n, per_group);
+            rec.dispatch(&self.classes[b63], &push, groups);
+            rec.timestamp(timer, "classes_histogram");
+            rec.barrier();
+            let push =
+                ChiPush { hist: result.address() + OFF_HIST, out_addr: result.address() + OFF_CHI, n, k, pad: 0 };
+            rec.dispatch(&self.chi, &push, 1);
+            rec.timestamp(timer, "chi_square");
+            rec.barrier();
+            rec.copy(result, OFF_CHI, readback, OFF_CHI, 40);
+            rec.copy(result, OFF_HIST, readback, OFF_HIST, 4 * k as u64);
+            rec.host_read_barrier();
+            Ok(())
+        })?;
+        let chi: Vec<u64> = readback.read(OFF_CHI, 5)?;
+        let hist: Vec<u32> = readback.read(OFF_HIST, k as usize)?;
+        let timings = timer.read()?.into_iter().filter(|(name, _)| name != "-").collect();
+        let per_triangle = if read_back {
+            let codes: Vec<u64> = if b63 == 1 {
+                ctx.read_buffer(&scratch.codes, 0, n as usize)?
+            } else {
+                ctx.read_buffer::<u32>(&scratch.codes, 0, n as usize)?.into_iter().map(u64::from).collect()
+            };
+            Some((codes, ctx.read_buffer(&scratch.classes, 0, n as usize)?))
+        } else {
+            None
+        };
+        Ok(GpuCharacterization {
+            n,
+            lo,
+            hi,
+            sums,
+            plan: class_plan,
+            histogram: hist.into_iter().map(u64::from).collect(),
+            chi_numerator: (chi[1] as u128) << 64 | chi[0] as u128,
+            empty_classes: chi[2] as u32,
+            concentrated_classes: chi[3] as u32,
+            concentrated_triangles: chi[4],
+            per_triangle,
+            timings,
+        })
+    }
+}

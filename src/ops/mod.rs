@@ -1,0 +1,7 @@
+//! GPU operations built on [`crate::gpu`]: each one owns its kernels, records into a [`Recorder`](crate::gpu::Recorder)
+//! the engine may own, and has a convenience path that submits and waits.
+
+mod bounds;
+pub mod characterize;
+
+pub use bounds::{BoundsPush, PointBounds};

@@ -1,0 +1,106 @@
+//! The first kernel end to end: bounds of point sets on the GPU equal the CPU's exactly.
+
+mod gpu_support;
+
+use meshchar::gpu::{shaders, Context};
+use meshchar::keys::{max_total, min_total};
+use meshchar::ops::PointBounds;
+
+fn cpu_bounds(p: &[[f32; 3]]) -> Option<([f32; 3], [f32; 3])> {
+    let first = *p.first()?;
+    let (mut lo, mut hi) = (first, first);
+    for q in p {
+        for a in 0..3 {
+            lo[a] = min_total(lo[a], q[a]);
+            hi[a] = max_total(hi[a], q[a]);
+        }
+    }
+    Some((lo, hi))
+}
+
+fn gpu_bounds(ctx: &Context, op: &PointBounds, p: &[[f32; 3]]) -> Option<([f32; 3], [f32; 3])> {
+    let buf = ctx.upload("points", if p.is_empty() { &[[0.0f32; 3]][..] } else { p }).expect("upload");
+    op.run(ctx, &buf, p.len() as u64).expect("bounds")
+}
+
+fn bits(b: Option<([f32; 3], [f32; 3])>) -> Option<([u32; 3], [u32; 3])> {
+    b.map(|(lo, hi)| (lo.map(f32::to_bits), hi.map(f32::to_bits)))
+}
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    fn f(&mut self) -> f32 {
+        // Finite floats of every magnitude and sign, zeros of both signs included.
+        loop {
+            let x = f32::from_bits(self.next() as u32);
+            if x.is_finite() {
+                return x;
+            }
+        }
+    }
+}
+
+#[test]
+fn bounds_match_cpu_for_edge_counts() {
+    let Some(ctx) = gpu_support::context() else { return };
+    let op = PointBounds::new(&ctx).expect("pipeline");
+    let mut rng = Rng(7);
+    let wg = ctx.caps().workgroup_size() as usize;
+    let counts = [0usize, 1, 2, 3, wg - 1, wg, wg + 1, 8 * wg - 1, 8 * wg + 1, 100_003, (1 << 20) + 3];
+    for &n in &counts {
+        let p: Vec<[f32; 3]> = (0..n).map(|_| [rng.f(), rng.f(), rng.f()]).collect();
+        assert_eq!(bits(gpu_bounds(&ctx, &op, &p)), bits(cpu_bounds(&p)), "n = {n}");
+    }
+    gpu_support::assert_no_validation_messages(&ctx);
+}
+
+#[test]
+fn bounds_signed_zeros_and_extremes() {
+    let Some(ctx) = gpu_support::context() else { return };
+    let op = PointBounds::new(&ctx).expect("pipeline");
+    let cases: Vec<Vec<[f32; 3]>> = vec![
+        vec![[0.0, -0.0, 0.0], [-0.0, 0.0, 0.0]],
+        vec![[f32::MAX, f32::MIN, f32::MIN_POSITIVE]; 5],
+        vec![[1e-45, -1e-45, 0.0], [3.0e38, -3.0e38, 1e30]],
+    ];
+    for p in &cases {
+        assert_eq!(bits(gpu_bounds(&ctx, &op, p)), bits(cpu_bounds(p)), "{p:?}");
+    }
+    gpu_support::assert_no_validation_messages(&ctx);
+}
+
+#[test]
+fn bounds_more_workgroups_than_one_dispatch_dimension() {
+    let Some(ctx) = gpu_support::context() else { return };
+    // One item per invocation and a tiny workgroup make (2^20 + 3) points need more workgroups than lavapipe's
+    // 65,535 per dimension, which exercises the tile loop.
+    let sg = ctx.caps().max_subgroup_size;
+    let op = PointBounds::with_tuning(&ctx, Some(sg), 1).expect("pipeline");
+    let mut rng = Rng(11);
+    let n = (1usize << 20) + 3;
+    let p: Vec<[f32; 3]> = (0..n).map(|_| [rng.f(), rng.f(), rng.f()]).collect();
+    let buf = ctx.upload("points", &p).expect("upload");
+    assert_eq!(bits(op.run(&ctx, &buf, n as u64).expect("bounds")), bits(cpu_bounds(&p)));
+    let tiles = (n as u64).div_ceil(sg as u64);
+    let limit = ctx.caps().max_workgroup_count[0] as u64;
+    eprintln!("{n} points: {tiles} tiles, dispatch limit {limit}");
+    gpu_support::assert_no_validation_messages(&ctx);
+}
+
+#[test]
+fn every_push_constant_struct_matches_its_shader() {
+    use meshchar::gpu::check_push_layout;
+    check_push_layout::<meshchar::ops::BoundsPush>(&shaders::bounds::INFO).expect("bounds");
+    // Every shader is reflected with an entry point and a local size.
+    for s in shaders::ALL {
+        assert_eq!(s.entry, "main", "{}", s.name);
+        assert!(s.local_size_spec_ids[0].is_some(), "{} must take its workgroup size from the device", s.name);
+    }
+}
