@@ -9,7 +9,7 @@ pub mod generate;
 pub mod load;
 
 pub use error::MeshError;
-pub use load::{load_animation, load_mesh, load_path};
+pub use load::{load_animation, load_mesh, load_path, parse_mesh, MeshFormat};
 
 use glam::Vec3;
 
