@@ -31,11 +31,11 @@ pub enum MeshError {
     /// A triangle refers to a vertex that does not exist.
     #[error("{file}: triangle {triangle} refers to vertex {index}, but there are only {vertices} vertices")]
     IndexOutOfRange {
-        /// The file or mesh name.
+        /// The file or mesh name; loaders append `:line` when the file is text (OBJ, ascii PLY).
         file: String,
-        /// The triangle.
+        /// The triangle (its index in the loaded mesh, after polygons are split into triangles).
         triangle: usize,
-        /// The bad index.
+        /// The bad index, as written in the file (1-based for OBJ, 0-based for PLY and meshes).
         index: u64,
         /// How many vertices exist.
         vertices: usize,
@@ -43,9 +43,9 @@ pub enum MeshError {
     /// A coordinate is NaN or infinite.
     #[error("{file}: vertex {vertex} has a non-finite coordinate {value:?}")]
     NonFinite {
-        /// The file or mesh name.
+        /// The file or mesh name; loaders append `:line` when the file is text (OBJ, ascii PLY).
         file: String,
-        /// The vertex.
+        /// The vertex, counted from 0 in file order (for OBJ, the `v` statements).
         vertex: usize,
         /// Its position.
         value: [f32; 3],

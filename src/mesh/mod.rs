@@ -2,14 +2,17 @@
 //!
 //! A [`Mesh`] is a list of f32 vertex positions and a list of `u32` index triples, with an optional object id per
 //! triangle (kept when an OBJ file with several objects is merged). An [`Animation`] is an ordered list of frames that
-//! share one topology. Loaders live in [`load`]; synthetic scenes in [`generate`].
+//! share one topology. Loaders live in [`load`]; synthetic scenes in [`generate`]; [`default_scene`] and
+//! [`default_teapot`] are compiled into the crate.
 
+mod embedded;
 mod error;
 pub mod generate;
 pub mod load;
 
+pub use embedded::{default_scene, default_teapot};
 pub use error::MeshError;
-pub use load::{load_animation, load_mesh, load_path};
+pub use load::{load_animation, load_mesh, load_path, parse_mesh, MeshFormat};
 
 use glam::Vec3;
 

@@ -1,0 +1,42 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// The shared test meshes, `<CARGO_MANIFEST_DIR>/../shared/meshes`. Panics (the test fails, it never skips) when the
+/// folder is missing.
+pub fn shared_meshes() -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join("shared").join("meshes");
+    assert!(
+        dir.is_dir(),
+        "the shared test meshes are missing: expected the folder {} (shared/ beside the checkout)",
+        dir.display()
+    );
+    dir
+}
+
+/// A shared mesh file by its path relative to [`shared_meshes`]; panics naming it when it is missing.
+pub fn shared_mesh(rel: &str) -> PathBuf {
+    let p = shared_meshes().join(rel);
+    assert!(p.is_file(), "shared test mesh missing: {}", p.display());
+    p
+}
+
+/// A fresh, empty directory under the system temp dir, unique to this process and call.
+pub fn temp_dir(label: &str) -> PathBuf {
+    static COUNTER: AtomicUsize = AtomicUsize::new(0);
+    let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+    let nanos =
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.subsec_nanos()).unwrap_or(0);
+    let dir = std::env::temp_dir().join(format!("meshchar-test-{}-{label}-{n}-{nanos}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Writes `bytes` to `name` in a fresh temp directory and returns the file's path.
+pub fn temp_file(name: &str, bytes: &[u8]) -> PathBuf {
+    let p = temp_dir(name).join(name);
+    std::fs::write(&p, bytes).unwrap();
+    p
+}

@@ -1,0 +1,794 @@
+//! Loaders (OBJ, PLY, animations), their errors, the embedded scenes and the generators.
+
+mod common;
+
+use common::{shared_mesh, shared_meshes, temp_dir, temp_file};
+use meshchar::mesh::generate;
+use meshchar::mesh::{
+    default_scene, default_teapot, load_animation, load_mesh, load_path, parse_mesh, Mesh, MeshError, MeshFormat,
+};
+use std::path::Path;
+
+// ------------------------------------------------------------------------------------------------------------------
+// Shared meshes: exact counts (../shared/meshes/README.md, checked with shared/tools/meshstat.py)
+// ------------------------------------------------------------------------------------------------------------------
+
+fn load(rel: &str) -> Mesh {
+    let p = shared_mesh(rel);
+    load_mesh(&p).unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn bbox(m: &Mesh) -> ([f32; 3], [f32; 3]) {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in &m.positions {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    (lo, hi)
+}
+
+fn assert_close(a: [f32; 3], b: [f64; 3]) {
+    for k in 0..3 {
+        assert!((f64::from(a[k]) - b[k]).abs() < 1e-5, "{a:?} vs {b:?}");
+    }
+}
+
+#[test]
+fn stanford_bunny_ply_ascii_with_extra_vertex_properties() {
+    let m = load("stanford-bunny/bun_zipper.ply");
+    assert_eq!(m.triangle_count(), 69_451);
+    assert_eq!(m.positions.len(), 35_947);
+    assert_eq!(m.object_ids, None);
+    let (lo, hi) = bbox(&m);
+    assert_close(lo, [-0.09469, 0.032987, -0.061874]);
+    assert_close(hi, [0.061009, 0.187321, 0.0588]);
+    for (rel, n) in [
+        ("stanford-bunny/bun_zipper_res2.ply", 16_301),
+        ("stanford-bunny/bun_zipper_res3.ply", 3_851),
+        ("stanford-bunny/bun_zipper_res4.ply", 948),
+    ] {
+        assert_eq!(load(rel).triangle_count(), n, "{rel}");
+    }
+}
+
+#[test]
+fn stanford_dragon_ply_ascii_871k() {
+    let m = load("stanford-dragon/dragon_vrip.ply");
+    assert_eq!(m.triangle_count(), 871_414);
+    assert_eq!(m.positions.len(), 437_645);
+}
+
+#[test]
+fn igea_ply_triangle_strips() {
+    let m = load("scans/igea.ply");
+    assert_eq!(m.triangle_count(), 268_686);
+    assert_eq!(m.positions.len(), 134_345);
+    assert_eq!(m.zero_area_count(), 0);
+    let (lo, hi) = bbox(&m);
+    assert_close(lo, [-0.034556, -0.049669, -0.049538]);
+    assert_close(hi, [0.034556, 0.049669, 0.049538]);
+}
+
+#[test]
+fn sponza_obj_groups_become_objects() {
+    let m = load("dabrovic-sponza/sponza.obj");
+    assert_eq!(m.triangle_count(), 66_454);
+    let ids = m.object_ids.as_ref().expect("sponza has several groups");
+    assert_eq!(ids.len(), m.triangle_count());
+    assert!(ids.windows(2).all(|w| w[0] <= w[1]), "object ids follow file order");
+    assert!(*ids.last().unwrap() > 10);
+    let (lo, hi) = bbox(&m);
+    assert_close(lo, [-17.40276, -0.906689, -7.798512]);
+    assert_close(hi, [17.41724, 15.653312, 7.801489]);
+}
+
+#[test]
+fn conference_obj_331k_with_zero_area_triangles() {
+    let m = load("conference/conference.obj");
+    assert_eq!(m.triangle_count(), 331_179);
+    assert_eq!(m.zero_area_count(), 53_627);
+}
+
+#[test]
+fn other_obj_scans_and_small_meshes() {
+    for (rel, n) in [
+        ("sibenik/sibenik.obj", 75_284),
+        ("scans/nefertiti.obj", 99_938),
+        ("scans/happy-buddha-100k.obj", 100_000),
+        ("scans/lucy-52k.obj", 52_591),
+        ("scans/horse.obj", 96_966),
+        ("small/suzanne.obj", 968), // quads
+        ("small/cow.obj", 5_804),
+        ("small/spot.obj", 5_856),
+        ("small/fandisk.obj", 12_946),
+        ("small/homer.obj", 12_000),
+        ("small/rocker-arm.obj", 20_088),
+        ("small/teapot-pd.obj", 992),
+        ("small/bunny-lowres-pd.obj", 3_674),
+    ] {
+        assert_eq!(load(rel).triangle_count(), n, "{rel}");
+    }
+    let ogre = load("scans/ogre.obj");
+    assert_eq!(ogre.triangle_count(), 124_008);
+    assert_eq!(ogre.zero_area_count(), 4);
+}
+
+#[test]
+fn dragon_lower_resolutions() {
+    for (rel, n) in [
+        ("stanford-dragon/dragon_vrip_res2.ply", 202_520),
+        ("stanford-dragon/dragon_vrip_res3.ply", 47_794),
+        ("stanford-dragon/dragon_vrip_res4.ply", 11_102),
+    ] {
+        assert_eq!(load(rel).triangle_count(), n, "{rel}");
+    }
+}
+
+#[test]
+fn bart_museum5_directory_is_a_31_frame_animation() {
+    let dir = shared_meshes().join("bart/museum5");
+    let anim = load_path(&dir).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(anim.frames.len(), 31);
+    assert!(anim.is_dynamic());
+    assert_eq!(anim.name, dir.display().to_string());
+    for f in &anim.frames {
+        assert_eq!(f.triangle_count(), 11_308, "{}", f.name);
+    }
+    assert!(anim.frames[0].name.ends_with("museum5_f0000.obj"));
+    assert!(anim.frames[30].name.ends_with("museum5_f0299.obj"));
+    assert_ne!(anim.frames[0].positions, anim.frames[30].positions, "the scene moves");
+}
+
+#[test]
+fn single_file_is_a_one_frame_animation() {
+    let p = shared_mesh("small/teapot-pd.obj");
+    let anim = load_path(&p).unwrap();
+    assert_eq!(anim.frames.len(), 1);
+    assert!(!anim.is_dynamic());
+    assert_eq!(anim.frames[0].triangle_count(), 992);
+}
+
+// ------------------------------------------------------------------------------------------------------------------
+// Embedded scenes
+// ------------------------------------------------------------------------------------------------------------------
+
+#[test]
+fn embedded_scenes_match_the_shared_files() {
+    let bunny = default_scene();
+    assert_eq!(bunny.triangle_count(), 3_674);
+    assert_eq!(bunny.positions.len(), 1_839);
+    let teapot = default_teapot();
+    assert_eq!(teapot.triangle_count(), 992);
+    assert_eq!(teapot.positions.len(), 792);
+    let file = load("small/bunny-lowres-pd.obj");
+    assert_eq!(file.positions, bunny.positions);
+    assert_eq!(file.indices, bunny.indices);
+}
+
+// ------------------------------------------------------------------------------------------------------------------
+// OBJ details
+// ------------------------------------------------------------------------------------------------------------------
+
+#[test]
+fn obj_polygons_fan_relative_indices_polylines_and_objects() {
+    let text = "# test\n\
+                v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0.5 0.5 1\n\
+                o first\n\
+                f 1/1/1 2 3 4\n\
+                l 1 2 3\n\
+                p 1\n\
+                f 1 2\n\
+                o second\n\
+                f -5 -4 -1\n";
+    let p = temp_file("fan.obj", text.as_bytes());
+    let m = load_mesh(&p).unwrap();
+    assert_eq!(m.name, p.display().to_string());
+    assert_eq!(m.triangle_count(), 3, "quad -> 2, polyline, point and segment -> 0, triangle -> 1");
+    let tris: Vec<[[f32; 3]; 3]> = (0..3).map(|i| m.triangle(i).map(|v| v.to_array())).collect();
+    assert_eq!(tris[0], [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]]);
+    assert_eq!(tris[1], [[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]]);
+    assert_eq!(tris[2], [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, 0.5, 1.0]]);
+    assert_eq!(m.object_ids, Some(vec![0, 0, 1]));
+}
+
+#[test]
+fn empty_obj_is_a_valid_empty_mesh() {
+    let p = temp_file("empty.obj", b"# nothing here\n");
+    let m = load_mesh(&p).unwrap();
+    assert_eq!(m.triangle_count(), 0);
+    assert!(m.validate().is_ok());
+}
+
+#[test]
+fn format_is_sniffed_without_extension() {
+    let obj = temp_file("noext_obj", b"# a triangle\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    assert_eq!(load_mesh(&obj).unwrap().triangle_count(), 1);
+    let ply = temp_file("noext_ply.dat", &ply_bytes(&PlySpec::new(Enc::Le)));
+    assert_eq!(load_mesh(&ply).unwrap().triangle_count(), 7);
+    let upper = temp_file("UPPER.OBJ", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    assert_eq!(load_mesh(&upper).unwrap().triangle_count(), 1);
+}
+
+// ------------------------------------------------------------------------------------------------------------------
+// Errors: every message names the file and the place
+// ------------------------------------------------------------------------------------------------------------------
+
+fn err_of(p: &Path) -> (MeshError, String) {
+    match load_mesh(p) {
+        Ok(m) => panic!("{} loaded ({} triangles) but should fail", p.display(), m.triangle_count()),
+        Err(e) => {
+            let msg = e.to_string();
+            assert!(msg.contains(&p.display().to_string()), "message does not name the file: {msg}");
+            (e, msg)
+        }
+    }
+}
+
+#[test]
+fn obj_index_out_of_range_names_line_and_triangle() {
+    let p = temp_file("oob.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n");
+    let (e, msg) = err_of(&p);
+    match e {
+        MeshError::IndexOutOfRange { triangle, index, vertices, .. } => {
+            assert_eq!((triangle, index, vertices), (1, 9, 3));
+        }
+        other => panic!("wrong error {other:?}"),
+    }
+    assert!(msg.contains(&format!("{}:5", p.display())), "{msg}");
+    assert!(msg.contains("triangle 1"), "{msg}");
+
+    let p = temp_file("zero.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n");
+    let (e, msg) = err_of(&p);
+    assert!(matches!(e, MeshError::Parse { .. }), "{e:?}");
+    assert!(msg.contains("line 4"), "{msg}");
+}
+
+#[test]
+fn ply_index_out_of_range_names_triangle() {
+    for enc in [Enc::Ascii, Enc::Le, Enc::Be] {
+        let mut spec = PlySpec::new(enc);
+        spec.faces[4] = vec![3, 4, 6]; // 6 vertices: index 6 is one past the end
+        let p = temp_file("oob.ply", &ply_bytes(&spec));
+        let (e, msg) = err_of(&p);
+        match e {
+            MeshError::IndexOutOfRange { triangle, index, vertices, .. } => {
+                assert_eq!((triangle, index, vertices), (6, 6, 6));
+            }
+            other => panic!("wrong error {other:?}"),
+        }
+        assert!(msg.contains("triangle 6"), "{msg}");
+        if enc == Enc::Ascii {
+            // 18 header lines, 6 vertex lines, face 4 is the 5th face line.
+            assert!(msg.contains(&format!("{}:29", p.display())), "{msg}");
+        }
+    }
+    let mut spec = PlySpec::new(Enc::Le);
+    spec.faces[0] = vec![0, -2, 1];
+    let (e, msg) = err_of(&temp_file("neg.ply", &ply_bytes(&spec)));
+    assert!(matches!(e, MeshError::Parse { .. }), "{e:?}");
+    assert!(msg.contains("element 'face' 0"), "{msg}");
+}
+
+#[test]
+fn obj_nan_and_infinite_coordinates() {
+    for (name, text, vertex, line) in [
+        ("nan.obj", "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n", 1, 2),
+        ("inf.obj", "# c\nv 0 0 0\nv 1 0 0\nv 0 1 -inf\nf 1 2 3\n", 2, 4),
+        ("big.obj", "v 1e39 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", 0, 1),
+    ] {
+        let p = temp_file(name, text.as_bytes());
+        let (e, msg) = err_of(&p);
+        match e {
+            MeshError::NonFinite { vertex: v, .. } => assert_eq!(v, vertex, "{msg}"),
+            other => panic!("wrong error {other:?}"),
+        }
+        assert!(msg.contains(&format!("{}:{line}", p.display())), "{msg}");
+        assert!(msg.contains(&format!("vertex {vertex}")), "{msg}");
+    }
+}
+
+#[test]
+fn ply_nan_and_infinite_coordinates() {
+    let mut spec = PlySpec::new(Enc::Le);
+    spec.verts[2][1] = f64::NAN;
+    let (e, msg) = err_of(&temp_file("nan.ply", &ply_bytes(&spec)));
+    assert!(matches!(e, MeshError::NonFinite { vertex: 2, .. }), "{e:?}");
+    assert!(msg.contains("vertex 2"), "{msg}");
+
+    let mut spec = PlySpec::new(Enc::Be);
+    spec.verts[5][0] = f64::NEG_INFINITY;
+    let (e, _) = err_of(&temp_file("inf.ply", &ply_bytes(&spec)));
+    assert!(matches!(e, MeshError::NonFinite { vertex: 5, .. }), "{e:?}");
+
+    // Ascii PLY cannot spell NaN or inf, but a literal beyond the f32 range reads as infinity, whether the property
+    // is a float or a double.
+    let text = String::from_utf8(ply_bytes(&PlySpec::new(Enc::Ascii))).unwrap();
+    assert!(text.contains("\n0 1 0 7\n"));
+    let p = temp_file("inf_ascii.ply", text.replace("\n0 1 0 7\n", "\n0 1 1e39 7\n").as_bytes());
+    let (e, msg) = err_of(&p);
+    assert!(matches!(e, MeshError::NonFinite { vertex: 3, .. }), "{e:?}");
+    assert!(msg.contains(&format!("{}:22", p.display())), "{msg}");
+    let mut spec = PlySpec::new(Enc::Ascii);
+    spec.coord = Ty::Double;
+    spec.verts[3][2] = -1e39;
+    let (e, _) = err_of(&temp_file("inf_double.ply", &ply_bytes(&spec)));
+    assert!(matches!(e, MeshError::NonFinite { vertex: 3, .. }), "{e:?}");
+}
+
+#[test]
+fn missing_and_unreadable_files() {
+    let dir = temp_dir("missing");
+    let p = dir.join("does-not-exist.obj");
+    let (e, _) = err_of(&p);
+    assert!(matches!(e, MeshError::Io { .. }), "{e:?}");
+    // A directory is not a readable mesh file.
+    let d = dir.join("a-dir.ply");
+    std::fs::create_dir(&d).unwrap();
+    let (e, _) = err_of(&d);
+    assert!(matches!(e, MeshError::Io { .. }), "{e:?}");
+    assert!(load_path(&dir.join("nope")).is_err());
+}
+
+#[test]
+fn unknown_format() {
+    let p = temp_file("mesh.stl", b"solid cube\n  facet normal 0 0 1\n");
+    let (e, _) = err_of(&p);
+    assert!(matches!(e, MeshError::UnknownFormat { .. }), "{e:?}");
+    let p = temp_file("notes.txt", b"hello world\nthis is not a mesh\n");
+    assert!(matches!(err_of(&p).0, MeshError::UnknownFormat { .. }));
+    let p = temp_file("empty.bin", b"");
+    assert!(matches!(err_of(&p).0, MeshError::UnknownFormat { .. }));
+}
+
+/// Deterministic junk bytes.
+fn junk(len: usize, mut x: u64) -> Vec<u8> {
+    (0..len)
+        .map(|_| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 24) as u8
+        })
+        .collect()
+}
+
+#[test]
+fn garbage_is_an_error_not_a_panic() {
+    let g = junk(4096, 0x1234_5678);
+    let (e, msg) = err_of(&temp_file("garbage.ply", &g));
+    assert!(matches!(e, MeshError::Parse { .. }), "{e:?}");
+    assert!(msg.contains("header"), "{msg}");
+    let (e, msg) = err_of(&temp_file("garbage.obj", &g));
+    assert!(matches!(e, MeshError::Parse { .. }), "{e:?}");
+    assert!(msg.contains("line 1"), "{msg}");
+    assert!(matches!(err_of(&temp_file("garbage", &g)).0, MeshError::UnknownFormat { .. }));
+    let mut after_magic = b"ply\n".to_vec();
+    after_magic.extend_from_slice(&g);
+    assert!(matches!(err_of(&temp_file("garbage2.ply", &after_magic)).0, MeshError::Parse { .. }));
+    let mut header_then_junk = b"ply\nformat binary_little_endian 1.0\nelement vertex 1000\nproperty float x\n\
+                                  property float y\nproperty float z\nend_header\n"
+        .to_vec();
+    header_then_junk.extend_from_slice(&g);
+    let (e, msg) = err_of(&temp_file("short.ply", &header_then_junk));
+    assert!(matches!(e, MeshError::Parse { .. }), "{e:?}");
+    assert!(msg.contains("element 'vertex' 341"), "4096 bytes hold 341 vertices and a bit: {msg}");
+}
+
+#[test]
+fn mutated_files_never_panic() {
+    let ply = ply_bytes(&PlySpec::new(Enc::Le));
+    let ascii = ply_bytes(&PlySpec::new(Enc::Ascii));
+    let obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 1\nf 1 2 3\nf 2/1 3/1 4/1\ng x\nf -1 -2 -3 1\n".to_vec();
+    for (k, (bytes, format)) in
+        [(ply, MeshFormat::Ply), (ascii, MeshFormat::Ply), (obj, MeshFormat::Obj)].into_iter().enumerate()
+    {
+        let mut x = 0x9e37_79b9_7f4a_7c15u64 ^ k as u64;
+        for _ in 0..400 {
+            let mut b = bytes.clone();
+            for _ in 0..3 {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                let at = (x % b.len() as u64) as usize;
+                b[at] = (x >> 40) as u8;
+            }
+            if let Ok(m) = parse_mesh("mutant", &b, format) {
+                assert!(m.validate().is_ok());
+            }
+        }
+    }
+}
+
+#[test]
+fn truncated_binary_ply_names_the_element() {
+    for enc in [Enc::Le, Enc::Be] {
+        let full = ply_bytes(&PlySpec::new(enc));
+        assert!(parse_mesh("full", &full, MeshFormat::Ply).is_ok());
+        for len in 0..full.len() {
+            let r = parse_mesh("cut.ply", &full[..len], MeshFormat::Ply);
+            let e = r.err().unwrap_or_else(|| panic!("a file cut at {len} of {} bytes loaded", full.len()));
+            assert!(e.to_string().starts_with("cut.ply"), "{e}");
+        }
+        let header_len = full.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        // Cut in the middle of the first face (6 vertices of 3 floats and a uchar each come first).
+        let p = temp_file("truncated.ply", &full[..header_len + 6 * 13 + 3]);
+        let (e, msg) = err_of(&p);
+        assert!(matches!(e, MeshError::Parse { .. }), "{e:?}");
+        assert!(msg.contains("element 'face' 0"), "{msg}");
+    }
+}
+
+#[test]
+fn topology_mismatch_names_both_frames() {
+    let dir = temp_dir("anim");
+    let a = dir.join("f0.obj");
+    let b = dir.join("f1.obj");
+    std::fs::write(&a, "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\n").unwrap();
+    std::fs::write(&b, "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n").unwrap();
+    std::fs::write(dir.join("notes.txt"), "not a frame").unwrap();
+    for r in [load_path(&dir), load_animation(&[a.clone(), b.clone()])] {
+        let e = r.unwrap_err();
+        assert!(matches!(e, MeshError::TopologyMismatch { .. }), "{e:?}");
+        let msg = e.to_string();
+        assert!(msg.contains(&a.display().to_string()) && msg.contains(&b.display().to_string()), "{msg}");
+    }
+    // Same topology, moved vertices: fine, and the text file is not a frame.
+    std::fs::write(&b, "v 0 0 1\nv 1 0 1\nv 0 1 1\nv 1 1 1\nf 1 2 3\n").unwrap();
+    let anim = load_path(&dir).unwrap();
+    assert_eq!(anim.frames.len(), 2);
+    // A frame that fails to load names its file.
+    std::fs::write(&b, "v 0 0 1\nv 1 0 1\nf 1 2 3\n").unwrap();
+    assert!(load_path(&dir).unwrap_err().to_string().contains(&b.display().to_string()));
+
+    let empty = temp_dir("empty-anim");
+    std::fs::write(empty.join("readme.md"), "nothing").unwrap();
+    let e = load_path(&empty).unwrap_err();
+    assert!(e.to_string().contains(&empty.display().to_string()), "{e}");
+}
+
+// ------------------------------------------------------------------------------------------------------------------
+// PLY encodings and types
+// ------------------------------------------------------------------------------------------------------------------
+
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum Enc {
+    Ascii,
+    Le,
+    Be,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Ty {
+    UChar,
+    UShort,
+    Int,
+    UInt,
+    Float,
+    Double,
+}
+
+impl Ty {
+    fn name(self) -> &'static str {
+        match self {
+            Ty::UChar => "uchar",
+            Ty::UShort => "ushort",
+            Ty::Int => "int",
+            Ty::UInt => "uint",
+            Ty::Float => "float",
+            Ty::Double => "double",
+        }
+    }
+
+    fn put(self, enc: Enc, v: f64, out: &mut Vec<u8>) {
+        if enc == Enc::Ascii {
+            let s = match self {
+                Ty::Float => format!("{}", v as f32),
+                Ty::Double => format!("{v}"),
+                _ => format!("{}", v as i64),
+            };
+            out.extend_from_slice(s.as_bytes());
+            out.push(b' ');
+            return;
+        }
+        macro_rules! bytes {
+            ($x:expr) => {
+                if enc == Enc::Le {
+                    out.extend_from_slice(&$x.to_le_bytes())
+                } else {
+                    out.extend_from_slice(&$x.to_be_bytes())
+                }
+            };
+        }
+        match self {
+            Ty::UChar => bytes!(v as u8),
+            Ty::UShort => bytes!(v as u16),
+            Ty::Int => bytes!(v as i32),
+            Ty::UInt => bytes!(v as u32),
+            Ty::Float => bytes!(v as f32),
+            Ty::Double => bytes!(v),
+        }
+    }
+}
+
+struct PlySpec {
+    enc: Enc,
+    coord: Ty,
+    count: Ty,
+    index: Ty,
+    element: &'static str,
+    verts: Vec<[f64; 3]>,
+    faces: Vec<Vec<i64>>,
+}
+
+impl PlySpec {
+    /// 6 vertices; a triangle, a quad, a pentagon, a segment (no triangle) and a triangle: 7 triangles.
+    fn new(enc: Enc) -> Self {
+        PlySpec {
+            enc,
+            coord: Ty::Float,
+            count: Ty::UChar,
+            index: Ty::Int,
+            element: "face",
+            verts: vec![
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [1.0, 1.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.5, 2.0, 0.25],
+                [-1.25, 0.5, 3.0],
+            ],
+            faces: vec![vec![0, 1, 2], vec![0, 1, 2, 3], vec![1, 2, 4, 5, 3], vec![0, 5], vec![3, 4, 5]],
+        }
+    }
+}
+
+/// A PLY file with an extra vertex property, an extra face property after the index list and an extra element, so
+/// that the loader must skip all three. Header: 18 lines.
+fn ply_bytes(s: &PlySpec) -> Vec<u8> {
+    let format = match s.enc {
+        Enc::Ascii => "ascii",
+        Enc::Le => "binary_little_endian",
+        Enc::Be => "binary_big_endian",
+    };
+    let c = s.coord.name();
+    let mut out = format!(
+        "ply\nformat {format} 1.0\ncomment written by the meshchar tests\nelement vertex {}\nproperty {c} x\n\
+         property {c} y\nproperty {c} z\nproperty uchar quality\nelement {} {}\n\
+         property list {} {} vertex_indices\nproperty int flags\nelement edge 2\nproperty int vertex1\n\
+         property int vertex2\nobj_info nothing\ncomment the end\ncomment of the header\nend_header\n",
+        s.verts.len(),
+        s.element,
+        s.faces.len(),
+        s.count.name(),
+        s.index.name()
+    )
+    .into_bytes();
+    let newline = |out: &mut Vec<u8>| {
+        if s.enc == Enc::Ascii {
+            out.pop();
+            out.push(b'\n');
+        }
+    };
+    for v in &s.verts {
+        for &x in v {
+            s.coord.put(s.enc, x, &mut out);
+        }
+        Ty::UChar.put(s.enc, 7.0, &mut out);
+        newline(&mut out);
+    }
+    for f in &s.faces {
+        s.count.put(s.enc, f.len() as f64, &mut out);
+        for &i in f {
+            s.index.put(s.enc, i as f64, &mut out);
+        }
+        Ty::Int.put(s.enc, -3.0, &mut out);
+        newline(&mut out);
+    }
+    for e in [[0.0, 1.0], [1.0, 2.0]] {
+        for x in e {
+            Ty::Int.put(s.enc, x, &mut out);
+        }
+        newline(&mut out);
+    }
+    out
+}
+
+#[test]
+fn ply_ascii_and_binary_encodings_give_identical_meshes() {
+    let expected_tris: Vec<[u32; 3]> =
+        vec![[0, 1, 2], [0, 1, 2], [0, 2, 3], [1, 2, 4], [1, 4, 5], [1, 5, 3], [3, 4, 5]];
+    let mut reference: Option<Mesh> = None;
+    let mut cases = 0;
+    for coord in [Ty::Float, Ty::Double] {
+        for count in [Ty::UChar, Ty::Int, Ty::UInt] {
+            for index in [Ty::UShort, Ty::Int, Ty::UInt] {
+                for enc in [Enc::Ascii, Enc::Le, Enc::Be] {
+                    let mut spec = PlySpec::new(enc);
+                    spec.coord = coord;
+                    spec.count = count;
+                    spec.index = index;
+                    let bytes = ply_bytes(&spec);
+                    let label = format!("{enc:?} {coord:?} list {count:?} {index:?}");
+                    let mut m =
+                        parse_mesh("enc.ply", &bytes, MeshFormat::Ply).unwrap_or_else(|e| panic!("{label}: {e}"));
+                    assert_eq!(m.indices, expected_tris, "{label}");
+                    m.name.clear();
+                    match &reference {
+                        None => reference = Some(m),
+                        Some(r) => assert_eq!(&m, r, "{label}"),
+                    }
+                    cases += 1;
+                }
+            }
+        }
+    }
+    assert_eq!(cases, 54);
+    let r = reference.unwrap();
+    assert_eq!(r.positions[5], [-1.25, 0.5, 3.0]);
+    // Through a file as well.
+    let p = temp_file("enc_be.ply", &ply_bytes(&PlySpec::new(Enc::Be)));
+    assert_eq!(load_mesh(&p).unwrap().indices, r.indices);
+}
+
+#[test]
+fn ply_tristrips_decode_with_restarts_and_alternating_winding() {
+    for enc in [Enc::Ascii, Enc::Le, Enc::Be] {
+        let mut spec = PlySpec::new(enc);
+        spec.element = "tristrips";
+        spec.count = Ty::Int;
+        spec.index = Ty::Int;
+        spec.verts = (0..8).map(|i| [i as f64, (i * i) as f64, 1.0]).collect();
+        spec.faces = vec![vec![0, 1, 2, 3, 4, -1, 5, 6, 7, -1, 0, 1], vec![7, 6, 5, 4]];
+        let m = parse_mesh("strips.ply", &ply_bytes(&spec), MeshFormat::Ply).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(m.indices, vec![[0, 1, 2], [2, 1, 3], [2, 3, 4], [5, 6, 7], [7, 6, 5], [5, 6, 4]], "{enc:?}");
+    }
+}
+
+// ------------------------------------------------------------------------------------------------------------------
+// Generators
+// ------------------------------------------------------------------------------------------------------------------
+
+fn centroid_keys(m: &Mesh) -> Vec<[f32; 3]> {
+    (0..m.triangle_count())
+        .map(|i| {
+            let [a, b, c] = m.triangle(i);
+            ((a + b) + c).to_array()
+        })
+        .collect()
+}
+
+#[test]
+fn generators_are_valid_and_deterministic() {
+    let all = [
+        generate::random_soup(500, 1),
+        generate::clustered(500, 7, 2),
+        generate::flat(500, 3),
+        generate::all_equal(50),
+        generate::single_triangle(),
+        generate::two_triangles(),
+        generate::collinear_centroids(100),
+        generate::teapot_in_stadium(4),
+        generate::long_thin_triangle(),
+        generate::overlapping_large(200, 5),
+        generate::zero_area(99, 6),
+    ];
+    for m in &all {
+        assert!(m.validate().is_ok(), "{}", m.name);
+        assert!(m.triangle_count() > 0, "{}", m.name);
+        assert!(m.positions.iter().flatten().all(|c| c.is_finite()), "{}", m.name);
+    }
+    assert_eq!(generate::random_soup(500, 1), all[0]);
+    assert_ne!(generate::random_soup(500, 99).positions, all[0].positions);
+    assert_eq!(generate::clustered(500, 7, 2), all[1]);
+    assert_eq!(generate::teapot_in_stadium(4), all[7]);
+    assert_eq!(generate::zero_area(99, 6), all[10]);
+}
+
+#[test]
+fn generator_properties() {
+    let soup = generate::random_soup(1000, 11);
+    assert_eq!(soup.triangle_count(), 1000);
+    assert!(soup.positions.iter().flatten().all(|&c| (0.0..=1.0).contains(&c)));
+
+    let flat = generate::flat(1000, 12);
+    assert!(flat.positions.iter().all(|p| p[2].to_bits() == 0), "z is +0.0 everywhere");
+    let (lo, hi) = bbox(&flat);
+    assert!(hi[0] > lo[0] && hi[1] > lo[1] && hi[2] == lo[2]);
+
+    let eq = generate::all_equal(64);
+    let keys = centroid_keys(&eq);
+    assert_eq!(keys.len(), 64);
+    assert!(keys.iter().all(|k| *k == keys[0]));
+
+    assert_eq!(generate::single_triangle().triangle_count(), 1);
+    let two = generate::two_triangles();
+    assert_eq!(two.triangle_count(), 2);
+    let keys = centroid_keys(&two);
+    assert_ne!(keys[0], keys[1]);
+
+    let col = generate::collinear_centroids(50);
+    assert!(centroid_keys(&col).iter().all(|k| k[1] == 0.0 && k[2] == 0.0));
+    assert_eq!(col.zero_area_count(), 0);
+
+    let za = generate::zero_area(300, 13);
+    assert_eq!(za.zero_area_count(), 300);
+
+    let big = generate::scaled(&soup, 1e30).unwrap();
+    let tiny = generate::scaled(&soup, 1e-30).unwrap();
+    assert!(bbox(&big).1[0] > 1e29 && bbox(&tiny).1[0] < 1e-29 && bbox(&tiny).1[0] > 0.0);
+    assert_eq!(big.indices, soup.indices);
+    assert!(matches!(generate::scaled(&soup, 1e39), Err(MeshError::NonFinite { .. })));
+
+    let dup = generate::duplicated(&default_teapot(), 3).unwrap();
+    assert_eq!(dup.triangle_count(), 3 * 992);
+    assert_eq!(dup.triangle(992), dup.triangle(0));
+    assert_eq!(generate::duplicated(&soup, 0).unwrap().triangle_count(), 0);
+
+    let stadium = generate::teapot_in_stadium(7);
+    assert_eq!(stadium.triangle_count(), 992 + 12);
+    let (lo, hi) = bbox(&stadium);
+    assert_eq!((lo, hi), ([-1e4; 3], [1e4; 3]));
+    let ids = stadium.object_ids.as_ref().unwrap();
+    assert_eq!(ids.iter().filter(|&&i| i == 1).count(), 12);
+    let teapot_box = bbox(&Mesh { positions: stadium.positions[..792].to_vec(), ..Default::default() });
+    let d: f32 = (0..3).map(|a| (teapot_box.1[a] - teapot_box.0[a]).powi(2)).sum::<f32>().sqrt();
+    assert!((d - 1.0).abs() < 1e-3, "teapot diagonal {d}");
+
+    let thin = generate::long_thin_triangle();
+    assert_eq!(thin.triangle_count(), 1001);
+    let [a, b, _] = thin.triangle(0);
+    assert!((b - a).length() > 1.7);
+
+    let ov = generate::overlapping_large(100, 14);
+    let mean_edge: f32 = (0..100).map(|i| (ov.triangle(i)[1] - ov.triangle(i)[0]).length()).sum::<f32>() / 100.0;
+    assert!(mean_edge > 0.4, "{mean_edge}");
+
+    let cl = generate::clustered(1000, 4, 15);
+    assert_eq!(cl.triangle_count(), 1000);
+    assert_eq!(generate::clustered(10, 0, 1).triangle_count(), 10);
+}
+
+#[test]
+fn subdivide_multiplies_triangles_by_four_per_level() {
+    let teapot = default_teapot();
+    for levels in 0..3u32 {
+        let s = generate::subdivide(&teapot, levels).unwrap();
+        assert_eq!(s.triangle_count(), 992 * 4usize.pow(levels));
+        assert!(s.validate().is_ok());
+        assert_eq!(bbox(&s), bbox(&teapot), "midpoints stay inside");
+    }
+    let one = generate::subdivide(&generate::single_triangle(), 1).unwrap();
+    assert_eq!(one.positions.len(), 6, "midpoints are shared");
+    let sponza_like = Mesh { object_ids: Some(vec![5]), ..generate::single_triangle() };
+    assert_eq!(generate::subdivide(&sponza_like, 2).unwrap().object_ids, Some(vec![5; 16]));
+}
+
+#[test]
+fn explode_starts_at_the_input_and_moves_along_normals() {
+    let bunny = default_scene();
+    let anim = generate::explode(&bunny, 5, 42).unwrap();
+    assert_eq!(anim.frames.len(), 5);
+    let f0 = &anim.frames[0];
+    assert_eq!(f0.triangle_count(), bunny.triangle_count());
+    for i in 0..bunny.triangle_count() {
+        assert_eq!(f0.triangle(i), bunny.triangle(i));
+    }
+    for f in &anim.frames {
+        assert_eq!(f.indices, f0.indices);
+        assert!(f.validate().is_ok());
+    }
+    for i in (0..bunny.triangle_count()).step_by(97) {
+        let [a, b, c] = bunny.triangle(i);
+        let n = (b - a).cross(c - a).normalize();
+        let d = anim.frames[4].triangle(i)[0] - a;
+        assert!(d.length() > 0.0);
+        assert!(d.normalize().dot(n) > 0.999, "triangle {i} moves along its normal");
+    }
+    assert_eq!(generate::explode(&bunny, 5, 42).unwrap(), anim);
+    assert_eq!(generate::explode(&bunny, 0, 1).unwrap().frames.len(), 1);
+    let za = generate::explode(&generate::zero_area(30, 1), 3, 2).unwrap();
+    assert!(za.frames[2].positions.iter().flatten().all(|c| c.is_finite()));
+}
