@@ -121,6 +121,7 @@ struct Reflected {
     push_size: u32,
     push_members: Vec<Member>,
     spec_constants: Vec<(String, u32)>,
+    structs: Vec<(String, Vec<Member>)>,
 }
 
 fn lit(op: &Operand) -> u32 {
@@ -340,7 +341,37 @@ fn reflect(m: &Module, file: &str) -> Reflected {
     spec_constants.sort_by_key(|s| s.1);
     spec_constants.dedup_by_key(|s| s.1);
 
-    Reflected { entry, local_size, local_size_ids, bindings, push_size, push_members, spec_constants }
+    // Every named struct with explicit member offsets (buffer blocks, buffer_reference blocks and the structs they
+    // contain), so host-side mirrors of GLSL structs can be checked member by member.
+    let mut structs = Vec::new();
+    for i in &m.types_global_values {
+        if i.class.opcode != Op::TypeStruct {
+            continue;
+        }
+        let id = i.result_id.unwrap_or(0);
+        let Some(name) = names.get(&id) else { continue };
+        if i.operands.is_empty() || !member_offsets.contains_key(&(id, 0)) {
+            continue;
+        }
+        let members = i
+            .operands
+            .iter()
+            .enumerate()
+            .map(|(mi, op)| {
+                let mi = mi as u32;
+                Member {
+                    name: member_names.get(&(id, mi)).cloned().unwrap_or_else(|| format!("member{mi}")),
+                    offset: member_offsets.get(&(id, mi)).copied().unwrap_or(0),
+                    size: size_of(lit(op), &defs, &member_offsets, &array_strides, file),
+                }
+            })
+            .collect();
+        if !structs.iter().any(|(n, _): &(String, Vec<Member>)| n == name) {
+            structs.push((name.clone(), members));
+        }
+    }
+
+    Reflected { entry, local_size, local_size_ids, bindings, push_size, push_members, spec_constants, structs }
 }
 
 fn emit(out: &mut String, name: &str, words: &[u32], r: &Reflected) {
@@ -384,6 +415,18 @@ fn emit(out: &mut String, name: &str, words: &[u32], r: &Reflected) {
     out.push_str("        ],\n        spec_constants: &[\n");
     for (n, id) in &r.spec_constants {
         let _ = writeln!(out, "            SpecConstantInfo {{ name: {n:?}, id: {id} }},");
+    }
+    out.push_str("        ],\n        structs: &[\n");
+    for (n, members) in &r.structs {
+        let _ = writeln!(out, "            StructInfo {{ name: {n:?}, members: &[");
+        for mbr in members {
+            let _ = writeln!(
+                out,
+                "                MemberInfo {{ name: {:?}, offset: {}, size: {} }},",
+                mbr.name, mbr.offset, mbr.size
+            );
+        }
+        out.push_str("            ] },\n");
     }
     out.push_str("        ],\n    };\n}\n\n");
 }

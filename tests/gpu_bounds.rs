@@ -97,10 +97,34 @@ fn bounds_more_workgroups_than_one_dispatch_dimension() {
 #[test]
 fn every_push_constant_struct_matches_its_shader() {
     use meshchar::gpu::check_push_layout;
+    use meshchar::ops::characterize::{ChiPush, ClassesPush, KeysPush, MortonPush};
     check_push_layout::<meshchar::ops::BoundsPush>(&shaders::bounds::INFO).expect("bounds");
+    check_push_layout::<KeysPush>(&shaders::keys_bounds::INFO).expect("keys_bounds");
+    check_push_layout::<MortonPush>(&shaders::morton_moments::INFO).expect("morton_moments");
+    check_push_layout::<ClassesPush>(&shaders::classes_histogram::INFO).expect("classes_histogram");
+    check_push_layout::<ChiPush>(&shaders::chi_square::INFO).expect("chi_square");
     // Every shader is reflected with an entry point and a local size.
     for s in shaders::ALL {
         assert_eq!(s.entry, "main", "{}", s.name);
         assert!(s.local_size_spec_ids[0].is_some(), "{} must take its workgroup size from the device", s.name);
     }
+}
+
+/// A Rust mirror with a member out of place must be rejected, both as push constants and as a struct.
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct Swapped {
+    result: u64,
+    points: u64,
+    count: u64,
+}
+meshchar::push_layout!(Swapped { result, points, count });
+
+#[test]
+fn layout_mismatches_are_caught() {
+    use meshchar::gpu::{check_push_layout, check_struct_layout};
+    let err = check_push_layout::<Swapped>(&shaders::bounds::INFO).expect_err("swapped members must not match");
+    assert!(err.contains("points"), "{err}");
+    assert!(check_struct_layout::<Swapped>(&shaders::bounds::INFO, "Push").is_err());
+    check_struct_layout::<meshchar::ops::BoundsPush>(&shaders::bounds::INFO, "Push").expect("the real mirror matches");
 }

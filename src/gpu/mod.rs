@@ -25,7 +25,7 @@ pub use context::{
 };
 pub use kernel::{Kernel, KernelDesc};
 pub use record::{Recorder, Timer};
-pub use shaders::{check_push_layout, PushConstants, ShaderInfo};
+pub use shaders::{check_push_layout, check_struct_layout, PushConstants, ShaderInfo};
 
 use ash::vk;
 

@@ -48,6 +48,15 @@ pub struct SpecConstantInfo {
     pub id: u32,
 }
 
+/// A struct declared in a shader with explicit member offsets (a buffer block or a struct inside one).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StructInfo {
+    /// Struct (or block) name in GLSL.
+    pub name: &'static str,
+    /// Members in declaration order.
+    pub members: &'static [MemberInfo],
+}
+
 /// Everything the engine needs to know about a compiled compute shader.
 #[derive(Clone, Copy, Debug)]
 pub struct ShaderInfo {
@@ -69,6 +78,8 @@ pub struct ShaderInfo {
     pub push_constant_members: &'static [MemberInfo],
     /// Specialization constants.
     pub spec_constants: &'static [SpecConstantInfo],
+    /// Structs with explicit layouts (buffer blocks and the structs inside them).
+    pub structs: &'static [StructInfo],
 }
 
 impl ShaderInfo {
@@ -78,10 +89,10 @@ impl ShaderInfo {
     }
 }
 
-/// A Rust struct that mirrors a shader's push-constant block.
+/// A Rust struct that mirrors a shader's push-constant block or another struct of a shader (a BVH node, say).
 ///
 /// Implement it with [`push_layout!`](crate::push_layout), which lists the members and their offsets so the engine
-/// can compare them with the reflected block.
+/// can compare them with the reflected block ([`check_push_layout`]) or struct ([`check_struct_layout`]).
 pub trait PushConstants: bytemuck::Pod {
     /// `(name, offset, size)` of every field, in declaration order.
     fn members() -> Vec<(&'static str, usize, usize)>;
@@ -129,6 +140,22 @@ pub fn check_push_layout<P: PushConstants>(info: &ShaderInfo) -> Result<(), Stri
             info.push_constant_size,
             describe()
         ));
+    }
+    Ok(())
+}
+
+/// Compares a Rust struct with the shader struct named `glsl_name`: same member names, offsets and sizes.
+pub fn check_struct_layout<P: PushConstants>(info: &ShaderInfo, glsl_name: &str) -> Result<(), String> {
+    let s = info
+        .structs
+        .iter()
+        .find(|s| s.name == glsl_name)
+        .ok_or_else(|| format!("shader {} has no struct {glsl_name}", info.name))?;
+    let rust = P::members();
+    let glsl: Vec<(&str, usize, usize)> =
+        s.members.iter().map(|m| (m.name, m.offset as usize, m.size as usize)).collect();
+    if rust != glsl {
+        return Err(format!("shader {} struct {glsl_name}: Rust {rust:?} against GLSL {glsl:?}", info.name));
     }
     Ok(())
 }
