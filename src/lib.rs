@@ -11,3 +11,4 @@ pub mod gpu;
 pub mod keys;
 pub mod mesh;
 pub mod ops;
+pub mod stats;
