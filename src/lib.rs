@@ -7,6 +7,7 @@
 #![deny(missing_docs)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
+pub mod characterize;
 pub mod gpu;
 pub mod keys;
 pub mod mesh;
