@@ -7,7 +7,9 @@
 #![deny(missing_docs)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
+pub mod characterize;
 pub mod gpu;
 pub mod keys;
 pub mod mesh;
 pub mod ops;
+pub mod stats;

@@ -1,0 +1,157 @@
+//! Characterizes meshes and animations (SPEC.md) and selects an acceleration structure for each.
+//!
+//! ```text
+//! cargo run --release --example characterize -- [FILE|DIR ...] [--json] [--backend vulkan|cpu|naive]
+//!     [--morton-bits 30|63] [--alpha A] [--sample-stride S] [--class-rule doane|sturges|sqrt|N]
+//! ```
+//!
+//! A FILE is a static mesh (.obj or .ply); a DIR holds the frames of an animation (one report per frame, `kind`
+//! dynamic when there is more than one). Without a path, the embedded default scene is characterized. Without
+//! `--json` the reports are printed for people; with it, one JSON object per mesh or frame per line.
+
+use meshchar::characterize::{
+    cpu, run, Backend, Characterization, ClassRule, MortonBits, Params, Policy, Report, SceneSummary, ThesisPolicy,
+};
+use meshchar::mesh::Animation;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+const USAGE: &str = "\
+usage: characterize [FILE|DIR ...] [options]
+
+  FILE                  a mesh (.obj, .ply): a static scene
+  DIR                   the frames of an animation, in name order: a dynamic scene, one report per frame
+  (none)                the embedded default scene
+
+options:
+  --json                one JSON object per mesh or frame per line (default: a report for people)
+  --backend B           vulkan, cpu or naive (default: cpu)
+  --morton-bits B       30 or 63 (default 30)
+  --alpha A             significance of the chi-square test, in (0, 1) (default 0.005)
+  --sample-stride S     characterize every S-th triangle only (default 1: all)
+  --class-rule R        doane, sturges, sqrt or a fixed number of classes (default doane)
+  -h, --help            this text";
+
+struct Args {
+    paths: Vec<PathBuf>,
+    json: bool,
+    backend: Backend,
+    params: Params,
+}
+
+fn parse_args(argv: Vec<String>) -> Result<Option<Args>, String> {
+    let mut args = Args { paths: Vec::new(), json: false, backend: Backend::Cpu, params: Params::default() };
+    let mut it = argv.into_iter();
+    while let Some(arg) = it.next() {
+        let (flag, inline) = match arg.split_once('=') {
+            Some((f, v)) if f.starts_with("--") => (f.to_string(), Some(v.to_string())),
+            _ => (arg.clone(), None),
+        };
+        let mut value = |name: &str| -> Result<String, String> {
+            inline.clone().or_else(|| it.next()).ok_or_else(|| format!("{name} needs a value"))
+        };
+        match flag.as_str() {
+            "-h" | "--help" => return Ok(None),
+            "--json" => args.json = true,
+            "--backend" => args.backend = value("--backend")?.parse().map_err(|e| format!("{e}"))?,
+            "--morton-bits" => {
+                let v = value("--morton-bits")?;
+                args.params.morton_bits = v
+                    .parse::<u32>()
+                    .ok()
+                    .and_then(MortonBits::from_total)
+                    .ok_or_else(|| format!("--morton-bits must be 30 or 63, got {v:?}"))?;
+            }
+            "--alpha" => {
+                let v = value("--alpha")?;
+                args.params.alpha = v.parse().map_err(|_| format!("--alpha must be a number, got {v:?}"))?;
+            }
+            "--sample-stride" => {
+                let v = value("--sample-stride")?;
+                args.params.sample_stride =
+                    v.parse().map_err(|_| format!("--sample-stride must be a positive integer, got {v:?}"))?;
+            }
+            "--class-rule" => {
+                args.params.class_rule = value("--class-rule")?.parse::<ClassRule>().map_err(|e| format!("{e}"))?;
+            }
+            f if f.starts_with('-') && f.len() > 1 => return Err(format!("unknown option {f}")),
+            _ => args.paths.push(PathBuf::from(arg)),
+        }
+    }
+    args.params.validate().map_err(|e| format!("{e}"))?;
+    Ok(Some(args))
+}
+
+/// The scene characterized when no path is given: the embedded low-resolution bunny.
+fn default_scene() -> Animation {
+    let mesh = meshchar::mesh::default_scene();
+    Animation { name: mesh.name.clone(), frames: vec![mesh] }
+}
+
+/// Characterizes every frame of a scene and prints one report per frame. Returns false after an error (printed).
+fn process(scene: &Animation, args: &Args) -> bool {
+    let mut results: Vec<Characterization> = Vec::with_capacity(scene.frames.len());
+    for frame in &scene.frames {
+        match run(frame, &args.params, args.backend) {
+            Ok(c) => results.push(c),
+            Err(e) => {
+                eprintln!("characterize: {e}");
+                return false;
+            }
+        }
+    }
+    let policy = ThesisPolicy::default();
+    let summary = SceneSummary::new(scene.name.clone(), &results);
+    let selection = policy.select(&summary);
+    let dynamic = scene.frames.len() > 1;
+    for (i, (frame, c)) in scene.frames.iter().zip(&results).enumerate() {
+        let mut report = Report::new(if dynamic { scene.name.clone() } else { frame.name.clone() }, c)
+            .selection(summary.kind, policy.name(), &selection)
+            .zero_area(cpu::zero_area_triangles(frame, args.params.sample_stride));
+        if dynamic {
+            report = report.frame(i, frame.name.clone());
+        }
+        if args.json {
+            println!("{}", report.to_json());
+        } else {
+            println!("{}", report.to_text());
+        }
+    }
+    true
+}
+
+fn main() -> ExitCode {
+    let args = match parse_args(std::env::args().skip(1).collect()) {
+        Ok(Some(a)) => a,
+        Ok(None) => {
+            println!("{USAGE}");
+            return ExitCode::SUCCESS;
+        }
+        Err(e) => {
+            eprintln!("characterize: {e}\n\n{USAGE}");
+            return ExitCode::from(2);
+        }
+    };
+    let mut ok = true;
+    if args.paths.is_empty() {
+        ok &= process(&default_scene(), &args);
+    }
+    for path in &args.paths {
+        match meshchar::mesh::load_path(path) {
+            Ok(scene) if scene.frames.is_empty() => {
+                eprintln!("characterize: {}: no frames found", path.display());
+                ok = false;
+            }
+            Ok(scene) => ok &= process(&scene, &args),
+            Err(e) => {
+                eprintln!("characterize: {e}");
+                ok = false;
+            }
+        }
+    }
+    if ok {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    }
+}

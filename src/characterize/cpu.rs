@@ -1,0 +1,439 @@
+//! The CPU paths of `SPEC.md`: [`naive`], a single-threaded transcription of the steps (the reference, and the
+//! thesis's "naive implementation" of Table 5.3), and [`fast`], chunked over rayon with fixed-width integer
+//! accumulators. Both produce the same [`Characterization`] bit for bit (timings, backend and device aside).
+
+use super::finalize::{self, class_from_thresholds, class_thresholds};
+use super::{CharError, Characterization, CodeStats, Params, PassTime, PerTriangle};
+use crate::keys::{self, MortonBits};
+use crate::mesh::Mesh;
+use num_bigint::BigUint;
+use num_traits::Zero;
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// Triangles per rayon task in [`fast`].
+const CHUNK: usize = 1 << 15;
+
+/// The CPU model (from `/proc/cpuinfo` where there is one) and the number of threads used.
+pub fn cpu_device_name(threads: usize) -> String {
+    let model = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split_once(':'))
+                .map(|(_, v)| v.trim().to_string())
+        })
+        .unwrap_or_else(|| std::env::consts::ARCH.to_string());
+    format!("{model} ({threads} thread{})", if threads == 1 { "" } else { "s" })
+}
+
+/// Number of sampled triangles: those with `i % stride == 0`.
+fn sample_count(total: usize, stride: usize) -> usize {
+    total.div_ceil(stride)
+}
+
+/// Checks `params` and `mesh`, and returns the number of sampled triangles (at least 1).
+fn check_input(mesh: &Mesh, params: &Params) -> Result<usize, CharError> {
+    params.validate()?;
+    mesh.validate()?;
+    let n = sample_count(mesh.triangle_count(), params.sample_stride as usize);
+    if n == 0 {
+        return Err(CharError::Empty { mesh: mesh.name.clone() });
+    }
+    Ok(n)
+}
+
+/// Step 1 for triangle `i` (indices are valid: the mesh was validated).
+#[inline]
+fn key_of(mesh: &Mesh, i: usize) -> [f32; 3] {
+    let [a, b, c] = mesh.indices[i];
+    let p = &mesh.positions;
+    keys::centroid_key(p[a as usize], p[b as usize], p[c as usize])
+}
+
+/// Step 3, host part, with the errors of an extent that f32 cannot quantize.
+fn scale_for(mesh: &Mesh, lo: [f32; 3], hi: [f32; 3], bits: MortonBits) -> Result<[f32; 3], CharError> {
+    let err = |reason: String| CharError::Extent { mesh: mesh.name.clone(), lo, hi, reason };
+    let scale = keys::quantization_scale(lo, hi, bits).ok_or_else(|| err("hi - lo overflows f32".into()))?;
+    for a in 0..3 {
+        if !scale[a].is_finite() {
+            return Err(err(format!(
+                "axis {a}: extent {} is so small that 2^{} / extent overflows f32",
+                hi[a] - lo[a],
+                bits.per_axis()
+            )));
+        }
+    }
+    Ok(scale)
+}
+
+fn pass(name: &str, t: Instant) -> PassTime {
+    PassTime { name: name.to_string(), ms: t.elapsed().as_secs_f64() * 1e3 }
+}
+
+/// Steps 5 to 10 on the host from the exact statistics: moments, `k`.
+fn moments_and_k(stats: &CodeStats, params: &Params) -> (super::Moments, u32) {
+    let m = finalize::moments(stats);
+    let k = finalize::class_count(params.class_rule, stats.n, &m, stats.code_min == stats.code_max);
+    (m, k)
+}
+
+/// The single-threaded reference: SPEC steps 1 to 10 written out one element at a time, power sums in `BigUint`.
+///
+/// Errors: invalid parameters, an invalid mesh (the error names the vertex), no (sampled) triangles, a centroid key
+/// that overflows f32, bounds that f32 cannot quantize.
+pub fn naive(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError> {
+    let start = Instant::now();
+    check_input(mesh, params)?;
+    let stride = params.sample_stride as usize;
+    let bits = params.morton_bits;
+    let b = bits.per_axis();
+    let mut timings = Vec::new();
+
+    // Steps 1 and 2: keys and bounds.
+    let t = Instant::now();
+    let mut keys_v: Vec<[f32; 3]> = Vec::new();
+    for i in (0..mesh.triangle_count()).step_by(stride) {
+        let key = key_of(mesh, i);
+        if !key.iter().all(|c| c.is_finite()) {
+            return Err(CharError::KeyOverflow { mesh: mesh.name.clone(), triangle: i, key });
+        }
+        keys_v.push(key);
+    }
+    let mut lo = keys_v[0];
+    let mut hi = keys_v[0];
+    for key in &keys_v {
+        for a in 0..3 {
+            lo[a] = keys::min_total(lo[a], key[a]);
+            hi[a] = keys::max_total(hi[a], key[a]);
+        }
+    }
+    timings.push(pass("keys_bounds", t));
+
+    // Steps 3 to 5: quantization, Morton codes by a bit loop, exact power sums.
+    let t = Instant::now();
+    let scale = scale_for(mesh, lo, hi, bits)?;
+    let top = ((1u32 << b) - 1) as f32;
+    let mut codes = Vec::with_capacity(keys_v.len());
+    let mut s1 = BigUint::zero();
+    let mut s2 = BigUint::zero();
+    let mut s3 = BigUint::zero();
+    for key in &keys_v {
+        let mut q = [0u32; 3];
+        for a in 0..3 {
+            q[a] = ((key[a] - lo[a]) * scale[a]).floor().min(top) as u32;
+        }
+        let mut code = 0u64;
+        for i in 0..b {
+            code |= u64::from((q[0] >> i) & 1) << (3 * i + 2);
+            code |= u64::from((q[1] >> i) & 1) << (3 * i + 1);
+            code |= u64::from((q[2] >> i) & 1) << (3 * i);
+        }
+        let m = BigUint::from(code);
+        s1 += &m;
+        s2 += &m * &m;
+        s3 += &m * &m * &m;
+        codes.push(code);
+    }
+    let stats = CodeStats {
+        n: codes.len() as u64,
+        code_min: codes.iter().copied().min().unwrap_or(0),
+        code_max: codes.iter().copied().max().unwrap_or(0),
+        s1,
+        s2,
+        s3,
+    };
+    let (moments, k) = moments_and_k(&stats, params);
+    timings.push(pass("morton_moments", t));
+
+    // Steps 7 and 8: classes by the u128 formula, histogram by counting.
+    let t = Instant::now();
+    let classes: Vec<u32> = codes.iter().map(|&c| finalize::class_of(c, stats.code_min, stats.code_max, k)).collect();
+    let mut histogram = vec![0u64; k as usize];
+    for &c in &classes {
+        histogram[c as usize] += 1;
+    }
+    timings.push(pass("classes_histogram", t));
+
+    // Steps 9 and 10.
+    let t = Instant::now();
+    let hstats = finalize::histogram_stats(&histogram, stats.n, params.alpha);
+    timings.push(pass("chi_square", t));
+    timings.push(pass("total", start));
+
+    Ok(Characterization {
+        total_triangles: mesh.triangle_count() as u64,
+        triangles: stats.n,
+        params: params.clone(),
+        lo,
+        hi,
+        code_stats: stats,
+        moments,
+        classes: k,
+        histogram,
+        stats: hstats,
+        per_triangle: params.keep_per_triangle.then_some(PerTriangle { codes, classes }),
+        timings,
+        backend: "naive".into(),
+        device: cpu_device_name(1),
+    })
+}
+
+/// A 256-bit unsigned accumulator (`hi * 2^128 + lo`).
+#[derive(Clone, Copy, Default)]
+struct U256 {
+    lo: u128,
+    hi: u128,
+}
+
+impl U256 {
+    #[inline]
+    fn add(&mut self, lo: u128, hi: u128) {
+        let (l, carry) = self.lo.overflowing_add(lo);
+        self.lo = l;
+        self.hi = self.hi.wrapping_add(hi).wrapping_add(u128::from(carry));
+    }
+    fn to_big(self) -> BigUint {
+        (BigUint::from(self.hi) << 128u32) + BigUint::from(self.lo)
+    }
+}
+
+/// Power sums and extremes of one chunk of codes.
+#[derive(Clone)]
+struct ChunkSums {
+    min: u64,
+    max: u64,
+    s1: u128,
+    s2: U256,
+    s3: U256,
+}
+
+impl ChunkSums {
+    /// 30-bit codes: `m^3 < 2^90`, so every sum of a chunk of at most 2^32 codes fits `u128`.
+    fn of_30(codes: &[u64]) -> ChunkSums {
+        let (mut min, mut max) = (u64::MAX, 0u64);
+        let (mut s1, mut s2, mut s3) = (0u64, 0u128, 0u128);
+        for &m in codes {
+            min = min.min(m);
+            max = max.max(m);
+            let m2 = m * m;
+            s1 += m;
+            s2 += u128::from(m2);
+            s3 += u128::from(m2) * u128::from(m);
+        }
+        ChunkSums { min, max, s1: s1.into(), s2: U256 { lo: s2, hi: 0 }, s3: U256 { lo: s3, hi: 0 } }
+    }
+
+    /// 63-bit codes: `m^2 < 2^126` in `u128`, `m^3 < 2^189` as a 192-bit product, sums in 256 bits.
+    fn of_63(codes: &[u64]) -> ChunkSums {
+        let (mut min, mut max) = (u64::MAX, 0u64);
+        let mut s1 = 0u128;
+        let mut s2 = U256::default();
+        let mut s3 = U256::default();
+        for &m in codes {
+            min = min.min(m);
+            max = max.max(m);
+            let mw = u128::from(m);
+            let m2 = mw * mw;
+            s1 += mw;
+            s2.add(m2, 0);
+            // m^3 = m2_lo * m + (m2_hi * m) << 64.
+            let p0 = (m2 as u64 as u128) * mw;
+            let p1 = ((m2 >> 64) as u64 as u128) * mw;
+            let (lo, carry) = p0.overflowing_add(p1 << 64);
+            s3.add(lo, (p1 >> 64) + u128::from(carry));
+        }
+        ChunkSums { min, max, s1, s2, s3 }
+    }
+}
+
+/// The rayon path: per-chunk bounds in the total order of [`keys::ordered_bits`], codes by [`keys::morton`],
+/// power sums in fixed-width integers (`u128`, 256 bits for 63-bit codes) combined exactly, classes by `u64`
+/// division where `(m_max - m_min) k < 2^64` and by [`class_thresholds`] otherwise, per-chunk histograms merged.
+///
+/// Same errors as [`naive`]; the same triangle is named when several keys overflow (the first one).
+pub fn fast(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError> {
+    let start = Instant::now();
+    let n = check_input(mesh, params)?;
+    let stride = params.sample_stride;
+    let bits = params.morton_bits;
+    let mut timings = Vec::new();
+    let tri = |j: usize| j * stride as usize;
+
+    // Steps 1 and 2: bounds per chunk in ordered-bits form; the first overflowing key, if any.
+    let t = Instant::now();
+    type Bounds = ([u32; 3], [u32; 3], Option<usize>);
+    let chunk_bounds = |range: std::ops::Range<usize>| -> Bounds {
+        let mut lo = [u32::MAX; 3];
+        let mut hi = [0u32; 3];
+        for j in range {
+            let key = key_of(mesh, tri(j));
+            if !(key[0].is_finite() && key[1].is_finite() && key[2].is_finite()) {
+                return (lo, hi, Some(tri(j)));
+            }
+            for a in 0..3 {
+                let o = keys::ordered_bits(key[a]);
+                lo[a] = lo[a].min(o);
+                hi[a] = hi[a].max(o);
+            }
+        }
+        (lo, hi, None)
+    };
+    let (lo_b, hi_b, bad) =
+        (0..n.div_ceil(CHUNK)).into_par_iter().map(|c| chunk_bounds(c * CHUNK..((c + 1) * CHUNK).min(n))).reduce(
+            || ([u32::MAX; 3], [0u32; 3], None),
+            |a, b| {
+                let bad = match (a.2, b.2) {
+                    (Some(x), Some(y)) => Some(x.min(y)),
+                    (x, y) => x.or(y),
+                };
+                (
+                    [a.0[0].min(b.0[0]), a.0[1].min(b.0[1]), a.0[2].min(b.0[2])],
+                    [a.1[0].max(b.1[0]), a.1[1].max(b.1[1]), a.1[2].max(b.1[2])],
+                    bad,
+                )
+            },
+        );
+    if let Some(i) = bad {
+        return Err(CharError::KeyOverflow { mesh: mesh.name.clone(), triangle: i, key: key_of(mesh, i) });
+    }
+    let lo = lo_b.map(keys::from_ordered_bits);
+    let hi = hi_b.map(keys::from_ordered_bits);
+    timings.push(pass("keys_bounds", t));
+
+    // Steps 3 to 5.
+    let t = Instant::now();
+    let scale = scale_for(mesh, lo, hi, bits)?;
+    let mut codes = vec![0u64; n];
+    let sums: Vec<ChunkSums> = codes
+        .par_chunks_mut(CHUNK)
+        .enumerate()
+        .map(|(c, out)| {
+            let base = c * CHUNK;
+            for (o, j) in out.iter_mut().zip(base..) {
+                let q = keys::quantize(key_of(mesh, tri(j)), lo, scale, bits);
+                *o = keys::morton(q, bits);
+            }
+            match bits {
+                MortonBits::Bits30 => ChunkSums::of_30(out),
+                MortonBits::Bits63 => ChunkSums::of_63(out),
+            }
+        })
+        .collect();
+    let mut stats = CodeStats {
+        n: n as u64,
+        code_min: u64::MAX,
+        code_max: 0,
+        s1: BigUint::zero(),
+        s2: BigUint::zero(),
+        s3: BigUint::zero(),
+    };
+    for s in sums {
+        stats.code_min = stats.code_min.min(s.min);
+        stats.code_max = stats.code_max.max(s.max);
+        stats.s1 += BigUint::from(s.s1);
+        stats.s2 += s.s2.to_big();
+        stats.s3 += s.s3.to_big();
+    }
+    let (moments, k) = moments_and_k(&stats, params);
+    timings.push(pass("morton_moments", t));
+
+    // Steps 7 and 8.
+    let t = Instant::now();
+    let (cmin, d) = (stats.code_min, stats.code_max - stats.code_min);
+    let thresholds = class_thresholds(stats.code_min, stats.code_max, k);
+    let use_div = k > 1 && d > 0 && (d as u128) * (k as u128) <= u64::MAX as u128;
+    let k64 = u64::from(k);
+    let class = |m: u64| -> u32 {
+        if k <= 1 || d == 0 {
+            0
+        } else if use_div {
+            // (m - m_min) k <= D k < 2^64: the u128 formula of step 7 in u64.
+            (((m - cmin) * k64) / d).min(k64 - 1) as u32
+        } else {
+            class_from_thresholds(m - cmin, &thresholds)
+        }
+    };
+    let kk = k as usize;
+    let mut classes_out = if params.keep_per_triangle { vec![0u32; n] } else { Vec::new() };
+    let histogram: Vec<u64> = if params.keep_per_triangle {
+        codes
+            .par_chunks(CHUNK)
+            .zip(classes_out.par_chunks_mut(CHUNK))
+            .map(|(cs, out)| {
+                let mut h = vec![0u64; kk];
+                for (o, &m) in out.iter_mut().zip(cs) {
+                    let c = class(m);
+                    *o = c;
+                    h[c as usize] += 1;
+                }
+                h
+            })
+            .reduce(|| vec![0u64; kk], merge_hist)
+    } else {
+        codes
+            .par_chunks(CHUNK)
+            .map(|cs| {
+                let mut h = vec![0u64; kk];
+                for &m in cs {
+                    h[class(m) as usize] += 1;
+                }
+                h
+            })
+            .reduce(|| vec![0u64; kk], merge_hist)
+    };
+    timings.push(pass("classes_histogram", t));
+
+    // Steps 9 and 10.
+    let t = Instant::now();
+    let hstats = finalize::histogram_stats(&histogram, stats.n, params.alpha);
+    timings.push(pass("chi_square", t));
+    timings.push(pass("total", start));
+
+    Ok(Characterization {
+        total_triangles: mesh.triangle_count() as u64,
+        triangles: stats.n,
+        params: params.clone(),
+        lo,
+        hi,
+        code_stats: stats,
+        moments,
+        classes: k,
+        histogram,
+        stats: hstats,
+        per_triangle: params.keep_per_triangle.then_some(PerTriangle { codes, classes: classes_out }),
+        timings,
+        backend: "cpu".into(),
+        device: cpu_device_name(rayon::current_num_threads()),
+    })
+}
+
+fn merge_hist(mut a: Vec<u64>, b: Vec<u64>) -> Vec<u64> {
+    for (x, y) in a.iter_mut().zip(b) {
+        *x += y;
+    }
+    a
+}
+
+/// Number of sampled triangles (`i % sample_stride == 0`) whose area is exactly zero, by the test of
+/// [`Mesh::zero_area_count`] (f64 cross product of the f32 edges), in parallel. Indices must be valid
+/// (validated mesh); `sample_stride` 0 is treated as 1.
+pub fn zero_area_triangles(mesh: &Mesh, sample_stride: u32) -> u64 {
+    let stride = sample_stride.max(1) as usize;
+    let n = sample_count(mesh.triangle_count(), stride);
+    let nv = mesh.positions.len();
+    (0..n)
+        .into_par_iter()
+        .with_min_len(4096)
+        .filter(|&j| {
+            let [a, b, c] = mesh.indices[j * stride];
+            if a as usize >= nv || b as usize >= nv || c as usize >= nv {
+                return false;
+            }
+            let [a, b, c] = mesh.triangle(j * stride);
+            let (a, b, c) = (a.as_dvec3(), b.as_dvec3(), c.as_dvec3());
+            (b - a).cross(c - a).length_squared() == 0.0
+        })
+        .count() as u64
+}

@@ -1,0 +1,318 @@
+//! The characterization of `SPEC.md`: bounds, Morton codes, moments, Doane's class count, the class histogram,
+//! chi-square, concentration and empty classes; the report and the selection policies.
+//!
+//! # How the backends stay bit-identical
+//!
+//! Every backend (the naive CPU reference, the rayon CPU fast path, Vulkan) computes only *exact* quantities on the
+//! data: f32 keys and bounds (correctly rounded add/sub/mul, reduced in a total order), integer Morton codes, the
+//! smallest and largest code, the exact integer power sums `S1 = sum m`, `S2 = sum m^2`, `S3 = sum m^3`
+//! ([`CodeStats`]), per-triangle classes, and the integer histogram. Everything that needs a transcendental function
+//! or a rounding choice (mean, standard deviation, skewness, `k`, chi-square, p-value) is computed once, on the host,
+//! by the functions of this module from those exact values. So the three backends agree on every reported bit, and
+//! the moments are within rounding of the exact real values (much closer than the 1e-9 of an f64 two-pass).
+
+pub mod cpu;
+pub mod finalize;
+pub mod policy;
+pub mod report;
+pub mod vulkan;
+
+pub use crate::keys::MortonBits;
+pub use finalize::{class_count, class_of, class_thresholds, histogram_stats, histogram_stats_exact, moments};
+pub use policy::{Policy, SceneKind, SceneSummary, Selection, Structure, ThesisPolicy};
+pub use report::Report;
+
+use crate::mesh::{Mesh, MeshError};
+use num_bigint::BigUint;
+
+/// Everything that can stop a characterization. Nothing is computed on invalid input.
+#[derive(Debug, thiserror::Error)]
+pub enum CharError {
+    /// The mesh is invalid (a NaN or infinite coordinate, an index out of range ...); the error names the mesh and
+    /// the vertex or triangle.
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// There is nothing to characterize (no triangles, or none in the sample).
+    #[error("{mesh}: no triangles to characterize")]
+    Empty {
+        /// The mesh name.
+        mesh: String,
+    },
+    /// The input cannot be characterized for another reason (reported by a backend).
+    #[error("{mesh}: {reason}")]
+    Input {
+        /// The mesh name.
+        mesh: String,
+        /// Why.
+        reason: String,
+    },
+    /// A centroid key `(v0 + v1) + v2` overflows f32 (coordinates above about 1e38).
+    #[error(
+        "{mesh}: triangle {triangle}: centroid key (v0 + v1) + v2 = {key:?} overflows f32 (coordinates too large)"
+    )]
+    KeyOverflow {
+        /// The mesh name.
+        mesh: String,
+        /// The triangle.
+        triangle: usize,
+        /// The key as computed.
+        key: [f32; 3],
+    },
+    /// The bounds cannot be quantized in f32: `hi - lo` overflows, or `2^b / (hi - lo)` does (an extent below about
+    /// 1e-36).
+    #[error("{mesh}: bounds lo {lo:?} hi {hi:?} cannot be quantized in f32: {reason}")]
+    Extent {
+        /// The mesh name.
+        mesh: String,
+        /// `lo` of step 2.
+        lo: [f32; 3],
+        /// `hi` of step 2.
+        hi: [f32; 3],
+        /// What overflowed.
+        reason: String,
+    },
+    /// A parameter is out of range.
+    #[error("invalid parameter: {0}")]
+    InvalidParams(String),
+    /// The GPU path failed or is not available.
+    #[error("Vulkan backend: {0}")]
+    Gpu(String),
+}
+
+impl Params {
+    /// Checks the parameters: `alpha` in `(0, 1)`, `sample_stride >= 1`, a fixed class count `>= 1`.
+    pub fn validate(&self) -> Result<(), CharError> {
+        if !(self.alpha > 0.0 && self.alpha < 1.0) {
+            return Err(CharError::InvalidParams(format!("alpha must be in (0, 1), got {}", self.alpha)));
+        }
+        if self.sample_stride == 0 {
+            return Err(CharError::InvalidParams("sample stride must be at least 1".into()));
+        }
+        if self.class_rule == ClassRule::Fixed(0) {
+            return Err(CharError::InvalidParams("a fixed class count must be at least 1".into()));
+        }
+        Ok(())
+    }
+}
+
+impl ClassRule {
+    /// The rule's name in reports: `doane`, `sturges`, `sqrt` or the fixed count.
+    pub fn name(&self) -> String {
+        match self {
+            ClassRule::Doane => "doane".into(),
+            ClassRule::Sturges => "sturges".into(),
+            ClassRule::Sqrt => "sqrt".into(),
+            ClassRule::Fixed(k) => k.to_string(),
+        }
+    }
+}
+
+impl std::str::FromStr for ClassRule {
+    type Err = CharError;
+    /// Parses `doane`, `sturges`, `sqrt` or a positive count.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "doane" => Ok(ClassRule::Doane),
+            "sturges" => Ok(ClassRule::Sturges),
+            "sqrt" => Ok(ClassRule::Sqrt),
+            _ => match s.parse::<u32>() {
+                Ok(k) if k >= 1 => Ok(ClassRule::Fixed(k)),
+                _ => Err(CharError::InvalidParams(format!(
+                    "class rule must be doane, sturges, sqrt or a positive count, got {s:?}"
+                ))),
+            },
+        }
+    }
+}
+
+/// Which path computes a characterization.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum Backend {
+    /// Vulkan compute.
+    Vulkan,
+    /// The rayon CPU path ([`cpu::fast`]), the default.
+    #[default]
+    Cpu,
+    /// The single-threaded reference ([`cpu::naive`]).
+    Naive,
+}
+
+impl Backend {
+    /// `vulkan`, `cpu` or `naive`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Vulkan => "vulkan",
+            Backend::Cpu => "cpu",
+            Backend::Naive => "naive",
+        }
+    }
+}
+
+impl std::str::FromStr for Backend {
+    type Err = CharError;
+    /// Parses `vulkan`, `cpu` or `naive`.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "vulkan" => Ok(Backend::Vulkan),
+            "cpu" => Ok(Backend::Cpu),
+            "naive" => Ok(Backend::Naive),
+            _ => Err(CharError::InvalidParams(format!("backend must be vulkan, cpu or naive, got {s:?}"))),
+        }
+    }
+}
+
+/// Characterizes `mesh` on `backend`.
+pub fn run(mesh: &Mesh, params: &Params, backend: Backend) -> Result<Characterization, CharError> {
+    match backend {
+        Backend::Cpu => cpu::fast(mesh, params),
+        Backend::Naive => cpu::naive(mesh, params),
+        Backend::Vulkan => Err(CharError::Gpu("the Vulkan backend is not built yet; use --backend cpu".into())),
+    }
+}
+
+/// The largest class count any rule may produce (the GPU privatizes the histogram in shared memory of this size).
+pub const MAX_CLASSES: u32 = 4096;
+
+/// Rule for the number of classes `k`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+pub enum ClassRule {
+    /// Doane (SPEC step 6), the thesis's rule and the default.
+    #[default]
+    Doane,
+    /// Sturges: `ceil(1 + log2 n)`.
+    Sturges,
+    /// Square root: `ceil(sqrt n)`.
+    Sqrt,
+    /// A fixed count (clamped to `1..=MAX_CLASSES`).
+    Fixed(u32),
+}
+
+/// Knobs of a characterization.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Params {
+    /// 30-bit (default) or 63-bit codes.
+    pub morton_bits: MortonBits,
+    /// Significance of the chi-square test (default 0.005, as the thesis).
+    pub alpha: f64,
+    /// Look at every `sample_stride`-th triangle only (1 = all, the default). Triangle `i` is in the sample iff
+    /// `i % sample_stride == 0`.
+    pub sample_stride: u32,
+    /// Class-count rule.
+    pub class_rule: ClassRule,
+    /// Keep the per-triangle codes and classes in the result (they always stay on the device for the Vulkan path).
+    pub keep_per_triangle: bool,
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Params {
+            morton_bits: MortonBits::Bits30,
+            alpha: 0.005,
+            sample_stride: 1,
+            class_rule: ClassRule::Doane,
+            keep_per_triangle: false,
+        }
+    }
+}
+
+/// Exact statistics of the Morton codes: what every backend's second pass produces.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CodeStats {
+    /// Number of codes `n`.
+    pub n: u64,
+    /// Smallest code.
+    pub code_min: u64,
+    /// Largest code.
+    pub code_max: u64,
+    /// `sum m`.
+    pub s1: BigUint,
+    /// `sum m^2`.
+    pub s2: BigUint,
+    /// `sum m^3`.
+    pub s3: BigUint,
+}
+
+/// Mean, population standard deviation and population skewness of the codes (SPEC step 5).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Moments {
+    /// `mu`.
+    pub mean: f64,
+    /// `sigma`.
+    pub std_dev: f64,
+    /// `g1` (0 when `sigma == 0`).
+    pub skewness: f64,
+}
+
+/// Chi-square test, effect size, concentration and empty classes of a histogram (SPEC steps 9 and 10).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct HistogramStats {
+    /// `sum (O_i - E)^2 / E`.
+    pub chi_square: f64,
+    /// `k - 1`.
+    pub dof: u32,
+    /// `P(X >= chi2)`, `X ~ chi-square(dof)` (1 when `dof == 0`).
+    pub p_value: f64,
+    /// Critical value at `alpha` (0 when `dof == 0`).
+    pub critical_value: f64,
+    /// `chi_square <= critical_value`.
+    pub uniform: bool,
+    /// Cramér's `V = sqrt(chi2 / (n (k - 1)))` (0 when `k == 1`).
+    pub cramers_v: f64,
+    /// Classes with `O_i == 0`.
+    pub empty_classes: u32,
+    /// Classes with `O_i > E`.
+    pub concentrated_classes: u32,
+    /// Share of triangles in concentrated classes.
+    pub concentrated_share: f64,
+}
+
+/// GPU (or CPU) time of one pass.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct PassTime {
+    /// Pass name (`keys_bounds`, `morton_moments`, `classes_histogram`, `chi_square`, ...).
+    pub name: String,
+    /// Milliseconds.
+    pub ms: f64,
+}
+
+/// Codes and classes of every sampled triangle, in sample order.
+#[derive(Clone, Debug, PartialEq, Eq, Default)]
+pub struct PerTriangle {
+    /// Morton code of each sampled triangle.
+    pub codes: Vec<u64>,
+    /// Class of each sampled triangle.
+    pub classes: Vec<u32>,
+}
+
+/// The result of characterizing one mesh (or one frame) on one backend.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Characterization {
+    /// Triangles in the mesh.
+    pub total_triangles: u64,
+    /// Triangles looked at (`n`; equal to `total_triangles` when `sample_stride == 1`).
+    pub triangles: u64,
+    /// Parameters used.
+    pub params: Params,
+    /// `lo` of step 2.
+    pub lo: [f32; 3],
+    /// `hi` of step 2.
+    pub hi: [f32; 3],
+    /// Exact code statistics of step 5.
+    pub code_stats: CodeStats,
+    /// Moments of step 5.
+    pub moments: Moments,
+    /// `k`.
+    pub classes: u32,
+    /// `O_0 .. O_{k-1}`.
+    pub histogram: Vec<u64>,
+    /// Steps 9 and 10.
+    pub stats: HistogramStats,
+    /// Per-triangle codes and classes, when `params.keep_per_triangle`.
+    pub per_triangle: Option<PerTriangle>,
+    /// Time of each pass.
+    pub timings: Vec<PassTime>,
+    /// `naive`, `cpu` or `vulkan`.
+    pub backend: String,
+    /// The device (GPU name, or the CPU and thread count).
+    pub device: String,
+}
