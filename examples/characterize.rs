@@ -10,7 +10,7 @@
 //! `--json` the reports are printed for people; with it, one JSON object per mesh or frame per line.
 
 use meshchar::characterize::{
-    cpu, run, Backend, Characterization, ClassRule, MortonBits, Params, Policy, Report, SceneSummary, ThesisPolicy,
+    cpu, Backend, Characterization, Characterizer, ClassRule, MortonBits, Params, Policy, Report, SceneSummary, ThesisPolicy,
 };
 use meshchar::mesh::Animation;
 use std::path::PathBuf;
@@ -25,7 +25,7 @@ usage: characterize [FILE|DIR ...] [options]
 
 options:
   --json                one JSON object per mesh or frame per line (default: a report for people)
-  --backend B           vulkan, cpu or naive (default: cpu)
+  --backend B           vulkan, cpu or naive (default: vulkan when a device is found, else cpu)
   --morton-bits B       30 or 63 (default 30)
   --alpha A             significance of the chi-square test, in (0, 1) (default 0.005)
   --sample-stride S     characterize every S-th triangle only (default 1: all)
@@ -35,12 +35,12 @@ options:
 struct Args {
     paths: Vec<PathBuf>,
     json: bool,
-    backend: Backend,
+    backend: Option<Backend>,
     params: Params,
 }
 
 fn parse_args(argv: Vec<String>) -> Result<Option<Args>, String> {
-    let mut args = Args { paths: Vec::new(), json: false, backend: Backend::Cpu, params: Params::default() };
+    let mut args = Args { paths: Vec::new(), json: false, backend: None, params: Params::default() };
     let mut it = argv.into_iter();
     while let Some(arg) = it.next() {
         let (flag, inline) = match arg.split_once('=') {
@@ -53,7 +53,7 @@ fn parse_args(argv: Vec<String>) -> Result<Option<Args>, String> {
         match flag.as_str() {
             "-h" | "--help" => return Ok(None),
             "--json" => args.json = true,
-            "--backend" => args.backend = value("--backend")?.parse().map_err(|e| format!("{e}"))?,
+            "--backend" => args.backend = Some(value("--backend")?.parse().map_err(|e| format!("{e}"))?),
             "--morton-bits" => {
                 let v = value("--morton-bits")?;
                 args.params.morton_bits = v
@@ -89,17 +89,14 @@ fn default_scene() -> Animation {
 }
 
 /// Characterizes every frame of a scene and prints one report per frame. Returns false after an error (printed).
-fn process(scene: &Animation, args: &Args) -> bool {
-    let mut results: Vec<Characterization> = Vec::with_capacity(scene.frames.len());
-    for frame in &scene.frames {
-        match run(frame, &args.params, args.backend) {
-            Ok(c) => results.push(c),
-            Err(e) => {
-                eprintln!("characterize: {e}");
-                return false;
-            }
+fn process(engine: &mut Characterizer, scene: &Animation, args: &Args) -> bool {
+    let results: Vec<Characterization> = match engine.characterize_animation(scene, &args.params) {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("characterize: {e}");
+            return false;
         }
-    }
+    };
     let policy = ThesisPolicy::default();
     let summary = SceneSummary::new(scene.name.clone(), &results);
     let selection = policy.select(&summary);
@@ -132,9 +129,19 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    let mut engine = match Characterizer::new(args.backend) {
+        Ok(e) => e,
+        Err(e) => {
+            eprintln!("characterize: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    if let Some(note) = engine.note() {
+        eprintln!("characterize: {note}");
+    }
     let mut ok = true;
     if args.paths.is_empty() {
-        ok &= process(&default_scene(), &args);
+        ok &= process(&mut engine, &default_scene(), &args);
     }
     for path in &args.paths {
         match meshchar::mesh::load_path(path) {
@@ -142,7 +149,7 @@ fn main() -> ExitCode {
                 eprintln!("characterize: {}: no frames found", path.display());
                 ok = false;
             }
-            Ok(scene) => ok &= process(&scene, &args),
+            Ok(scene) => ok &= process(&mut engine, &scene, &args),
             Err(e) => {
                 eprintln!("characterize: {e}");
                 ok = false;

@@ -89,7 +89,8 @@ pub fn max_total(a: f32, b: f32) -> f32 {
 
 /// Step 3, host part: `scale = 2^b / (hi - lo)` per axis in f32, `0` where `hi == lo`.
 ///
-/// Returns `None` when `hi - lo` overflows f32 (coordinates too far apart for f32 keys).
+/// Returns `None` when `hi - lo` overflows f32 (coordinates too far apart for f32 keys) or the scale does (a
+/// non-zero extent below about `2^b / f32::MAX`, 1e-35 for 63-bit codes): such bounds cannot be quantized in f32.
 pub fn quantization_scale(lo: [f32; 3], hi: [f32; 3], bits: MortonBits) -> Option<[f32; 3]> {
     let cells = (1u32 << bits.per_axis()) as f32;
     let mut scale = [0.0f32; 3];
@@ -99,6 +100,9 @@ pub fn quantization_scale(lo: [f32; 3], hi: [f32; 3], bits: MortonBits) -> Optio
             return None;
         }
         scale[a] = if extent == 0.0 { 0.0 } else { cells / extent };
+        if !scale[a].is_finite() {
+            return None;
+        }
     }
     Some(scale)
 }
@@ -196,5 +200,8 @@ mod tests {
         assert_eq!(quantize(hi, lo, scale, MortonBits::Bits30), [1023, 0, 1023]);
         assert_eq!(quantize(lo, lo, scale, MortonBits::Bits30), [0, 0, 0]);
         assert!(quantization_scale([-3e38; 3], [3e38; 3], MortonBits::Bits30).is_none());
+        // A positive extent so small that 2^b / extent overflows.
+        assert!(quantization_scale([0.0; 3], [1e-40; 3], MortonBits::Bits63).is_none());
+        assert!(quantization_scale([0.0; 3], [1e-30; 3], MortonBits::Bits63).is_some());
     }
 }

@@ -55,17 +55,13 @@ fn key_of(mesh: &Mesh, i: usize) -> [f32; 3] {
 /// Step 3, host part, with the errors of an extent that f32 cannot quantize.
 fn scale_for(mesh: &Mesh, lo: [f32; 3], hi: [f32; 3], bits: MortonBits) -> Result<[f32; 3], CharError> {
     let err = |reason: String| CharError::Extent { mesh: mesh.name.clone(), lo, hi, reason };
-    let scale = keys::quantization_scale(lo, hi, bits).ok_or_else(|| err("hi - lo overflows f32".into()))?;
-    for a in 0..3 {
-        if !scale[a].is_finite() {
-            return Err(err(format!(
-                "axis {a}: extent {} is so small that 2^{} / extent overflows f32",
-                hi[a] - lo[a],
-                bits.per_axis()
-            )));
-        }
-    }
-    Ok(scale)
+    keys::quantization_scale(lo, hi, bits).ok_or_else(|| {
+        let axis = (0..3).find(|&a| !(hi[a] - lo[a]).is_finite());
+        err(match axis {
+            Some(a) => format!("axis {a}: hi - lo overflows f32"),
+            None => format!("an extent is so small that 2^{} / extent overflows f32", bits.per_axis()),
+        })
+    })
 }
 
 fn pass(name: &str, t: Instant) -> PassTime {

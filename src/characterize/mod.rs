@@ -22,7 +22,7 @@ pub use finalize::{class_count, class_of, class_thresholds, histogram_stats, his
 pub use policy::{Policy, SceneKind, SceneSummary, Selection, Structure, ThesisPolicy};
 pub use report::Report;
 
-use crate::mesh::{Mesh, MeshError};
+use crate::mesh::{Animation, Mesh, MeshError};
 use num_bigint::BigUint;
 
 /// Everything that can stop a characterization. Nothing is computed on invalid input.
@@ -161,12 +161,77 @@ impl std::str::FromStr for Backend {
     }
 }
 
-/// Characterizes `mesh` on `backend`.
+/// Characterizes `mesh` on `backend` (one-shot: the Vulkan backend creates its device and pipelines for this call;
+/// use a [`Characterizer`] to characterize several meshes or frames).
 pub fn run(mesh: &Mesh, params: &Params, backend: Backend) -> Result<Characterization, CharError> {
-    match backend {
-        Backend::Cpu => cpu::fast(mesh, params),
-        Backend::Naive => cpu::naive(mesh, params),
-        Backend::Vulkan => Err(CharError::Gpu("the Vulkan backend is not built yet; use --backend cpu".into())),
+    Characterizer::new(Some(backend))?.characterize(mesh, params)
+}
+
+/// Characterizes meshes and animations on one backend, keeping the Vulkan device, pipelines and buffers between
+/// calls.
+pub struct Characterizer {
+    backend: Backend,
+    vulkan: Option<vulkan::VulkanBackend>,
+    note: Option<String>,
+}
+
+impl Characterizer {
+    /// A characterizer on `backend`; `None` picks Vulkan when a usable device exists (see
+    /// [`crate::gpu::ContextDesc::device`] and `MESHCHAR_DEVICE`), else the CPU fast path, and records why in
+    /// [`Characterizer::note`]. Asking for Vulkan without a usable device is an error.
+    pub fn new(backend: Option<Backend>) -> Result<Self, CharError> {
+        let want_vulkan = matches!(backend, None | Some(Backend::Vulkan));
+        if !want_vulkan {
+            return Ok(Characterizer { backend: backend.unwrap_or_default(), vulkan: None, note: None });
+        }
+        let made = crate::gpu::Context::new(&crate::gpu::ContextDesc::default())
+            .map_err(|e| CharError::Gpu(e.to_string()))
+            .and_then(|ctx| vulkan::VulkanBackend::new(&ctx));
+        match (made, backend) {
+            (Ok(vk), _) => Ok(Characterizer { backend: Backend::Vulkan, vulkan: Some(vk), note: None }),
+            (Err(e), Some(_)) => Err(e),
+            (Err(e), None) => Ok(Characterizer {
+                backend: Backend::Cpu,
+                vulkan: None,
+                note: Some(format!("no usable Vulkan device ({e}); using the CPU path")),
+            }),
+        }
+    }
+
+    /// A Vulkan characterizer on an existing context (a host engine's device, say).
+    pub fn with_context(ctx: &crate::gpu::Context) -> Result<Self, CharError> {
+        Ok(Characterizer { backend: Backend::Vulkan, vulkan: Some(vulkan::VulkanBackend::new(ctx)?), note: None })
+    }
+
+    /// The backend in use.
+    pub fn backend(&self) -> Backend {
+        self.backend
+    }
+
+    /// Why the automatic choice fell back to the CPU, if it did.
+    pub fn note(&self) -> Option<&str> {
+        self.note.as_deref()
+    }
+
+    /// Characterizes one mesh.
+    pub fn characterize(&mut self, mesh: &Mesh, params: &Params) -> Result<Characterization, CharError> {
+        match (&mut self.vulkan, self.backend) {
+            (Some(vk), _) => vk.characterize(mesh, params),
+            (None, Backend::Naive) => cpu::naive(mesh, params),
+            (None, _) => cpu::fast(mesh, params),
+        }
+    }
+
+    /// Characterizes every frame of an animation (on Vulkan, the topology is uploaded once).
+    pub fn characterize_animation(
+        &mut self,
+        anim: &Animation,
+        params: &Params,
+    ) -> Result<Vec<Characterization>, CharError> {
+        match &mut self.vulkan {
+            Some(vk) => vk.characterize_animation(anim, params),
+            None => anim.frames.iter().map(|f| self.characterize(f, params)).collect(),
+        }
     }
 }
 

@@ -205,8 +205,9 @@ pub enum InputError {
     /// Nothing to characterize.
     #[error("no triangles to characterize")]
     Empty,
-    /// Centroid keys overflow f32 or their range does.
-    #[error("coordinates too large for f32 centroid keys: bounds {lo:?} .. {hi:?}")]
+    /// Centroid keys overflow f32, or their range cannot be quantized in f32 (`hi - lo` or `2^b / (hi - lo)`
+    /// overflows).
+    #[error("bounds of the centroid keys {lo:?} .. {hi:?} cannot be quantized in f32 (coordinates too large, or an extent below about 1e-35)")]
     Overflow {
         /// Lower bound of the keys.
         lo: [f32; 3],
