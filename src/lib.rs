@@ -2,5 +2,7 @@
 #![deny(missing_docs)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
+pub mod accel;
 pub mod keys;
 pub mod mesh;
+pub mod trace;
