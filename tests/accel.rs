@@ -9,7 +9,9 @@ mod common;
 
 use common::mini_load::{load, shared_mesh};
 use glam::Vec3;
-use meshchar::accel::{brute::BruteForce, bvh::Bvh, AccelStructure, StructureName};
+use meshchar::accel::{
+    bih::Bih, brute::BruteForce, bvh::Bvh, grid::Grid, kdtree::KdTree, AccelStructure, StructureName,
+};
 use meshchar::mesh::Mesh;
 use meshchar::trace::workload::{build_workload, mesh_bounds, SplitMix64};
 use meshchar::trace::{hits_agree, trace, Camera, Ray, RaySet, TraceCounters, WorkloadKind};
@@ -324,6 +326,9 @@ macro_rules! suite {
 }
 
 suite!(bvh, Bvh);
+suite!(kdtree, KdTree);
+suite!(grid, Grid);
+suite!(bih, Bih);
 
 // ---------------------------------------------------------------------------------------------------------------
 // Real meshes: all structures agree with each other.
@@ -342,7 +347,7 @@ fn all_agree_on(rel: &str, res: u32) {
         let sample = RaySet { rays: rays.rays.iter().step_by(37).copied().collect(), ..rays.clone() };
         let (s_ref, s_brute) = (trace(&reference, &sample), trace(&brute, &sample));
         assert_eq!(meshchar::trace::count_disagreements(&s_ref, &s_brute), 0, "{rel} {kind:?}: bvh vs brute force");
-        for name in [StructureName::Bvh] {
+        for name in [StructureName::Bvh, StructureName::KdTree, StructureName::Grid, StructureName::Bih] {
             let a = meshchar::accel::build_structure(name, &mesh).unwrap();
             a.validate().unwrap_or_else(|e| panic!("{rel}: {e}"));
             let got = trace(a.as_ref(), &rays);

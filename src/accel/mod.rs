@@ -32,8 +32,11 @@
 //! * **Counters**: `box_tests` counts ray-box slab tests for BVH-like structures, node visits (one split-plane test
 //!   each) for the kd-tree and BIH, and cells visited for the grid; `prim_tests` counts ray-triangle tests.
 
+pub mod bih;
 pub mod brute;
 pub mod bvh;
+pub mod grid;
+pub mod kdtree;
 
 use crate::mesh::{Mesh, MeshError};
 use crate::trace::{Hit, Ray, TraceCounters};
@@ -203,6 +206,9 @@ pub trait AccelStructure: Send + Sync {
 pub fn build_structure(name: StructureName, mesh: &Mesh) -> Result<Box<dyn AccelStructure>, AccelError> {
     Ok(match name {
         StructureName::Bvh => Box::new(bvh::Bvh::build(mesh)?),
+        StructureName::KdTree => Box::new(kdtree::KdTree::build(mesh)?),
+        StructureName::Grid => Box::new(grid::Grid::build(mesh)?),
+        StructureName::Bih => Box::new(bih::Bih::build(mesh)?),
         StructureName::Brute => Box::new(brute::BruteForce::build(mesh)?),
         other => return Err(AccelError::Invalid { structure: other.as_str(), reason: "not implemented yet".into() }),
     })

@@ -103,7 +103,6 @@ impl RayInv {
     }
 
     /// Slab test returning the clipped interval `(entry, exit)`.
-    #[allow(dead_code)] // for the kd-tree, grid and BIH, next
     #[inline]
     pub(crate) fn slab_interval(&self, min: Vec3, max: Vec3, tmin: f32, tmax: f32) -> Option<(f32, f32)> {
         let t0 = (min - self.o) * self.inv;
