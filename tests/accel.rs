@@ -10,7 +10,8 @@ mod common;
 use common::mini_load::{load, shared_mesh};
 use glam::Vec3;
 use meshchar::accel::{
-    bih::Bih, brute::BruteForce, bvh::Bvh, grid::Grid, kdtree::KdTree, AccelStructure, StructureName,
+    bih::Bih, brute::BruteForce, bvh::Bvh, grid::Grid, hlbvh::Hlbvh, kdtree::KdTree, lbvh::Lbvh, AccelStructure,
+    StructureName,
 };
 use meshchar::mesh::Mesh;
 use meshchar::trace::workload::{build_workload, mesh_bounds, SplitMix64};
@@ -329,6 +330,8 @@ suite!(bvh, Bvh);
 suite!(kdtree, KdTree);
 suite!(grid, Grid);
 suite!(bih, Bih);
+suite!(lbvh, Lbvh);
+suite!(hlbvh, Hlbvh);
 
 // ---------------------------------------------------------------------------------------------------------------
 // Real meshes: all structures agree with each other.
@@ -347,7 +350,7 @@ fn all_agree_on(rel: &str, res: u32) {
         let sample = RaySet { rays: rays.rays.iter().step_by(37).copied().collect(), ..rays.clone() };
         let (s_ref, s_brute) = (trace(&reference, &sample), trace(&brute, &sample));
         assert_eq!(meshchar::trace::count_disagreements(&s_ref, &s_brute), 0, "{rel} {kind:?}: bvh vs brute force");
-        for name in [StructureName::Bvh, StructureName::KdTree, StructureName::Grid, StructureName::Bih] {
+        for name in StructureName::ALL {
             let a = meshchar::accel::build_structure(name, &mesh).unwrap();
             a.validate().unwrap_or_else(|e| panic!("{rel}: {e}"));
             let got = trace(a.as_ref(), &rays);

@@ -36,7 +36,9 @@ pub mod bih;
 pub mod brute;
 pub mod bvh;
 pub mod grid;
+pub mod hlbvh;
 pub mod kdtree;
+pub mod lbvh;
 
 use crate::mesh::{Mesh, MeshError};
 use crate::trace::{Hit, Ray, TraceCounters};
@@ -209,8 +211,9 @@ pub fn build_structure(name: StructureName, mesh: &Mesh) -> Result<Box<dyn Accel
         StructureName::KdTree => Box::new(kdtree::KdTree::build(mesh)?),
         StructureName::Grid => Box::new(grid::Grid::build(mesh)?),
         StructureName::Bih => Box::new(bih::Bih::build(mesh)?),
+        StructureName::Lbvh => Box::new(lbvh::Lbvh::build(mesh)?),
+        StructureName::Hlbvh => Box::new(hlbvh::Hlbvh::build(mesh)?),
         StructureName::Brute => Box::new(brute::BruteForce::build(mesh)?),
-        other => return Err(AccelError::Invalid { structure: other.as_str(), reason: "not implemented yet".into() }),
     })
 }
 
