@@ -3,6 +3,7 @@
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
 pub mod accel;
+pub mod eval;
 pub mod keys;
 pub mod mesh;
 pub mod trace;
