@@ -33,7 +33,7 @@ use super::{
 };
 use crate::mesh::Mesh;
 use crate::trace::{intersect_triangle, Hit, Ray, RayInv, TraceCounters};
-use glam::Vec3;
+use glam::{Vec3, Vec4};
 use rayon::prelude::*;
 
 /// Bit 31 of [`BvhNode::right_or_count`] marks a leaf.
@@ -283,7 +283,7 @@ impl BvhTree {
 /// Options of the binned-SAH builder.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BvhOptions {
-    /// Bins per axis (2 to 32).
+    /// Bins per axis (2 to 16).
     pub bins: usize,
     /// Largest leaf; nodes above it are always split.
     pub max_leaf: usize,
@@ -297,44 +297,87 @@ impl Default for BvhOptions {
     }
 }
 
-const MAX_BINS: usize = 32;
+const MAX_BINS: usize = 16;
 const MAX_SAH_DEPTH: u32 = 64;
 const PAR_BIN_THRESHOLD: usize = 65_536;
 
-/// A triangle reference during the build.
+/// A box in SIMD registers for the builder (`w` lanes are ignored).
+#[derive(Clone, Copy, Debug)]
+struct B4 {
+    min: Vec4,
+    max: Vec4,
+}
+
+impl B4 {
+    const EMPTY: B4 = B4 { min: Vec4::splat(f32::INFINITY), max: Vec4::splat(f32::NEG_INFINITY) };
+    #[inline]
+    fn union(self, o: B4) -> B4 {
+        B4 { min: self.min.min(o.min), max: self.max.max(o.max) }
+    }
+    #[inline]
+    fn grow(&mut self, p: Vec4) {
+        self.min = self.min.min(p);
+        self.max = self.max.max(p);
+    }
+    #[inline]
+    fn half_area(&self) -> f32 {
+        let e = self.max - self.min;
+        if e.x < 0.0 {
+            return 0.0;
+        }
+        e.x * e.y + e.y * e.z + e.z * e.x
+    }
+    fn aabb(&self) -> Aabb {
+        Aabb::new(self.min.truncate(), self.max.truncate())
+    }
+}
+
+/// A triangle reference during the build: its box, with the triangle index in the bits of `min.w`.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Ref {
-    pub(crate) min: Vec3,
-    pub(crate) idx: u32,
-    pub(crate) max: Vec3,
+    b: B4,
 }
 
 impl Ref {
+    fn new(b: &Aabb, idx: u32) -> Self {
+        Ref { b: B4 { min: b.min.extend(f32::from_bits(idx)), max: b.max.extend(0.0) } }
+    }
     #[inline]
-    fn c2(&self) -> Vec3 {
-        self.min + self.max
+    fn idx(&self) -> u32 {
+        self.b.min.w.to_bits()
+    }
+    /// Twice the box centre.
+    #[inline]
+    fn c2(&self) -> Vec4 {
+        self.b.min + self.b.max
     }
 }
 
 #[derive(Clone, Copy)]
 struct Bin {
-    b: Aabb,
+    b: B4,
     n: u32,
 }
 
-const EMPTY_BIN: Bin = Bin { b: Aabb::EMPTY, n: 0 };
+const EMPTY_BIN: Bin = Bin { b: B4::EMPTY, n: 0 };
 
 type Bins = [[Bin; MAX_BINS]; 3];
 
 struct Binning {
-    cmin: Vec3,
-    k: Vec3,
+    cmin: Vec4,
+    k: Vec4,
     nb: usize,
 }
 
 impl Binning {
     #[inline]
-    fn bin(&self, c2: Vec3, axis: usize) -> usize {
+    fn bins(&self, c2: Vec4) -> [usize; 3] {
+        let x = (c2 - self.cmin) * self.k;
+        let top = self.nb - 1;
+        [(x.x as usize).min(top), (x.y as usize).min(top), (x.z as usize).min(top)]
+    }
+    #[inline]
+    fn bin(&self, c2: Vec4, axis: usize) -> usize {
         let x = (c2[axis] - self.cmin[axis]) * self.k[axis];
         (x as usize).min(self.nb - 1)
     }
@@ -343,12 +386,11 @@ impl Binning {
 fn bin_refs(refs: &[Ref], g: &Binning) -> Bins {
     let mut bins = [[EMPTY_BIN; MAX_BINS]; 3];
     for r in refs {
-        let c = r.c2();
-        let rb = Aabb::new(r.min, r.max);
-        for (a, axis_bins) in bins.iter_mut().enumerate() {
-            let bin = &mut axis_bins[g.bin(c, a)];
+        let [b0, b1, b2] = g.bins(r.c2());
+        for (axis_bins, bi) in bins.iter_mut().zip([b0, b1, b2]) {
+            let bin = &mut axis_bins[bi];
             bin.n += 1;
-            bin.b = bin.b.union(&rb);
+            bin.b = bin.b.union(r.b);
         }
     }
     bins
@@ -358,32 +400,31 @@ fn merge_bins(mut a: Bins, b: Bins) -> Bins {
     for (x, y) in a.iter_mut().zip(b.iter()) {
         for (p, q) in x.iter_mut().zip(y.iter()) {
             p.n += q.n;
-            p.b = p.b.union(&q.b);
+            p.b = p.b.union(q.b);
         }
     }
     a
 }
 
-fn ref_bounds(refs: &[Ref]) -> (Aabb, Aabb) {
+fn ref_bounds(refs: &[Ref]) -> (B4, B4) {
     let f = |rs: &[Ref]| {
-        let mut b = Aabb::EMPTY;
-        let mut cb = Aabb::EMPTY;
+        let mut b = B4::EMPTY;
+        let mut cb = B4::EMPTY;
         for r in rs {
-            b.min = b.min.min(r.min);
-            b.max = b.max.max(r.max);
+            b = b.union(r.b);
             cb.grow(r.c2());
         }
         (b, cb)
     };
     if refs.len() >= PAR_BIN_THRESHOLD {
-        refs.par_chunks(16_384).map(f).reduce(|| (Aabb::EMPTY, Aabb::EMPTY), |x, y| (x.0.union(&y.0), x.1.union(&y.1)))
+        refs.par_chunks(16_384).map(f).reduce(|| (B4::EMPTY, B4::EMPTY), |x, y| (x.0.union(y.0), x.1.union(y.1)))
     } else {
         f(refs)
     }
 }
 
 /// Best binned split: `(axis, first bin of the right side, cost = A_L N_L + A_R N_R in half areas)`.
-fn find_split(refs: &[Ref], cb: &Aabb, nb: usize) -> Option<(usize, usize, f32, Binning)> {
+fn find_split(refs: &[Ref], cb: &B4, nb: usize) -> Option<(usize, usize, f32, Binning)> {
     let ext = cb.max - cb.min;
     let kf = |e: f32| {
         if e > 0.0 {
@@ -392,8 +433,8 @@ fn find_split(refs: &[Ref], cb: &Aabb, nb: usize) -> Option<(usize, usize, f32, 
             0.0
         }
     };
-    let g = Binning { cmin: cb.min, k: Vec3::new(kf(ext.x), kf(ext.y), kf(ext.z)), nb };
-    if g.k == Vec3::ZERO {
+    let g = Binning { cmin: cb.min, k: Vec4::new(kf(ext.x), kf(ext.y), kf(ext.z), 0.0), nb };
+    if g.k == Vec4::ZERO {
         return None;
     }
     let bins = if refs.len() >= PAR_BIN_THRESHOLD {
@@ -409,18 +450,18 @@ fn find_split(refs: &[Ref], cb: &Aabb, nb: usize) -> Option<(usize, usize, f32, 
         }
         let mut right_area = [0.0f32; MAX_BINS];
         let mut right_n = [0u32; MAX_BINS];
-        let mut acc = Aabb::EMPTY;
+        let mut acc = B4::EMPTY;
         let mut cnt = 0u32;
         for i in (1..nb).rev() {
-            acc = acc.union(&ab[i].b);
+            acc = acc.union(ab[i].b);
             cnt += ab[i].n;
             right_area[i] = acc.half_area();
             right_n[i] = cnt;
         }
-        let mut acc = Aabb::EMPTY;
+        let mut acc = B4::EMPTY;
         let mut cnt = 0u32;
         for i in 1..nb {
-            acc = acc.union(&ab[i - 1].b);
+            acc = acc.union(ab[i - 1].b);
             cnt += ab[i - 1].n;
             if cnt == 0 || right_n[i] == 0 {
                 continue;
@@ -454,56 +495,87 @@ pub(crate) fn partition<T>(v: &mut [T], mut left: impl FnMut(&T) -> bool) -> usi
     i
 }
 
-fn build_rec(refs: &mut [Ref], nodes: &mut [BvhNode], base: u32, first: u32, depth: u32, o: &BvhOptions) {
+/// In-place partition that also returns the box and centroid box (of `min + max`) of each side.
+fn partition_with_bounds(v: &mut [Ref], mut left: impl FnMut(&Ref) -> bool) -> (usize, [B4; 4]) {
+    let (mut lb, mut lcb, mut rb, mut rcb) = (B4::EMPTY, B4::EMPTY, B4::EMPTY, B4::EMPTY);
+    let mut i = 0;
+    let mut j = v.len();
+    while i < j {
+        let r = v[i];
+        if left(&r) {
+            lb = lb.union(r.b);
+            lcb.grow(r.c2());
+            i += 1;
+        } else {
+            rb = rb.union(r.b);
+            rcb.grow(r.c2());
+            j -= 1;
+            v.swap(i, j);
+        }
+    }
+    (i, [lb, lcb, rb, rcb])
+}
+
+fn build_rec(
+    refs: &mut [Ref],
+    nodes: &mut [BvhNode],
+    base: u32,
+    first: u32,
+    depth: u32,
+    (bounds, cb): (B4, B4),
+    o: &BvhOptions,
+) {
     let n = refs.len();
-    let (bounds, cb) = ref_bounds(refs);
+    let leaf = |nodes: &mut [BvhNode]| nodes[0] = BvhNode::leaf(&bounds.aabb(), first, n as u32);
     if n <= 1 {
-        nodes[0] = BvhNode::leaf(&bounds, first, n as u32);
+        leaf(nodes);
         return;
     }
-    let mut mid = None;
+    let mut split = None;
     if depth < MAX_SAH_DEPTH {
-        if let Some((axis, bin, cost, g)) = find_split(refs, &cb, o.bins) {
+        // Small nodes get as many bins as references: the same splits for much less sweeping.
+        if let Some((axis, bin, cost, g)) = find_split(refs, &cb, o.bins.min(n).max(2)) {
             let area = bounds.half_area() as f64;
             let split_cost = SAH_TRAVERSAL_COST * area + SAH_INTERSECTION_COST * cost as f64;
             let leaf_cost = SAH_INTERSECTION_COST * area * n as f64;
             if split_cost < leaf_cost || n > o.max_leaf {
-                let m = partition(refs, |r| g.bin(r.c2(), axis) < bin);
+                let (m, b) = partition_with_bounds(refs, |r| g.bin(r.c2(), axis) < bin);
                 if m > 0 && m < n {
-                    mid = Some(m);
+                    split = Some((m, b));
                 }
             } else {
-                nodes[0] = BvhNode::leaf(&bounds, first, n as u32);
+                leaf(nodes);
                 return;
             }
         }
     }
-    let m = match mid {
-        Some(m) => m,
+    let (m, [lb, lcb, rb, rcb]) = match split {
+        Some(s) => s,
         None if n > o.max_leaf || depth >= MAX_SAH_DEPTH && n > 1 => {
-            let axis = cb.longest_axis();
+            let axis = cb.aabb().longest_axis();
             let m = n / 2;
-            refs.select_nth_unstable_by(m, |a, b| a.c2()[axis].total_cmp(&b.c2()[axis]).then(a.idx.cmp(&b.idx)));
-            m
+            refs.select_nth_unstable_by(m, |a, b| a.c2()[axis].total_cmp(&b.c2()[axis]).then(a.idx().cmp(&b.idx())));
+            let (l, r) = (ref_bounds(&refs[..m]), ref_bounds(&refs[m..]));
+            (m, [l.0, l.1, r.0, r.1])
         }
         None => {
-            nodes[0] = BvhNode::leaf(&bounds, first, n as u32);
+            leaf(nodes);
             return;
         }
     };
     let m32 = m as u32;
-    nodes[0] = BvhNode::internal(&bounds, base + 1, base + 2 * m32);
+    nodes[0] = BvhNode::internal(&bounds.aabb(), base + 1, base + 2 * m32);
     let (_, rest) = nodes.split_at_mut(1);
     let (ln, rn) = rest.split_at_mut(2 * m - 1);
     let (lr, rr) = refs.split_at_mut(m);
     if n >= o.parallel_threshold {
         rayon::join(
-            || build_rec(lr, ln, base + 1, first, depth + 1, o),
-            || build_rec(rr, rn, base + 2 * m32, first + m32, depth + 1, o),
+            || build_rec(lr, ln, base + 1, first, depth + 1, (lb, lcb), o),
+            || build_rec(rr, rn, base + 2 * m32, first + m32, depth + 1, (rb, rcb), o),
         );
     } else {
-        build_rec(lr, ln, base + 1, first, depth + 1, o);
-        build_rec(rr, rn, base + 2 * m32, first + m32, depth + 1, o);
+        build_rec(lr, ln, base + 1, first, depth + 1, (lb, lcb), o);
+        build_rec(rr, rn, base + 2 * m32, first + m32, depth + 1, (rb, rcb), o);
     }
 }
 
@@ -541,13 +613,13 @@ pub(crate) fn build_sah_tree(boxes: &[Aabb], o: &BvhOptions) -> (Vec<BvhNode>, V
     if n == 0 {
         return (Vec::new(), Vec::new());
     }
-    let mut refs: Vec<Ref> =
-        boxes.par_iter().enumerate().map(|(i, b)| Ref { min: b.min, idx: i as u32, max: b.max }).collect();
+    let mut refs: Vec<Ref> = boxes.par_iter().enumerate().map(|(i, b)| Ref::new(b, i as u32)).collect();
     let mut sparse = vec![BvhNode::default(); 2 * n - 1];
     let o = BvhOptions { bins: o.bins.clamp(2, MAX_BINS), max_leaf: o.max_leaf.max(1), ..*o };
-    build_rec(&mut refs, &mut sparse, 0, 0, 0, &o);
+    let bounds = ref_bounds(&refs);
+    build_rec(&mut refs, &mut sparse, 0, 0, 0, bounds, &o);
     let nodes = compact_depth_first(&sparse);
-    (nodes, refs.iter().map(|r| r.idx).collect())
+    (nodes, refs.iter().map(|r| r.idx()).collect())
 }
 
 /// Binned-SAH BVH (see the module docs).
