@@ -123,7 +123,7 @@ impl BvhTree {
         let mut best_t = ray.tmax;
         let mut best: Option<Hit> = None;
         c.box_tests += 1;
-        r.slab(Vec3::from_array(root.min), Vec3::from_array(root.max), ray.tmin, best_t)?;
+        r.slab(&root.min, &root.max, ray.tmin, best_t)?;
         let mut stack: TraversalStack<(u32, f32)> = TraversalStack::new();
         let mut node = 0usize;
         loop {
@@ -145,8 +145,8 @@ impl BvhTree {
                 let (l, rr) = (n.left_or_first as usize, n.right_or_count as usize);
                 let (nl, nr) = (&nodes[l], &nodes[rr]);
                 c.box_tests += 2;
-                let tl = r.slab(Vec3::from_array(nl.min), Vec3::from_array(nl.max), ray.tmin, best_t);
-                let tr = r.slab(Vec3::from_array(nr.min), Vec3::from_array(nr.max), ray.tmin, best_t);
+                let tl = r.slab(&nl.min, &nl.max, ray.tmin, best_t);
+                let tr = r.slab(&nr.min, &nr.max, ray.tmin, best_t);
                 match (tl, tr) {
                     (Some(a), Some(b)) => {
                         if a <= b {
@@ -372,9 +372,9 @@ struct Binning {
 impl Binning {
     #[inline]
     fn bins(&self, c2: Vec4) -> [usize; 3] {
-        let x = (c2 - self.cmin) * self.k;
-        let top = self.nb - 1;
-        [(x.x as usize).min(top), (x.y as usize).min(top), (x.z as usize).min(top)]
+        // Clamped in f32 first: the integer conversions then need no saturation.
+        let x = ((c2 - self.cmin) * self.k).clamp(Vec4::ZERO, Vec4::splat((self.nb - 1) as f32));
+        [x.x as u32 as usize, x.y as u32 as usize, x.z as u32 as usize]
     }
     #[inline]
     fn bin(&self, c2: Vec4, axis: usize) -> usize {

@@ -17,7 +17,7 @@ pub use camera::Camera;
 pub use workload::{RaySet, WorkloadKind};
 
 use crate::accel::{AccelStructure, Triangle};
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 use rayon::prelude::*;
 
 /// A ray `origin + t * dir` for `tmin < t < tmax`. `dir` need not be normalized.
@@ -79,20 +79,24 @@ pub(crate) struct RayInv {
     pub(crate) o: Vec3,
     pub(crate) d: Vec3,
     pub(crate) inv: Vec3,
+    oa: Vec3A,
+    inva: Vec3A,
 }
 
 impl RayInv {
     #[inline]
     pub(crate) fn new(r: &Ray) -> Self {
         let f = |x: f32| if x == 0.0 { f32::MAX } else { 1.0 / x };
-        RayInv { o: r.origin, d: r.dir, inv: Vec3::new(f(r.dir.x), f(r.dir.y), f(r.dir.z)) }
+        let inv = Vec3::new(f(r.dir.x), f(r.dir.y), f(r.dir.z));
+        RayInv { o: r.origin, d: r.dir, inv, oa: r.origin.into(), inva: inv.into() }
     }
 
-    /// Slab test against `[min, max]` within `(tmin, tmax)`: the entry distance, or `None`.
+    /// Slab test against `[min, max]` (as stored in nodes) within `(tmin, tmax)`: the entry distance, or `None`.
+    /// SIMD: the slab distances never involve NaN (the inverse direction is finite), so SSE min/max are exact.
     #[inline]
-    pub(crate) fn slab(&self, min: Vec3, max: Vec3, tmin: f32, tmax: f32) -> Option<f32> {
-        let t0 = (min - self.o) * self.inv;
-        let t1 = (max - self.o) * self.inv;
+    pub(crate) fn slab(&self, min: &[f32; 3], max: &[f32; 3], tmin: f32, tmax: f32) -> Option<f32> {
+        let t0 = (Vec3A::from_array(*min) - self.oa) * self.inva;
+        let t1 = (Vec3A::from_array(*max) - self.oa) * self.inva;
         let near = t0.min(t1).max_element().max(tmin);
         let far = t0.max(t1).min_element() * SLAB_ROBUST;
         if near <= far.min(tmax) {
