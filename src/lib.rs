@@ -7,9 +7,12 @@
 #![deny(missing_docs)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
+pub mod accel;
 pub mod characterize;
+pub mod eval;
 pub mod gpu;
 pub mod keys;
 pub mod mesh;
 pub mod ops;
 pub mod stats;
+pub mod trace;

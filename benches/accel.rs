@@ -1,0 +1,314 @@
+//! Acceleration-structure benches.
+//!
+//! * `build/<scene>/<structure>`: build time of every structure on bunny (69K), dragon (871K) and sponza (66K);
+//!   criterion's throughput is triangles per second.
+//! * `trace/<scene>/<structure>`: primary rays at 256 x 256 through every structure (throughput: rays/s).
+//! * `crates/<scene>/...`: the same build and trace with the crates a Rust user would pick instead (`bvh` 0.13 with
+//!   its rayon build, `obvhs` 0.4 BVH2 with the `medium_build` preset).
+//! * `side_by_side`: one run that prints, per scene, build Mtris/s, trace Mrays/s (medians of 5), SAH cost
+//!   (`K_T = K_I = 1`, see `meshchar::accel::sah_cost`) and hit agreement with our BVH, for ours and both crates.
+//!
+//! Scenes come from `../shared/meshes`; the bench fails naming the path when they are missing.
+//! Run: `cargo bench --bench accel` (filter with e.g. `-- side_by_side` or `-- build/bunny`).
+
+#[path = "../tests/common/mini_load.rs"]
+mod mini_load;
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use meshchar::accel::{build_structure, StructureName};
+use meshchar::mesh::Mesh;
+use meshchar::trace::workload::{mesh_bounds, primary_rays};
+use meshchar::trace::{trace, Camera, Ray, RaySet, WorkloadKind};
+use rayon::prelude::*;
+use std::time::{Duration, Instant};
+
+const SCENES: [(&str, &str); 3] = [
+    ("bunny", "stanford-bunny/bun_zipper.ply"),
+    ("dragon", "stanford-dragon/dragon_vrip.ply"),
+    ("sponza", "dabrovic-sponza/sponza.obj"),
+];
+
+const RES: u32 = 256;
+
+fn scenes() -> Vec<(&'static str, Mesh)> {
+    SCENES
+        .iter()
+        .map(|(name, rel)| {
+            let p = mini_load::shared_mesh(rel);
+            (*name, mini_load::load(&p).unwrap_or_else(|e| panic!("{e}")))
+        })
+        .collect()
+}
+
+fn rays_for(mesh: &Mesh) -> RaySet {
+    let cam = Camera::frame(&mesh_bounds(mesh));
+    RaySet { kind: WorkloadKind::Primary, rays: primary_rays(&cam, RES, RES), any_hit: false }
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// The `bvh` crate.
+
+mod bvh_crate {
+    use super::*;
+    use bvh::aabb::{Aabb, Bounded};
+    use bvh::bounding_hierarchy::{BHShape, BoundingHierarchy};
+    use bvh::bvh::{Bvh, BvhNode};
+    use nalgebra::{Point3, Vector3};
+
+    pub struct Tri {
+        pub v: [Point3<f32>; 3],
+        pub idx: usize,
+        pub node: usize,
+    }
+
+    impl Bounded<f32, 3> for Tri {
+        fn aabb(&self) -> Aabb<f32, 3> {
+            Aabb::empty().grow(&self.v[0]).grow(&self.v[1]).grow(&self.v[2])
+        }
+    }
+
+    impl BHShape<f32, 3> for Tri {
+        fn set_bh_node_index(&mut self, i: usize) {
+            self.node = i;
+        }
+        fn bh_node_index(&self) -> usize {
+            self.node
+        }
+    }
+
+    pub fn shapes(mesh: &Mesh) -> Vec<Tri> {
+        (0..mesh.triangle_count())
+            .map(|i| {
+                let t = mesh.triangle(i);
+                Tri { v: t.map(|p| Point3::new(p.x, p.y, p.z)), idx: i, node: 0 }
+            })
+            .collect()
+    }
+
+    pub fn build(shapes: &mut [Tri]) -> Bvh<f32, 3> {
+        Bvh::build_par(shapes)
+    }
+
+    /// Closest hit: shapes in near-to-far order of their boxes, stopping once a box starts beyond the best hit.
+    pub fn closest(bvh: &Bvh<f32, 3>, shapes: &[Tri], r: &Ray) -> Option<(f32, usize)> {
+        let o = Point3::new(r.origin.x, r.origin.y, r.origin.z);
+        let d = Vector3::new(r.dir.x, r.dir.y, r.dir.z);
+        let ray = bvh::ray::Ray::new(o, d);
+        let mut best: Option<(f32, usize)> = None;
+        for s in bvh.nearest_traverse_iterator(&ray, shapes) {
+            if let (Some((t0, _)), Some((bt, _))) = (ray.intersection_slice_for_aabb(&s.aabb()), best) {
+                if t0 > bt {
+                    break;
+                }
+            }
+            let hit = ray.intersects_triangle(&s.v[0], &s.v[1], &s.v[2]);
+            if hit.distance.is_finite() && hit.distance > 0.0 && best.is_none_or(|(bt, _)| hit.distance < bt) {
+                best = Some((hit.distance, s.idx));
+            }
+        }
+        best
+    }
+
+    /// SAH cost with `K_T = K_I = 1` (leaves hold one shape each).
+    pub fn sah(bvh: &Bvh<f32, 3>) -> f64 {
+        let area = |b: &Aabb<f32, 3>| b.surface_area() as f64;
+        let Some(root) = bvh.nodes.first() else { return 0.0 };
+        let root_area = match root {
+            BvhNode::Node { child_l_aabb, child_r_aabb, .. } => area(&child_l_aabb.join(child_r_aabb)),
+            BvhNode::Leaf { .. } => return 1.0,
+        };
+        let mut items = vec![(root_area, false, 0)];
+        for n in &bvh.nodes {
+            if let BvhNode::Node { child_l_index, child_l_aabb, child_r_index, child_r_aabb, .. } = n {
+                for (i, b) in [(child_l_index, child_l_aabb), (child_r_index, child_r_aabb)] {
+                    let leaf = matches!(bvh.nodes[*i], BvhNode::Leaf { .. });
+                    items.push((area(b), leaf, usize::from(leaf)));
+                }
+            }
+        }
+        meshchar::accel::sah_cost(root_area, items.into_iter())
+    }
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// The `obvhs` crate.
+
+mod obvhs_crate {
+    use super::*;
+    use glam_obvhs::Vec3A;
+    use obvhs::bvh2::builder::build_bvh2_from_tris;
+    use obvhs::bvh2::Bvh2;
+    use obvhs::ray::{Ray as ORay, RayHit};
+    use obvhs::triangle::Triangle;
+    use obvhs::BvhBuildParams;
+
+    pub fn tris(mesh: &Mesh) -> Vec<Triangle> {
+        (0..mesh.triangle_count())
+            .map(|i| {
+                let [a, b, c] = mesh.triangle(i).map(|p| Vec3A::new(p.x, p.y, p.z));
+                Triangle { v0: a, v1: b, v2: c }
+            })
+            .collect()
+    }
+
+    /// Builds with the `medium_build` preset and reorders the triangles by `primitive_indices`, as obvhs advises
+    /// (part of the build time). Returns the tree, the reordered triangles and their mesh indices.
+    pub fn build(tris: &[Triangle]) -> (Bvh2, Vec<Triangle>, Vec<u32>) {
+        let mut t = Duration::ZERO;
+        let bvh = build_bvh2_from_tris(tris, BvhBuildParams::medium_build(), &mut t);
+        let ids = bvh.primitive_indices.clone();
+        let ordered = ids.iter().map(|&i| tris[i as usize]).collect();
+        (bvh, ordered, ids)
+    }
+
+    pub fn closest(bvh: &Bvh2, tris: &[Triangle], ids: &[u32], r: &Ray) -> Option<(f32, usize)> {
+        let ray = ORay::new_inf(Vec3A::new(r.origin.x, r.origin.y, r.origin.z), Vec3A::new(r.dir.x, r.dir.y, r.dir.z));
+        let mut hit = RayHit::none();
+        if bvh.ray_traverse(ray, &mut hit, |ray, id| tris[id].intersect(ray)) {
+            Some((hit.t, ids[hit.primitive_id as usize] as usize))
+        } else {
+            None
+        }
+    }
+
+    pub fn sah(bvh: &Bvh2) -> f64 {
+        let Some(root) = bvh.nodes.first() else { return 0.0 };
+        let root_area = 2.0 * root.aabb().half_area() as f64;
+        meshchar::accel::sah_cost(
+            root_area,
+            bvh.nodes.iter().map(|n| (2.0 * n.aabb().half_area() as f64, n.is_leaf(), n.prim_count as usize)),
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+
+fn bench_build(c: &mut Criterion) {
+    for (scene, mesh) in scenes() {
+        let mut g = c.benchmark_group(format!("build/{scene}"));
+        g.sample_size(10).warm_up_time(Duration::from_millis(500)).measurement_time(Duration::from_secs(3));
+        g.throughput(Throughput::Elements(mesh.triangle_count() as u64));
+        for name in StructureName::ALL {
+            g.bench_function(BenchmarkId::from_parameter(name), |b| {
+                b.iter(|| build_structure(name, &mesh).unwrap_or_else(|e| panic!("{e}")))
+            });
+        }
+        g.finish();
+    }
+}
+
+fn bench_trace(c: &mut Criterion) {
+    for (scene, mesh) in scenes() {
+        let rays = rays_for(&mesh);
+        let mut g = c.benchmark_group(format!("trace/{scene}"));
+        g.sample_size(10).warm_up_time(Duration::from_millis(500)).measurement_time(Duration::from_secs(3));
+        g.throughput(Throughput::Elements(rays.rays.len() as u64));
+        for name in StructureName::ALL {
+            let s = build_structure(name, &mesh).unwrap_or_else(|e| panic!("{e}"));
+            g.bench_function(BenchmarkId::from_parameter(name), |b| b.iter(|| trace(s.as_ref(), &rays)));
+        }
+        g.finish();
+    }
+}
+
+fn bench_crates(c: &mut Criterion) {
+    for (scene, mesh) in scenes() {
+        let rays = rays_for(&mesh);
+        let mut g = c.benchmark_group(format!("crates/{scene}"));
+        g.sample_size(10).warm_up_time(Duration::from_millis(500)).measurement_time(Duration::from_secs(3));
+        g.throughput(Throughput::Elements(mesh.triangle_count() as u64));
+        g.bench_function("build/bvh-crate", |b| {
+            b.iter_batched(
+                || bvh_crate::shapes(&mesh),
+                |mut s| bvh_crate::build(&mut s),
+                criterion::BatchSize::LargeInput,
+            )
+        });
+        let otris = obvhs_crate::tris(&mesh);
+        g.bench_function("build/obvhs", |b| b.iter(|| obvhs_crate::build(&otris)));
+        g.throughput(Throughput::Elements(rays.rays.len() as u64));
+        let mut shapes = bvh_crate::shapes(&mesh);
+        let bvh = bvh_crate::build(&mut shapes);
+        g.bench_function("trace/bvh-crate", |b| {
+            b.iter(|| rays.rays.par_iter().map(|r| bvh_crate::closest(&bvh, &shapes, r)).collect::<Vec<_>>())
+        });
+        let (ob, ot, oid) = obvhs_crate::build(&otris);
+        g.bench_function("trace/obvhs", |b| {
+            b.iter(|| rays.rays.par_iter().map(|r| obvhs_crate::closest(&ob, &ot, &oid, r)).collect::<Vec<_>>())
+        });
+        g.finish();
+    }
+}
+
+fn median_of<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
+    let mut times = Vec::new();
+    let mut last = None;
+    for _ in 0..reps {
+        let t = Instant::now();
+        last = Some(f());
+        times.push(t.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    (times[times.len() / 2], last.expect("at least one repeat"))
+}
+
+/// Hits that differ from ours in triangle, allowing equal distances (ties) and the rounding of other triangle tests.
+fn disagreements(ours: &[Option<meshchar::trace::Hit>], theirs: &[Option<(f32, usize)>]) -> usize {
+    ours.iter()
+        .zip(theirs)
+        .filter(|(a, b)| match (a, b) {
+            (None, None) => false,
+            (Some(a), Some((t, i))) => a.triangle as usize != *i && (a.t - t).abs() > 1e-4 * a.t.abs().max(1.0),
+            _ => true,
+        })
+        .count()
+}
+
+fn side_by_side(_: &mut Criterion) {
+    // Runs when no filter is given or the filter names it (criterion's filters only apply to its own benches).
+    let filters: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with("--")).collect();
+    if !filters.is_empty() && !filters.iter().any(|f| "side_by_side".contains(f.as_str())) {
+        return;
+    }
+    const REPS: usize = 5;
+    println!("\nside by side: primary rays {RES}x{RES}, medians of {REPS}, rayon over rays, SAH with K_T = K_I = 1");
+    println!(
+        "{:<8} {:<22} {:>12} {:>12} {:>10} {:>14}",
+        "scene", "structure", "build Mtri/s", "trace Mray/s", "SAH", "hits differ"
+    );
+    for (scene, mesh) in scenes() {
+        let n = mesh.triangle_count() as f64;
+        let rays = rays_for(&mesh);
+        let nr = rays.rays.len() as f64;
+        let (bt, ours) =
+            median_of(REPS, || build_structure(StructureName::Bvh, &mesh).unwrap_or_else(|e| panic!("{e}")));
+        let (tt, out) = median_of(REPS, || trace(ours.as_ref(), &rays));
+        let row = |name: &str, bt: f64, tt: f64, sah: f64, bad: usize| {
+            println!("{scene:<8} {name:<22} {:>12.2} {:>12.2} {:>10.1} {:>14}", n / bt / 1e6, nr / tt / 1e6, sah, bad)
+        };
+        row("meshchar bvh", bt, tt, ours.sah_cost().unwrap_or(f64::NAN), 0);
+        for name in [StructureName::Lbvh, StructureName::Hlbvh] {
+            let (b, s) = median_of(REPS, || build_structure(name, &mesh).unwrap_or_else(|e| panic!("{e}")));
+            let (t, o) = median_of(REPS, || trace(s.as_ref(), &rays));
+            let bad = meshchar::trace::count_disagreements(&o, &out);
+            row(&format!("meshchar {name}"), b, t, s.sah_cost().unwrap_or(f64::NAN), bad);
+        }
+        let (b, (shapes, bvh)) = median_of(REPS, || {
+            let mut s = bvh_crate::shapes(&mesh);
+            let b = bvh_crate::build(&mut s);
+            (s, b)
+        });
+        let (t, hits) =
+            median_of(REPS, || rays.rays.par_iter().map(|r| bvh_crate::closest(&bvh, &shapes, r)).collect::<Vec<_>>());
+        row("bvh 0.13 (build_par)", b, t, bvh_crate::sah(&bvh), disagreements(&out.hits, &hits));
+        let otris = obvhs_crate::tris(&mesh);
+        let (b, (ob, ot, oid)) = median_of(REPS, || obvhs_crate::build(&otris));
+        let (t, hits) = median_of(REPS, || {
+            rays.rays.par_iter().map(|r| obvhs_crate::closest(&ob, &ot, &oid, r)).collect::<Vec<_>>()
+        });
+        row("obvhs 0.4 (medium)", b, t, obvhs_crate::sah(&ob), disagreements(&out.hits, &hits));
+    }
+}
+
+criterion_group!(benches, side_by_side, bench_build, bench_trace, bench_crates);
+criterion_main!(benches);

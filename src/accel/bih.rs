@@ -1,0 +1,421 @@
+//! Bounding interval hierarchy (Wächter and Keller 2006): two clip planes per node and the global spatial-median
+//! heuristic.
+//!
+//! # Build
+//!
+//! The split candidates come from a *candidate box* that starts as the scene box and is halved at its spatial
+//! median along its longest axis, independently of the triangles (the global heuristic of Wächter and Keller).
+//! Triangles go left when the centre of their box lies below the plane. When both sides are non-empty a node is
+//! made: the left clip plane is the largest maximum of the left triangles along the axis, the right clip plane the
+//! smallest minimum of the right ones, and each child continues with its half of the candidate box. When one side
+//! is empty, no node is made and the candidate box is replaced by the half that holds the triangles. Leaves hold at
+//! most [`BihOptions::max_leaf`] triangles; where halving stops separating the triangles (all centres in one point,
+//! or 64 halvings without progress) the node is split at the object median instead. Subtrees over
+//! [`BihOptions::parallel_threshold`] triangles are built in parallel.
+//!
+//! # Layout ([`BihNode`], 12 bytes)
+//!
+//! `flags & 3` is the axis (0, 1, 2) or 3 for a leaf. An internal node's children are adjacent: left at
+//! `flags >> 2`, right at `(flags >> 2) + 1`; `clip = [left max, right min]`. A leaf covers triangle records
+//! `flags >> 2 .. (flags >> 2) + count` with `count = clip[0].to_bits()`. Node 0 is the root.
+//!
+//! # Traversal
+//!
+//! Interval traversal with a stack of `(node, t_entry, t_exit)`: the near child is entered up to its clip plane, the
+//! far child from its clip plane (distances widened by a relative `2e-6`), a stacked node is skipped once its entry
+//! lies beyond the best hit. `box_tests` counts visited nodes (one test against the scene box first).
+
+use super::bvh::partition;
+use super::{
+    bytes_of, invalid, prepare, sah_cost, Aabb, AccelError, AccelStats, AccelStructure, StructureName, TraversalStack,
+    Triangle,
+};
+use crate::mesh::Mesh;
+use crate::trace::{intersect_triangle, Hit, Ray, RayInv, TraceCounters};
+use glam::Vec3;
+
+/// One BIH node (see the module docs).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct BihNode {
+    /// `[left child max, right child min]` along the axis (internal); `count` bits in `clip[0]` (leaf).
+    pub clip: [f32; 2],
+    /// `axis | children << 2` (internal) or `3 | first << 2` (leaf).
+    pub flags: u32,
+}
+
+const _: () = assert!(std::mem::size_of::<BihNode>() == 12);
+
+const LEAF: u32 = 3;
+
+impl BihNode {
+    /// Whether this is a leaf.
+    #[inline]
+    pub fn is_leaf(&self) -> bool {
+        self.flags & 3 == LEAF
+    }
+    /// Triangle count of a leaf.
+    #[inline]
+    pub fn count(&self) -> u32 {
+        self.clip[0].to_bits()
+    }
+}
+
+/// Options of the BIH builder.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BihOptions {
+    /// Largest leaf.
+    pub max_leaf: usize,
+    /// Subtrees with at least this many triangles are built in parallel.
+    pub parallel_threshold: usize,
+}
+
+impl Default for BihOptions {
+    fn default() -> Self {
+        BihOptions { max_leaf: 4, parallel_threshold: 8192 }
+    }
+}
+
+/// The bounding interval hierarchy (see the module docs).
+#[derive(Clone, Debug, Default)]
+pub struct Bih {
+    nodes: Vec<BihNode>,
+    tris: Vec<Triangle>,
+    ids: Vec<u32>,
+    bounds: Aabb,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct BRef {
+    min: Vec3,
+    idx: u32,
+    max: Vec3,
+}
+
+impl BRef {
+    #[inline]
+    fn center(&self, a: usize) -> f32 {
+        (self.min[a] + self.max[a]) * 0.5
+    }
+}
+
+/// Subtree: nodes with child indices relative to the subtree's first node, leaves relative to its first record.
+struct Sub {
+    nodes: Vec<BihNode>,
+}
+
+fn leaf_node(first: usize, count: usize) -> BihNode {
+    BihNode { clip: [f32::from_bits(count as u32), 0.0], flags: LEAF | ((first as u32) << 2) }
+}
+
+/// Builds the subtree over `refs` (records `first ..`), candidate box `cand`, into `out` (root at `out[0]`; child
+/// indices relative to `out[0]`).
+fn build_rec(refs: &mut [BRef], first: usize, mut cand: Aabb, o: &BihOptions) -> Sub {
+    let n = refs.len();
+    if n <= o.max_leaf.max(1) {
+        return Sub { nodes: vec![leaf_node(first, n)] };
+    }
+    let mut split = None;
+    for _ in 0..64 {
+        let axis = cand.longest_axis();
+        let p = (cand.min[axis] + cand.max[axis]) * 0.5;
+        if !(p > cand.min[axis] && p < cand.max[axis]) {
+            break;
+        }
+        let m = partition(refs, |r| r.center(axis) < p);
+        if m > 0 && m < n {
+            split = Some((axis, m, p));
+            break;
+        }
+        if m == 0 {
+            cand.min[axis] = p;
+        } else {
+            cand.max[axis] = p;
+        }
+    }
+    let (axis, m, lc, rc) = match split {
+        Some((axis, m, p)) => {
+            let mut lc = cand;
+            lc.max[axis] = p;
+            let mut rc = cand;
+            rc.min[axis] = p;
+            (axis, m, lc, rc)
+        }
+        None => {
+            // Object median along the longest axis of the centres.
+            let mut cb = Aabb::EMPTY;
+            for r in refs.iter() {
+                cb.grow((r.min + r.max) * 0.5);
+            }
+            let axis = cb.longest_axis();
+            let m = n / 2;
+            refs.select_nth_unstable_by(m, |a, b| a.center(axis).total_cmp(&b.center(axis)).then(a.idx.cmp(&b.idx)));
+            let p = refs[m].center(axis);
+            let mut lc = cand;
+            lc.max[axis] = p.clamp(cand.min[axis], cand.max[axis]);
+            let mut rc = cand;
+            rc.min[axis] = lc.max[axis];
+            (axis, m, lc, rc)
+        }
+    };
+    let (lr, rr) = refs.split_at_mut(m);
+    let left_clip = lr.iter().fold(f32::NEG_INFINITY, |a, r| a.max(r.max[axis]));
+    let right_clip = rr.iter().fold(f32::INFINITY, |a, r| a.min(r.min[axis]));
+    let (l, r) = if n >= o.parallel_threshold {
+        rayon::join(|| build_rec(lr, first, lc, o), || build_rec(rr, first + m, rc, o))
+    } else {
+        (build_rec(lr, first, lc, o), build_rec(rr, first + m, rc, o))
+    };
+    // Layout: [this, left root, right root, left rest..., right rest...].
+    let mut nodes = Vec::with_capacity(1 + l.nodes.len() + r.nodes.len());
+    nodes.push(BihNode { clip: [left_clip, right_clip], flags: axis as u32 | (1 << 2) });
+    let l_rest = 3; // where left's node 1.. go
+    let r_rest = 3 + l.nodes.len() - 1;
+    let relocate = |nd: &BihNode, own_rest: usize| -> BihNode {
+        if nd.is_leaf() {
+            *nd
+        } else {
+            // Child index k (relative to the subtree root) maps to own_rest + k - 1.
+            let k = (nd.flags >> 2) as usize;
+            BihNode { clip: nd.clip, flags: (nd.flags & 3) | (((own_rest + k - 1) as u32) << 2) }
+        }
+    };
+    nodes.push(relocate(&l.nodes[0], l_rest));
+    nodes.push(relocate(&r.nodes[0], r_rest));
+    nodes.extend(l.nodes[1..].iter().map(|nd| relocate(nd, l_rest)));
+    nodes.extend(r.nodes[1..].iter().map(|nd| relocate(nd, r_rest)));
+    Sub { nodes }
+}
+
+impl Bih {
+    /// Builds with explicit options.
+    pub fn build_with(mesh: &Mesh, o: &BihOptions) -> Result<Self, AccelError> {
+        let (tris, boxes) = prepare(mesh, "bih")?;
+        if tris.is_empty() {
+            return Ok(Bih::default());
+        }
+        let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
+        let mut refs: Vec<BRef> =
+            boxes.iter().enumerate().map(|(i, b)| BRef { min: b.min, idx: i as u32, max: b.max }).collect();
+        let sub = build_rec(&mut refs, 0, bounds, o);
+        let ids: Vec<u32> = refs.iter().map(|r| r.idx).collect();
+        let tris = ids.iter().map(|&i| tris[i as usize]).collect();
+        Ok(Bih { nodes: sub.nodes, tris, ids, bounds })
+    }
+
+    /// The nodes (root first).
+    pub fn nodes(&self) -> &[BihNode] {
+        &self.nodes
+    }
+
+    fn traverse(&self, ray: &Ray, any: bool, c: &mut TraceCounters) -> Option<Hit> {
+        if self.nodes.is_empty() {
+            return None;
+        }
+        let r = RayInv::new(ray);
+        c.box_tests += 1;
+        let (mut tn, mut tf) = r.slab_interval(self.bounds.min, self.bounds.max, ray.tmin, ray.tmax)?;
+        let mut best_t = ray.tmax;
+        let mut best = None;
+        let mut stack: TraversalStack<(u32, f32, f32)> = TraversalStack::new();
+        let mut node = 0usize;
+        const E: f32 = 2e-6;
+        loop {
+            if tn <= best_t {
+                let nd = self.nodes[node];
+                if nd.is_leaf() {
+                    let first = (nd.flags >> 2) as usize;
+                    for i in first..first + nd.count() as usize {
+                        c.prim_tests += 1;
+                        if let Some((t, u, v)) = intersect_triangle(&self.tris[i], r.o, r.d, ray.tmin, best_t) {
+                            best_t = t;
+                            best = Some(Hit { t, triangle: self.ids[i], u, v });
+                            if any {
+                                return best;
+                            }
+                        }
+                    }
+                } else {
+                    c.box_tests += 1;
+                    let a = (nd.flags & 3) as usize;
+                    let ch = (nd.flags >> 2) as usize;
+                    let tl = (nd.clip[0] - r.o[a]) * r.inv[a];
+                    let tr = (nd.clip[1] - r.o[a]) * r.inv[a];
+                    let (tl, tr) = (tl + tl.abs() * E, tr - tr.abs() * E);
+                    // Positive (or zero) direction: left is near; it spans t <= tl, right spans t >= tr.
+                    let ((near, near_end), (far, far_start)) = if r.inv[a] > 0.0 {
+                        ((ch, tl), (ch + 1, tr))
+                    } else {
+                        // Negative direction: the right child spans t <= t(clip[1]), the left t >= t(clip[0]).
+                        let tl2 = (nd.clip[0] - r.o[a]) * r.inv[a];
+                        let tr2 = (nd.clip[1] - r.o[a]) * r.inv[a];
+                        ((ch + 1, tr2 + tr2.abs() * E), (ch, tl2 - tl2.abs() * E))
+                    };
+                    let near_ok = tn <= near_end;
+                    let far_ok = far_start <= tf;
+                    match (near_ok, far_ok) {
+                        (true, true) => {
+                            stack.push((far as u32, tn.max(far_start), tf));
+                            node = near;
+                            tf = tf.min(near_end);
+                            continue;
+                        }
+                        (true, false) => {
+                            node = near;
+                            tf = tf.min(near_end);
+                            continue;
+                        }
+                        (false, true) => {
+                            node = far;
+                            tn = tn.max(far_start);
+                            continue;
+                        }
+                        (false, false) => {}
+                    }
+                }
+            }
+            match stack.pop() {
+                None => return best,
+                Some((nd, a, b)) => {
+                    node = nd as usize;
+                    tn = a;
+                    tf = b;
+                }
+            }
+        }
+    }
+
+    /// Implied box of every node (parent box clipped by the node's interval), root first, with the node index.
+    fn node_boxes(&self) -> Vec<(usize, Aabb, usize)> {
+        let mut out = Vec::with_capacity(self.nodes.len());
+        if self.nodes.is_empty() {
+            return out;
+        }
+        let mut stack = vec![(0usize, self.bounds, 0usize)];
+        while let Some((k, b, depth)) = stack.pop() {
+            out.push((k, b, depth));
+            let nd = self.nodes[k];
+            if !nd.is_leaf() {
+                let a = (nd.flags & 3) as usize;
+                let ch = (nd.flags >> 2) as usize;
+                let mut l = b;
+                l.max[a] = l.max[a].min(nd.clip[0]);
+                let mut r = b;
+                r.min[a] = r.min[a].max(nd.clip[1]);
+                stack.push((ch, l, depth + 1));
+                stack.push((ch + 1, r, depth + 1));
+            }
+        }
+        out
+    }
+}
+
+impl AccelStructure for Bih {
+    fn build(mesh: &Mesh) -> Result<Self, AccelError> {
+        Bih::build_with(mesh, &BihOptions::default())
+    }
+    fn name(&self) -> StructureName {
+        StructureName::Bih
+    }
+    fn triangle_count(&self) -> usize {
+        self.tris.len()
+    }
+    fn intersect(&self, ray: &Ray, c: &mut TraceCounters) -> Option<Hit> {
+        self.traverse(ray, false, c)
+    }
+    fn occluded(&self, ray: &Ray, c: &mut TraceCounters) -> bool {
+        self.traverse(ray, true, c).is_some()
+    }
+    fn memory_bytes(&self) -> usize {
+        bytes_of(&self.nodes) + bytes_of(&self.tris) + bytes_of(&self.ids)
+    }
+
+    /// Checks: every node reached exactly once, children indices in range, each child's implied box inside its
+    /// parent's, every triangle record in exactly one leaf and inside that leaf's implied box (so the clip planes
+    /// never cut a triangle off), ids a permutation.
+    fn validate(&self) -> Result<AccelStats, AccelError> {
+        let n = self.tris.len();
+        let mut stats = AccelStats { triangles: n, bytes: self.memory_bytes(), ..Default::default() };
+        if self.nodes.is_empty() {
+            if n != 0 {
+                return Err(invalid("bih", "no nodes for triangles"));
+            }
+            return Ok(stats);
+        }
+        let mut seen_id = vec![false; n];
+        for &id in &self.ids {
+            match seen_id.get_mut(id as usize) {
+                Some(s) if !*s => *s = true,
+                _ => return Err(invalid("bih", format!("triangle id {id} repeated or out of range"))),
+            }
+        }
+        let mut visited = vec![false; self.nodes.len()];
+        let mut covered = vec![false; n];
+        let mut stack = vec![(0usize, self.bounds, 0usize)];
+        while let Some((k, b, depth)) = stack.pop() {
+            let nd = *self.nodes.get(k).ok_or_else(|| invalid("bih", format!("node {k} out of range")))?;
+            if std::mem::replace(&mut visited[k], true) {
+                return Err(invalid("bih", format!("node {k} reached twice")));
+            }
+            stats.nodes += 1;
+            stats.max_depth = stats.max_depth.max(depth);
+            if nd.is_leaf() {
+                let first = (nd.flags >> 2) as usize;
+                let count = nd.count() as usize;
+                if first + count > n {
+                    return Err(invalid("bih", format!("leaf {k} out of range")));
+                }
+                stats.leaves += 1;
+                stats.references += count;
+                if count == 0 {
+                    stats.empty_leaves += 1;
+                }
+                for (i, cov) in covered.iter_mut().enumerate().skip(first).take(count) {
+                    if std::mem::replace(cov, true) {
+                        return Err(invalid("bih", format!("record {i} in two leaves")));
+                    }
+                    let t = &self.tris[i];
+                    let slack = (b.max.abs() + b.min.abs()) * 1e-6;
+                    let loose = Aabb::new(b.min - slack, b.max + slack);
+                    if !loose.contains(&Aabb::of_triangle(&[t.v0, t.v0 + t.e1, t.v0 + t.e2])) {
+                        return Err(invalid("bih", format!("triangle {} outside leaf {k}", self.ids[i])));
+                    }
+                }
+            } else {
+                let a = (nd.flags & 3) as usize;
+                let ch = (nd.flags >> 2) as usize;
+                if ch + 1 >= self.nodes.len() || ch <= k {
+                    return Err(invalid("bih", format!("node {k}: children {ch} out of range")));
+                }
+                let mut l = b;
+                l.max[a] = l.max[a].min(nd.clip[0]);
+                let mut r = b;
+                r.min[a] = r.min[a].max(nd.clip[1]);
+                if !b.contains(&l) || !b.contains(&r) {
+                    return Err(invalid("bih", format!("node {k}: child outside parent")));
+                }
+                stack.push((ch, l, depth + 1));
+                stack.push((ch + 1, r, depth + 1));
+            }
+        }
+        if stats.nodes != self.nodes.len() {
+            return Err(invalid("bih", format!("{} nodes unreachable", self.nodes.len() - stats.nodes)));
+        }
+        if covered.iter().any(|c| !c) {
+            return Err(invalid("bih", "triangle record in no leaf"));
+        }
+        Ok(stats)
+    }
+
+    fn sah_cost(&self) -> Option<f64> {
+        let boxes = self.node_boxes();
+        let root = self.bounds.surface_area();
+        Some(sah_cost(
+            root,
+            boxes.into_iter().map(|(k, b, _)| {
+                let nd = self.nodes[k];
+                (b.surface_area(), nd.is_leaf(), if nd.is_leaf() { nd.count() as usize } else { 0 })
+            }),
+        ))
+    }
+}

@@ -1,0 +1,241 @@
+//! Hierarchical LBVH (Pantaleoni and Luebke 2010, in the form pbrt gives it: Morton clusters, an LBVH per cluster,
+//! SAH over the clusters at the top).
+//!
+//! # Definition (what a GPU builder reproduces)
+//!
+//! 1. Keys and sort exactly as the [`super::lbvh`] steps 1 and 2.
+//! 2. Clusters: maximal runs of sorted positions whose codes share their top [`HlbvhOptions::cluster_bits`] bits
+//!    (12 by default, as pbrt does with 30-bit codes), numbered in sorted order. Cluster `c` covers positions
+//!    `s_c .. e_c`, `m_c = e_c - s_c`.
+//! 3. Bottom: each cluster is a Karras 2012 radix tree over its positions (the [`super::lbvh`] steps 3 to 6 applied
+//!    to the sub-array, with `delta = -1` outside it), stored as a block of `2 m_c - 1` nodes in the LBVH numbering
+//!    (internal `0 .. m_c - 1`, leaves after), leaf of position `p` holding record `p` (global).
+//! 4. Top: with `C` clusters, nodes `0 .. C - 1` are the top tree, in depth-first order (a node's left subtree
+//!    follows it); cluster blocks follow in cluster order from node `C - 1`. The top tree is binned SAH
+//!    (Wald 2007) over the cluster root boxes: [`HlbvhOptions::bins`] bins per axis on the box centroids, cost
+//!    `A_L N_L + A_R N_R` with `N` counting clusters, the least cost taken (ties: lower axis, then lower bin);
+//!    clusters keep their order within each side; a node with one cluster is that cluster's root (the parent
+//!    points into the block); a node whose cluster centroids coincide on every axis splits its list in the middle.
+//!    A top node's box is the union of its children's. With one cluster, node 0 is that cluster's root.
+
+use super::bvh::{BvhNode, BvhTree};
+use super::lbvh::{check_karras_shape, fit_boxes_bottom_up, morton_codes, radix_tree_children, sorted_keys};
+use super::{invalid, prepare, Aabb, AccelError, AccelStats, AccelStructure, StructureName};
+use crate::keys::MortonBits;
+use crate::mesh::Mesh;
+use crate::trace::{Hit, Ray, TraceCounters};
+use rayon::prelude::*;
+
+/// Options of the HLBVH.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HlbvhOptions {
+    /// Morton code width.
+    pub bits: MortonBits,
+    /// Top code bits that define a cluster (at most the code width).
+    pub cluster_bits: u32,
+    /// Bins per axis of the top-level SAH (2 to 64).
+    pub bins: usize,
+}
+
+impl Default for HlbvhOptions {
+    fn default() -> Self {
+        HlbvhOptions { bits: MortonBits::Bits30, cluster_bits: 12, bins: 16 }
+    }
+}
+
+/// The HLBVH (see the module docs).
+#[derive(Clone, Debug, Default)]
+pub struct Hlbvh {
+    tree: BvhTree,
+    /// `(first position, count, block offset)` of every cluster.
+    clusters: Vec<(u32, u32, u32)>,
+}
+
+fn top_tree(list: &mut [u32], roots: &[u32], boxes: &[Aabb], bins: usize, out: &mut Vec<BvhNode>) -> (u32, Aabb) {
+    if list.len() == 1 {
+        let c = list[0] as usize;
+        return (roots[c], boxes[c]);
+    }
+    let here = out.len();
+    out.push(BvhNode::default());
+    let mut cb = Aabb::EMPTY;
+    for &c in list.iter() {
+        cb.grow(boxes[c as usize].center());
+    }
+    let nb = bins.clamp(2, 64);
+    let ext = cb.max - cb.min;
+    let bin_of = |c: u32, a: usize| -> usize {
+        let x = (boxes[c as usize].center()[a] - cb.min[a]) * (nb as f32 * (1.0 - 1e-6) / ext[a]);
+        (x as usize).min(nb - 1)
+    };
+    let mut best: Option<(usize, usize, f32)> = None;
+    for a in 0..3 {
+        if ext[a].is_nan() || ext[a] <= 0.0 {
+            continue;
+        }
+        let mut bb = vec![Aabb::EMPTY; nb];
+        let mut bn = vec![0usize; nb];
+        for &c in list.iter() {
+            let b = bin_of(c, a);
+            bb[b] = bb[b].union(&boxes[c as usize]);
+            bn[b] += 1;
+        }
+        for s in 1..nb {
+            let (mut lb, mut ln, mut rb, mut rn) = (Aabb::EMPTY, 0, Aabb::EMPTY, 0);
+            for i in 0..s {
+                lb = lb.union(&bb[i]);
+                ln += bn[i];
+            }
+            for i in s..nb {
+                rb = rb.union(&bb[i]);
+                rn += bn[i];
+            }
+            if ln == 0 || rn == 0 {
+                continue;
+            }
+            let cost = lb.half_area() * ln as f32 + rb.half_area() * rn as f32;
+            if best.is_none_or(|(_, _, c)| cost < c) {
+                best = Some((a, s, cost));
+            }
+        }
+    }
+    let m = match best {
+        Some((a, s, _)) => {
+            // Stable partition: clusters keep their order on each side.
+            let (l, r): (Vec<u32>, Vec<u32>) = list.iter().partition(|&&c| bin_of(c, a) < s);
+            let m = l.len();
+            list[..m].copy_from_slice(&l);
+            list[m..].copy_from_slice(&r);
+            m
+        }
+        None => list.len() / 2,
+    };
+    let (ll, rl) = list.split_at_mut(m);
+    let (li, lbox) = top_tree(ll, roots, boxes, bins, out);
+    let (ri, rbox) = top_tree(rl, roots, boxes, bins, out);
+    let b = lbox.union(&rbox);
+    out[here] = BvhNode::internal(&b, li, ri);
+    (here as u32, b)
+}
+
+impl Hlbvh {
+    /// Builds with explicit options.
+    pub fn build_with(mesh: &Mesh, o: &HlbvhOptions) -> Result<Self, AccelError> {
+        let (tris, boxes) = prepare(mesh, "hlbvh")?;
+        let codes = morton_codes(mesh, o.bits, "hlbvh")?;
+        let keys = sorted_keys(&codes);
+        let n = keys.len();
+        if n == 0 {
+            return Ok(Hlbvh::default());
+        }
+        let shift = o.bits.total() - o.cluster_bits.min(o.bits.total());
+        let prefix = |k: &(u64, u32)| if shift >= 64 { 0 } else { k.0 >> shift };
+        let mut ranges: Vec<(usize, usize)> = Vec::new();
+        let mut s = 0;
+        for i in 1..=n {
+            if i == n || prefix(&keys[i]) != prefix(&keys[s]) {
+                ranges.push((s, i));
+                s = i;
+            }
+        }
+        let c = ranges.len();
+        let mut offsets = Vec::with_capacity(c);
+        let mut off = c - 1;
+        for &(s, e) in &ranges {
+            offsets.push(off);
+            off += 2 * (e - s) - 1;
+        }
+        let total = off;
+        // Bottom: one Karras tree per cluster, in parallel.
+        let blocks: Vec<Vec<BvhNode>> = ranges
+            .par_iter()
+            .zip(offsets.par_iter())
+            .map(|(&(s, e), &offset)| {
+                let sub = &keys[s..e];
+                let m = e - s;
+                let children = radix_tree_children(sub, o.bits.total());
+                let mut nodes = vec![BvhNode::default(); 2 * m - 1];
+                for (p, nd) in nodes[m - 1..].iter_mut().enumerate() {
+                    *nd = BvhNode::leaf(&boxes[sub[p].1 as usize], (s + p) as u32, 1);
+                }
+                fit_boxes_bottom_up(&mut nodes, &children);
+                for nd in nodes[..m - 1].iter_mut() {
+                    nd.left_or_first += offset as u32;
+                    nd.right_or_count += offset as u32;
+                }
+                nodes
+            })
+            .collect();
+        let roots: Vec<u32> = offsets.iter().map(|&x| x as u32).collect();
+        let root_boxes: Vec<Aabb> = blocks.iter().map(|b| b[0].aabb()).collect();
+        let mut nodes: Vec<BvhNode> = Vec::with_capacity(total);
+        let mut list: Vec<u32> = (0..c as u32).collect();
+        top_tree(&mut list, &roots, &root_boxes, o.bins, &mut nodes);
+        debug_assert_eq!(nodes.len(), c - 1);
+        for b in blocks {
+            nodes.extend(b);
+        }
+        let ids: Vec<u32> = keys.iter().map(|k| k.1).collect();
+        let tris = ids.par_iter().map(|&i| tris[i as usize]).collect();
+        let clusters =
+            ranges.iter().zip(&offsets).map(|(&(s, e), &off)| (s as u32, (e - s) as u32, off as u32)).collect();
+        Ok(Hlbvh { tree: BvhTree { nodes, tris, ids }, clusters })
+    }
+
+    /// The nodes and triangle records.
+    pub fn tree(&self) -> &BvhTree {
+        &self.tree
+    }
+
+    /// Number of Morton clusters.
+    pub fn cluster_count(&self) -> usize {
+        self.clusters.len()
+    }
+}
+
+impl AccelStructure for Hlbvh {
+    fn build(mesh: &Mesh) -> Result<Self, AccelError> {
+        Hlbvh::build_with(mesh, &HlbvhOptions::default())
+    }
+    fn name(&self) -> StructureName {
+        StructureName::Hlbvh
+    }
+    fn triangle_count(&self) -> usize {
+        self.tree.tris.len()
+    }
+    fn intersect(&self, ray: &Ray, c: &mut TraceCounters) -> Option<Hit> {
+        self.tree.traverse(ray, false, c)
+    }
+    fn occluded(&self, ray: &Ray, c: &mut TraceCounters) -> bool {
+        self.tree.traverse(ray, true, c).is_some()
+    }
+    /// The BVH checks of [`BvhTree::validate`], plus the HLBVH shape: `C - 1` top nodes, then one Karras block per
+    /// cluster covering its positions, clusters contiguous and in order.
+    fn validate(&self) -> Result<AccelStats, AccelError> {
+        let s = self.tree.validate("hlbvh")?;
+        let c = self.clusters.len();
+        let mut pos = 0usize;
+        let mut off = c.saturating_sub(1);
+        for &(first, m, offset) in &self.clusters {
+            if first as usize != pos || offset as usize != off || m == 0 {
+                return Err(invalid("hlbvh", format!("cluster at {first} (offset {offset}) out of order")));
+            }
+            check_karras_shape("hlbvh", &self.tree.nodes, m as usize, off, pos)?;
+            pos += m as usize;
+            off += 2 * m as usize - 1;
+        }
+        if pos != self.tree.tris.len() || off != self.tree.nodes.len() {
+            return Err(invalid("hlbvh", "clusters do not cover the records and nodes"));
+        }
+        if self.tree.nodes[..c.saturating_sub(1)].iter().any(|n| n.is_leaf()) {
+            return Err(invalid("hlbvh", "leaf among the top nodes"));
+        }
+        Ok(s)
+    }
+    fn memory_bytes(&self) -> usize {
+        self.tree.memory_bytes()
+    }
+    fn sah_cost(&self) -> Option<f64> {
+        Some(self.tree.sah_cost())
+    }
+}

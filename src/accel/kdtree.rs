@@ -1,0 +1,513 @@
+//! SAH kd-tree with binned plane candidates and empty-space cut-off (after Wald and Havran 2006, binning as in
+//! Shevtsov et al. 2007), references duplicated across splits.
+//!
+//! # Build
+//!
+//! Each reference carries the triangle's bounding box clipped to the current voxel. Per axis, candidate planes are
+//! the boundaries of [`KdOptions::bins`] equal bins of the voxel, plus the two planes that cut off the empty space
+//! on either side of the references (exactly at their smallest minimum and largest maximum). The count estimates
+//! `N_L`, `N_R` come from per-bin start and end counts. The cost of a plane is
+//! `K_T + K_I * (1 - b) * (SA(V_L) N_L + SA(V_R) N_R) / SA(V)`, with the empty-space bonus `b`
+//! ([`KdOptions::empty_bonus`]) when one side is empty (Wald and Havran 2006). A node becomes a leaf when no plane
+//! beats `K_I * N`, or at the depth limit `8 + 1.3 log2(N)` (the rule of pbrt, Pharr et al.).
+//!
+//! Partition rule at plane `p` on axis `a` (reproduced exactly by `validate()`): a reference goes left when its box
+//! has `min[a] < p`, right when `max[a] > p`, both when it straddles; a box lying in the plane (`min = max = p`)
+//! goes left. Subtrees over [`KdOptions::parallel_threshold`] references are built in parallel.
+//!
+//! # Layout ([`KdNode`], 8 bytes)
+//!
+//! Depth-first: the left child of internal node `i` is `i + 1`, the right child `i + (flags >> 2)`. `flags & 3` is
+//! the split axis (0, 1, 2) or 3 for a leaf; an internal node's `split_or_count` holds the f32 bits of the plane, a
+//! leaf's holds its reference count, and `flags >> 2` its first reference in [`KdTree::references`].
+//!
+//! # Traversal
+//!
+//! Front-to-back with a stack of `(node, t_entry, t_exit)` (Havran's recursive traversal in iterative form). Split
+//! distances are widened by a relative `1e-5` so that rounding never skips a cell a hit lies in; hits are recorded
+//! wherever they lie on the ray, and a stacked node is skipped only when its entry distance exceeds the best hit.
+//! `box_tests` counts visited nodes.
+
+use super::{
+    bytes_of, invalid, prepare, sah_cost, Aabb, AccelError, AccelStats, AccelStructure, StructureName, TraversalStack,
+    Triangle,
+};
+use crate::mesh::Mesh;
+use crate::trace::{intersect_triangle, Hit, Ray, RayInv, TraceCounters};
+use glam::Vec3;
+
+/// One kd-tree node (see the module docs).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct KdNode {
+    /// f32 bits of the split plane (internal) or reference count (leaf).
+    pub split_or_count: u32,
+    /// `axis | right_offset << 2` (internal) or `3 | first << 2` (leaf).
+    pub flags: u32,
+}
+
+const _: () = assert!(std::mem::size_of::<KdNode>() == 8);
+
+const LEAF: u32 = 3;
+const MAX_INDEX: usize = (1 << 30) - 1;
+
+impl KdNode {
+    /// Whether this is a leaf.
+    #[inline]
+    pub fn is_leaf(&self) -> bool {
+        self.flags & 3 == LEAF
+    }
+    /// Split axis of an internal node.
+    #[inline]
+    pub fn axis(&self) -> usize {
+        (self.flags & 3) as usize
+    }
+    /// Split plane of an internal node.
+    #[inline]
+    pub fn split(&self) -> f32 {
+        f32::from_bits(self.split_or_count)
+    }
+}
+
+/// Options of the kd-tree builder.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KdOptions {
+    /// Bins per axis for plane candidates.
+    pub bins: usize,
+    /// Traversal cost `K_T` of the build heuristic.
+    pub traversal_cost: f32,
+    /// Intersection cost `K_I` of the build heuristic.
+    pub intersection_cost: f32,
+    /// Empty-space bonus `b` in `[0, 1)`.
+    pub empty_bonus: f32,
+    /// Subtrees with at least this many references are built in parallel.
+    pub parallel_threshold: usize,
+}
+
+impl Default for KdOptions {
+    fn default() -> Self {
+        KdOptions { bins: 32, traversal_cost: 1.0, intersection_cost: 1.5, empty_bonus: 0.2, parallel_threshold: 8192 }
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+struct KRef {
+    min: Vec3,
+    idx: u32,
+    max: Vec3,
+}
+
+/// The kd-tree (see the module docs).
+#[derive(Clone, Debug, Default)]
+pub struct KdTree {
+    nodes: Vec<KdNode>,
+    refs: Vec<u32>,
+    tris: Vec<Triangle>,
+    boxes: Vec<Aabb>,
+    bounds: Aabb,
+}
+
+const MAX_BINS: usize = 64;
+
+fn find_split(refs: &[KRef], voxel: &Aabb, o: &KdOptions) -> Option<(usize, f32, f32)> {
+    let sa = voxel.half_area();
+    if sa.is_nan() || sa <= 0.0 {
+        return None;
+    }
+    let n = refs.len();
+    let nb = o.bins.clamp(2, MAX_BINS);
+    let ext = voxel.max - voxel.min;
+    let mut best: Option<(usize, f32, f32)> = None;
+    let mut consider = |axis: usize, p: f32, nl: usize, nr: usize| {
+        if !(p > voxel.min[axis] && p < voxel.max[axis]) {
+            return;
+        }
+        let mut l = *voxel;
+        l.max[axis] = p;
+        let mut r = *voxel;
+        r.min[axis] = p;
+        let bonus = if nl == 0 || nr == 0 { 1.0 - o.empty_bonus } else { 1.0 };
+        let cost = o.traversal_cost
+            + o.intersection_cost * bonus * (l.half_area() * nl as f32 + r.half_area() * nr as f32) / sa;
+        if best.is_none_or(|(_, _, c)| cost < c) {
+            best = Some((axis, p, cost));
+        }
+    };
+    for axis in 0..3 {
+        if ext[axis].is_nan() || ext[axis] <= 0.0 {
+            continue;
+        }
+        let k = nb as f32 / ext[axis];
+        let bin = |x: f32| (((x - voxel.min[axis]) * k) as usize).min(nb - 1);
+        let mut start = [0u32; MAX_BINS];
+        let mut end = [0u32; MAX_BINS];
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for r in refs {
+            start[bin(r.min[axis])] += 1;
+            end[bin(r.max[axis])] += 1;
+            lo = lo.min(r.min[axis]);
+            hi = hi.max(r.max[axis]);
+        }
+        // Empty-space cut-offs exactly at the references' extent.
+        consider(axis, lo, 0, n);
+        consider(axis, hi, n, 0);
+        let mut nl = 0usize;
+        let mut nr = n;
+        for j in 1..nb {
+            nl += start[j - 1] as usize;
+            nr -= end[j - 1] as usize;
+            let p = voxel.min[axis] + ext[axis] * (j as f32 / nb as f32);
+            consider(axis, p, nl, nr);
+        }
+    }
+    best
+}
+
+#[inline]
+fn goes_left(min: f32, max: f32, p: f32) -> bool {
+    min < p || (min == p && max == p)
+}
+
+#[inline]
+fn goes_right(max: f32, p: f32) -> bool {
+    max > p
+}
+
+struct Built {
+    nodes: Vec<KdNode>,
+    refs: Vec<u32>,
+}
+
+fn leaf(out: &mut Built, refs: &[KRef]) {
+    let first = out.refs.len() as u32;
+    let mut ids: Vec<u32> = refs.iter().map(|r| r.idx).collect();
+    ids.sort_unstable();
+    out.refs.extend(ids);
+    out.nodes.push(KdNode { split_or_count: refs.len() as u32, flags: LEAF | (first << 2) });
+}
+
+fn build_rec(refs: Vec<KRef>, voxel: Aabb, depth: u32, max_depth: u32, o: &KdOptions, out: &mut Built) {
+    let n = refs.len();
+    let split = if depth < max_depth && n > 0 { find_split(&refs, &voxel, o) } else { None };
+    let Some((axis, p, cost)) = split.filter(|&(_, _, c)| c < o.intersection_cost * n as f32) else {
+        leaf(out, &refs);
+        return;
+    };
+    let _ = cost;
+    let mut left = Vec::with_capacity(n);
+    let mut right = Vec::with_capacity(n);
+    for r in &refs {
+        if goes_left(r.min[axis], r.max[axis], p) {
+            let mut c = *r;
+            c.max[axis] = c.max[axis].min(p);
+            left.push(c);
+        }
+        if goes_right(r.max[axis], p) {
+            let mut c = *r;
+            c.min[axis] = c.min[axis].max(p);
+            right.push(c);
+        }
+    }
+    drop(refs);
+    let mut lv = voxel;
+    lv.max[axis] = p;
+    let mut rv = voxel;
+    rv.min[axis] = p;
+    let here = out.nodes.len();
+    out.nodes.push(KdNode { split_or_count: p.to_bits(), flags: axis as u32 });
+    if n >= o.parallel_threshold {
+        let (a, b) = rayon::join(
+            || {
+                let mut a = Built { nodes: Vec::new(), refs: Vec::new() };
+                build_rec(left, lv, depth + 1, max_depth, o, &mut a);
+                a
+            },
+            || {
+                let mut b = Built { nodes: Vec::new(), refs: Vec::new() };
+                build_rec(right, rv, depth + 1, max_depth, o, &mut b);
+                b
+            },
+        );
+        append(out, a);
+        out.nodes[here].flags |= ((out.nodes.len() - here) as u32) << 2;
+        append(out, b);
+    } else {
+        build_rec(left, lv, depth + 1, max_depth, o, out);
+        out.nodes[here].flags |= ((out.nodes.len() - here) as u32) << 2;
+        build_rec(right, rv, depth + 1, max_depth, o, out);
+    }
+}
+
+fn append(out: &mut Built, sub: Built) {
+    let off = out.refs.len() as u32;
+    out.nodes.extend(sub.nodes.into_iter().map(|mut nd| {
+        if nd.is_leaf() {
+            nd.flags = LEAF | (((nd.flags >> 2) + off) << 2);
+        }
+        nd
+    }));
+    out.refs.extend(sub.refs);
+}
+
+impl KdTree {
+    /// Builds with explicit options.
+    pub fn build_with(mesh: &Mesh, o: &KdOptions) -> Result<Self, AccelError> {
+        let (tris, boxes) = prepare(mesh, "kdtree")?;
+        let n = tris.len();
+        if n == 0 {
+            return Ok(KdTree::default());
+        }
+        let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
+        let refs: Vec<KRef> =
+            boxes.iter().enumerate().map(|(i, b)| KRef { min: b.min, idx: i as u32, max: b.max }).collect();
+        let max_depth = (8.0 + 1.3 * (n as f64).log2()).round() as u32;
+        let mut out = Built { nodes: Vec::new(), refs: Vec::new() };
+        build_rec(refs, bounds, 0, max_depth, o, &mut out);
+        if out.refs.len() > MAX_INDEX || out.nodes.len() > MAX_INDEX {
+            return Err(AccelError::TooLarge {
+                structure: "kdtree",
+                what: "references or nodes",
+                count: out.refs.len().max(out.nodes.len()),
+                limit: MAX_INDEX,
+            });
+        }
+        Ok(KdTree { nodes: out.nodes, refs: out.refs, tris, boxes, bounds })
+    }
+
+    /// The nodes, depth-first, root first.
+    pub fn nodes(&self) -> &[KdNode] {
+        &self.nodes
+    }
+
+    /// Triangle references of the leaves.
+    pub fn references(&self) -> &[u32] {
+        &self.refs
+    }
+
+    fn traverse(&self, ray: &Ray, any: bool, c: &mut TraceCounters) -> Option<Hit> {
+        if self.nodes.is_empty() {
+            return None;
+        }
+        let r = RayInv::new(ray);
+        c.box_tests += 1;
+        let (mut tn, mut tf) = r.slab_interval(self.bounds.min, self.bounds.max, ray.tmin, ray.tmax)?;
+        let mut best_t = ray.tmax;
+        let mut best = None;
+        let mut stack: TraversalStack<(u32, f32, f32)> = TraversalStack::new();
+        let mut node = 0usize;
+        loop {
+            if tn <= best_t {
+                let nd = self.nodes[node];
+                if nd.is_leaf() {
+                    let first = (nd.flags >> 2) as usize;
+                    for &id in &self.refs[first..first + nd.split_or_count as usize] {
+                        c.prim_tests += 1;
+                        if let Some((t, u, v)) = intersect_triangle(&self.tris[id as usize], r.o, r.d, ray.tmin, best_t)
+                        {
+                            best_t = t;
+                            best = Some(Hit { t, triangle: id, u, v });
+                            if any {
+                                return best;
+                            }
+                        }
+                    }
+                } else {
+                    c.box_tests += 1;
+                    let a = nd.axis();
+                    let p = nd.split();
+                    let ts = (p - r.o[a]) * r.inv[a];
+                    let below_first = r.o[a] < p || (r.o[a] == p && r.d[a] <= 0.0);
+                    let right = node + (nd.flags >> 2) as usize;
+                    let (near, far) = if below_first { (node + 1, right) } else { (right, node + 1) };
+                    if ts < 0.0 {
+                        node = near;
+                        continue;
+                    }
+                    if ts == 0.0 {
+                        stack.push((far as u32, tn, tf));
+                        node = near;
+                        continue;
+                    }
+                    let e = ts * 1e-5;
+                    let near_ok = tn <= ts + e;
+                    let far_ok = ts - e <= tf;
+                    match (near_ok, far_ok) {
+                        (true, true) => {
+                            stack.push((far as u32, tn.max(ts - e), tf));
+                            node = near;
+                            tf = tf.min(ts + e);
+                            continue;
+                        }
+                        (true, false) => {
+                            node = near;
+                            continue;
+                        }
+                        (false, true) => {
+                            node = far;
+                            continue;
+                        }
+                        (false, false) => {}
+                    }
+                }
+            }
+            match stack.pop() {
+                None => return best,
+                Some((nd, a, b)) => {
+                    node = nd as usize;
+                    tn = a;
+                    tf = b;
+                }
+            }
+        }
+    }
+
+    /// Descends with triangle `i`'s box by the partition rule and checks that every leaf reached references it.
+    fn check_reference(&self, i: usize) -> Result<usize, AccelError> {
+        let b = &self.boxes[i];
+        let mut stack = vec![0usize];
+        let mut leaves = 0;
+        while let Some(k) = stack.pop() {
+            let nd = self.nodes[k];
+            if nd.is_leaf() {
+                let first = (nd.flags >> 2) as usize;
+                let list = &self.refs[first..first + nd.split_or_count as usize];
+                if list.binary_search(&(i as u32)).is_err() {
+                    return Err(invalid("kdtree", format!("triangle {i} lost: missing from leaf {k}")));
+                }
+                leaves += 1;
+            } else {
+                let (a, p) = (nd.axis(), nd.split());
+                if goes_left(b.min[a], b.max[a], p) {
+                    stack.push(k + 1);
+                }
+                if goes_right(b.max[a], p) {
+                    stack.push(k + (nd.flags >> 2) as usize);
+                }
+            }
+        }
+        Ok(leaves)
+    }
+}
+
+impl AccelStructure for KdTree {
+    fn build(mesh: &Mesh) -> Result<Self, AccelError> {
+        KdTree::build_with(mesh, &KdOptions::default())
+    }
+    fn name(&self) -> StructureName {
+        StructureName::KdTree
+    }
+    fn triangle_count(&self) -> usize {
+        self.tris.len()
+    }
+    fn intersect(&self, ray: &Ray, c: &mut TraceCounters) -> Option<Hit> {
+        self.traverse(ray, false, c)
+    }
+    fn occluded(&self, ray: &Ray, c: &mut TraceCounters) -> bool {
+        self.traverse(ray, true, c).is_some()
+    }
+    fn memory_bytes(&self) -> usize {
+        bytes_of(&self.nodes) + bytes_of(&self.refs) + bytes_of(&self.tris)
+    }
+
+    /// Checks: every node reached exactly once, splits strictly inside their voxel, leaf ranges inside the
+    /// reference array and disjoint, every reference entry in exactly one leaf, each leaf's references overlap its
+    /// voxel, and every triangle is referenced by every leaf the partition rule sends it to (no lost reference).
+    fn validate(&self) -> Result<AccelStats, AccelError> {
+        let n = self.tris.len();
+        let mut stats = AccelStats { triangles: n, bytes: self.memory_bytes(), ..Default::default() };
+        if self.nodes.is_empty() {
+            if n != 0 || !self.refs.is_empty() {
+                return Err(invalid("kdtree", "no nodes but triangles or references"));
+            }
+            return Ok(stats);
+        }
+        let mut visited = vec![false; self.nodes.len()];
+        let mut ref_used = vec![false; self.refs.len()];
+        let mut stack = vec![(0usize, self.bounds, 0usize)];
+        while let Some((k, voxel, depth)) = stack.pop() {
+            let nd = *self.nodes.get(k).ok_or_else(|| invalid("kdtree", format!("node {k} out of range")))?;
+            if std::mem::replace(&mut visited[k], true) {
+                return Err(invalid("kdtree", format!("node {k} reached twice")));
+            }
+            stats.nodes += 1;
+            stats.max_depth = stats.max_depth.max(depth);
+            if nd.is_leaf() {
+                let first = (nd.flags >> 2) as usize;
+                let count = nd.split_or_count as usize;
+                let list = self
+                    .refs
+                    .get(first..first + count)
+                    .ok_or_else(|| invalid("kdtree", format!("leaf {k} range {first}+{count} out of range")))?;
+                stats.leaves += 1;
+                stats.references += count;
+                if count == 0 {
+                    stats.empty_leaves += 1;
+                }
+                for (j, &id) in list.iter().enumerate() {
+                    if std::mem::replace(&mut ref_used[first + j], true) {
+                        return Err(invalid("kdtree", format!("reference {} in two leaves", first + j)));
+                    }
+                    let b =
+                        self.boxes.get(id as usize).ok_or_else(|| invalid("kdtree", format!("reference to {id}")))?;
+                    if !voxel.overlaps(b) {
+                        return Err(invalid("kdtree", format!("triangle {id} in leaf {k} outside its voxel")));
+                    }
+                }
+            } else {
+                let (a, p) = (nd.axis(), nd.split());
+                if !(p > voxel.min[a] && p < voxel.max[a]) {
+                    return Err(invalid("kdtree", format!("node {k}: split {p} outside voxel {voxel:?}")));
+                }
+                let right = k + (nd.flags >> 2) as usize;
+                if right <= k + 1 || right >= self.nodes.len() {
+                    return Err(invalid("kdtree", format!("node {k}: right child {right} out of range")));
+                }
+                let mut lv = voxel;
+                lv.max[a] = p;
+                let mut rv = voxel;
+                rv.min[a] = p;
+                if !voxel.contains(&lv) || !voxel.contains(&rv) {
+                    return Err(invalid("kdtree", format!("node {k}: child voxel outside parent")));
+                }
+                stack.push((k + 1, lv, depth + 1));
+                stack.push((right, rv, depth + 1));
+            }
+        }
+        if stats.nodes != self.nodes.len() {
+            return Err(invalid("kdtree", format!("{} nodes unreachable", self.nodes.len() - stats.nodes)));
+        }
+        if ref_used.iter().any(|u| !u) {
+            return Err(invalid("kdtree", "reference entries in no leaf"));
+        }
+        for i in 0..n {
+            if self.check_reference(i)? == 0 {
+                return Err(invalid("kdtree", format!("triangle {i} in no leaf")));
+            }
+        }
+        Ok(stats)
+    }
+
+    fn sah_cost(&self) -> Option<f64> {
+        if self.nodes.is_empty() {
+            return Some(0.0);
+        }
+        let mut items = Vec::with_capacity(self.nodes.len());
+        let mut stack = vec![(0usize, self.bounds)];
+        while let Some((k, v)) = stack.pop() {
+            let nd = self.nodes[k];
+            if nd.is_leaf() {
+                items.push((v.surface_area(), true, nd.split_or_count as usize));
+            } else {
+                items.push((v.surface_area(), false, 0));
+                let (a, p) = (nd.axis(), nd.split());
+                let mut l = v;
+                l.max[a] = p;
+                let mut r = v;
+                r.min[a] = p;
+                stack.push((k + 1, l));
+                stack.push((k + (nd.flags >> 2) as usize, r));
+            }
+        }
+        Some(sah_cost(self.bounds.surface_area(), items.into_iter()))
+    }
+}

@@ -1,0 +1,305 @@
+//! Linear BVH over the Morton codes of SPEC.md, as a binary radix tree (Karras 2012): the reference that a GPU
+//! builder must reproduce node for node.
+//!
+//! # Definition
+//!
+//! 1. Keys: for triangle `i`, `s_i = centroid_key(v0, v1, v2)`; bounds `lo`, `hi` = per-axis [`min_total`] /
+//!    [`max_total`] of all `s_i`; `scale = quantization_scale(lo, hi, bits)`; `code_i = morton(quantize(s_i, lo,
+//!    scale, bits), bits)` ([`crate::keys`], SPEC.md steps 1 to 4; 30-bit by default, 63-bit optional).
+//! 2. Sort by the pair `(code_i, i)`; position `k` of the sorted order holds triangle `ids[k]`. The *extended key*
+//!    of position `k` is the concatenation `code_k ‖ ids[k]` (`3b + 32` bits); all extended keys are distinct.
+//! 3. `delta(k, j)` = length of the common prefix of the extended keys of positions `k` and `j`, or `-1` when `j`
+//!    is outside `0 .. n`.
+//! 4. Internal node `k` for `k` in `0 .. n-1` (Karras 2012, Fig. 4): direction `d = sign(delta(k, k+1) -
+//!    delta(k, k-1))`; the other end `j` of its range is found by exponential then binary search for the farthest
+//!    position with `delta(k, j) > delta(k, k - d)`; the split `gamma` is the last position of the range whose
+//!    prefix with `k` is longer than `delta(k, j)`, found by binary search, adjusted by `min(d, 0)`.
+//!    Its left child covers `min(k, j) ..= gamma`, its right child `gamma + 1 ..= max(k, j)`; a child covering one
+//!    position `p` is the leaf of `p`, otherwise the internal node of index `gamma` (left) or `gamma + 1` (right).
+//! 5. Node numbering in the shared [`BvhNode`] array: internal node `k` is node `k` (`0 .. n-1`, the root is 0),
+//!    the leaf of position `p` is node `n - 1 + p`; a leaf holds one triangle record, `first = p`, `count = 1`.
+//!    For `n = 1` the single leaf is node 0.
+//! 6. Boxes bottom-up: a leaf's box is its triangle's box (from the mesh vertices), an internal node's the union of
+//!    its children's. (Here: the parallel bottom-up pass of Karras 2012, each leaf walking up and the second
+//!    arrival at a node computing its box.)
+//!
+//! [`min_total`]: crate::keys::min_total
+//! [`max_total`]: crate::keys::max_total
+
+use super::bvh::{BvhNode, BvhTree};
+use super::{prepare, Aabb, AccelError, AccelStats, AccelStructure, StructureName, Triangle};
+use crate::keys::{centroid_key, max_total, min_total, morton, quantization_scale, quantize, MortonBits};
+use crate::mesh::Mesh;
+use crate::trace::{Hit, Ray, TraceCounters};
+use glam::Vec3;
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicU32, Ordering};
+
+/// Options of the LBVH.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LbvhOptions {
+    /// Morton code width.
+    pub bits: MortonBits,
+}
+
+/// Morton codes of SPEC.md for every triangle, in mesh order.
+pub fn morton_codes(mesh: &Mesh, bits: MortonBits, structure: &'static str) -> Result<Vec<u64>, AccelError> {
+    let n = mesh.triangle_count();
+    let keys: Vec<[f32; 3]> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let [a, b, c] = mesh.indices[i];
+            let p = |k: u32| mesh.positions[k as usize];
+            centroid_key(p(a), p(b), p(c))
+        })
+        .collect();
+    let init = || ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    let (lo, hi) = keys
+        .par_iter()
+        .fold(init, |(mut lo, mut hi), s| {
+            for a in 0..3 {
+                lo[a] = min_total(lo[a], s[a]);
+                hi[a] = max_total(hi[a], s[a]);
+            }
+            (lo, hi)
+        })
+        .reduce(init, |(mut lo, mut hi), (l2, h2)| {
+            for a in 0..3 {
+                lo[a] = min_total(lo[a], l2[a]);
+                hi[a] = max_total(hi[a], h2[a]);
+            }
+            (lo, hi)
+        });
+    if n == 0 {
+        return Ok(Vec::new());
+    }
+    let scale = quantization_scale(lo, hi, bits).ok_or(AccelError::CoordinateRange { structure, lo, hi })?;
+    Ok(keys.par_iter().map(|s| morton(quantize(*s, lo, scale, bits), bits)).collect())
+}
+
+/// Sorted `(code, triangle)` pairs.
+pub fn sorted_keys(codes: &[u64]) -> Vec<(u64, u32)> {
+    let mut v: Vec<(u64, u32)> = codes.iter().enumerate().map(|(i, &c)| (c, i as u32)).collect();
+    v.par_sort_unstable();
+    v
+}
+
+/// Karras 2012 radix tree over sorted, distinct extended keys: for each internal node `k` in `0 .. n-1`, its
+/// `(left, right)` children in the unified numbering (internal `k`, leaf `n - 1 + p`).
+pub fn radix_tree_children(keys: &[(u64, u32)], code_bits: u32) -> Vec<(u32, u32)> {
+    let n = keys.len() as i64;
+    let delta = |i: i64, j: i64| -> i64 {
+        if j < 0 || j >= n {
+            return -1;
+        }
+        let (a, b) = (keys[i as usize], keys[j as usize]);
+        if a.0 != b.0 {
+            (a.0 ^ b.0).leading_zeros() as i64 - (64 - code_bits as i64)
+        } else {
+            code_bits as i64 + (a.1 ^ b.1).leading_zeros() as i64
+        }
+    };
+    (0..(n - 1).max(0))
+        .into_par_iter()
+        .map(|i| {
+            let d: i64 = if delta(i, i + 1) - delta(i, i - 1) >= 0 { 1 } else { -1 };
+            let dmin = delta(i, i - d);
+            let mut lmax: i64 = 2;
+            while delta(i, i + lmax * d) > dmin {
+                lmax *= 2;
+            }
+            let mut l: i64 = 0;
+            let mut t = lmax / 2;
+            while t >= 1 {
+                if delta(i, i + (l + t) * d) > dmin {
+                    l += t;
+                }
+                t /= 2;
+            }
+            let j = i + l * d;
+            let dnode = delta(i, j);
+            let mut s: i64 = 0;
+            let mut t = l;
+            loop {
+                t = (t + 1) >> 1;
+                if delta(i, i + (s + t) * d) > dnode {
+                    s += t;
+                }
+                if t <= 1 {
+                    break;
+                }
+            }
+            let gamma = i + s * d + d.min(0);
+            let leaf = |p: i64| (n - 1 + p) as u32;
+            let left = if i.min(j) == gamma { leaf(gamma) } else { gamma as u32 };
+            let right = if i.max(j) == gamma + 1 { leaf(gamma + 1) } else { (gamma + 1) as u32 };
+            (left, right)
+        })
+        .collect()
+}
+
+/// Fills `nodes` (internal `0 .. n-1` given by `children`, leaves `n-1 ..` with their boxes already set) with
+/// bottom-up boxes, in parallel (each leaf walks up; the second arrival at a node computes it).
+pub(crate) fn fit_boxes_bottom_up(nodes: &mut [BvhNode], children: &[(u32, u32)]) {
+    let n_int = children.len();
+    if n_int == 0 {
+        return;
+    }
+    let mut parent = vec![u32::MAX; nodes.len()];
+    for (k, &(l, r)) in children.iter().enumerate() {
+        parent[l as usize] = k as u32;
+        parent[r as usize] = k as u32;
+    }
+    let boxes: Vec<[AtomicU32; 6]> = nodes
+        .iter()
+        .map(|nd| {
+            let b = [nd.min[0], nd.min[1], nd.min[2], nd.max[0], nd.max[1], nd.max[2]];
+            b.map(|x| AtomicU32::new(x.to_bits()))
+        })
+        .collect();
+    let arrivals: Vec<AtomicU32> = (0..n_int).map(|_| AtomicU32::new(0)).collect();
+    let load = |k: usize| -> Aabb {
+        let b = &boxes[k];
+        let f = |i: usize| f32::from_bits(b[i].load(Ordering::Relaxed));
+        Aabb::new(Vec3::new(f(0), f(1), f(2)), Vec3::new(f(3), f(4), f(5)))
+    };
+    (n_int..nodes.len()).into_par_iter().for_each(|leaf| {
+        let mut k = parent[leaf];
+        while k != u32::MAX {
+            // AcqRel: the second arrival sees the box the first one stored before its increment.
+            if arrivals[k as usize].fetch_add(1, Ordering::AcqRel) == 0 {
+                return;
+            }
+            let (l, r) = children[k as usize];
+            let b = load(l as usize).union(&load(r as usize));
+            let v = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
+            for (slot, x) in boxes[k as usize].iter().zip(v) {
+                slot.store(x.to_bits(), Ordering::Relaxed);
+            }
+            k = parent[k as usize];
+        }
+    });
+    for (k, nd) in nodes.iter_mut().enumerate() {
+        let b = load(k);
+        nd.min = b.min.to_array();
+        nd.max = b.max.to_array();
+        if k < n_int {
+            nd.left_or_first = children[k].0;
+            nd.right_or_count = children[k].1;
+        }
+    }
+}
+
+/// Builds the Karras tree of sorted keys whose triangle boxes are `boxes` (mesh order), with triangle records
+/// `tris`: nodes in the unified numbering and the records in sorted order.
+pub(crate) fn karras_tree(
+    keys: &[(u64, u32)],
+    bits: MortonBits,
+    boxes: &[Aabb],
+    tris: &[Triangle],
+) -> (Vec<BvhNode>, Vec<Triangle>, Vec<u32>) {
+    let n = keys.len();
+    if n == 0 {
+        return (Vec::new(), Vec::new(), Vec::new());
+    }
+    let children = radix_tree_children(keys, bits.total());
+    let mut nodes = vec![BvhNode::default(); 2 * n - 1];
+    nodes[n - 1..].par_iter_mut().enumerate().for_each(|(p, nd)| {
+        *nd = BvhNode::leaf(&boxes[keys[p].1 as usize], p as u32, 1);
+    });
+    fit_boxes_bottom_up(&mut nodes, &children);
+    let ids: Vec<u32> = keys.iter().map(|k| k.1).collect();
+    let sorted_tris = ids.par_iter().map(|&i| tris[i as usize]).collect();
+    (nodes, sorted_tris, ids)
+}
+
+/// The LBVH (see the module docs).
+#[derive(Clone, Debug, Default)]
+pub struct Lbvh {
+    tree: BvhTree,
+    codes: Vec<u64>,
+}
+
+impl Lbvh {
+    /// Builds with explicit options.
+    pub fn build_with(mesh: &Mesh, o: &LbvhOptions) -> Result<Self, AccelError> {
+        let (tris, boxes) = prepare(mesh, "lbvh")?;
+        let codes = morton_codes(mesh, o.bits, "lbvh")?;
+        let keys = sorted_keys(&codes);
+        let (nodes, tris, ids) = karras_tree(&keys, o.bits, &boxes, &tris);
+        Ok(Lbvh { tree: BvhTree { nodes, tris, ids }, codes: keys.iter().map(|k| k.0).collect() })
+    }
+    /// The nodes and triangle records.
+    pub fn tree(&self) -> &BvhTree {
+        &self.tree
+    }
+    /// Sorted Morton codes (position `k` belongs to triangle `tree().triangle_ids()[k]`).
+    pub fn sorted_codes(&self) -> &[u64] {
+        &self.codes
+    }
+}
+
+impl AccelStructure for Lbvh {
+    fn build(mesh: &Mesh) -> Result<Self, AccelError> {
+        Lbvh::build_with(mesh, &LbvhOptions::default())
+    }
+    fn name(&self) -> StructureName {
+        StructureName::Lbvh
+    }
+    fn triangle_count(&self) -> usize {
+        self.tree.tris.len()
+    }
+    fn intersect(&self, ray: &Ray, c: &mut TraceCounters) -> Option<Hit> {
+        self.tree.traverse(ray, false, c)
+    }
+    fn occluded(&self, ray: &Ray, c: &mut TraceCounters) -> bool {
+        self.tree.traverse(ray, true, c).is_some()
+    }
+    /// The BVH checks of [`BvhTree::validate`], plus the LBVH shape: `n - 1` internal nodes and `n` leaves of one
+    /// record each, leaf `n - 1 + p` holding record `p`, codes sorted with ids ascending among equal codes.
+    fn validate(&self) -> Result<AccelStats, AccelError> {
+        let s = self.tree.validate("lbvh")?;
+        let n = self.tree.tris.len();
+        check_karras_shape("lbvh", &self.tree.nodes, n, 0, 0)?;
+        let keys: Vec<(u64, u32)> = self.codes.iter().copied().zip(self.tree.ids.iter().copied()).collect();
+        if keys.windows(2).any(|w| w[0] >= w[1]) {
+            return Err(super::invalid("lbvh", "keys not strictly increasing"));
+        }
+        Ok(s)
+    }
+    fn memory_bytes(&self) -> usize {
+        self.tree.memory_bytes()
+    }
+    fn sah_cost(&self) -> Option<f64> {
+        Some(self.tree.sah_cost())
+    }
+}
+
+/// Checks the Karras numbering of a block of `2m - 1` nodes starting at `offset` whose records start at
+/// `first`: internal nodes first (children inside the block), then one single-record leaf per position in order.
+pub(crate) fn check_karras_shape(
+    structure: &'static str,
+    nodes: &[BvhNode],
+    m: usize,
+    offset: usize,
+    first: usize,
+) -> Result<(), AccelError> {
+    if m == 0 {
+        return Ok(());
+    }
+    let block =
+        nodes.get(offset..offset + 2 * m - 1).ok_or_else(|| super::invalid(structure, "Karras block out of range"))?;
+    for (k, nd) in block.iter().enumerate() {
+        let is_leaf = k >= m - 1;
+        let ok = if is_leaf {
+            nd.is_leaf() && nd.count() == 1 && nd.left_or_first as usize == first + k - (m - 1)
+        } else {
+            let inside = |c: u32| (offset..offset + 2 * m - 1).contains(&(c as usize));
+            !nd.is_leaf() && inside(nd.left_or_first) && inside(nd.right_or_count)
+        };
+        if !ok {
+            return Err(super::invalid(structure, format!("node {} breaks the Karras numbering", offset + k)));
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,434 @@
+//! CPU ray-tracing acceleration structures behind one trait.
+//!
+//! Six structures implement [`AccelStructure`]:
+//!
+//! | name | module | kind |
+//! |---|---|---|
+//! | `bvh` | [`bvh`] | binned-SAH bounding volume hierarchy (Wald 2007), built in parallel with rayon |
+//! | `kdtree` | [`kdtree`] | binned-SAH kd-tree with empty-space cut-off (after Wald and Havran 2006) |
+//! | `grid` | [`grid`] | uniform grid, 3D-DDA traversal (Amanatides and Woo 1987) with mailboxing |
+//! | `bih` | [`bih`] | bounding interval hierarchy, global spatial-median heuristic (Wächter and Keller 2006) |
+//! | `lbvh` | [`lbvh`] | linear BVH over SPEC.md Morton codes, binary radix tree of Karras 2012 |
+//! | `hlbvh` | [`hlbvh`] | hierarchical LBVH: Morton clusters, LBVH per cluster, binned SAH on top (Pantaleoni and Luebke 2010) |
+//!
+//! [`brute::BruteForce`] tests every triangle and is the reference in tests.
+//!
+//! # Conventions shared by every structure
+//!
+//! * **Intersection**: every structure calls [`crate::trace::intersect_triangle`] (Möller and Trumbore 1997, in f32)
+//!   on the same precomputed [`Triangle`] records, so a ray hitting one triangle yields the same `t` bit for bit in
+//!   every structure. Zero-area triangles (exactly zero in f64) are stored with zero edges: their determinant is
+//!   exactly zero and they are never hit. They still belong to every structure (they are real input) and count as
+//!   references.
+//! * **Empty mesh**: building from a mesh without triangles succeeds and gives an empty structure that hits nothing
+//!   and validates with all-zero statistics.
+//! * **Errors**: non-finite coordinates or out-of-range indices ([`AccelError::Mesh`]), more triangles than the node
+//!   encodings can address ([`AccelError::TooLarge`]), coordinates too far apart for f32 Morton keys
+//!   ([`AccelError::CoordinateRange`], LBVH and HLBVH only). Building never panics on input.
+//! * **SAH cost** ([`sah_cost`]): `C = K_T * sum_internal SA(n)/SA(root) + K_I * sum_leaf SA(n)/SA(root) * refs(n)`
+//!   with `K_T = 1`, `K_I = 1` ([`SAH_TRAVERSAL_COST`], [`SAH_INTERSECTION_COST`]), the expected-cost model of
+//!   MacDonald and Booth 1990 used by Wald 2007. For the kd-tree and BIH the node regions (voxels, clipped
+//!   intervals) stand in for boxes.
+//! * **Counters**: `box_tests` counts ray-box slab tests for BVH-like structures, node visits (one split-plane test
+//!   each) for the kd-tree and BIH, and cells visited for the grid; `prim_tests` counts ray-triangle tests.
+
+pub mod bih;
+pub mod brute;
+pub mod bvh;
+pub mod grid;
+pub mod hlbvh;
+pub mod kdtree;
+pub mod lbvh;
+
+use crate::mesh::{Mesh, MeshError};
+use crate::trace::{Hit, Ray, TraceCounters};
+use glam::Vec3;
+
+/// `K_T` of the SAH cost model: cost of one traversal step.
+pub const SAH_TRAVERSAL_COST: f64 = 1.0;
+/// `K_I` of the SAH cost model: cost of one ray-triangle test.
+pub const SAH_INTERSECTION_COST: f64 = 1.0;
+
+/// Largest triangle count any structure accepts (node encodings keep 30 bits for indices).
+pub const MAX_TRIANGLES: usize = (1 << 30) - 1;
+
+/// Errors of building or validating a structure.
+#[derive(Debug, thiserror::Error)]
+pub enum AccelError {
+    /// The mesh is malformed (non-finite coordinate, index out of range).
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// More triangles (or references) than the node encoding can address.
+    #[error("{structure}: {count} {what} exceed the limit of {limit}")]
+    TooLarge {
+        /// Which structure.
+        structure: &'static str,
+        /// What overflowed (triangles, references, cells).
+        what: &'static str,
+        /// How many there were.
+        count: usize,
+        /// The limit.
+        limit: usize,
+    },
+    /// Coordinates span more than f32 can represent as an extent (Morton quantization of SPEC.md step 3, grid
+    /// cells).
+    #[error("{structure}: bounds {lo:?}..{hi:?} too wide for f32 extents")]
+    CoordinateRange {
+        /// Which structure.
+        structure: &'static str,
+        /// Lower centroid-key bound.
+        lo: [f32; 3],
+        /// Upper centroid-key bound.
+        hi: [f32; 3],
+    },
+    /// `validate()` found a broken invariant.
+    #[error("{structure}: invalid: {reason}")]
+    Invalid {
+        /// Which structure.
+        structure: &'static str,
+        /// The broken invariant.
+        reason: String,
+    },
+}
+
+/// Names of the structures, as used on the command line and in JSON (`bvh`, `kdtree`, `grid`, `bih`, `lbvh`,
+/// `hlbvh`; `brute` for the reference).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StructureName {
+    /// Binned-SAH BVH.
+    Bvh,
+    /// SAH kd-tree.
+    #[serde(rename = "kdtree")]
+    KdTree,
+    /// Uniform grid.
+    Grid,
+    /// Bounding interval hierarchy.
+    Bih,
+    /// Linear BVH (Karras 2012).
+    Lbvh,
+    /// Hierarchical LBVH.
+    Hlbvh,
+    /// Brute force (reference only, not part of [`StructureName::ALL`]).
+    Brute,
+}
+
+impl StructureName {
+    /// The six structures the oracle compares, in report order.
+    pub const ALL: [StructureName; 6] = [
+        StructureName::Bvh,
+        StructureName::KdTree,
+        StructureName::Grid,
+        StructureName::Bih,
+        StructureName::Lbvh,
+        StructureName::Hlbvh,
+    ];
+
+    /// The lowercase name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            StructureName::Bvh => "bvh",
+            StructureName::KdTree => "kdtree",
+            StructureName::Grid => "grid",
+            StructureName::Bih => "bih",
+            StructureName::Lbvh => "lbvh",
+            StructureName::Hlbvh => "hlbvh",
+            StructureName::Brute => "brute",
+        }
+    }
+}
+
+impl std::fmt::Display for StructureName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::str::FromStr for StructureName {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "bvh" => Ok(StructureName::Bvh),
+            "kdtree" | "kd-tree" | "kd" => Ok(StructureName::KdTree),
+            "grid" => Ok(StructureName::Grid),
+            "bih" => Ok(StructureName::Bih),
+            "lbvh" => Ok(StructureName::Lbvh),
+            "hlbvh" => Ok(StructureName::Hlbvh),
+            "brute" => Ok(StructureName::Brute),
+            other => Err(format!("unknown structure {other:?} (bvh, kdtree, grid, bih, lbvh, hlbvh, brute)")),
+        }
+    }
+}
+
+/// Statistics returned by `validate()`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct AccelStats {
+    /// Triangles in the mesh.
+    pub triangles: usize,
+    /// Nodes (or cells for the grid), leaves included.
+    pub nodes: usize,
+    /// Leaves (non-empty and empty; cells for the grid).
+    pub leaves: usize,
+    /// Leaves (or cells) without any reference.
+    pub empty_leaves: usize,
+    /// Longest root-to-leaf path in edges (0 for a single leaf and for the grid).
+    pub max_depth: usize,
+    /// Triangle references stored in leaves (equal to `triangles` for object hierarchies, larger for spatial
+    /// subdivisions that duplicate references).
+    pub references: usize,
+    /// Bytes of the structure: nodes, references and the triangle records it traces against.
+    pub bytes: usize,
+}
+
+/// A ray-tracing acceleration structure over one mesh.
+///
+/// Implementations are immutable after `build` and can be traced from many threads at once.
+pub trait AccelStructure: Send + Sync {
+    /// Builds the structure with its default options. An empty mesh gives an empty structure.
+    fn build(mesh: &Mesh) -> Result<Self, AccelError>
+    where
+        Self: Sized;
+    /// Which structure this is.
+    fn name(&self) -> StructureName;
+    /// Number of triangles of the mesh it was built from.
+    fn triangle_count(&self) -> usize;
+    /// Closest hit with `ray.tmin < t < ray.tmax`, counting tests into `counters`.
+    fn intersect(&self, ray: &Ray, counters: &mut TraceCounters) -> Option<Hit>;
+    /// Whether any triangle is hit with `ray.tmin < t < ray.tmax` (shadow rays); stops at the first hit found.
+    fn occluded(&self, ray: &Ray, counters: &mut TraceCounters) -> bool;
+    /// Walks the whole structure, checks every invariant and returns its statistics.
+    fn validate(&self) -> Result<AccelStats, AccelError>;
+    /// Memory of the structure in bytes (same as `validate().bytes`, without the walk).
+    fn memory_bytes(&self) -> usize;
+    /// SAH cost with the constants of [`SAH_TRAVERSAL_COST`] and [`SAH_INTERSECTION_COST`], where it applies.
+    fn sah_cost(&self) -> Option<f64>;
+}
+
+/// Builds the named structure with default options, behind a trait object.
+pub fn build_structure(name: StructureName, mesh: &Mesh) -> Result<Box<dyn AccelStructure>, AccelError> {
+    Ok(match name {
+        StructureName::Bvh => Box::new(bvh::Bvh::build(mesh)?),
+        StructureName::KdTree => Box::new(kdtree::KdTree::build(mesh)?),
+        StructureName::Grid => Box::new(grid::Grid::build(mesh)?),
+        StructureName::Bih => Box::new(bih::Bih::build(mesh)?),
+        StructureName::Lbvh => Box::new(lbvh::Lbvh::build(mesh)?),
+        StructureName::Hlbvh => Box::new(hlbvh::Hlbvh::build(mesh)?),
+        StructureName::Brute => Box::new(brute::BruteForce::build(mesh)?),
+    })
+}
+
+/// An axis-aligned bounding box. The empty box has `min = +inf`, `max = -inf`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aabb {
+    /// Lower corner.
+    pub min: Vec3,
+    /// Upper corner.
+    pub max: Vec3,
+}
+
+impl Default for Aabb {
+    fn default() -> Self {
+        Aabb::EMPTY
+    }
+}
+
+impl Aabb {
+    /// The empty box (identity of [`Aabb::union`]).
+    pub const EMPTY: Aabb = Aabb { min: Vec3::splat(f32::INFINITY), max: Vec3::splat(f32::NEG_INFINITY) };
+
+    /// Box from two corners.
+    pub fn new(min: Vec3, max: Vec3) -> Self {
+        Aabb { min, max }
+    }
+
+    /// Bounding box of three points.
+    pub fn of_triangle(v: &[Vec3; 3]) -> Self {
+        Aabb { min: v[0].min(v[1]).min(v[2]), max: v[0].max(v[1]).max(v[2]) }
+    }
+
+    /// Whether the box contains no point.
+    pub fn is_empty(&self) -> bool {
+        !(self.min.x <= self.max.x && self.min.y <= self.max.y && self.min.z <= self.max.z)
+    }
+
+    /// Grows the box to contain `p`.
+    #[inline]
+    pub fn grow(&mut self, p: Vec3) {
+        self.min = self.min.min(p);
+        self.max = self.max.max(p);
+    }
+
+    /// Smallest box containing both.
+    #[inline]
+    pub fn union(&self, o: &Aabb) -> Aabb {
+        Aabb { min: self.min.min(o.min), max: self.max.max(o.max) }
+    }
+
+    /// `max - min` (zero for the empty box).
+    pub fn extent(&self) -> Vec3 {
+        if self.is_empty() {
+            Vec3::ZERO
+        } else {
+            self.max - self.min
+        }
+    }
+
+    /// Centre of the box.
+    pub fn center(&self) -> Vec3 {
+        (self.min + self.max) * 0.5
+    }
+
+    /// Surface area (zero for the empty box), in f64 so that sums over many nodes stay accurate.
+    pub fn surface_area(&self) -> f64 {
+        let e = self.extent().as_dvec3();
+        2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
+    }
+
+    /// Surface area in f32, for builders.
+    #[inline]
+    pub fn half_area(&self) -> f32 {
+        let e = self.max - self.min;
+        if e.x < 0.0 {
+            return 0.0;
+        }
+        e.x * e.y + e.y * e.z + e.z * e.x
+    }
+
+    /// Axis of the largest extent (0, 1 or 2; x on ties).
+    pub fn longest_axis(&self) -> usize {
+        let e = self.extent();
+        if e.x >= e.y && e.x >= e.z {
+            0
+        } else if e.y >= e.z {
+            1
+        } else {
+            2
+        }
+    }
+
+    /// Whether `o` lies inside this box (boundaries included). The empty box is inside every box.
+    pub fn contains(&self, o: &Aabb) -> bool {
+        o.is_empty() || (self.min.cmple(o.min).all() && o.max.cmple(self.max).all())
+    }
+
+    /// Whether the boxes share at least one point.
+    pub fn overlaps(&self, o: &Aabb) -> bool {
+        self.min.cmple(o.max).all() && o.min.cmple(self.max).all()
+    }
+}
+
+/// A triangle as the intersection test wants it: a vertex and two edges.
+///
+/// Zero-area triangles (cross product of the edges exactly zero in f64) are stored with zero edges, so that the
+/// Möller-Trumbore determinant is exactly zero and they are never hit.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Triangle {
+    /// First vertex.
+    pub v0: Vec3,
+    /// `v1 - v0` (zero for a zero-area triangle).
+    pub e1: Vec3,
+    /// `v2 - v0` (zero for a zero-area triangle).
+    pub e2: Vec3,
+}
+
+impl Triangle {
+    /// Precomputes the record of a triangle.
+    pub fn new(v: &[Vec3; 3]) -> Self {
+        let (a, b, c) = (v[0].as_dvec3(), v[1].as_dvec3(), v[2].as_dvec3());
+        if (b - a).cross(c - a).length_squared() == 0.0 {
+            Triangle { v0: v[0], e1: Vec3::ZERO, e2: Vec3::ZERO }
+        } else {
+            Triangle { v0: v[0], e1: v[1] - v[0], e2: v[2] - v[0] }
+        }
+    }
+
+    /// Whether the triangle has zero area (and is never hit).
+    pub fn is_degenerate(&self) -> bool {
+        self.e1 == Vec3::ZERO && self.e2 == Vec3::ZERO
+    }
+}
+
+/// Triangle records and bounding boxes of a mesh, in mesh order, after checking the mesh.
+///
+/// Bounding boxes come from the mesh's vertices (also for zero-area triangles).
+pub fn prepare(mesh: &Mesh, structure: &'static str) -> Result<(Vec<Triangle>, Vec<Aabb>), AccelError> {
+    mesh.validate()?;
+    let n = mesh.triangle_count();
+    if n > MAX_TRIANGLES {
+        return Err(AccelError::TooLarge { structure, what: "triangles", count: n, limit: MAX_TRIANGLES });
+    }
+    use rayon::prelude::*;
+    Ok((0..n)
+        .into_par_iter()
+        .map(|i| {
+            let v = mesh.triangle(i);
+            (Triangle::new(&v), Aabb::of_triangle(&v))
+        })
+        .unzip())
+}
+
+/// Bytes of a slice's elements.
+pub(crate) fn bytes_of<T>(v: &[T]) -> usize {
+    std::mem::size_of_val(v)
+}
+
+/// Shorthand for a validation failure.
+pub(crate) fn invalid(structure: &'static str, reason: impl Into<String>) -> AccelError {
+    AccelError::Invalid { structure, reason: reason.into() }
+}
+
+/// A fixed-capacity stack that spills to the heap past 64 entries, for traversal.
+pub(crate) struct TraversalStack<T: Copy + Default> {
+    buf: [T; 64],
+    len: usize,
+    spill: Vec<T>,
+}
+
+impl<T: Copy + Default> TraversalStack<T> {
+    #[inline]
+    pub(crate) fn new() -> Self {
+        TraversalStack { buf: [T::default(); 64], len: 0, spill: Vec::new() }
+    }
+    #[inline]
+    pub(crate) fn push(&mut self, x: T) {
+        if self.len < 64 {
+            self.buf[self.len] = x;
+        } else {
+            self.spill.push(x);
+        }
+        self.len += 1;
+    }
+    #[inline]
+    pub(crate) fn pop(&mut self) -> Option<T> {
+        if self.len == 0 {
+            return None;
+        }
+        self.len -= 1;
+        if self.len < 64 {
+            Some(self.buf[self.len])
+        } else {
+            self.spill.pop()
+        }
+    }
+}
+
+/// SAH cost from per-node (area, is_leaf, references) triples and the root area (see the module docs).
+pub fn sah_cost(root_area: f64, nodes: impl Iterator<Item = (f64, bool, usize)>) -> f64 {
+    if root_area <= 0.0 {
+        // Degenerate scene (all triangles in a point or a segment): every ray that reaches the root reaches every
+        // node, so each area ratio counts as 1.
+        return nodes
+            .map(|(_, leaf, refs)| if leaf { SAH_INTERSECTION_COST * refs as f64 } else { SAH_TRAVERSAL_COST })
+            .sum();
+    }
+    nodes
+        .map(|(a, leaf, refs)| {
+            let p = a / root_area;
+            if leaf {
+                SAH_INTERSECTION_COST * p * refs as f64
+            } else {
+                SAH_TRAVERSAL_COST * p
+            }
+        })
+        .sum()
+}

@@ -1,0 +1,289 @@
+//! A small SVG grouped bar-chart writer, and the charts of the thesis's Figures 5.3 to 5.8 from oracle results:
+//! build time and frame rate per structure per scene, and box and triangle tests per ray for each structure.
+
+use super::SceneEvaluation;
+use crate::accel::StructureName;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// A grouped bar chart: one group per category, one bar per series.
+#[derive(Clone, Debug, Default)]
+pub struct BarChart {
+    /// Title above the plot.
+    pub title: String,
+    /// Label of the value axis.
+    pub y_label: String,
+    /// Category names (groups along x).
+    pub categories: Vec<String>,
+    /// `(series name, one value per category)`; `None` or non-finite values draw no bar.
+    pub series: Vec<(String, Vec<Option<f64>>)>,
+}
+
+const PALETTE: [&str; 8] = ["#4e79a7", "#f28e2b", "#e15759", "#76b7b2", "#59a14f", "#edc948", "#b07aa1", "#9c755f"];
+
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+}
+
+/// A "nice" step (1, 2 or 5 times a power of ten) so that `max` spans about `ticks` steps.
+fn nice_step(max: f64, ticks: f64) -> f64 {
+    let raw = (max / ticks).max(f64::MIN_POSITIVE);
+    let p = 10f64.powf(raw.log10().floor());
+    let m = raw / p;
+    p * if m <= 1.0 {
+        1.0
+    } else if m <= 2.0 {
+        2.0
+    } else if m <= 5.0 {
+        5.0
+    } else {
+        10.0
+    }
+}
+
+fn fmt_tick(v: f64) -> String {
+    if v == 0.0 {
+        "0".into()
+    } else if v.abs() >= 1e4 || v.abs() < 1e-2 {
+        format!("{v:.0e}")
+    } else if v.fract() == 0.0 {
+        format!("{v:.0}")
+    } else {
+        format!("{v}")
+    }
+}
+
+impl BarChart {
+    /// The chart as a standalone SVG document.
+    pub fn to_svg(&self) -> String {
+        let (w, h) = (900.0f64, 480.0f64);
+        let (left, right, top, bottom) = (80.0, 170.0, 50.0, 90.0);
+        let pw = w - left - right;
+        let ph = h - top - bottom;
+        let max = self
+            .series
+            .iter()
+            .flat_map(|(_, v)| v.iter().flatten())
+            .copied()
+            .filter(|v| v.is_finite() && *v > 0.0)
+            .fold(0.0f64, f64::max);
+        let step = nice_step(if max > 0.0 { max } else { 1.0 }, 5.0);
+        let top_v = (max / step).ceil().max(1.0) * step;
+        let y = |v: f64| top + ph - (v / top_v).clamp(0.0, 1.0) * ph;
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}" font-family="sans-serif" font-size="12">"#
+        );
+        let _ = writeln!(s, r#"<rect width="{w}" height="{h}" fill="white"/>"#);
+        let _ = writeln!(
+            s,
+            r#"<text x="{}" y="28" text-anchor="middle" font-size="16">{}</text>"#,
+            left + pw / 2.0,
+            esc(&self.title)
+        );
+        // Grid and ticks.
+        let mut v = 0.0;
+        while v <= top_v * (1.0 + 1e-9) {
+            let yy = y(v);
+            let _ = writeln!(
+                s,
+                r##"<line x1="{left}" y1="{yy:.1}" x2="{:.1}" y2="{yy:.1}" stroke="#ddd"/><text x="{:.1}" y="{:.1}" text-anchor="end">{}</text>"##,
+                left + pw,
+                left - 6.0,
+                yy + 4.0,
+                fmt_tick(v)
+            );
+            v += step;
+        }
+        let _ = writeln!(
+            s,
+            r#"<text transform="translate(20 {:.1}) rotate(-90)" text-anchor="middle">{}</text>"#,
+            top + ph / 2.0,
+            esc(&self.y_label)
+        );
+        let _ = writeln!(
+            s,
+            r#"<line x1="{left}" y1="{:.1}" x2="{:.1}" y2="{:.1}" stroke="black"/>"#,
+            top + ph,
+            left + pw,
+            top + ph
+        );
+        let nc = self.categories.len().max(1) as f64;
+        let ns = self.series.len().max(1) as f64;
+        let gw = pw / nc;
+        let bw = gw * 0.8 / ns;
+        for (ci, cat) in self.categories.iter().enumerate() {
+            let gx = left + gw * ci as f64;
+            for (si, (name, vals)) in self.series.iter().enumerate() {
+                let Some(v) = vals.get(ci).copied().flatten().filter(|v| v.is_finite()) else {
+                    continue;
+                };
+                let x = gx + gw * 0.1 + bw * si as f64;
+                let yy = y(v.max(0.0));
+                let _ = writeln!(
+                    s,
+                    r#"<rect x="{x:.1}" y="{yy:.1}" width="{:.1}" height="{:.1}" fill="{}"><title>{}: {}: {v:.4}</title></rect>"#,
+                    (bw - 1.0).max(0.5),
+                    (top + ph - yy).max(0.0),
+                    PALETTE[si % PALETTE.len()],
+                    esc(cat),
+                    esc(name)
+                );
+            }
+            let _ = writeln!(
+                s,
+                r#"<text transform="translate({:.1} {:.1}) rotate(-25)" text-anchor="end">{}</text>"#,
+                gx + gw / 2.0,
+                top + ph + 16.0,
+                esc(cat)
+            );
+        }
+        for (si, (name, _)) in self.series.iter().enumerate() {
+            let ly = top + 18.0 * si as f64;
+            let _ = writeln!(
+                s,
+                r#"<rect x="{:.1}" y="{ly:.1}" width="12" height="12" fill="{}"/><text x="{:.1}" y="{:.1}">{}</text>"#,
+                w - right + 20.0,
+                PALETTE[si % PALETTE.len()],
+                w - right + 38.0,
+                ly + 10.5,
+                esc(name)
+            );
+        }
+        s.push_str("</svg>\n");
+        s
+    }
+}
+
+fn short_name(path: &str) -> String {
+    Path::new(path).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_else(|| path.to_string())
+}
+
+/// The charts for a set of scene evaluations: `(file name, chart)`.
+///
+/// * `build_ms.svg`: build time per structure per scene (Figure 5.3);
+/// * `frame_rate.svg`: frames per second, `1000 / trace ms per frame` (Figure 5.4);
+/// * `box_tests.svg`, `prim_tests.svg`: tests per ray per structure per scene;
+/// * `tests_<structure>.svg`: box and triangle tests per ray across scenes for one structure (Figures 5.5 to 5.8).
+pub fn charts(evals: &[SceneEvaluation]) -> Vec<(String, BarChart)> {
+    let cats: Vec<String> = evals.iter().map(|e| short_name(&e.mesh)).collect();
+    let mut names: Vec<StructureName> = Vec::new();
+    for e in evals {
+        for s in &e.structures {
+            if let Some(n) = s.name {
+                if !names.contains(&n) {
+                    names.push(n);
+                }
+            }
+        }
+    }
+    let per =
+        |f: &dyn Fn(&SceneEvaluation, &super::StructureResult) -> Option<f64>| -> Vec<(String, Vec<Option<f64>>)> {
+            names
+                .iter()
+                .map(|&n| (n.to_string(), evals.iter().map(|e| e.get(n).and_then(|s| f(e, s))).collect()))
+                .collect()
+        };
+    let ok = |s: &super::StructureResult| s.error.is_none() || s.rays > 0;
+    let workload = evals.first().map(|e| format!(" ({} rays, {}x{})", e.workload.as_str(), e.resolution, e.resolution));
+    let workload = workload.unwrap_or_default();
+    let mut out = vec![
+        (
+            "build_ms.svg".to_string(),
+            BarChart {
+                title: "Construction time".into(),
+                y_label: "build time (ms)".into(),
+                categories: cats.clone(),
+                series: per(&|_, s| ok(s).then_some(s.build_ms.median)),
+            },
+        ),
+        (
+            "frame_rate.svg".to_string(),
+            BarChart {
+                title: format!("Frame rate{workload}"),
+                y_label: "frames per second".into(),
+                categories: cats.clone(),
+                series: per(&|e, s| {
+                    let per_frame = s.trace_ms.median / e.frames.max(1) as f64;
+                    (ok(s) && per_frame > 0.0).then(|| 1000.0 / per_frame)
+                }),
+            },
+        ),
+        (
+            "box_tests.svg".to_string(),
+            BarChart {
+                title: format!("Box tests per ray{workload}"),
+                y_label: "box tests / node visits per ray".into(),
+                categories: cats.clone(),
+                series: per(&|_, s| ok(s).then_some(s.box_tests_per_ray)),
+            },
+        ),
+        (
+            "prim_tests.svg".to_string(),
+            BarChart {
+                title: format!("Triangle tests per ray{workload}"),
+                y_label: "triangle tests per ray".into(),
+                categories: cats.clone(),
+                series: per(&|_, s| ok(s).then_some(s.prim_tests_per_ray)),
+            },
+        ),
+    ];
+    for &n in &names {
+        let col = |f: &dyn Fn(&super::StructureResult) -> f64| -> Vec<Option<f64>> {
+            evals.iter().map(|e| e.get(n).filter(|s| ok(s)).map(f)).collect()
+        };
+        out.push((
+            format!("tests_{n}.svg"),
+            BarChart {
+                title: format!("Intersection tests per ray: {n}{workload}"),
+                y_label: "tests per ray".into(),
+                categories: cats.clone(),
+                series: vec![
+                    ("box tests".into(), col(&|s| s.box_tests_per_ray)),
+                    ("triangle tests".into(), col(&|s| s.prim_tests_per_ray)),
+                ],
+            },
+        ));
+    }
+    out
+}
+
+/// Writes [`charts`] into `dir` (created if needed); returns the paths written.
+pub fn write_charts(dir: &Path, evals: &[SceneEvaluation]) -> std::io::Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(dir)?;
+    let mut paths = Vec::new();
+    for (file, chart) in charts(evals) {
+        let p = dir.join(file);
+        std::fs::write(&p, chart.to_svg())?;
+        paths.push(p);
+    }
+    Ok(paths)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn svg_has_one_bar_per_finite_value() {
+        let c = BarChart {
+            title: "t <&>".into(),
+            y_label: "y".into(),
+            categories: vec!["a".into(), "b".into()],
+            series: vec![("s1".into(), vec![Some(1.0), Some(2.5)]), ("s2".into(), vec![None, Some(f64::NAN)])],
+        };
+        let svg = c.to_svg();
+        assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+        assert_eq!(svg.matches("<title>").count(), 2);
+        assert!(svg.contains("t &lt;&amp;&gt;"));
+    }
+
+    #[test]
+    fn nice_steps() {
+        assert_eq!(nice_step(10.0, 5.0), 2.0);
+        assert_eq!(nice_step(7.0, 5.0), 2.0);
+        assert!((nice_step(0.3, 5.0) - 0.1).abs() < 1e-12);
+        assert_eq!(nice_step(900.0, 5.0), 200.0);
+    }
+}

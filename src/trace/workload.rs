@@ -1,0 +1,193 @@
+//! Workloads: primary rays at a given resolution (1024 x 1024 in the thesis), shadow rays to a point light, and
+//! diffuse (incoherent) bounce rays.
+//!
+//! Shadow and diffuse rays start at the hit points of the primary rays; primary rays that miss spawn nothing. The
+//! hit points come from a reference structure before any timing, so every structure traces the same rays.
+
+use super::{trace, Camera, Hit, Ray};
+use crate::accel::{Aabb, AccelStructure};
+use crate::mesh::Mesh;
+use glam::Vec3;
+
+/// Kind of rays of a workload.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WorkloadKind {
+    /// Camera rays, one per pixel, closest hit.
+    Primary,
+    /// From each primary hit to the point light, any hit.
+    Shadow,
+    /// From each primary hit in a cosine-distributed random direction about the normal, closest hit.
+    Diffuse,
+}
+
+impl WorkloadKind {
+    /// Lowercase name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            WorkloadKind::Primary => "primary",
+            WorkloadKind::Shadow => "shadow",
+            WorkloadKind::Diffuse => "diffuse",
+        }
+    }
+}
+
+impl std::str::FromStr for WorkloadKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "primary" => Ok(WorkloadKind::Primary),
+            "shadow" => Ok(WorkloadKind::Shadow),
+            "diffuse" => Ok(WorkloadKind::Diffuse),
+            other => Err(format!("unknown workload {other:?} (primary, shadow, diffuse)")),
+        }
+    }
+}
+
+/// A set of rays to trace, and whether they are any-hit (shadow) queries.
+#[derive(Clone, Debug)]
+pub struct RaySet {
+    /// What kind of rays.
+    pub kind: WorkloadKind,
+    /// The rays.
+    pub rays: Vec<Ray>,
+    /// Any-hit (occlusion) queries instead of closest hit.
+    pub any_hit: bool,
+}
+
+/// Bounding box of a mesh's triangles (empty for a mesh without triangles).
+pub fn mesh_bounds(mesh: &Mesh) -> Aabb {
+    let mut b = Aabb::EMPTY;
+    for t in &mesh.indices {
+        for &i in t {
+            if let Some(p) = mesh.positions.get(i as usize) {
+                b.grow(Vec3::from_array(*p));
+            }
+        }
+    }
+    b
+}
+
+/// Primary rays of `camera` for a `width x height` image, row by row.
+pub fn primary_rays(camera: &Camera, width: u32, height: u32) -> Vec<Ray> {
+    let mut rays = Vec::with_capacity(width as usize * height as usize);
+    for y in 0..height {
+        for x in 0..width {
+            rays.push(camera.ray(x, y, width, height));
+        }
+    }
+    rays
+}
+
+/// The default point light: above the scene (+y), towards the front-left, at one scene diagonal from the centre.
+pub fn default_light(bounds: &Aabb) -> Vec3 {
+    if bounds.is_empty() {
+        return Vec3::new(0.0, 10.0, 0.0);
+    }
+    let diag = bounds.extent().length().max(1e-3);
+    bounds.center() + Vec3::new(-0.3, 1.0, 0.4).normalize() * diag
+}
+
+/// Offset that moves a secondary ray's origin off its surface: `1e-5` of the scene diagonal plus `1e-6` of the
+/// point's magnitude (so that it stays above f32 rounding far from the origin).
+fn surface_offset(bounds: &Aabb, p: Vec3) -> f32 {
+    1e-5 * bounds.extent().length() + 1e-6 * p.abs().max_element()
+}
+
+/// Geometric unit normal of a hit, facing the incoming ray; `None` for a zero-area triangle.
+fn facing_normal(mesh: &Mesh, hit: &Hit, dir: Vec3) -> Option<Vec3> {
+    let i = hit.triangle as usize;
+    if i >= mesh.triangle_count() {
+        return None;
+    }
+    let [a, b, c] = mesh.triangle(i);
+    let n = (b - a).cross(c - a).try_normalize()?;
+    Some(if n.dot(dir) > 0.0 { -n } else { n })
+}
+
+/// A small deterministic generator (SplitMix64) for diffuse directions.
+#[derive(Clone, Debug)]
+pub struct SplitMix64(pub u64);
+
+impl SplitMix64 {
+    /// Next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    /// Uniform in `[0, 1)`.
+    pub fn next_f32(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
+    }
+}
+
+/// Cosine-distributed unit direction about the unit normal `n`.
+fn cosine_direction(n: Vec3, rng: &mut SplitMix64) -> Vec3 {
+    let u1 = rng.next_f32();
+    let u2 = rng.next_f32();
+    let r = u1.sqrt();
+    let phi = 2.0 * std::f32::consts::PI * u2;
+    let (x, y) = (r * phi.cos(), r * phi.sin());
+    let z = (1.0 - u1).max(0.0).sqrt();
+    let (t, b) = n.any_orthonormal_pair();
+    (t * x + b * y + n * z).try_normalize().unwrap_or(n)
+}
+
+/// Secondary rays from the hits of `primary`: shadow rays to `light` (any hit, `tmax` just short of the light) or
+/// diffuse rays (closest hit). Deterministic for a given `seed`.
+pub fn secondary_rays(
+    kind: WorkloadKind,
+    mesh: &Mesh,
+    primary: &[Ray],
+    hits: &[Option<Hit>],
+    light: Vec3,
+    seed: u64,
+) -> RaySet {
+    let bounds = mesh_bounds(mesh);
+    let mut rays = Vec::new();
+    for (k, (r, h)) in primary.iter().zip(hits).enumerate() {
+        let Some(h) = h else { continue };
+        let Some(n) = facing_normal(mesh, h, r.dir) else {
+            continue;
+        };
+        let p = r.origin + r.dir * h.t;
+        let origin = p + n * surface_offset(&bounds, p);
+        match kind {
+            WorkloadKind::Shadow => {
+                let to = light - origin;
+                let dist = to.length();
+                if dist > 0.0 && dist.is_finite() {
+                    rays.push(Ray { origin, dir: to / dist, tmin: 0.0, tmax: dist * (1.0 - 1e-5) });
+                }
+            }
+            WorkloadKind::Diffuse => {
+                let mut rng = SplitMix64(seed ^ (k as u64).wrapping_mul(0x2545_f491_4f6c_dd1d));
+                rays.push(Ray::new(origin, cosine_direction(n, &mut rng)));
+            }
+            WorkloadKind::Primary => rays.push(*r),
+        }
+    }
+    RaySet { kind, rays, any_hit: kind == WorkloadKind::Shadow }
+}
+
+/// The rays of a workload for one frame: primary rays of `camera` at `resolution x resolution`, or secondary rays
+/// from their hits in `reference` (traced here, before any timing).
+pub fn build_workload(
+    kind: WorkloadKind,
+    mesh: &Mesh,
+    camera: &Camera,
+    resolution: u32,
+    reference: &dyn AccelStructure,
+) -> RaySet {
+    let primary =
+        RaySet { kind: WorkloadKind::Primary, rays: primary_rays(camera, resolution, resolution), any_hit: false };
+    if kind == WorkloadKind::Primary {
+        return primary;
+    }
+    let out = trace(reference, &primary);
+    let light = default_light(&mesh_bounds(mesh));
+    secondary_rays(kind, mesh, &primary.rays, &out.hits, light, 0x6d65_7368_6368_6172)
+}
