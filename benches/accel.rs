@@ -11,9 +11,6 @@
 //! Scenes come from `../shared/meshes`; the bench fails naming the path when they are missing.
 //! Run: `cargo bench --bench accel` (filter with e.g. `-- side_by_side` or `-- build/bunny`).
 
-#[path = "../tests/common/mini_load.rs"]
-mod mini_load;
-
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use meshchar::accel::{build_structure, StructureName};
 use meshchar::mesh::Mesh;
@@ -34,8 +31,8 @@ fn scenes() -> Vec<(&'static str, Mesh)> {
     SCENES
         .iter()
         .map(|(name, rel)| {
-            let p = mini_load::shared_mesh(rel);
-            (*name, mini_load::load(&p).unwrap_or_else(|e| panic!("{e}")))
+            let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/meshes").join(rel);
+            (*name, meshchar::mesh::load_mesh(&p).unwrap_or_else(|e| panic!("benchmark mesh missing or broken: {e}")))
         })
         .collect()
 }

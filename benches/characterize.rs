@@ -155,8 +155,10 @@ fn scaling(crit: &mut Criterion) {
     let params = Params::default();
     let dragon = load("stanford-dragon/dragon_vrip.ply");
     // Sizes from 1K: random soups below the dragon, then the dragon and its subdivisions (x4, x16).
-    let mut meshes: Vec<(String, Mesh)> =
-        [1usize << 10, 1 << 12, 1 << 14, 1 << 16, 1 << 18].iter().map(|&n| (format!("soup{n}"), generate::random_soup(n, 1))).collect();
+    let mut meshes: Vec<(String, Mesh)> = [1usize << 10, 1 << 12, 1 << 14, 1 << 16, 1 << 18]
+        .iter()
+        .map(|&n| (format!("soup{n}"), generate::random_soup(n, 1)))
+        .collect();
     meshes.push(("dragon".into(), dragon.clone()));
     for levels in 1..=2 {
         meshes.push((format!("dragon_sub{levels}"), generate::subdivide(&dragon, levels).expect("subdivide")));

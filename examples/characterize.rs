@@ -10,7 +10,8 @@
 //! `--json` the reports are printed for people; with it, one JSON object per mesh or frame per line.
 
 use meshchar::characterize::{
-    cpu, Backend, Characterization, Characterizer, ClassRule, MortonBits, Params, Policy, Report, SceneSummary, ThesisPolicy,
+    cpu, Backend, Characterization, Characterizer, ClassRule, MortonBits, Params, Policy, Report, SceneSummary,
+    ThesisPolicy,
 };
 use meshchar::mesh::Animation;
 use std::path::PathBuf;

@@ -8,12 +8,10 @@
 //!     [--camera EX,EY,EZ,TX,TY,TZ[,FOV]] [--charts DIR] [--help]
 //! ```
 
-#[path = "../tests/common/mini_load.rs"]
-mod mini_load;
-
 use meshchar::accel::StructureName;
+use meshchar::characterize::{Characterizer, Params, Policy, SceneSummary, ThesisPolicy};
 use meshchar::eval::{evaluate_scene, OracleConfig, Rebuild, SceneEvaluation};
-use meshchar::mesh::{Animation, MeshError};
+use meshchar::mesh::Animation;
 use meshchar::trace::{Camera, WorkloadKind};
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
@@ -124,35 +122,17 @@ fn parse_args() -> Result<Args, String> {
 
 /// Loads a mesh file as a one-frame scene, or a directory of `.obj`/`.ply` frames (sorted by name) as an animation.
 fn load_scene(path: &Path) -> Result<Animation, String> {
-    match meshchar::mesh::load_path(path) {
-        Ok(a) => Ok(a),
-        // TEMPORARY until the mesh loaders are merged: `load_path` is still a placeholder that rejects every file,
-        // so fall back to the tiny OBJ / ASCII PLY reader of the tests. Remove this arm with the merge.
-        Err(MeshError::UnknownFormat { .. }) => {
-            let files: Vec<PathBuf> = if path.is_dir() {
-                let mut v: Vec<PathBuf> = std::fs::read_dir(path)
-                    .map_err(|e| format!("{}: {e}", path.display()))?
-                    .filter_map(|e| e.ok().map(|e| e.path()))
-                    .filter(|p| {
-                        matches!(
-                            p.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref(),
-                            Some("obj") | Some("ply")
-                        )
-                    })
-                    .collect();
-                v.sort();
-                v
-            } else {
-                vec![path.to_path_buf()]
-            };
-            if files.is_empty() {
-                return Err(format!("{}: no .obj or .ply frames", path.display()));
-            }
-            let frames = files.iter().map(|f| mini_load::load(f)).collect::<Result<Vec<_>, _>>()?;
-            Animation::new(path.display().to_string(), frames).map_err(|e| e.to_string())
-        }
-        Err(e) => Err(e.to_string()),
-    }
+    meshchar::mesh::load_path(path).map_err(|e| e.to_string())
+}
+
+/// The characterization's selection for a scene: every frame characterized (Vulkan when a device is found, else
+/// the CPU path), then the thesis policy over the frames.
+fn select(engine: &mut Characterizer, scene: &Animation) -> Result<(StructureName, Vec<String>), String> {
+    let frames = engine.characterize_animation(scene, &Params::default()).map_err(|e| e.to_string())?;
+    let summary = SceneSummary::new(scene.name.clone(), &frames);
+    let sel = ThesisPolicy::default().select(&summary);
+    let name = sel.structure.name().parse::<StructureName>().map_err(|e| format!("{e:?}"))?;
+    Ok((name, sel.reasons))
 }
 
 fn fmt_opt(v: Option<f64>, prec: usize) -> String {
@@ -239,6 +219,13 @@ fn main() {
     };
     let mut evals = Vec::new();
     let mut failed = false;
+    let mut engine = match Characterizer::new(None) {
+        Ok(e) => e,
+        Err(e) => {
+            eprintln!("evaluate: {e}");
+            std::process::exit(1);
+        }
+    };
     for input in &args.inputs {
         let scene = match load_scene(input) {
             Ok(s) => s,
@@ -251,12 +238,22 @@ fn main() {
         let mut config = args.config.clone();
         config.rebuild = args.rebuild.unwrap_or(if scene.is_dynamic() { Rebuild::PerFrame } else { Rebuild::Once });
 
-        // ===== SELECTION CALL SITE (for the lead to connect) =====
-        // The structure chosen by the characterization's policy (`meshchar::characterize`), e.g.
-        // `Some(policy(&report_of(&scene)))`. Until it is connected nothing is selected, and `selected` and `regret`
-        // print as null. Do not invent a selection here.
-        let selected: Option<StructureName> = None;
-        // ===== END OF SELECTION CALL SITE =====
+        let selected = match select(&mut engine, &scene) {
+            Ok((s, reasons)) => {
+                if !args.json {
+                    println!("\n{}: the thesis policy selects {}", scene.name, s.as_str());
+                    for r in &reasons {
+                        println!("  - {r}");
+                    }
+                }
+                Some(s)
+            }
+            Err(e) => {
+                eprintln!("evaluate: {}: characterization failed: {e}", scene.name);
+                failed = true;
+                continue;
+            }
+        };
 
         match evaluate_scene(&scene, &config, selected, &progress) {
             Ok(e) => {

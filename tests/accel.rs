@@ -7,7 +7,11 @@
 
 mod common;
 
-use common::mini_load::{load, shared_mesh};
+use common::shared_mesh;
+
+fn load(p: &std::path::Path) -> Result<meshchar::mesh::Mesh, meshchar::mesh::MeshError> {
+    meshchar::mesh::load_mesh(p)
+}
 use glam::Vec3;
 use meshchar::accel::{
     bih::Bih, brute::BruteForce, bvh::Bvh, grid::Grid, hlbvh::Hlbvh, kdtree::KdTree, lbvh::Lbvh, AccelStructure,

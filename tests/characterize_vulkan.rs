@@ -98,12 +98,13 @@ fn vulkan_equals_cpu_on_generated_and_degenerate_meshes() {
 fn vulkan_equals_cpu_on_every_shared_static_mesh() {
     let Some(mut vk) = backend() else { return };
     let root = common::shared_meshes();
-    let mut files: Vec<_> = ["stanford-bunny", "stanford-dragon", "dabrovic-sponza", "sibenik", "conference", "scans", "small"]
-        .iter()
-        .flat_map(|d| std::fs::read_dir(root.join(d)).unwrap_or_else(|e| panic!("{d}: {e}")))
-        .map(|e| e.expect("dir entry").path())
-        .filter(|p| p.extension().is_some_and(|e| e == "obj" || e == "ply"))
-        .collect();
+    let mut files: Vec<_> =
+        ["stanford-bunny", "stanford-dragon", "dabrovic-sponza", "sibenik", "conference", "scans", "small"]
+            .iter()
+            .flat_map(|d| std::fs::read_dir(root.join(d)).unwrap_or_else(|e| panic!("{d}: {e}")))
+            .map(|e| e.expect("dir entry").path())
+            .filter(|p| p.extension().is_some_and(|e| e == "obj" || e == "ply"))
+            .collect();
     files.sort();
     assert!(files.len() >= 20, "expected the shared meshes, found {files:?}");
     for f in &files {
@@ -141,6 +142,9 @@ fn vulkan_equals_cpu_on_every_stored_bart_frame() {
 fn vulkan_rejects_bad_input_like_the_cpu() {
     let Some(mut vk) = backend() else { return };
     let p = Params::default();
+    for bad in [Params { alpha: 0.0, ..p.clone() }, Params { sample_stride: 0, ..p.clone() }] {
+        assert!(matches!(vk.characterize(&generate::two_triangles(), &bad), Err(CharError::InvalidParams(_))));
+    }
     let empty = Mesh::new("empty", vec![], vec![]).expect("empty mesh is valid");
     assert!(matches!(vk.characterize(&empty, &p), Err(CharError::Empty { .. })));
     assert!(matches!(cpu::fast(&empty, &p), Err(CharError::Empty { .. })));
@@ -149,7 +153,8 @@ fn vulkan_rejects_bad_input_like_the_cpu() {
     let err = vk.characterize(&nan, &p).expect_err("NaN must be rejected");
     assert!(err.to_string().contains("vertex 1"), "{err}");
     // Coordinates whose keys overflow f32.
-    let huge = generate::scaled(&generate::two_triangles(), 3e38).expect("finite");
+    let v = |x: f32| glam::Vec3::new(x, 1.0, 2.0);
+    let huge = Mesh::from_triangles("huge", &[[v(2e38), v(2e38), v(2e38)], [v(0.0), v(1.0), v(2.0)]]).expect("finite");
     let (g, c) = (vk.characterize(&huge, &p), cpu::fast(&huge, &p));
     assert!(g.is_err() && c.is_err(), "overflowing keys must be an error on both: {g:?} {c:?}");
     // An extent so small (subnormal coordinates) that 2^b / extent overflows f32.
