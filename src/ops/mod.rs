@@ -3,5 +3,7 @@
 
 mod bounds;
 pub mod characterize;
+pub mod sort;
 
 pub use bounds::{BoundsPush, PointBounds};
+pub use sort::{KeyBits, RadixSort, SortBuffers, SortConfig, SortMemory, SortedIn};
