@@ -104,6 +104,7 @@ pub struct KdTree {
     refs: Vec<u32>,
     tris: Vec<Triangle>,
     boxes: Vec<Aabb>,
+    ids: Vec<u32>,
     bounds: Aabb,
 }
 
@@ -253,7 +254,7 @@ fn append(out: &mut Built, sub: Built) {
 impl KdTree {
     /// Builds with explicit options.
     pub fn build_with(mesh: &Mesh, o: &KdOptions) -> Result<Self, AccelError> {
-        let (tris, boxes) = prepare(mesh, "kdtree")?;
+        let (mut tris, mut boxes) = prepare(mesh, "kdtree")?;
         let n = tris.len();
         if n == 0 {
             return Ok(KdTree::default());
@@ -272,7 +273,14 @@ impl KdTree {
                 limit: MAX_INDEX,
             });
         }
-        Ok(KdTree { nodes: out.nodes, refs: out.refs, tris, boxes, bounds })
+        let lists: Vec<(usize, usize)> = out
+            .nodes
+            .iter()
+            .filter(|nd| nd.is_leaf())
+            .map(|nd| ((nd.flags >> 2) as usize, (nd.flags >> 2) as usize + nd.split_or_count as usize))
+            .collect();
+        let ids = super::renumber_by_first_use(&mut out.refs, &lists, &mut tris, &mut boxes);
+        Ok(KdTree { nodes: out.nodes, refs: out.refs, tris, boxes, ids, bounds })
     }
 
     /// The nodes, depth-first, root first.
@@ -280,9 +288,14 @@ impl KdTree {
         &self.nodes
     }
 
-    /// Triangle references of the leaves.
+    /// Triangle references of the leaves (record indices; record `r` is mesh triangle `triangle_ids()[r]`).
     pub fn references(&self) -> &[u32] {
         &self.refs
+    }
+
+    /// Mesh index of every triangle record (records are numbered in order of first use by the leaves).
+    pub fn triangle_ids(&self) -> &[u32] {
+        &self.ids
     }
 
     fn traverse(&self, ray: &Ray, any: bool, c: &mut TraceCounters) -> Option<Hit> {
@@ -306,7 +319,7 @@ impl KdTree {
                         if let Some((t, u, v)) = intersect_triangle(&self.tris[id as usize], r.o, r.d, ray.tmin, best_t)
                         {
                             best_t = t;
-                            best = Some(Hit { t, triangle: id, u, v });
+                            best = Some(Hit { t, triangle: self.ids[id as usize], u, v });
                             if any {
                                 return best;
                             }
@@ -407,7 +420,7 @@ impl AccelStructure for KdTree {
         self.traverse(ray, true, c).is_some()
     }
     fn memory_bytes(&self) -> usize {
-        bytes_of(&self.nodes) + bytes_of(&self.refs) + bytes_of(&self.tris)
+        bytes_of(&self.nodes) + bytes_of(&self.refs) + bytes_of(&self.tris) + bytes_of(&self.ids)
     }
 
     /// Checks: every node reached exactly once, splits strictly inside their voxel, leaf ranges inside the
