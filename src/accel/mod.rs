@@ -385,9 +385,9 @@ pub(crate) fn renumber_by_first_use(
             order.push(id);
         }
     }
-    for i in 0..n {
-        if new_of[i] == u32::MAX {
-            new_of[i] = order.len() as u32;
+    for (i, slot) in new_of.iter_mut().enumerate() {
+        if *slot == u32::MAX {
+            *slot = order.len() as u32;
             order.push(i as u32);
         }
     }
