@@ -378,3 +378,28 @@ fn real_bunny_lowres_all_structures_agree() {
 fn real_sponza_all_structures_agree() {
     all_agree_on("dabrovic-sponza/sponza.obj", 48);
 }
+
+#[test]
+fn real_conference_with_zero_area_triangles_all_structures_agree() {
+    // 331,179 triangles, 53,627 of them with exactly zero area.
+    all_agree_on("conference/conference.obj", 32);
+}
+
+#[test]
+fn morton_63_bit_lbvh_and_hlbvh_agree_with_brute_force() {
+    use meshchar::accel::hlbvh::HlbvhOptions;
+    use meshchar::accel::lbvh::LbvhOptions;
+    use meshchar::keys::MortonBits;
+    for mesh in [clustered(1500, 11), one_point(50), flat_grid(10)] {
+        let l = Lbvh::build_with(&mesh, &LbvhOptions { bits: MortonBits::Bits63 }).unwrap();
+        let h = Hlbvh::build_with(&mesh, &HlbvhOptions { bits: MortonBits::Bits63, ..Default::default() }).unwrap();
+        l.validate().unwrap();
+        h.validate().unwrap();
+        assert!(l.sorted_codes().iter().any(|&c| c >= 1 << 30) || mesh.name != "clustered", "63-bit codes in use");
+        let brute = BruteForce::build(&mesh).unwrap();
+        let (rays, _) = test_rays(&mesh, 24, 5);
+        let want = trace(&brute, &rays);
+        assert_eq!(meshchar::trace::count_disagreements(&trace(&l, &rays), &want), 0, "{}", mesh.name);
+        assert_eq!(meshchar::trace::count_disagreements(&trace(&h, &rays), &want), 0, "{}", mesh.name);
+    }
+}

@@ -8,7 +8,9 @@
 //! Triangles go left when the centre of their box lies below the plane. When both sides are non-empty a node is
 //! made: the left clip plane is the largest maximum of the left triangles along the axis, the right clip plane the
 //! smallest minimum of the right ones, and each child continues with its half of the candidate box. When one side
-//! is empty, no node is made and the candidate box is replaced by the half that holds the triangles. Leaves hold at
+//! is empty, the candidate box is replaced by the half that holds the triangles, and where the triangles do not
+//! reach into the other half at all, a node cuts that empty space off (its other child is an empty leaf, its clip
+//! plane at the triangles' extent; the "empty space cutting" of Wächter and Keller). Leaves hold at
 //! most [`BihOptions::max_leaf`] triangles; where halving stops separating the triangles (all centres in one point,
 //! or 64 halvings without progress) the node is split at the object median instead. Subtrees over
 //! [`BihOptions::parallel_threshold`] triangles are built in parallel.
@@ -127,10 +129,22 @@ fn build_rec(refs: &mut [BRef], first: usize, mut cand: Aabb, o: &BihOptions) ->
             split = Some((axis, m, p));
             break;
         }
+        // All centres on one side: continue with that half of the candidate box. When the triangles do not even
+        // reach into the other half, cut that empty space off with a node whose other child is an empty leaf.
         if m == 0 {
             cand.min[axis] = p;
+            let lo = refs.iter().fold(f32::INFINITY, |a, r| a.min(r.min[axis]));
+            if lo > p {
+                let r = build_rec(refs, first, cand, o);
+                return combine(axis, [f32::NEG_INFINITY, lo], Sub { nodes: vec![leaf_node(first, 0)] }, r);
+            }
         } else {
             cand.max[axis] = p;
+            let hi = refs.iter().fold(f32::NEG_INFINITY, |a, r| a.max(r.max[axis]));
+            if hi < p {
+                let l = build_rec(refs, first, cand, o);
+                return combine(axis, [hi, f32::INFINITY], l, Sub { nodes: vec![leaf_node(first + n, 0)] });
+            }
         }
     }
     let (axis, m, lc, rc) = match split {
@@ -166,9 +180,13 @@ fn build_rec(refs: &mut [BRef], first: usize, mut cand: Aabb, o: &BihOptions) ->
     } else {
         (build_rec(lr, first, lc, o), build_rec(rr, first + m, rc, o))
     };
-    // Layout: [this, left root, right root, left rest..., right rest...].
+    combine(axis, [left_clip, right_clip], l, r)
+}
+
+/// A node over two subtrees. Layout: `[this, left root, right root, left rest..., right rest...]`.
+fn combine(axis: usize, clip: [f32; 2], l: Sub, r: Sub) -> Sub {
     let mut nodes = Vec::with_capacity(1 + l.nodes.len() + r.nodes.len());
-    nodes.push(BihNode { clip: [left_clip, right_clip], flags: axis as u32 | (1 << 2) });
+    nodes.push(BihNode { clip, flags: axis as u32 | (1 << 2) });
     let l_rest = 3; // where left's node 1.. go
     let r_rest = 3 + l.nodes.len() - 1;
     let relocate = |nd: &BihNode, own_rest: usize| -> BihNode {

@@ -13,7 +13,8 @@
 //! The root is node 0. A leaf covers triangle records `first .. first + count` of [`BvhTree::triangles`], whose
 //! mesh indices are the same range of [`BvhTree::triangle_ids`]. "Left" and "right" are only names: traversal
 //! visits the child with the nearer box entry first. Where the children of a node lie in the array is builder
-//! specific: the binned-SAH builder stores nodes in depth-first order (left child at `i + 1`), the LBVH uses the
+//! specific: the binned-SAH builder stores the two children of a node next to each other (`right = left + 1`, one
+//! cache line for both boxes), the LBVH uses the
 //! Karras 2012 numbering (internal nodes `0 .. n-1`, leaves `n-1 .. 2n-1`), see [`super::lbvh`].
 //!
 //! # Builder
@@ -24,7 +25,7 @@
 //! coincide, or deeper than 64 levels, are split at the object median. Subtrees above
 //! [`BvhOptions::parallel_threshold`] triangles are built in parallel (`rayon::join`), and the binning of large
 //! nodes is parallel too; every subtree writes into its own slice of a preallocated array (a subtree of `k`
-//! triangles owns `2k - 1` slots), which a final pass compacts into depth-first order. The result does not depend on
+//! triangles owns `2k - 1` slots), which a final pass compacts with siblings adjacent. The result does not depend on
 //! the number of threads.
 
 use super::{
@@ -385,6 +386,11 @@ impl Binning {
 
 fn bin_refs(refs: &[Ref], g: &Binning) -> Bins {
     let mut bins = [[EMPTY_BIN; MAX_BINS]; 3];
+    bin_refs_into(refs, g, &mut bins);
+    bins
+}
+
+fn bin_refs_into(refs: &[Ref], g: &Binning, bins: &mut Bins) {
     for r in refs {
         let [b0, b1, b2] = g.bins(r.c2());
         for (axis_bins, bi) in bins.iter_mut().zip([b0, b1, b2]) {
@@ -393,7 +399,6 @@ fn bin_refs(refs: &[Ref], g: &Binning) -> Bins {
             bin.b = bin.b.union(r.b);
         }
     }
-    bins
 }
 
 fn merge_bins(mut a: Bins, b: Bins) -> Bins {
@@ -437,11 +442,12 @@ fn find_split(refs: &[Ref], cb: &B4, nb: usize) -> Option<(usize, usize, f32, Bi
     if g.k == Vec4::ZERO {
         return None;
     }
-    let bins = if refs.len() >= PAR_BIN_THRESHOLD {
-        refs.par_chunks(16_384).map(|c| bin_refs(c, &g)).reduce(|| [[EMPTY_BIN; MAX_BINS]; 3], merge_bins)
+    let mut bins = [[EMPTY_BIN; MAX_BINS]; 3];
+    if refs.len() >= PAR_BIN_THRESHOLD {
+        bins = refs.par_chunks(16_384).map(|c| bin_refs(c, &g)).reduce(|| [[EMPTY_BIN; MAX_BINS]; 3], merge_bins);
     } else {
-        bin_refs(refs, &g)
-    };
+        bin_refs_into(refs, &g, &mut bins);
+    }
     let n = refs.len() as i64;
     let mut best: Option<(usize, usize, f32, i64)> = None;
     for (a, ab) in bins.iter().enumerate() {
@@ -579,35 +585,32 @@ fn build_rec(
     }
 }
 
-/// Copies the nodes reachable from node 0 of `sparse` into depth-first order (left child at `i + 1`).
-pub(crate) fn compact_depth_first(sparse: &[BvhNode]) -> Vec<BvhNode> {
+/// Copies the nodes reachable from node 0 of `sparse` into a compact array where the two children of every node
+/// are adjacent (`right = left + 1`, one cache line for both boxes), subtrees in depth-first order.
+pub(crate) fn compact_sibling_pairs(sparse: &[BvhNode]) -> Vec<BvhNode> {
     let mut out: Vec<BvhNode> = Vec::new();
-    if sparse.is_empty() {
-        return out;
-    }
-    let mut stack = vec![(0u32, u32::MAX, false)];
-    while let Some((old, parent, is_right)) = stack.pop() {
-        let new = out.len() as u32;
+    let Some(root) = sparse.first() else { return out };
+    out.push(*root);
+    let mut stack = vec![(0u32, 0u32)];
+    while let Some((old, new)) = stack.pop() {
         let node = sparse[old as usize];
-        out.push(node);
-        if parent != u32::MAX {
-            let p = &mut out[parent as usize];
-            if is_right {
-                p.right_or_count = new;
-            } else {
-                p.left_or_first = new;
-            }
+        if node.is_leaf() {
+            continue;
         }
-        if !node.is_leaf() {
-            stack.push((node.right_or_count, new, true));
-            stack.push((node.left_or_first, new, false));
-        }
+        let k = out.len() as u32;
+        out.push(sparse[node.left_or_first as usize]);
+        out.push(sparse[node.right_or_count as usize]);
+        let p = &mut out[new as usize];
+        p.left_or_first = k;
+        p.right_or_count = k + 1;
+        stack.push((node.right_or_count, k + 1));
+        stack.push((node.left_or_first, k));
     }
     out
 }
 
 /// Builds a binned-SAH tree over arbitrary boxes (used for triangles here and for clusters by the HLBVH).
-/// Returns the depth-first nodes and the order of the input boxes in the leaves.
+/// Returns the compact nodes and the order of the input boxes in the leaves.
 pub(crate) fn build_sah_tree(boxes: &[Aabb], o: &BvhOptions) -> (Vec<BvhNode>, Vec<u32>) {
     let n = boxes.len();
     if n == 0 {
@@ -618,7 +621,7 @@ pub(crate) fn build_sah_tree(boxes: &[Aabb], o: &BvhOptions) -> (Vec<BvhNode>, V
     let o = BvhOptions { bins: o.bins.clamp(2, MAX_BINS), max_leaf: o.max_leaf.max(1), ..*o };
     let bounds = ref_bounds(&refs);
     build_rec(&mut refs, &mut sparse, 0, 0, 0, bounds, &o);
-    let nodes = compact_depth_first(&sparse);
+    let nodes = compact_sibling_pairs(&sparse);
     (nodes, refs.iter().map(|r| r.idx()).collect())
 }
 

@@ -34,7 +34,7 @@ use super::{
 };
 use crate::mesh::Mesh;
 use crate::trace::{intersect_triangle, Hit, Ray, RayInv, TraceCounters};
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 
 /// One kd-tree node (see the module docs).
 #[repr(C)]
@@ -104,6 +104,7 @@ pub struct KdTree {
     refs: Vec<u32>,
     tris: Vec<Triangle>,
     boxes: Vec<Aabb>,
+    ids: Vec<u32>,
     bounds: Aabb,
 }
 
@@ -115,47 +116,59 @@ fn find_split(refs: &[KRef], voxel: &Aabb, o: &KdOptions) -> Option<(usize, f32,
         return None;
     }
     let n = refs.len();
-    let nb = o.bins.clamp(2, MAX_BINS);
+    // Small nodes get about one bin per reference (at least 4): the same quality for much less sweeping.
+    let nb = o.bins.clamp(2, MAX_BINS).min(n.max(4));
     let ext = voxel.max - voxel.min;
     let mut best: Option<(usize, f32, f32)> = None;
+    let mut best_cost = f32::INFINITY;
+    let inv_sa = 1.0 / sa;
+    // Half area of a child along `axis` with length `len`: len * (e_b + e_c) + e_b * e_c.
+    let sums = [ext.y + ext.z, ext.x + ext.z, ext.x + ext.y];
+    let crosses = [ext.y * ext.z, ext.x * ext.z, ext.x * ext.y];
     let mut consider = |axis: usize, p: f32, nl: usize, nr: usize| {
         if !(p > voxel.min[axis] && p < voxel.max[axis]) {
             return;
         }
-        let mut l = *voxel;
-        l.max[axis] = p;
-        let mut r = *voxel;
-        r.min[axis] = p;
+        let al = (p - voxel.min[axis]) * sums[axis] + crosses[axis];
+        let ar = (voxel.max[axis] - p) * sums[axis] + crosses[axis];
         let bonus = if nl == 0 || nr == 0 { 1.0 - o.empty_bonus } else { 1.0 };
-        let cost = o.traversal_cost
-            + o.intersection_cost * bonus * (l.half_area() * nl as f32 + r.half_area() * nr as f32) / sa;
-        if best.is_none_or(|(_, _, c)| cost < c) {
+        let cost = o.traversal_cost + o.intersection_cost * bonus * (al * nl as f32 + ar * nr as f32) * inv_sa;
+        if cost < best_cost {
+            best_cost = cost;
             best = Some((axis, p, cost));
         }
     };
+    // One pass over the references bins all three axes (SIMD), with the references' extent for the cut-offs.
+    let kf = |e: f32| if e > 0.0 { nb as f32 / e } else { 0.0 };
+    let kv = Vec3A::new(kf(ext.x), kf(ext.y), kf(ext.z));
+    let vmin = Vec3A::from(voxel.min);
+    let top = Vec3A::splat((nb - 1) as f32);
+    let mut start = [[0u32; MAX_BINS]; 3];
+    let mut end = [[0u32; MAX_BINS]; 3];
+    let (mut lo, mut hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
+    for r in refs {
+        let (mn, mx) = (Vec3A::from(r.min), Vec3A::from(r.max));
+        let b0 = ((mn - vmin) * kv).clamp(Vec3A::ZERO, top);
+        let b1 = ((mx - vmin) * kv).clamp(Vec3A::ZERO, top);
+        for a in 0..3 {
+            start[a][b0[a] as u32 as usize] += 1;
+            end[a][b1[a] as u32 as usize] += 1;
+        }
+        lo = lo.min(mn);
+        hi = hi.max(mx);
+    }
     for axis in 0..3 {
         if ext[axis].is_nan() || ext[axis] <= 0.0 {
             continue;
         }
-        let k = nb as f32 / ext[axis];
-        let bin = |x: f32| (((x - voxel.min[axis]) * k) as usize).min(nb - 1);
-        let mut start = [0u32; MAX_BINS];
-        let mut end = [0u32; MAX_BINS];
-        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-        for r in refs {
-            start[bin(r.min[axis])] += 1;
-            end[bin(r.max[axis])] += 1;
-            lo = lo.min(r.min[axis]);
-            hi = hi.max(r.max[axis]);
-        }
         // Empty-space cut-offs exactly at the references' extent.
-        consider(axis, lo, 0, n);
-        consider(axis, hi, n, 0);
+        consider(axis, lo[axis], 0, n);
+        consider(axis, hi[axis], n, 0);
         let mut nl = 0usize;
         let mut nr = n;
         for j in 1..nb {
-            nl += start[j - 1] as usize;
-            nr -= end[j - 1] as usize;
+            nl += start[axis][j - 1] as usize;
+            nr -= end[axis][j - 1] as usize;
             let p = voxel.min[axis] + ext[axis] * (j as f32 / nb as f32);
             consider(axis, p, nl, nr);
         }
@@ -252,7 +265,7 @@ fn append(out: &mut Built, sub: Built) {
 impl KdTree {
     /// Builds with explicit options.
     pub fn build_with(mesh: &Mesh, o: &KdOptions) -> Result<Self, AccelError> {
-        let (tris, boxes) = prepare(mesh, "kdtree")?;
+        let (mut tris, mut boxes) = prepare(mesh, "kdtree")?;
         let n = tris.len();
         if n == 0 {
             return Ok(KdTree::default());
@@ -271,7 +284,14 @@ impl KdTree {
                 limit: MAX_INDEX,
             });
         }
-        Ok(KdTree { nodes: out.nodes, refs: out.refs, tris, boxes, bounds })
+        let lists: Vec<(usize, usize)> = out
+            .nodes
+            .iter()
+            .filter(|nd| nd.is_leaf())
+            .map(|nd| ((nd.flags >> 2) as usize, (nd.flags >> 2) as usize + nd.split_or_count as usize))
+            .collect();
+        let ids = super::renumber_by_first_use(&mut out.refs, &lists, &mut tris, &mut boxes);
+        Ok(KdTree { nodes: out.nodes, refs: out.refs, tris, boxes, ids, bounds })
     }
 
     /// The nodes, depth-first, root first.
@@ -279,9 +299,14 @@ impl KdTree {
         &self.nodes
     }
 
-    /// Triangle references of the leaves.
+    /// Triangle references of the leaves (record indices; record `r` is mesh triangle `triangle_ids()[r]`).
     pub fn references(&self) -> &[u32] {
         &self.refs
+    }
+
+    /// Mesh index of every triangle record (records are numbered in order of first use by the leaves).
+    pub fn triangle_ids(&self) -> &[u32] {
+        &self.ids
     }
 
     fn traverse(&self, ray: &Ray, any: bool, c: &mut TraceCounters) -> Option<Hit> {
@@ -305,7 +330,7 @@ impl KdTree {
                         if let Some((t, u, v)) = intersect_triangle(&self.tris[id as usize], r.o, r.d, ray.tmin, best_t)
                         {
                             best_t = t;
-                            best = Some(Hit { t, triangle: id, u, v });
+                            best = Some(Hit { t, triangle: self.ids[id as usize], u, v });
                             if any {
                                 return best;
                             }
@@ -406,7 +431,7 @@ impl AccelStructure for KdTree {
         self.traverse(ray, true, c).is_some()
     }
     fn memory_bytes(&self) -> usize {
-        bytes_of(&self.nodes) + bytes_of(&self.refs) + bytes_of(&self.tris)
+        bytes_of(&self.nodes) + bytes_of(&self.refs) + bytes_of(&self.tris) + bytes_of(&self.ids)
     }
 
     /// Checks: every node reached exactly once, splits strictly inside their voxel, leaf ranges inside the

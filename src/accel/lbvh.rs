@@ -303,3 +303,29 @@ pub(crate) fn check_karras_shape(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn karras_children_of_distinct_codes() {
+        // Codes 000, 001, 100, 101: the root splits at the top bit, each half at the lowest.
+        let keys = [(0b000, 0), (0b001, 1), (0b100, 2), (0b101, 3)];
+        assert_eq!(radix_tree_children(&keys, 3), vec![(1, 2), (3, 4), (5, 6)]);
+    }
+
+    #[test]
+    fn karras_children_of_equal_codes_split_by_triangle_index() {
+        // All codes equal: the extended keys differ only in the triangle index (0, 1, 2): the root separates
+        // index 2 (bit 1) from 0 and 1 (bit 0).
+        let keys = [(5, 0), (5, 1), (5, 2)];
+        assert_eq!(radix_tree_children(&keys, 3), vec![(1, 4), (2, 3)]);
+    }
+
+    #[test]
+    fn single_key_has_no_internal_node() {
+        assert!(radix_tree_children(&[(7, 0)], 30).is_empty());
+        assert!(radix_tree_children(&[], 30).is_empty());
+    }
+}

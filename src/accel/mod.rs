@@ -367,6 +367,41 @@ pub fn prepare(mesh: &Mesh, structure: &'static str) -> Result<(Vec<Triangle>, V
         .unzip())
 }
 
+/// Renumbers triangle records in the order in which `lists` (concatenated reference lists, each a range of `refs`)
+/// first use them, so that the triangles of one leaf or cell lie together in memory. Permutes `tris` and `boxes`,
+/// rewrites `refs` and sorts every list again; returns the mesh index of every record.
+pub(crate) fn renumber_by_first_use(
+    refs: &mut [u32],
+    lists: &[(usize, usize)],
+    tris: &mut Vec<Triangle>,
+    boxes: &mut Vec<Aabb>,
+) -> Vec<u32> {
+    let n = tris.len();
+    let mut new_of = vec![u32::MAX; n];
+    let mut order: Vec<u32> = Vec::with_capacity(n);
+    for &id in refs.iter() {
+        if new_of[id as usize] == u32::MAX {
+            new_of[id as usize] = order.len() as u32;
+            order.push(id);
+        }
+    }
+    for (i, slot) in new_of.iter_mut().enumerate() {
+        if *slot == u32::MAX {
+            *slot = order.len() as u32;
+            order.push(i as u32);
+        }
+    }
+    for r in refs.iter_mut() {
+        *r = new_of[*r as usize];
+    }
+    for &(s, e) in lists {
+        refs[s..e].sort_unstable();
+    }
+    *tris = order.iter().map(|&i| tris[i as usize]).collect();
+    *boxes = order.iter().map(|&i| boxes[i as usize]).collect();
+    order
+}
+
 /// Bytes of a slice's elements.
 pub(crate) fn bytes_of<T>(v: &[T]) -> usize {
     std::mem::size_of_val(v)

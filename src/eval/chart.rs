@@ -41,16 +41,16 @@ fn nice_step(max: f64, ticks: f64) -> f64 {
     }
 }
 
-fn fmt_tick(v: f64) -> String {
+/// A tick label with as many decimals as the step needs (scientific notation beyond 1e7).
+fn fmt_tick(v: f64, step: f64) -> String {
     if v == 0.0 {
-        "0".into()
-    } else if v.abs() >= 1e4 || v.abs() < 1e-2 {
-        format!("{v:.0e}")
-    } else if v.fract() == 0.0 {
-        format!("{v:.0}")
-    } else {
-        format!("{v}")
+        return "0".into();
     }
+    if v.abs() >= 1e7 {
+        return format!("{v:.1e}");
+    }
+    let decimals = (-step.log10().floor()).clamp(0.0, 9.0) as usize;
+    format!("{v:.decimals$}")
 }
 
 impl BarChart {
@@ -83,8 +83,9 @@ impl BarChart {
             esc(&self.title)
         );
         // Grid and ticks.
-        let mut v = 0.0;
-        while v <= top_v * (1.0 + 1e-9) {
+        let ticks = (top_v / step).round() as usize;
+        for i in 0..=ticks {
+            let v = i as f64 * step;
             let yy = y(v);
             let _ = writeln!(
                 s,
@@ -92,9 +93,8 @@ impl BarChart {
                 left + pw,
                 left - 6.0,
                 yy + 4.0,
-                fmt_tick(v)
+                fmt_tick(v, step)
             );
-            v += step;
         }
         let _ = writeln!(
             s,
@@ -277,6 +277,14 @@ mod tests {
         assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
         assert_eq!(svg.matches("<title>").count(), 2);
         assert!(svg.contains("t &lt;&amp;&gt;"));
+    }
+
+    #[test]
+    fn tick_labels() {
+        assert_eq!(fmt_tick(15000.0, 5000.0), "15000");
+        assert_eq!(fmt_tick(0.30000000000000004, 0.1), "0.3");
+        assert_eq!(fmt_tick(0.0, 0.1), "0");
+        assert_eq!(fmt_tick(2.5e7, 5e6), "2.5e7");
     }
 
     #[test]

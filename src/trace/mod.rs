@@ -183,7 +183,7 @@ impl TraceOutcome {
 }
 
 /// Rays per rayon task.
-const CHUNK: usize = 256;
+const CHUNK: usize = 1024;
 
 /// Traces every ray of `rays` through `accel` in parallel (rayon over chunks of rays) and times it.
 pub fn trace(accel: &dyn AccelStructure, rays: &RaySet) -> TraceOutcome {
