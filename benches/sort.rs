@@ -6,6 +6,11 @@
 //! second power of two); `MESHCHAR_SORT_TUNING=wg,kpt,scan_wg,scan_items` replaces the device's
 //! [`SortConfig`] (for tuning); `MESHCHAR_BENCH_CPU=0` leaves out the CPU sorts. Without a Vulkan device only the
 //! CPU sorts run.
+//!
+//! Measured on lavapipe (Mesa 22.3.6, LLVM 15, subgroup 8, CPU profile 32 x 64) in a 2-core AMD EPYC VM shared with
+//! other builds (load average 5 to 7), medians: GPU sort 1.1 to 1.8 M keys/s for u32 keys and 0.3 to 1.0 M keys/s
+//! for u64 keys (2^14 to 2^24), against 20 to 80 M keys/s for `sort_unstable_by_key` and 17 to 90 M keys/s for
+//! rayon, on the same cores. lavapipe is the correctness device; throughput claims for the sort belong to a GPU.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode, Throughput};
 use meshchar::gpu::{Context, ContextDesc, Timer};

@@ -44,9 +44,10 @@ use crate::gpu::{shaders, Buffer, Context, DeviceCaps, GpuError, Kernel, KernelD
 pub const DIGIT_BITS: u32 = 8;
 /// Bins per digit.
 const RADIX: u64 = 1 << DIGIT_BITS;
-/// Shared memory of the scatter kernel per subgroup: 256 digit counters and two per-subgroup words.
-const SCATTER_SHARED_PER_SUBGROUP: u32 = 4 * RADIX as u32 + 8;
-/// Shared memory of the scan kernels per subgroup.
+/// Shared memory of the scatter kernel per subgroup, in bytes: 256 digit counters, the subgroup's lane count and
+/// its sum (`glsl/include/sort.glsl`), and one word of margin.
+const SCATTER_SHARED_PER_SUBGROUP: u32 = 4 * RADIX as u32 + 12;
+/// Shared memory of the scan kernels per subgroup, in bytes: lane count and sum.
 const SCAN_SHARED_PER_SUBGROUP: u32 = 8;
 /// Largest keys per invocation (they are held in registers between the scatter kernel's two phases).
 pub const MAX_KEYS_PER_THREAD: u32 = 64;
@@ -137,7 +138,7 @@ impl SortConfig {
             let wg = if wg >= max_sg { wg - wg % max_sg } else { wg };
             wg.max(max_sg.min(max_wg))
         };
-        self.workgroup_size = fit(self.workgroup_size, SCATTER_SHARED_PER_SUBGROUP + 4);
+        self.workgroup_size = fit(self.workgroup_size, SCATTER_SHARED_PER_SUBGROUP);
         self.scan_workgroup_size = fit(self.scan_workgroup_size, SCAN_SHARED_PER_SUBGROUP);
         self.keys_per_thread = self.keys_per_thread.clamp(1, MAX_KEYS_PER_THREAD);
         self.scan_items = self.scan_items.max(1);
@@ -160,7 +161,7 @@ impl SortConfig {
         let max_wg = caps.max_workgroup_size[0].min(caps.max_workgroup_invocations);
         let min_sg = caps.min_subgroup_size.max(1);
         for (name, wg, per_subgroup) in [
-            ("workgroup_size", self.workgroup_size, SCATTER_SHARED_PER_SUBGROUP + 4),
+            ("workgroup_size", self.workgroup_size, SCATTER_SHARED_PER_SUBGROUP),
             ("scan_workgroup_size", self.scan_workgroup_size, SCAN_SHARED_PER_SUBGROUP),
         ] {
             if wg == 0 || wg > max_wg {
@@ -484,6 +485,8 @@ impl RadixSort {
     ///
     /// Every buffer must stay alive, and must not be used by other work, until the command buffer completes. Both
     /// key buffers (and both payload buffers) are overwritten; the internal buffer's content is meaningless after.
+    ///
+    /// Counts 0 and 1 record only the leading barrier (the input is sorted).
     ///
     /// Errors ([`GpuError::Buffer`], [`GpuError::Limit`]): a buffer smaller than [`RadixSort::memory_requirements`]
     /// says, a payload without its alternate, or `count` above [`RadixSort::max_count`]. Nothing is recorded then.
