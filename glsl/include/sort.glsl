@@ -9,7 +9,10 @@
 // is what makes the ranks stable.
 //
 // The including shader declares `MAX_SUBGROUPS` (a specialization constant: the most subgroups a workgroup can have,
-// gl_WorkGroupSize.x divided by the device's smallest subgroup size) before including this file.
+// gl_WorkGroupSize.x divided by the device's smallest subgroup size, rounded up) before including this file. That
+// bound is the one assumption on the driver: gl_NumSubgroups <= MAX_SUBGROUPS, i.e. no subgroup holds fewer lanes
+// than minSubgroupSize except for a remainder. lavapipe breaks it only when LP_NATIVE_VECTOR_WIDTH exceeds the 512 bits
+// it can execute (see tests/gpu_sort.rs).
 #extension GL_KHR_shader_subgroup_shuffle : require
 
 shared uint s_subgroup_n[MAX_SUBGROUPS];
