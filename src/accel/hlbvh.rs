@@ -51,7 +51,13 @@ pub struct Hlbvh {
     clusters: Vec<(u32, u32, u32)>,
 }
 
-fn top_tree(list: &mut [u32], roots: &[u32], boxes: &[Aabb], bins: usize, out: &mut Vec<BvhNode>) -> (u32, Aabb) {
+pub(crate) fn top_tree(
+    list: &mut [u32],
+    roots: &[u32],
+    boxes: &[Aabb],
+    bins: usize,
+    out: &mut Vec<BvhNode>,
+) -> (u32, Aabb) {
     if list.len() == 1 {
         let c = list[0] as usize;
         return (roots[c], boxes[c]);

@@ -3,6 +3,7 @@
 
 mod bounds;
 pub mod characterize;
+pub mod lbvh;
 pub mod sort;
 
 pub use bounds::{BoundsPush, PointBounds};

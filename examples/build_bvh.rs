@@ -1,0 +1,117 @@
+//! Builds a BVH over a mesh and prints its statistics.
+//!
+//! `cargo run --release --example build_bvh -- FILE [--builder lbvh|hlbvh|sah] [--backend vulkan|cpu] [--json]`
+
+use meshchar::accel::bvh::{Bvh, BvhTree};
+use meshchar::accel::hlbvh::{Hlbvh, HlbvhOptions};
+use meshchar::accel::lbvh::{Lbvh, LbvhOptions};
+use meshchar::accel::AccelStructure;
+use meshchar::gpu::{Context, ContextDesc};
+use meshchar::ops::characterize::MeshBuffers;
+use meshchar::ops::lbvh::BvhBuilder;
+use std::time::Instant;
+
+const USAGE: &str = "usage: build_bvh FILE [--builder lbvh|hlbvh|sah] [--backend vulkan|cpu] [--json]
+  FILE        a mesh (OBJ or PLY)
+  --builder   lbvh (default), hlbvh, or sah (CPU binned SAH; always the CPU backend)
+  --backend   vulkan (default for lbvh and hlbvh) or cpu (the CPU reference builders)
+  --json      one JSON object instead of text";
+
+fn main() {
+    if let Err(e) = run() {
+        eprintln!("build_bvh: {e}");
+        std::process::exit(2);
+    }
+}
+
+fn run() -> Result<(), String> {
+    let mut file = None;
+    let mut builder = "lbvh".to_string();
+    let mut backend = None;
+    let mut json = false;
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        match a.as_str() {
+            "-h" | "--help" => {
+                println!("{USAGE}");
+                return Ok(());
+            }
+            "--builder" => builder = args.next().ok_or("--builder needs a value")?,
+            "--backend" => backend = Some(args.next().ok_or("--backend needs a value")?),
+            "--json" => json = true,
+            s if s.starts_with('-') => return Err(format!("unknown option {s}\n{USAGE}")),
+            s => file = Some(s.to_string()),
+        }
+    }
+    let file = file.ok_or(format!("no mesh file given\n{USAGE}"))?;
+    if !["lbvh", "hlbvh", "sah"].contains(&builder.as_str()) {
+        return Err(format!("unknown builder {builder} (lbvh, hlbvh or sah)"));
+    }
+    let backend = backend.unwrap_or_else(|| if builder == "sah" { "cpu".into() } else { "vulkan".into() });
+    if !["vulkan", "cpu"].contains(&backend.as_str()) {
+        return Err(format!("unknown backend {backend} (vulkan or cpu)"));
+    }
+    if builder == "sah" && backend != "cpu" {
+        return Err("the sah builder runs on the CPU only (--backend cpu)".into());
+    }
+    let mesh = meshchar::mesh::load::load_mesh(std::path::Path::new(&file)).map_err(|e| e.to_string())?;
+    let mut passes: Vec<(String, f64)> = Vec::new();
+    let (tree, build_ms): (BvhTree, f64) = if backend == "cpu" {
+        let t = Instant::now();
+        let tree = match builder.as_str() {
+            "lbvh" => Lbvh::build(&mesh).map(|b| b.tree().clone()),
+            "hlbvh" => Hlbvh::build(&mesh).map(|b| b.tree().clone()),
+            _ => Bvh::build(&mesh).map(|b| b.tree().clone()),
+        }
+        .map_err(|e| e.to_string())?;
+        (tree, t.elapsed().as_secs_f64() * 1e3)
+    } else {
+        let ctx = Context::new(&ContextDesc::default()).map_err(|e| e.to_string())?;
+        let buffers = MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).map_err(|e| e.to_string())?;
+        let mut b = BvhBuilder::new(&ctx).map_err(|e| e.to_string())?;
+        // One warm-up build (pipelines, allocations), then the measured one.
+        let build = |b: &mut BvhBuilder| match builder.as_str() {
+            "lbvh" => b.build_lbvh(&buffers, &LbvhOptions::default()),
+            _ => b.build_hlbvh(&buffers, &HlbvhOptions::default()),
+        };
+        build(&mut b).map_err(|e| e.to_string())?;
+        let t = Instant::now();
+        let gpu = build(&mut b).map_err(|e| e.to_string())?;
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        passes = gpu.timings().to_vec();
+        (gpu.read_back(&ctx, &buffers).map_err(|e| e.to_string())?, ms)
+    };
+    let (valid, stats) = match tree.validate("build_bvh") {
+        Ok(s) => (true, Some(s)),
+        Err(e) => {
+            eprintln!("build_bvh: validation failed: {e}");
+            (false, None)
+        }
+    };
+    let nodes = tree.nodes().len();
+    let leaves = tree.nodes().iter().filter(|n| n.is_leaf()).count();
+    let depth = stats.as_ref().map_or(0, |s| s.max_depth);
+    let sah = tree.sah_cost();
+    if json {
+        let v = serde_json::json!({
+            "builder": builder, "backend": backend, "triangles": mesh.triangle_count(), "nodes": nodes,
+            "leaves": leaves, "depth": depth, "sah_cost": sah, "valid": valid, "build_ms": build_ms,
+            "passes_ms": passes.iter().map(|(n, ms)| serde_json::json!({"pass": n, "ms": ms})).collect::<Vec<_>>(),
+        });
+        println!("{v}");
+    } else {
+        println!("builder    {builder}\nbackend    {backend}\ntriangles  {}", mesh.triangle_count());
+        println!(
+            "nodes      {nodes}\nleaves     {leaves}\ndepth      {depth}\nsah_cost   {sah:.3}\nvalid      {valid}"
+        );
+        println!("build_ms   {build_ms:.2}");
+        for (n, ms) in &passes {
+            println!("  {n:12} {ms:.3} ms");
+        }
+    }
+    if valid {
+        Ok(())
+    } else {
+        Err("the tree failed validation".into())
+    }
+}

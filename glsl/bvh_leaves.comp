@@ -1,0 +1,45 @@
+#version 460
+// Leaf boxes of any BVH in the crate's layout: every leaf node gets the box of its triangles' vertices (records
+// first .. first + count, triangle ids[r]); internal nodes are left alone. Used by the builds and by refit.
+#include "common.glsl"
+#include "bvh.glsl"
+
+layout(local_size_x_id = 0) in;
+layout(constant_id = 1) const uint ITEMS = 8;
+
+layout(push_constant) uniform Push {
+    uint64_t positions;
+    uint64_t indices;
+    uint64_t ids;
+    uint64_t nodes;
+    uint64_t count;
+} pc;
+
+void main() {
+    uint tile = gl_WorkGroupSize.x * ITEMS;
+    uint tiles = tile_count(pc.count, tile);
+    for (uint t = gl_WorkGroupID.x; t < tiles; t += gl_NumWorkGroups.x) {
+        uint64_t base = uint64_t(t) * uint64_t(tile) + gl_LocalInvocationID.x;
+        for (uint j = 0u; j < ITEMS; ++j) {
+            uint64_t k = base + uint64_t(j * gl_WorkGroupSize.x);
+            if (k >= pc.count) continue;
+            BvhNodeRef r = bvh_node(pc.nodes, uint(k));
+            uint rc = r.node.right_or_count;
+            if ((rc & BVH_LEAF_FLAG) == 0u) continue;
+            uint first = r.node.left_or_first;
+            uint n = rc & ~BVH_LEAF_FLAG;
+            vec3 lo = vec3(uintBitsToFloat(0x7f800000u));
+            vec3 hi = -lo;
+            for (uint q = 0u; q < n; ++q) {
+                uvec3 tri = ld_uvec3(pc.indices, uint64_t(ld_u32(pc.ids, uint64_t(first + q))));
+                vec3 v0 = ld_vec3(pc.positions, tri.x);
+                vec3 v1 = ld_vec3(pc.positions, tri.y);
+                vec3 v2 = ld_vec3(pc.positions, tri.z);
+                lo = min(lo, min(min(v0, v1), v2));
+                hi = max(hi, max(max(v0, v1), v2));
+            }
+            r.node.min = lo;
+            r.node.max = hi;
+        }
+    }
+}

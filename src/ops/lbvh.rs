@@ -1,0 +1,672 @@
+//! GPU builders of the LBVH (Karras 2012) and the HLBVH (Pantaleoni and Luebke 2010, with the SAH top of Garanzha
+//! et al. 2011), and refit, producing exactly the trees of the CPU references [`crate::accel::lbvh`] and
+//! [`crate::accel::hlbvh`] (their module docs define them), in the shared [`BvhNode`] layout.
+//!
+//! # Passes
+//!
+//! 1. `keys_bounds` (`glsl/keys_bounds.comp`, shared with the characterization): centroid keys and their bounds.
+//!    The host reads the bounds back and computes the quantization scale (SPEC.md forbids device division).
+//! 2. `codes` (`glsl/lbvh_codes.comp`): Morton code of every key (30-bit in `u32`, 63-bit in `u64`) and the
+//!    identity payload.
+//! 3. `sort` ([`RadixSort`], stable): codes with their triangle indices, i.e. the `(code, index)` order.
+//! 4. HLBVH only: `hlbvh_heads`, `hlbvh_scan` (one workgroup): the clusters (runs of equal top
+//!    [`HlbvhOptions::cluster_bits`]) and their first positions.
+//! 5. `karras` (`glsl/lbvh_karras.comp`): the radix tree, one invocation per sorted position, writing children,
+//!    leaves and parent links; no invocation depends on another.
+//! 6. `leaves` (`glsl/bvh_leaves.comp`): every leaf's box from the mesh vertices.
+//! 7. `fit` (`glsl/bvh_fit.comp`): internal boxes bottom-up with one atomic arrival counter per node; the second
+//!    arrival computes the union, nobody waits.
+//! 8. HLBVH only: `hlbvh_roots` gathers the cluster roots; the host builds the binned-SAH top over them (at most
+//!    `2^cluster_bits` clusters, 4,096 by default) and uploads those `C - 1` nodes, whose parent links
+//!    `bvh_parents` then writes so refit walks through the top as well.
+//!
+//! The top level of the HLBVH runs on the host: it is the same function as the CPU reference's, over at most a few
+//! thousand cluster boxes; its cost is reported in [`GpuBvh::timings`] as `top_cpu` (with the readback of the
+//! cluster roots and the upload of the top nodes) beside the GPU passes.
+//!
+//! # Result
+//!
+//! [`GpuBvh`] keeps the tree on the device: [`GpuBvh::nodes`] (`2n - 1` [`BvhNode`]s, root at 0, the layout
+//! documented in [`crate::accel::bvh`] and mirrored in `glsl/include/bvh.glsl` for engines' shaders) and
+//! [`GpuBvh::ids`] (`n` `u32`: record `r` of a leaf is triangle `ids[r]`), both with device addresses.
+//! [`GpuBvh::read_back`] copies them to a [`BvhTree`], so [`BvhTree::validate`] and [`BvhTree::sah_cost`] apply.
+//!
+//! # Refit
+//!
+//! [`BvhBuilder::refit`] recomputes every box of an existing tree for new vertex positions (the next frame of an
+//! animation: same triangles, same topology): `leaves`, counters reset, `fit`. The result equals a fresh
+//! leaves-and-fit pass over the same topology.
+//!
+//! An empty mesh is an error ([`InputError::Empty`]): a tree on the device needs at least one node.
+//!
+//! ```no_run
+//! use meshchar::gpu::{Context, ContextDesc};
+//! use meshchar::ops::characterize::MeshBuffers;
+//! use meshchar::ops::lbvh::BvhBuilder;
+//! use meshchar::accel::lbvh::LbvhOptions;
+//! let ctx = Context::new(&ContextDesc::default())?;
+//! let mesh = meshchar::mesh::generate::random_soup(1000, 1);
+//! let buffers = MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices)?;
+//! let mut builder = BvhBuilder::new(&ctx)?;
+//! let bvh = builder.build_lbvh(&buffers, &LbvhOptions::default())?;
+//! println!("nodes at 0x{:x}", bvh.nodes().address());
+//! let tree = bvh.read_back(&ctx, &buffers)?;
+//! tree.validate("lbvh")?;
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+use super::characterize::{InputError, KeysPush, MeshBuffers, RunError};
+use super::sort::{KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
+use crate::accel::bvh::{BvhNode, BvhTree};
+use crate::accel::hlbvh::HlbvhOptions;
+use crate::accel::lbvh::LbvhOptions;
+use crate::accel::{Aabb, Triangle, MAX_TRIANGLES};
+use crate::gpu::{shaders, Buffer, Context, GpuError, Kernel, KernelDesc, MemoryKind, Recorder, Result, Timer};
+use crate::keys::{from_ordered_bits, quantization_scale, MortonBits};
+use glam::Vec3;
+
+/// Items per invocation of the per-element kernels.
+const ITEMS: u32 = 8;
+/// Largest cluster width the GPU HLBVH accepts: its cluster table has `2^cluster_bits` entries.
+pub const MAX_GPU_CLUSTER_BITS: u32 = 20;
+
+crate::push_layout!(BvhNode { min, left_or_first, max, right_or_count });
+
+/// Push constants of `glsl/lbvh_codes.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct CodesPush {
+    /// Address of the keys (f32 xyz).
+    pub keys: u64,
+    /// Address of the output codes.
+    pub codes: u64,
+    /// Address of the output ids.
+    pub ids: u64,
+    /// Number of keys.
+    pub count: u64,
+    /// `lo.x`.
+    pub lo_x: f32,
+    /// `lo.y`.
+    pub lo_y: f32,
+    /// `lo.z`.
+    pub lo_z: f32,
+    /// `scale.x`.
+    pub scale_x: f32,
+    /// `scale.y`.
+    pub scale_y: f32,
+    /// `scale.z`.
+    pub scale_z: f32,
+}
+crate::push_layout!(CodesPush { keys, codes, ids, count, lo_x, lo_y, lo_z, scale_x, scale_y, scale_z });
+
+/// Push constants of `glsl/lbvh_karras.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct KarrasPush {
+    /// Address of the sorted codes.
+    pub codes: u64,
+    /// Address of the sorted ids.
+    pub ids: u64,
+    /// Address of the nodes.
+    pub nodes: u64,
+    /// Address of the parent links.
+    pub parents: u64,
+    /// Address of the cluster table (HLBVH).
+    pub table: u64,
+    /// Address of the cluster starts (HLBVH).
+    pub starts: u64,
+    /// Number of positions.
+    pub count: u64,
+    /// Code shift giving the cluster prefix (HLBVH).
+    pub shift: u32,
+    /// Padding.
+    pub pad: u32,
+}
+crate::push_layout!(KarrasPush { codes, ids, nodes, parents, table, starts, count, shift, pad });
+
+/// Push constants of `glsl/bvh_leaves.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct LeavesPush {
+    /// Address of the positions.
+    pub positions: u64,
+    /// Address of the indices.
+    pub indices: u64,
+    /// Address of the triangle ids of the records.
+    pub ids: u64,
+    /// Address of the nodes.
+    pub nodes: u64,
+    /// Number of nodes.
+    pub count: u64,
+}
+crate::push_layout!(LeavesPush { positions, indices, ids, nodes, count });
+
+/// Push constants of `glsl/bvh_fit.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct FitPush {
+    /// Address of the nodes.
+    pub nodes: u64,
+    /// Address of the parent links.
+    pub parents: u64,
+    /// Address of the zeroed arrival counters.
+    pub counters: u64,
+    /// Number of nodes.
+    pub count: u64,
+}
+crate::push_layout!(FitPush { nodes, parents, counters, count });
+
+/// Push constants of `glsl/bvh_parents.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct ParentsPush {
+    /// Address of the nodes.
+    pub nodes: u64,
+    /// Address of the parent links.
+    pub parents: u64,
+    /// Nodes whose children get links.
+    pub count: u64,
+}
+crate::push_layout!(ParentsPush { nodes, parents, count });
+
+/// Push constants of `glsl/hlbvh_heads.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct HeadsPush {
+    /// Address of the sorted codes.
+    pub codes: u64,
+    /// Address of the cluster table.
+    pub table: u64,
+    /// Number of codes.
+    pub count: u64,
+    /// Code shift giving the cluster prefix.
+    pub shift: u32,
+    /// Padding.
+    pub pad: u32,
+}
+crate::push_layout!(HeadsPush { codes, table, count, shift, pad });
+
+/// Push constants of `glsl/hlbvh_scan.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct ScanPush {
+    /// Address of the cluster table.
+    pub table: u64,
+    /// Address of the starts (`C`, the starts, `n`).
+    pub starts: u64,
+    /// Address of the nodes.
+    pub nodes: u64,
+    /// Entries of the table.
+    pub entries: u64,
+    /// Number of positions.
+    pub count: u32,
+    /// Padding.
+    pub pad: u32,
+}
+crate::push_layout!(ScanPush { table, starts, nodes, entries, count, pad });
+
+/// Push constants of `glsl/hlbvh_roots.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct RootsPush {
+    /// Address of the starts.
+    pub starts: u64,
+    /// Address of the nodes.
+    pub nodes: u64,
+    /// Address of the gathered roots.
+    pub roots: u64,
+    /// Largest cluster count the roots buffer holds.
+    pub limit: u64,
+}
+crate::push_layout!(RootsPush { starts, nodes, roots, limit });
+
+/// Which tree a [`GpuBvh`] holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GpuBvhKind {
+    /// LBVH (Karras numbering).
+    Lbvh,
+    /// HLBVH with this many clusters.
+    Hlbvh {
+        /// Number of Morton clusters.
+        clusters: u32,
+    },
+}
+
+/// A BVH on the device (see the module docs).
+#[derive(Debug)]
+pub struct GpuBvh {
+    kind: GpuBvhKind,
+    triangles: u64,
+    nodes: Buffer,
+    ids: Buffer,
+    parents: Buffer,
+    counters: Buffer,
+    timings: Vec<(String, f64)>,
+}
+
+impl GpuBvh {
+    /// LBVH or HLBVH.
+    pub fn kind(&self) -> GpuBvhKind {
+        self.kind
+    }
+    /// Triangles (`n`).
+    pub fn triangle_count(&self) -> u64 {
+        self.triangles
+    }
+    /// Nodes (`2n - 1`).
+    pub fn node_count(&self) -> u64 {
+        2 * self.triangles - 1
+    }
+    /// The nodes ([`BvhNode`], 32 bytes each, root at 0).
+    pub fn nodes(&self) -> &Buffer {
+        &self.nodes
+    }
+    /// The triangle ids of the records (`u32`, `n`).
+    pub fn ids(&self) -> &Buffer {
+        &self.ids
+    }
+    /// Parent node of every node (`u32`, `BVH_NONE` = `u32::MAX` for the root), used by refit.
+    pub fn parents(&self) -> &Buffer {
+        &self.parents
+    }
+    /// Milliseconds of each pass of the last build or refit (GPU timestamps; `top_cpu` is host time).
+    pub fn timings(&self) -> &[(String, f64)] {
+        &self.timings
+    }
+
+    /// Copies the nodes and ids to the host, with the triangle records from the mesh on the device (the same mesh
+    /// the tree was built or refitted for).
+    pub fn read_back(&self, ctx: &Context, mesh: &MeshBuffers) -> Result<BvhTree> {
+        let n = self.triangles as usize;
+        let nodes: Vec<BvhNode> = ctx.read_buffer(&self.nodes, 0, 2 * n - 1)?;
+        let ids: Vec<u32> = ctx.read_buffer(&self.ids, 0, n)?;
+        let positions: Vec<[f32; 3]> = ctx.read_buffer(&mesh.positions, 0, mesh.vertices as usize)?;
+        let indices: Vec<[u32; 3]> = ctx.read_buffer(&mesh.indices, 0, mesh.triangles as usize)?;
+        let mut tris = Vec::with_capacity(n);
+        for &id in &ids {
+            let t =
+                indices.get(id as usize).ok_or_else(|| GpuError::Buffer(format!("triangle id {id} out of range")))?;
+            let v = |k: u32| positions.get(k as usize).map(|p| Vec3::from_array(*p));
+            match (v(t[0]), v(t[1]), v(t[2])) {
+                (Some(a), Some(b), Some(c)) => tris.push(Triangle::new(&[a, b, c])),
+                _ => return Err(GpuError::Buffer(format!("triangle {id}: vertex index out of range"))),
+            }
+        }
+        Ok(BvhTree { nodes, tris, ids })
+    }
+}
+
+struct Scratch {
+    capacity: u64,
+    keys: Buffer,
+    bounds: Buffer,
+    bounds_readback: Buffer,
+    sort: SortStorage,
+}
+
+/// The LBVH and HLBVH pipelines of one device, with scratch buffers reused across builds.
+pub struct BvhBuilder {
+    ctx: Context,
+    keys: Kernel<KeysPush>,
+    codes: [Kernel<CodesPush>; 2],
+    karras: [[Kernel<KarrasPush>; 2]; 2],
+    leaves: Kernel<LeavesPush>,
+    fit: Kernel<FitPush>,
+    parents: Kernel<ParentsPush>,
+    heads: [Kernel<HeadsPush>; 2],
+    scan: Kernel<ScanPush>,
+    roots: Kernel<RootsPush>,
+    sort: RadixSort,
+    scratch: Option<Scratch>,
+}
+
+impl std::fmt::Debug for BvhBuilder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("BvhBuilder").field("device", &self.ctx.caps().name).finish()
+    }
+}
+
+impl BvhBuilder {
+    /// Builds the pipelines on the context's device (workgroup sizes and sort tuning from its limits).
+    pub fn new(ctx: &Context) -> Result<Self> {
+        let items = |info| KernelDesc::new(info).constant("ITEMS", ITEMS);
+        let codes = |b: u32| Kernel::new(ctx, &items(&shaders::lbvh_codes::INFO).constant("BITS63", b));
+        let karras = |b: u32, h: u32| {
+            Kernel::new(ctx, &items(&shaders::lbvh_karras::INFO).constant("BITS63", b).constant("HLBVH", h))
+        };
+        let heads = |b: u32| Kernel::new(ctx, &KernelDesc::new(&shaders::hlbvh_heads::INFO).constant("BITS63", b));
+        let mut scan_desc = KernelDesc::new(&shaders::hlbvh_scan::INFO);
+        // The scan kernel keeps one shared counter per invocation, 1,024 at most.
+        scan_desc.workgroup_size = Some(ctx.caps().workgroup_size().min(1024));
+        Ok(BvhBuilder {
+            ctx: ctx.clone(),
+            keys: Kernel::new(ctx, &items(&shaders::keys_bounds::INFO))?,
+            codes: [codes(0)?, codes(1)?],
+            karras: [[karras(0, 0)?, karras(0, 1)?], [karras(1, 0)?, karras(1, 1)?]],
+            leaves: Kernel::new(ctx, &items(&shaders::bvh_leaves::INFO))?,
+            // See glsl/bvh_fit.comp: no explicit barriers on CPU drivers, where they break the walk.
+            fit: Kernel::new(
+                ctx,
+                &KernelDesc::new(&shaders::bvh_fit::INFO)
+                    .constant("FENCES", u32::from(ctx.caps().device_type != "cpu")),
+            )?,
+            parents: Kernel::new(ctx, &KernelDesc::new(&shaders::bvh_parents::INFO))?,
+            heads: [heads(0)?, heads(1)?],
+            scan: Kernel::new(ctx, &scan_desc)?,
+            roots: Kernel::new(ctx, &KernelDesc::new(&shaders::hlbvh_roots::INFO))?,
+            sort: RadixSort::new(ctx, SortConfig::for_device(ctx.caps()))?,
+            scratch: None,
+        })
+    }
+
+    fn scratch(&mut self, n: u64) -> Result<()> {
+        if self.scratch.as_ref().is_none_or(|s| s.capacity < n) {
+            self.scratch = None;
+            let ctx = &self.ctx;
+            let sort_mem = self.sort.memory_requirements(n, KeyBits::U64);
+            self.scratch = Some(Scratch {
+                capacity: n,
+                keys: ctx.create_buffer("lbvh keys", 12 * n, MemoryKind::DeviceLocal)?,
+                bounds: ctx.create_buffer("lbvh bounds", 32, MemoryKind::DeviceLocal)?,
+                bounds_readback: ctx.create_buffer("lbvh bounds readback", 32, MemoryKind::Readback)?,
+                sort: SortStorage::new(ctx, &sort_mem, true)?,
+            });
+        }
+        Ok(())
+    }
+
+    /// Builds the LBVH of the mesh on the device (two submissions: the bounds, then the tree).
+    pub fn build_lbvh(&mut self, mesh: &MeshBuffers, o: &LbvhOptions) -> std::result::Result<GpuBvh, RunError> {
+        self.build(mesh, o.bits, None)
+    }
+
+    /// Builds the HLBVH of the mesh: everything but the top level over the clusters on the device (see the module
+    /// docs). `cluster_bits` above [`MAX_GPU_CLUSTER_BITS`] gives [`GpuError::Limit`].
+    pub fn build_hlbvh(&mut self, mesh: &MeshBuffers, o: &HlbvhOptions) -> std::result::Result<GpuBvh, RunError> {
+        let cb = o.cluster_bits.min(o.bits.total());
+        if cb > MAX_GPU_CLUSTER_BITS {
+            return Err(GpuError::Limit {
+                what: "HLBVH cluster bits on the GPU".into(),
+                requested: cb as u64,
+                limit: MAX_GPU_CLUSTER_BITS as u64,
+            }
+            .into());
+        }
+        self.build(mesh, o.bits, Some((cb, o.bins)))
+    }
+
+    fn build(
+        &mut self,
+        mesh: &MeshBuffers,
+        bits: MortonBits,
+        hl: Option<(u32, usize)>,
+    ) -> std::result::Result<GpuBvh, RunError> {
+        let n = mesh.triangles;
+        if n == 0 {
+            return Err(InputError::Empty.into());
+        }
+        if n > MAX_TRIANGLES as u64 {
+            return Err(InputError::TooMany(n).into());
+        }
+        self.scratch(n)?;
+        let ctx = self.ctx.clone();
+        let Some(scratch) = self.scratch.as_ref() else {
+            return Err(GpuError::Buffer("lbvh scratch".into()).into());
+        };
+        let mut timer_owned = Timer::new(&ctx, 32)?;
+        let timer = &mut timer_owned;
+        let wg = self.keys.workgroup_size() as u64;
+        let per_group = wg * ITEMS as u64;
+        let b63 = usize::from(bits == MortonBits::Bits63);
+        let total = 2 * n - 1;
+        let dl = MemoryKind::DeviceLocal;
+        let bvh_nodes = ctx.create_buffer("bvh nodes", 32 * total, dl)?;
+        let bvh_ids = ctx.create_buffer("bvh ids", 4 * n, dl)?;
+        let parents = ctx.create_buffer("bvh parents", 4 * total, dl)?;
+        let counters = ctx.create_buffer("bvh counters", 4 * total, dl)?;
+
+        // Submission 1: keys and their bounds.
+        ctx.submit_and_wait(|rec| {
+            rec.reset_timer(timer);
+            rec.fill(&scratch.bounds, 0, Some(12), u32::MAX);
+            rec.fill(&scratch.bounds, 12, Some(12), 0);
+            rec.barrier();
+            rec.timestamp(timer, "-");
+            let push = KeysPush {
+                positions: mesh.positions.address(),
+                indices: mesh.indices.address(),
+                keys: scratch.keys.address(),
+                result: scratch.bounds.address(),
+                count: n,
+                stride: 1,
+            };
+            rec.dispatch(&self.keys, &push, rec.groups_for(n, per_group));
+            rec.timestamp(timer, "keys_bounds");
+            rec.barrier();
+            rec.copy(&scratch.bounds, 0, &scratch.bounds_readback, 0, 24);
+            rec.host_read_barrier();
+            Ok(())
+        })?;
+        let u: Vec<u32> = scratch.bounds_readback.read(0, 6)?;
+        let lo = [from_ordered_bits(u[0]), from_ordered_bits(u[1]), from_ordered_bits(u[2])];
+        let hi = [from_ordered_bits(u[3]), from_ordered_bits(u[4]), from_ordered_bits(u[5])];
+        let finite = lo.iter().chain(hi.iter()).all(|x| x.is_finite());
+        let scale = quantization_scale(lo, hi, bits).filter(|_| finite).ok_or(InputError::Overflow { lo, hi })?;
+
+        let table_entries = hl.map_or(1, |(cb, _)| 1u64 << cb);
+        let max_clusters = table_entries.min(n);
+        let table = ctx.create_buffer("hlbvh table", 4 * table_entries, dl)?;
+        let starts = ctx.create_buffer("hlbvh starts", 4 * (max_clusters + 2), dl)?;
+        let roots = ctx.create_buffer("hlbvh roots", 32 * max_clusters, dl)?;
+        let readback = ctx.create_buffer(
+            "hlbvh readback",
+            if hl.is_some() { 4 * (max_clusters + 2) + 32 * max_clusters } else { 4 },
+            MemoryKind::Readback,
+        )?;
+        let shift = hl.map_or(0, |(cb, _)| bits.total() - cb);
+        let key_bits = if b63 == 1 { KeyBits::U64 } else { KeyBits::U32 };
+
+        // Submission 2: codes, sort, (clusters), tree, boxes.
+        ctx.submit_and_wait(|rec| {
+            rec.timestamp(timer, "-");
+            let (codes_buf, ids_buf) = match &scratch.sort.payload {
+                Some((p, _)) => (&scratch.sort.keys, p),
+                None => return Err(GpuError::Buffer("sort payload".into())),
+            };
+            let push = CodesPush {
+                keys: scratch.keys.address(),
+                codes: codes_buf.address(),
+                ids: ids_buf.address(),
+                count: n,
+                lo_x: lo[0],
+                lo_y: lo[1],
+                lo_z: lo[2],
+                scale_x: scale[0],
+                scale_y: scale[1],
+                scale_z: scale[2],
+            };
+            rec.dispatch(&self.codes[b63], &push, rec.groups_for(n, per_group));
+            rec.timestamp(timer, "codes");
+            let sorted_in = self.sort.record(rec, &scratch.sort.buffers(), n, key_bits)?;
+            let (codes_buf, ids_buf) = match scratch.sort.result(sorted_in) {
+                (k, Some(p)) => (k, p),
+                (_, None) => return Err(GpuError::Buffer("sort payload".into())),
+            };
+            debug_assert_eq!(sorted_in, SortedIn::Input);
+            rec.barrier();
+            rec.timestamp(timer, "sort");
+            if hl.is_some() {
+                rec.fill(&table, 0, None, u32::MAX);
+                rec.barrier();
+                let push = HeadsPush { codes: codes_buf.address(), table: table.address(), count: n, shift, pad: 0 };
+                rec.dispatch(&self.heads[b63], &push, rec.groups_for(n, self.heads[b63].workgroup_size() as u64));
+                rec.barrier();
+                let push = ScanPush {
+                    table: table.address(),
+                    starts: starts.address(),
+                    nodes: bvh_nodes.address(),
+                    entries: table_entries,
+                    count: n as u32,
+                    pad: 0,
+                };
+                rec.dispatch(&self.scan, &push, 1);
+                rec.timestamp(timer, "clusters");
+            }
+            rec.fill(&parents, 0, None, u32::MAX);
+            rec.barrier();
+            let push = KarrasPush {
+                codes: codes_buf.address(),
+                ids: ids_buf.address(),
+                nodes: bvh_nodes.address(),
+                parents: parents.address(),
+                table: table.address(),
+                starts: starts.address(),
+                count: n,
+                shift,
+                pad: 0,
+            };
+            let h = usize::from(hl.is_some());
+            rec.dispatch(&self.karras[b63][h], &push, rec.groups_for(n, per_group));
+            rec.timestamp(timer, "karras");
+            rec.barrier();
+            rec.copy(ids_buf, 0, &bvh_ids, 0, 4 * n);
+            self.record_boxes(rec, mesh, ids_buf, &bvh_nodes, &parents, &counters, total, Some(timer));
+            if hl.is_some() {
+                rec.barrier();
+                let push = RootsPush {
+                    starts: starts.address(),
+                    nodes: bvh_nodes.address(),
+                    roots: roots.address(),
+                    limit: max_clusters,
+                };
+                rec.dispatch(&self.roots, &push, rec.groups_for(max_clusters, self.roots.workgroup_size() as u64));
+                rec.timestamp(timer, "roots");
+                rec.barrier();
+                rec.copy(&starts, 0, &readback, 0, 4 * (max_clusters + 2));
+                rec.copy(&roots, 0, &readback, 4 * (max_clusters + 2), 32 * max_clusters);
+                rec.host_read_barrier();
+            }
+            Ok(())
+        })?;
+        let mut timings: Vec<(String, f64)> = timer_owned.read()?.into_iter().filter(|(name, _)| name != "-").collect();
+        let kind = match hl {
+            None => GpuBvhKind::Lbvh,
+            Some((_, bins)) => {
+                let t0 = std::time::Instant::now();
+                let c: Vec<u32> = readback.read(0, 1)?;
+                let c = c[0] as u64;
+                if c == 0 || c > max_clusters {
+                    return Err(GpuError::Buffer(format!("hlbvh: {c} clusters read back")).into());
+                }
+                if c > 1 {
+                    let starts_host: Vec<u32> = readback.read(4, c as usize)?;
+                    let root_nodes: Vec<BvhNode> = readback.read(4 * (max_clusters + 2), c as usize)?;
+                    let root_ids: Vec<u32> =
+                        starts_host.iter().enumerate().map(|(k, &s)| (c as u32 - 1) + 2 * s - k as u32).collect();
+                    let boxes: Vec<Aabb> = root_nodes.iter().map(|nd| nd.aabb()).collect();
+                    let mut list: Vec<u32> = (0..c as u32).collect();
+                    let mut top = Vec::with_capacity(c as usize - 1);
+                    crate::accel::hlbvh::top_tree(&mut list, &root_ids, &boxes, bins, &mut top);
+                    let mut staging = ctx.create_buffer("hlbvh top", 32 * top.len() as u64, MemoryKind::Upload)?;
+                    staging.write(0, &top)?;
+                    ctx.submit_and_wait(|rec| {
+                        rec.copy(&staging, 0, &bvh_nodes, 0, 32 * top.len() as u64);
+                        rec.barrier();
+                        let push = ParentsPush { nodes: bvh_nodes.address(), parents: parents.address(), count: c - 1 };
+                        rec.dispatch(&self.parents, &push, rec.groups_for(c - 1, self.parents.workgroup_size() as u64));
+                        Ok(())
+                    })?;
+                }
+                timings.push(("top_cpu".into(), t0.elapsed().as_secs_f64() * 1e3));
+                GpuBvhKind::Hlbvh { clusters: c as u32 }
+            }
+        };
+        Ok(GpuBvh { kind, triangles: n, nodes: bvh_nodes, ids: bvh_ids, parents, counters, timings })
+    }
+
+    /// Records the leaf boxes and the bottom-up fit of `count` nodes (begins with the barrier it needs after the
+    /// tree's topology was written).
+    #[allow(clippy::too_many_arguments)]
+    fn record_boxes(
+        &self,
+        rec: &mut Recorder<'_>,
+        mesh: &MeshBuffers,
+        ids: &Buffer,
+        nodes: &Buffer,
+        parents: &Buffer,
+        counters: &Buffer,
+        count: u64,
+        mut timer: Option<&mut Timer>,
+    ) {
+        let per_group = self.leaves.workgroup_size() as u64 * ITEMS as u64;
+        rec.fill(counters, 0, Some(4 * count), 0);
+        rec.barrier();
+        let push = LeavesPush {
+            positions: mesh.positions.address(),
+            indices: mesh.indices.address(),
+            ids: ids.address(),
+            nodes: nodes.address(),
+            count,
+        };
+        rec.dispatch(&self.leaves, &push, rec.groups_for(count, per_group));
+        if let Some(t) = timer.as_deref_mut() {
+            rec.timestamp(t, "leaves");
+        }
+        rec.barrier();
+        let push = FitPush { nodes: nodes.address(), parents: parents.address(), counters: counters.address(), count };
+        rec.dispatch(&self.fit, &push, rec.groups_for(count, self.fit.workgroup_size() as u64));
+        if let Some(t) = timer {
+            rec.timestamp(t, "fit");
+        }
+    }
+
+    /// Records a refit of `bvh` for the positions now in `mesh` (same triangles as at build): leaf boxes, counters
+    /// reset, bottom-up fit.
+    ///
+    /// Synchronization: begins with [`Recorder::barrier`] (the new positions, written by a transfer or a kernel
+    /// before, are visible); ends with the fit's shader writes to [`GpuBvh::nodes`] and no barrier after it: the
+    /// caller records one before reading the nodes. `mesh` and `bvh` must stay alive until the command buffer
+    /// completes.
+    pub fn record_refit(&self, rec: &mut Recorder<'_>, mesh: &MeshBuffers, bvh: &GpuBvh) -> Result<()> {
+        if mesh.triangles != bvh.triangles {
+            return Err(GpuError::Buffer(format!(
+                "refit: mesh has {} triangles, the tree {}",
+                mesh.triangles, bvh.triangles
+            )));
+        }
+        rec.barrier();
+        self.record_boxes(rec, mesh, &bvh.ids, &bvh.nodes, &bvh.parents, &bvh.counters, bvh.node_count(), None);
+        Ok(())
+    }
+
+    /// Refits `bvh` for the positions now in `mesh` (see [`BvhBuilder::record_refit`]); submits and waits, and
+    /// stores the pass times in [`GpuBvh::timings`].
+    pub fn refit(&self, mesh: &MeshBuffers, bvh: &mut GpuBvh) -> Result<()> {
+        if mesh.triangles != bvh.triangles {
+            return Err(GpuError::Buffer(format!(
+                "refit: mesh has {} triangles, the tree {}",
+                mesh.triangles, bvh.triangles
+            )));
+        }
+        let ctx = self.ctx.clone();
+        let mut timer = Timer::new(&ctx, 4)?;
+        ctx.submit_and_wait(|rec| {
+            rec.reset_timer(&mut timer);
+            rec.barrier();
+            rec.timestamp(&mut timer, "-");
+            self.record_boxes(
+                rec,
+                mesh,
+                &bvh.ids,
+                &bvh.nodes,
+                &bvh.parents,
+                &bvh.counters,
+                bvh.node_count(),
+                Some(&mut timer),
+            );
+            Ok(())
+        })?;
+        bvh.timings = timer.read()?;
+        Ok(())
+    }
+}
