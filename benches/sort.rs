@@ -15,6 +15,7 @@
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode, Throughput};
 use meshchar::gpu::{Context, ContextDesc, Timer};
 use meshchar::ops::sort::{KeyBits, RadixSort, SortConfig, SortStorage};
+use meshchar::rng::SplitMix64 as Rng;
 use rayon::slice::ParallelSliceMut;
 use std::time::Duration;
 
@@ -47,17 +48,6 @@ fn tuning(ctx: &Context) -> SortConfig {
             eprintln!("MESHCHAR_SORT_TUNING={text:?}: expected wg,kpt,scan_wg,scan_items; using {fitted:?}");
             fitted
         }
-    }
-}
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
     }
 }
 
@@ -107,7 +97,7 @@ where
     for log2 in (lo..=hi).step_by(2) {
         let n = 1u64 << log2;
         let mut rng = Rng(log2 as u64);
-        let keys: Vec<K> = (0..n).map(|_| make(rng.next())).collect();
+        let keys: Vec<K> = (0..n).map(|_| make(rng.next_u64())).collect();
         group.throughput(Throughput::Elements(n));
         // Large sizes take seconds per sort on a CPU driver: few samples, one iteration each.
         if log2 >= 18 {

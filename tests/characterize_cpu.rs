@@ -6,24 +6,11 @@ use meshchar::characterize::{
     SceneSummary, ThesisPolicy,
 };
 use meshchar::mesh::{Mesh, MeshError};
+use meshchar::rng::SplitMix64 as Rng;
 use std::path::{Path, PathBuf};
 
 // ---------------------------------------------------------------------------------------------------------------
 // Helpers
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    /// Uniform in [0, 1).
-    fn unit(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
-    }
-}
 
 fn soup(name: &str, tris: Vec<[[f32; 3]; 3]>) -> Mesh {
     let positions: Vec<[f32; 3]> = tris.iter().flat_map(|t| t.iter().copied()).collect();
@@ -36,11 +23,11 @@ fn random_mesh(n: usize, s: f32, seed: u64) -> Mesh {
     let mut g = Rng(seed);
     let tris = (0..n)
         .map(|_| {
-            let c = [g.unit() * s, g.unit() * s, g.unit() * s];
+            let c = [g.next_f32() * s, g.next_f32() * s, g.next_f32() * s];
             let mut t = [[0.0; 3]; 3];
             for v in &mut t {
                 for a in 0..3 {
-                    v[a] = c[a] + (g.unit() - 0.5) * s * 0.01;
+                    v[a] = c[a] + (g.next_f32() - 0.5) * s * 0.01;
                 }
             }
             t
@@ -59,7 +46,7 @@ fn clustered_mesh(n: usize, seed: u64) -> Mesh {
             let mut t = [[0.0; 3]; 3];
             for v in &mut t {
                 for a in 0..3 {
-                    v[a] = c[a] + (g.unit() - 0.5) * 2.0 * r;
+                    v[a] = c[a] + (g.next_f32() - 0.5) * 2.0 * r;
                 }
             }
             t
@@ -245,7 +232,7 @@ fn agree_on_flat_and_zero_area_meshes() {
         "flat",
         (0..5000)
             .map(|_| {
-                let (x, y) = (g.unit(), g.unit());
+                let (x, y) = (g.next_f32(), g.next_f32());
                 [[x, y, 0.0], [x + 0.01, y, 0.0], [x, y + 0.01, 0.0]]
             })
             .collect(),
@@ -255,7 +242,7 @@ fn agree_on_flat_and_zero_area_meshes() {
         "zero-area",
         (0..3000)
             .map(|i| {
-                let x = g.unit();
+                let x = g.next_f32();
                 match i % 3 {
                     0 => [[x, x, x]; 3],
                     1 => [[x, 0.0, 0.0], [x + 0.1, 0.0, 0.0], [x + 0.2, 0.0, 0.0]],

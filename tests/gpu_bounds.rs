@@ -5,6 +5,7 @@ mod gpu_support;
 use meshchar::gpu::{shaders, Context};
 use meshchar::keys::{max_total, min_total};
 use meshchar::ops::PointBounds;
+use meshchar::rng::SplitMix64 as Rng;
 
 fn cpu_bounds(p: &[[f32; 3]]) -> Option<([f32; 3], [f32; 3])> {
     let first = *p.first()?;
@@ -27,22 +28,12 @@ fn bits(b: Option<([f32; 3], [f32; 3])>) -> Option<([u32; 3], [u32; 3])> {
     b.map(|(lo, hi)| (lo.map(f32::to_bits), hi.map(f32::to_bits)))
 }
 
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    fn f(&mut self) -> f32 {
-        // Finite floats of every magnitude and sign, zeros of both signs included.
-        loop {
-            let x = f32::from_bits(self.next() as u32);
-            if x.is_finite() {
-                return x;
-            }
+/// Finite floats of every magnitude and sign, zeros of both signs included.
+fn finite_f32(rng: &mut Rng) -> f32 {
+    loop {
+        let x = f32::from_bits(rng.next_u64() as u32);
+        if x.is_finite() {
+            return x;
         }
     }
 }
@@ -55,7 +46,8 @@ fn bounds_match_cpu_for_edge_counts() {
     let wg = ctx.caps().workgroup_size() as usize;
     let counts = [0usize, 1, 2, 3, wg - 1, wg, wg + 1, 8 * wg - 1, 8 * wg + 1, 100_003, (1 << 20) + 3];
     for &n in &counts {
-        let p: Vec<[f32; 3]> = (0..n).map(|_| [rng.f(), rng.f(), rng.f()]).collect();
+        let p: Vec<[f32; 3]> =
+            (0..n).map(|_| [finite_f32(&mut rng), finite_f32(&mut rng), finite_f32(&mut rng)]).collect();
         assert_eq!(bits(gpu_bounds(&ctx, &op, &p)), bits(cpu_bounds(&p)), "n = {n}");
     }
     gpu_support::assert_no_validation_messages(&ctx);
@@ -85,7 +77,7 @@ fn bounds_more_workgroups_than_one_dispatch_dimension() {
     let op = PointBounds::with_tuning(&ctx, Some(sg), 1).expect("pipeline");
     let mut rng = Rng(11);
     let n = (1usize << 20) + 3;
-    let p: Vec<[f32; 3]> = (0..n).map(|_| [rng.f(), rng.f(), rng.f()]).collect();
+    let p: Vec<[f32; 3]> = (0..n).map(|_| [finite_f32(&mut rng), finite_f32(&mut rng), finite_f32(&mut rng)]).collect();
     let buf = ctx.upload("points", &p).expect("upload");
     assert_eq!(bits(op.run(&ctx, &buf, n as u64).expect("bounds")), bits(cpu_bounds(&p)));
     let tiles = (n as u64).div_ceil(sg as u64);

@@ -7,20 +7,7 @@ mod gpu_support;
 
 use meshchar::keys::{centroid_key, max_total, min_total, morton, quantization_scale, quantize, MortonBits};
 use meshchar::ops::characterize::{CharacterizeGpu, ClassPlan, CodeSums, MeshBuffers};
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    fn unit(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
-    }
-}
+use meshchar::rng::SplitMix64 as Rng;
 
 /// The thresholds of SPEC step 7 for `k` classes, computed with u128.
 fn thresholds(min: u64, max: u64, k: u32) -> Vec<u64> {
@@ -180,9 +167,9 @@ fn soup(rng: &mut Rng, n: usize) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
     let mut pos = Vec::with_capacity(3 * n);
     let mut idx = Vec::with_capacity(n);
     for t in 0..n {
-        let c = [rng.unit() * 100.0 - 50.0, rng.unit() * 10.0, rng.unit() * 1e-3];
+        let c = [rng.next_f32() * 100.0 - 50.0, rng.next_f32() * 10.0, rng.next_f32() * 1e-3];
         for _ in 0..3 {
-            pos.push([c[0] + rng.unit(), c[1] + rng.unit(), c[2] + rng.unit() * 1e-4]);
+            pos.push([c[0] + rng.next_f32(), c[1] + rng.next_f32(), c[2] + rng.next_f32() * 1e-4]);
         }
         idx.push([3 * t as u32, 3 * t as u32 + 1, 3 * t as u32 + 2]);
     }
@@ -237,9 +224,10 @@ fn arrays_larger_than_one_storage_buffer_binding() {
     // Index triples and keys of 12 bytes per triangle: enough triangles that both exceed one binding's range.
     let n = (range / 12 + 1000).min(40_000_000) as usize;
     let mut rng = Rng(9);
-    let pos: Vec<[f32; 3]> = (0..4096).map(|_| [rng.unit(), rng.unit(), rng.unit()]).collect();
-    let idx: Vec<[u32; 3]> =
-        (0..n).map(|_| [(rng.next() % 4096) as u32, (rng.next() % 4096) as u32, (rng.next() % 4096) as u32]).collect();
+    let pos: Vec<[f32; 3]> = (0..4096).map(|_| [rng.next_f32(), rng.next_f32(), rng.next_f32()]).collect();
+    let idx: Vec<[u32; 3]> = (0..n)
+        .map(|_| [(rng.next_u64() % 4096) as u32, (rng.next_u64() % 4096) as u32, (rng.next_u64() % 4096) as u32])
+        .collect();
     assert!(12 * n as u64 > range, "the test must exceed maxStorageBufferRange");
     let mut gpu = CharacterizeGpu::new(&ctx).expect("pipelines");
     check(&mut gpu, &ctx, &pos, &idx, 1, MortonBits::Bits30, 40);

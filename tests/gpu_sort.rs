@@ -7,18 +7,8 @@ mod gpu_support;
 
 use meshchar::gpu::{Context, GpuError, MemoryKind};
 use meshchar::ops::sort::{sort_cpu, KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
+use meshchar::rng::SplitMix64 as Rng;
 use std::fmt::Debug;
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-}
 
 #[derive(Clone, Copy, Debug)]
 enum Pattern {
@@ -37,8 +27,8 @@ fn keys64(p: Pattern, n: usize, rng: &mut Rng) -> Vec<u64> {
     const FEW: [u64; 5] = [0, u64::MAX, 0x0000_00ff_0000_0000, 0x8000_0000_0000_0001, 0x0101_0101_0101_0101];
     let mut k: Vec<u64> = match p {
         Pattern::AllEqual => vec![0xdead_beef_0bad_f00d; n],
-        Pattern::FewUnique => (0..n).map(|_| FEW[(rng.next() % 5) as usize]).collect(),
-        _ => (0..n).map(|_| rng.next()).collect(),
+        Pattern::FewUnique => (0..n).map(|_| FEW[(rng.next_u64() % 5) as usize]).collect(),
+        _ => (0..n).map(|_| rng.next_u64()).collect(),
     };
     match p {
         Pattern::Sorted => k.sort_unstable(),
@@ -52,8 +42,8 @@ fn keys32(p: Pattern, n: usize, rng: &mut Rng) -> Vec<u32> {
     const FEW: [u32; 5] = [0, u32::MAX, 0x00ff_0000, 0x8000_0001, 0x0101_0101];
     let mut k: Vec<u32> = match p {
         Pattern::AllEqual => vec![0x0bad_f00d; n],
-        Pattern::FewUnique => (0..n).map(|_| FEW[(rng.next() % 5) as usize]).collect(),
-        _ => (0..n).map(|_| rng.next() as u32).collect(),
+        Pattern::FewUnique => (0..n).map(|_| FEW[(rng.next_u64() % 5) as usize]).collect(),
+        _ => (0..n).map(|_| rng.next_u64() as u32).collect(),
     };
     match p {
         Pattern::Sorted => k.sort_unstable(),

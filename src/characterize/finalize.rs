@@ -307,6 +307,7 @@ pub fn histogram_stats_from(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rng::SplitMix64 as Rng;
 
     fn stats_of(codes: &[u64]) -> CodeStats {
         let mut s = CodeStats {
@@ -324,16 +325,6 @@ mod tests {
             s.s3 += &c * &c * &c;
         }
         s
-    }
-
-    struct Rng(u64);
-    impl Rng {
-        fn next(&mut self) -> u64 {
-            self.0 ^= self.0 << 13;
-            self.0 ^= self.0 >> 7;
-            self.0 ^= self.0 << 17;
-            self.0
-        }
     }
 
     #[test]
@@ -355,8 +346,8 @@ mod tests {
         // Quotients of u64 values whose f64 division is correctly rounded (both operands exact in f64).
         let mut g = Rng(99);
         for _ in 0..10_000 {
-            let a = g.next() >> 12;
-            let b = (g.next() >> 12).max(1);
+            let a = g.next_u64() >> 12;
+            let b = (g.next_u64() >> 12).max(1);
             assert_eq!(r(a as u128, b as u128), a as f64 / b as f64);
         }
         // Huge values.
@@ -380,7 +371,7 @@ mod tests {
         let mut g = Rng(7);
         for bits in [4u32, 30, 63] {
             for n in [1usize, 2, 3, 10, 1000] {
-                let codes: Vec<u64> = (0..n).map(|_| g.next() >> (64 - bits)).collect();
+                let codes: Vec<u64> = (0..n).map(|_| g.next_u64() >> (64 - bits)).collect();
                 let m = moments(&stats_of(&codes));
                 let (mean, sd, skew) = two_pass(&codes);
                 assert!((m.mean - mean).abs() <= 1e-12 * mean.abs(), "{bits} {n}");
@@ -455,16 +446,16 @@ mod tests {
     fn thresholds_equal_class_of_random_large() {
         let mut g = Rng(12345);
         for _ in 0..200 {
-            let a = g.next() >> 1;
-            let b = g.next() >> 1;
+            let a = g.next_u64() >> 1;
+            let b = g.next_u64() >> 1;
             let (min, max) = (a.min(b), a.max(b));
-            let k = (g.next() % MAX_CLASSES as u64) as u32 + 1;
+            let k = (g.next_u64() % MAX_CLASSES as u64) as u32 + 1;
             let th = class_thresholds(min, max, k);
             for j in 0..200 {
                 let x = match j {
                     0 => min,
                     1 => max,
-                    _ => min + g.next() % (max - min + 1),
+                    _ => min + g.next_u64() % (max - min + 1),
                 };
                 assert_eq!(class_from_thresholds(x - min, &th), class_of(x, min, max, k));
             }

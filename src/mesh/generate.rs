@@ -10,46 +10,28 @@
 //! input may come from a file.
 
 use super::{Animation, Mesh, MeshError};
+use crate::rng::SplitMix64;
 use std::collections::HashMap;
 
 /// Largest triangle count a soup generator accepts: its `3 n` vertices must be addressable by `u32` indices.
 pub const MAX_SOUP_TRIANGLES: usize = (u32::MAX / 3) as usize;
 
-/// SplitMix64 (Steele, Lea and Flood, "Fast splittable pseudorandom number generators", OOPSLA 2014): small, fast,
-/// and good enough for test scenes.
-struct Rng(u64);
+/// The crate's SplitMix64, with the vector helpers the generators use.
+struct Rng(SplitMix64);
 
 impl Rng {
     fn new(seed: u64) -> Self {
-        Rng(seed)
+        Rng(SplitMix64::new(seed))
     }
 
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in `[0, 1)`, 53 random bits.
-    fn unit(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
-    }
-
-    /// Uniform in `[lo, hi)`.
     fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.unit()
+        self.0.range(lo, hi)
     }
 
-    /// Standard normal (Box-Muller); finite, since the logarithm's argument is in `(0, 1]`.
     fn gaussian(&mut self) -> f64 {
-        let u1 = 1.0 - self.unit();
-        let u2 = self.unit();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        self.0.gaussian()
     }
 
-    /// A point uniform in `[lo, hi)^3`.
     fn point(&mut self, lo: f64, hi: f64) -> [f64; 3] {
         [self.range(lo, hi), self.range(lo, hi), self.range(lo, hi)]
     }
@@ -352,7 +334,7 @@ pub fn zero_area(n: usize, seed: u64) -> Mesh {
                 0 => [p, p, p],
                 1 => [p, p, to_f32(rng.point(0.1, 0.9))],
                 _ => {
-                    let axis = (rng.next_u64() % 3) as usize;
+                    let axis = (rng.0.next_u64() % 3) as usize;
                     let mut q = p;
                     let mut r = p;
                     q[axis] = rng.range(0.0, 0.1) as f32;

@@ -105,24 +105,7 @@ fn facing_normal(mesh: &Mesh, hit: &Hit, dir: Vec3) -> Option<Vec3> {
     Some(if n.dot(dir) > 0.0 { -n } else { n })
 }
 
-/// A small deterministic generator (SplitMix64) for diffuse directions.
-#[derive(Clone, Debug)]
-pub struct SplitMix64(pub u64);
-
-impl SplitMix64 {
-    /// Next 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    /// Uniform in `[0, 1)`.
-    pub fn next_f32(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
-    }
-}
+pub use crate::rng::SplitMix64;
 
 /// Cosine-distributed unit direction about the unit normal `n`.
 fn cosine_direction(n: Vec3, rng: &mut SplitMix64) -> Vec3 {
