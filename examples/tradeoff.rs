@@ -259,7 +259,9 @@ fn main() {
     for (name, chart) in tradeoff::charts(&results, &workloads) {
         written.push(write(&name, &chart.to_svg()));
     }
-    let md = tradeoff::markdown(&results, &workloads, &suff);
+    let mut md = tradeoff::markdown(&results, &workloads, &suff);
+    md.push_str("\n### Structures within noise of the oracle's best\n\n");
+    md.push_str(&tradeoff::structures_markdown(&oracle, &workloads));
     written.push(write("tradeoff.md", &md));
     let json = serde_json::json!({
         "policy": "thesis",

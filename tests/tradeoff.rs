@@ -214,7 +214,11 @@ fn oracle_files_are_read_and_bad_lines_are_named() {
         {"name": "lbvh", "total_ms": 2.0, "total_ms_spread": 0.1, "build_ms": 1.0, "memory_bytes": 5,
          "valid": true, "hits_agree": true},
         {"name": "kdtree", "total_ms": 1.0, "total_ms_spread": 0.1, "build_ms": 0.5, "memory_bytes": 5,
-         "valid": true, "hits_agree": false}]});
+         "valid": true, "hits_agree": false},
+        {"name": "bih", "total_ms": 2.15, "total_ms_spread": 0.1, "build_ms": 0.2, "memory_bytes": 9,
+         "valid": true, "hits_agree": true},
+        {"name": "grid", "total_ms": 2.25, "total_ms_spread": 0.1, "build_ms": 0.1, "memory_bytes": 1,
+         "valid": true, "hits_agree": true}]});
     let p = dir.join("o.jsonl");
     std::fs::write(&p, format!("{good}\n\n{good}\n")).unwrap();
     let v = tradeoff::read_oracle_jsonl(&p).unwrap();
@@ -222,6 +226,13 @@ fn oracle_files_are_read_and_bad_lines_are_named() {
     // The kd-tree disagreed with the reference hits: it cannot be the best.
     assert_eq!(v[0].best().map(|b| b.name), Some(StructureName::Lbvh));
     assert_eq!(v[0].regret(StructureName::KdTree), None);
+    // bih (2.15 +- 0.1) is within noise of lbvh (2.0 +- 0.1) and builds faster; grid (2.25) is not within noise.
+    assert_eq!(v[0].within_noise(), vec![StructureName::Lbvh, StructureName::Bih]);
+    assert_eq!(v[0].cheapest_within_noise(), Some(StructureName::Bih));
+    assert!((v[0].regret(StructureName::Bih).unwrap() - 0.075).abs() < 1e-12);
+    let md = tradeoff::structures_markdown(&v, &["shadow".to_string()]);
+    assert!(md.contains("| shadow | a.obj | lbvh | lbvh, bih | bih (cheaper than the best) |"), "{md}");
+    assert!(md.contains("shadow: 2 of 2 scenes"), "{md}");
     std::fs::write(&p, format!("{good}\n{{\"mesh\": 1}}\n")).unwrap();
     let err = tradeoff::read_oracle_jsonl(&p).unwrap_err().to_string();
     assert!(err.contains("o.jsonl:2"), "{err}");
