@@ -142,6 +142,12 @@ fn sweep_with_a_pluggable_policy_and_the_least_work_table() {
             assert!((a.mean_regret - 0.5).abs() < 1e-12 && (a.worst_regret - 0.5).abs() < 1e-12, "{}", r.label);
         }
         assert!(r.time_ms >= 0.0 && r.scenes[0].time_ms.median >= 0.0);
+        // Sampled settings are also read with the full computation's k.
+        match (&s.same_k, r.sample_stride, r.class_rule.as_str()) {
+            (Some(x), stride, "doane") if stride > 1 => assert_eq!(x.drift.k_delta, 0, "{}", r.label),
+            (None, 1, _) | (None, _, "16") | (None, _, "4") => {}
+            other => panic!("{}: unexpected same-k result {other:?}", r.label),
+        }
     }
     // Both backends compute the same numbers for the same parameters.
     let by = |label: &str| results.iter().find(|r| r.label == label).unwrap();
@@ -152,6 +158,7 @@ fn sweep_with_a_pluggable_policy_and_the_least_work_table() {
     assert_eq!(suff.len(), 1);
     assert_eq!(suff[0].stride_selection, Some(4));
     assert!(suff[0].stride_statistics.is_some_and(|s| s <= 4));
+    assert!(suff[0].stride_same_k.is_some_and(|s| s <= 4), "the count policy still flips at 1/8");
     // Every triangle is looked at with a fixed k, so the count policy keeps its answer.
     assert_eq!(suff[0].fixed_k_selection, Some(4));
     assert_eq!(suff[0].rules_with_same_selection, vec!["16".to_string(), "4".to_string()]);
