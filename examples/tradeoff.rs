@@ -228,16 +228,15 @@ fn main() {
     let policy = ThesisPolicy::default();
     let mut engine_for = |b: Backend| Characterizer::new(Some(b));
     let t0 = Instant::now();
-    let results = match tradeoff::sweep(
-        &scenes,
-        &settings,
-        &policy,
-        &oracle,
-        &workloads,
-        args.repeats,
-        &mut engine_for,
-        &progress,
-    ) {
+    let study = tradeoff::Study {
+        scenes: &scenes,
+        settings: &settings,
+        policy: &policy,
+        oracle: &oracle,
+        workloads: &workloads,
+        repeats: args.repeats,
+    };
+    let results = match tradeoff::sweep(&study, &mut engine_for, &progress) {
         Ok(r) => r,
         Err(e) => fail(e),
     };

@@ -125,8 +125,15 @@ fn sweep_with_a_pluggable_policy_and_the_least_work_table() {
     let oracle = vec![OracleScene::from_json(&oracle_line).unwrap()];
     let workloads = vec!["primary".to_string()];
     let mut engine_for = |b: Backend| Characterizer::new(Some(b));
-    let results =
-        tradeoff::sweep(&scenes, &settings, &policy, &oracle, &workloads, 1, &mut engine_for, &|_| {}).unwrap();
+    let study = tradeoff::Study {
+        scenes: &scenes,
+        settings: &settings,
+        policy: &policy,
+        oracle: &oracle,
+        workloads: &workloads,
+        repeats: 1,
+    };
+    let results = tradeoff::sweep(&study, &mut engine_for, &|_| {}).unwrap();
     assert_eq!(results.len(), settings.len());
     for r in &results {
         let s = &r.scenes[0];

@@ -671,21 +671,34 @@ pub fn sufficiency(results: &[SettingResult], tol: &StatsTolerance) -> Vec<Suffi
         .collect()
 }
 
-/// Runs the sweep: every setting on every scene, drift against the first setting (which should be
-/// [`Setting::reference`]), selections by `policy`, accuracy against `oracle` for each of `workloads`.
+/// What a sweep measures: the scenes, the settings (the first is the reference, normally
+/// [`Setting::reference`]), the policy that selects, and the oracle results and workloads to judge it by.
+pub struct Study<'a> {
+    /// The scenes.
+    pub scenes: &'a [Animation],
+    /// The settings; the first is the reference the drift is measured from.
+    pub settings: &'a [Setting],
+    /// The selection policy (any [`Policy`]).
+    pub policy: &'a dyn Policy,
+    /// Oracle results (scenes are matched by [`scene_key`], workloads by name).
+    pub oracle: &'a [OracleScene],
+    /// The workloads to report accuracy for.
+    pub workloads: &'a [String],
+    /// Timed repeats per setting and scene (the median is reported).
+    pub repeats: usize,
+}
+
+/// Runs the sweep: every setting on every scene, drift against the first setting, selections by the study's
+/// policy, accuracy against its oracle results for each of its workloads.
 ///
-/// `engine_for` gives the characterizer of a backend (so that the caller decides how the Vulkan device is made
-/// and can keep it between calls); `progress` receives one line per step.
+/// `engine_for` gives the characterizer of a backend (so that the caller decides how the Vulkan device is made);
+/// each is made once. `progress` receives one line per step.
 pub fn sweep(
-    scenes: &[Animation],
-    settings: &[Setting],
-    policy: &dyn Policy,
-    oracle: &[OracleScene],
-    workloads: &[String],
-    repeats: usize,
+    study: &Study<'_>,
     engine_for: &mut dyn FnMut(Backend) -> Result<Characterizer, CharError>,
     progress: &dyn Fn(&str),
 ) -> Result<Vec<SettingResult>, TradeoffError> {
+    let Study { scenes, settings, policy, oracle, workloads, repeats } = *study;
     let Some(reference) = settings.first() else {
         return Err(TradeoffError::Input("no settings to measure".into()));
     };
@@ -786,8 +799,6 @@ pub fn sweep(
 fn knob(r: &SettingResult, reference: &SettingResult) -> String {
     if r.class_rule != reference.class_rule {
         format!("class rules ({})", r.backend)
-    } else if r.morton_bits != reference.morton_bits {
-        format!("{}-bit, sampled, {}", r.morton_bits, r.backend)
     } else {
         format!("{}-bit, sampled, {}", r.morton_bits, r.backend)
     }
