@@ -153,9 +153,10 @@ fn print_table(e: &SceneEvaluation) {
         e.repeats
     );
     println!(
-        "  selected: {}   oracle best: {}   regret: {}{}",
+        "  selected: {}   oracle best: {}   cheapest within noise: {}   regret: {}{}",
         e.selected.map(|s| s.as_str()).unwrap_or("null"),
         e.oracle_best.map(|s| s.as_str()).unwrap_or("null"),
+        e.oracle_cheapest_within_noise.map(|s| s.as_str()).unwrap_or("null"),
         fmt_opt(e.regret, 3),
         match e.regret_within_noise {
             Some(true) => " (within noise)",

@@ -261,6 +261,189 @@ pub fn write_charts(dir: &Path, evals: &[SceneEvaluation]) -> std::io::Result<Ve
     Ok(paths)
 }
 
+/// One point of a [`ScatterChart`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScatterPoint {
+    /// Shown on hover, and next to the point when it is on the front.
+    pub label: String,
+    /// x value (must be positive on a log axis).
+    pub x: f64,
+    /// y value.
+    pub y: f64,
+}
+
+/// A scatter chart with a logarithmic x axis and a marked front: points in series (one colour each), the points
+/// of `front` (indices into the flattened series, in order) joined by a line and labelled.
+#[derive(Clone, Debug, Default)]
+pub struct ScatterChart {
+    /// Title above the plot.
+    pub title: String,
+    /// Label of the x axis (drawn on a log scale).
+    pub x_label: String,
+    /// Label of the y axis (linear).
+    pub y_label: String,
+    /// `(series name, points)`; non-finite points (and non-positive x) are not drawn.
+    pub series: Vec<(String, Vec<ScatterPoint>)>,
+    /// Indices into the points of all series in order (series 0 first), sorted by x: the front to mark.
+    pub front: Vec<usize>,
+    /// A note under the plot.
+    pub note: String,
+}
+
+impl ScatterChart {
+    /// The chart as a standalone SVG document.
+    pub fn to_svg(&self) -> String {
+        let (w, h) = (960.0f64, 560.0f64);
+        let (left, right, top, bottom) = (80.0, 210.0, 50.0, 90.0);
+        let pw = w - left - right;
+        let ph = h - top - bottom;
+        let all: Vec<&ScatterPoint> = self.series.iter().flat_map(|(_, p)| p.iter()).collect();
+        let drawable = |p: &ScatterPoint| p.x.is_finite() && p.x > 0.0 && p.y.is_finite();
+        let good: Vec<&&ScatterPoint> = all.iter().filter(|p| drawable(p)).collect();
+        let (mut x0, mut x1) =
+            good.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.x), b.max(p.x)));
+        if !x0.is_finite() {
+            (x0, x1) = (1.0, 10.0);
+        }
+        let (lx0, lx1) = (x0.log10().floor(), x1.log10().ceil().max(x0.log10().floor() + 1.0));
+        let ymax = good.iter().map(|p| p.y).fold(0.0f64, f64::max);
+        let ymin = good.iter().map(|p| p.y).fold(0.0f64, f64::min);
+        let step = nice_step(if ymax - ymin > 0.0 { ymax - ymin } else { 1.0 }, 5.0);
+        let (y0, y1) = ((ymin / step).floor() * step, ((ymax / step).ceil().max(1.0)) * step);
+        let sx = |x: f64| left + (x.log10() - lx0) / (lx1 - lx0) * pw;
+        let sy = |y: f64| top + ph - (y - y0) / (y1 - y0) * ph;
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}" font-family="sans-serif" font-size="12">"#
+        );
+        let _ = writeln!(s, r#"<rect width="{w}" height="{h}" fill="white"/>"#);
+        let _ = writeln!(
+            s,
+            r#"<text x="{}" y="28" text-anchor="middle" font-size="16">{}</text>"#,
+            left + pw / 2.0,
+            esc(&self.title)
+        );
+        // y grid.
+        let ticks = ((y1 - y0) / step).round() as usize;
+        for i in 0..=ticks {
+            let v = y0 + i as f64 * step;
+            let yy = sy(v);
+            let _ = writeln!(
+                s,
+                r##"<line x1="{left}" y1="{yy:.1}" x2="{:.1}" y2="{yy:.1}" stroke="#ddd"/><text x="{:.1}" y="{:.1}" text-anchor="end">{}</text>"##,
+                left + pw,
+                left - 6.0,
+                yy + 4.0,
+                fmt_tick(v, step)
+            );
+        }
+        // x grid: decades, with 2 and 5 between.
+        let mut d = lx0 as i32;
+        while d as f64 <= lx1 {
+            for m in [1.0, 2.0, 5.0] {
+                let v = m * 10f64.powi(d);
+                if v.log10() > lx1 + 1e-9 {
+                    continue;
+                }
+                let xx = sx(v);
+                let label = if v >= 1.0 { format!("{v}") } else { format!("{v:.prec$}", prec = (-d).max(0) as usize) };
+                let _ = writeln!(
+                    s,
+                    r##"<line x1="{xx:.1}" y1="{top}" x2="{xx:.1}" y2="{:.1}" stroke="{}"/><text x="{xx:.1}" y="{:.1}" text-anchor="middle">{}</text>"##,
+                    top + ph,
+                    if m == 1.0 { "#ccc" } else { "#eee" },
+                    top + ph + 16.0,
+                    label
+                );
+            }
+            d += 1;
+        }
+        let _ =
+            writeln!(s, r#"<rect x="{left}" y="{top}" width="{pw:.1}" height="{ph:.1}" fill="none" stroke="black"/>"#);
+        let _ = writeln!(
+            s,
+            r#"<text x="{:.1}" y="{:.1}" text-anchor="middle">{}</text>"#,
+            left + pw / 2.0,
+            top + ph + 36.0,
+            esc(&self.x_label)
+        );
+        let _ = writeln!(
+            s,
+            r#"<text transform="translate(20 {:.1}) rotate(-90)" text-anchor="middle">{}</text>"#,
+            top + ph / 2.0,
+            esc(&self.y_label)
+        );
+        if !self.note.is_empty() {
+            let _ = writeln!(
+                s,
+                r##"<text x="{left}" y="{:.1}" font-size="11" fill="#555">{}</text>"##,
+                h - 16.0,
+                esc(&self.note)
+            );
+        }
+        // Front line.
+        let front: Vec<&ScatterPoint> =
+            self.front.iter().filter_map(|&i| all.get(i).copied()).filter(|p| drawable(p)).collect();
+        if front.len() > 1 {
+            let pts: Vec<String> = front.iter().map(|p| format!("{:.1},{:.1}", sx(p.x), sy(p.y))).collect();
+            let _ = writeln!(
+                s,
+                r##"<polyline points="{}" fill="none" stroke="#e15759" stroke-width="1.5" stroke-dasharray="5 3"/>"##,
+                pts.join(" ")
+            );
+        }
+        // Points.
+        for (si, (name, pts)) in self.series.iter().enumerate() {
+            let colour = PALETTE[si % PALETTE.len()];
+            for p in pts.iter().filter(|p| drawable(p)) {
+                let _ = writeln!(
+                    s,
+                    r#"<circle cx="{:.1}" cy="{:.1}" r="4.5" fill="{colour}" fill-opacity="0.8"><title>{}: {} (x {:.4}, y {:.4})</title></circle>"#,
+                    sx(p.x),
+                    sy(p.y),
+                    esc(name),
+                    esc(&p.label),
+                    p.x,
+                    p.y
+                );
+            }
+            let ly = top + 18.0 * si as f64;
+            let _ = writeln!(
+                s,
+                r#"<circle cx="{:.1}" cy="{:.1}" r="5" fill="{colour}"/><text x="{:.1}" y="{:.1}">{}</text>"#,
+                w - right + 26.0,
+                ly + 6.0,
+                w - right + 38.0,
+                ly + 10.5,
+                esc(name)
+            );
+        }
+        for (i, p) in front.iter().enumerate() {
+            let _ = writeln!(
+                s,
+                r##"<circle cx="{:.1}" cy="{:.1}" r="8" fill="none" stroke="#e15759" stroke-width="2"/><text x="{:.1}" y="{:.1}" font-size="11" fill="#b03030">{}</text>"##,
+                sx(p.x),
+                sy(p.y),
+                sx(p.x) + 9.0,
+                sy(p.y) - 9.0 - 12.0 * (i % 2) as f64,
+                esc(&p.label)
+            );
+        }
+        let ly = top + 18.0 * self.series.len() as f64 + 8.0;
+        let _ = writeln!(
+            s,
+            r##"<circle cx="{:.1}" cy="{:.1}" r="7" fill="none" stroke="#e15759" stroke-width="2"/><text x="{:.1}" y="{:.1}">Pareto front</text>"##,
+            w - right + 26.0,
+            ly + 6.0,
+            w - right + 38.0,
+            ly + 10.5
+        );
+        s.push_str("</svg>\n");
+        s
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -277,6 +460,27 @@ mod tests {
         assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
         assert_eq!(svg.matches("<title>").count(), 2);
         assert!(svg.contains("t &lt;&amp;&gt;"));
+    }
+
+    #[test]
+    fn scatter_draws_finite_points_and_the_front() {
+        let p = |label: &str, x: f64, y: f64| ScatterPoint { label: label.into(), x, y };
+        let c = ScatterChart {
+            title: "t".into(),
+            x_label: "ms".into(),
+            y_label: "regret".into(),
+            series: vec![
+                ("a".into(), vec![p("a1", 1.0, 0.5), p("a2", 100.0, 0.1)]),
+                ("b".into(), vec![p("b1", 0.0, 0.2), p("b2", 10.0, f64::NAN)]),
+            ],
+            front: vec![0, 1],
+            note: "n".into(),
+        };
+        let svg = c.to_svg();
+        assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+        assert_eq!(svg.matches("<title>").count(), 2, "x <= 0 and NaN are not drawn");
+        assert_eq!(svg.matches("<polyline").count(), 1);
+        assert!(svg.contains(">a2</text>"), "front points are labelled");
     }
 
     #[test]

@@ -26,8 +26,18 @@
 //! noise* of each other when their medians differ by no more than the sum of their spreads; a regret is within
 //! noise when the selection is within noise of the best. With one repeat the spread is zero and nothing is ever
 //! within noise: use at least three repeats to judge.
+//!
+//! # The cheapest structure within noise
+//!
+//! When several structures are within noise of the best, the measurement cannot tell them apart, and the one that
+//! costs least to have is the better answer: [`SceneEvaluation::oracle_within_noise`] lists them (the best
+//! included) and [`SceneEvaluation::oracle_cheapest_within_noise`] names the one with the least median build time,
+//! then the least memory. `oracle_best` stays the structure with the smallest median total, and `regret` is still
+//! measured against it; a policy (or a calibration) that wants the cheapest defensible answer targets
+//! `oracle_cheapest_within_noise` instead.
 
 pub mod chart;
+pub mod tradeoff;
 
 use crate::accel::{build_structure, AccelStats, AccelStructure, StructureName};
 use crate::mesh::{Animation, Mesh};
@@ -192,6 +202,11 @@ pub struct SceneEvaluation {
     pub selected: Option<StructureName>,
     /// The structure with the smallest median total.
     pub oracle_best: Option<StructureName>,
+    /// The structures within noise of the best (see the module docs), the best included, in the order measured.
+    pub oracle_within_noise: Vec<StructureName>,
+    /// Among [`SceneEvaluation::oracle_within_noise`], the one with the least median build time, then the least
+    /// memory: the cheapest structure the measurement cannot tell from the best.
+    pub oracle_cheapest_within_noise: Option<StructureName>,
     /// `total(selected) / total(best) - 1`, when a selection was given and both were measured.
     pub regret: Option<f64>,
     /// Whether the selection is within noise of the best.
@@ -209,7 +224,7 @@ impl SceneEvaluation {
     /// The JSON object of `evaluate --json` (one per scene): `mesh`, `triangles`, `selected`, `oracle_best`,
     /// `regret`, `structures` (each with `name`, `build_ms`, `trace_ms`, `mrays_per_s`, `box_tests_per_ray`,
     /// `prim_tests_per_ray`, `memory_bytes`, `sah_cost`, `valid`, `hits_agree`, and more), plus the workload and
-    /// the noise figures.
+    /// the noise figures: `oracle_within_noise` (names) and `oracle_cheapest_within_noise`.
     pub fn to_json(&self) -> serde_json::Value {
         use serde_json::json;
         let structures: Vec<serde_json::Value> = self
@@ -243,6 +258,8 @@ impl SceneEvaluation {
             "triangles": self.triangles,
             "selected": self.selected.map(|n| n.as_str()),
             "oracle_best": self.oracle_best.map(|n| n.as_str()),
+            "oracle_within_noise": self.oracle_within_noise.iter().map(|n| n.as_str()).collect::<Vec<_>>(),
+            "oracle_cheapest_within_noise": self.oracle_cheapest_within_noise.map(|n| n.as_str()),
             "regret": self.regret,
             "regret_within_noise": self.regret_within_noise,
             "workload": self.workload.as_str(),
@@ -427,6 +444,12 @@ pub fn evaluate_scene(
         }
     }
     let oracle_best = best.as_ref().and_then(|b| b.0);
+    let near: Vec<&StructureResult> = results.iter().filter(|s| s.within_noise_of_best).collect();
+    let oracle_within_noise: Vec<StructureName> = near.iter().filter_map(|s| s.name).collect();
+    let oracle_cheapest_within_noise = near
+        .iter()
+        .min_by(|a, b| a.build_ms.median.total_cmp(&b.build_ms.median).then(a.memory_bytes.cmp(&b.memory_bytes)))
+        .and_then(|s| s.name);
     let sel = selected.and_then(|n| results.iter().find(|s| s.name == Some(n)));
     let (regret, regret_within_noise) = match (sel, &best) {
         (Some(s), Some((_, bt))) if s.valid && bt.median > 0.0 => {
@@ -446,6 +469,8 @@ pub fn evaluate_scene(
         rays_per_frame,
         selected,
         oracle_best,
+        oracle_within_noise,
+        oracle_cheapest_within_noise,
         regret,
         regret_within_noise,
         structures: results,
