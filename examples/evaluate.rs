@@ -176,6 +176,9 @@ fn load_scene(path: &Path) -> Result<Animation, String> {
     meshchar::mesh::load_path(path).map_err(|e| e.to_string())
 }
 
+/// A selection, its reasons, and the calibrated policy's predictions.
+type Selected = (StructureName, Vec<String>, Option<Vec<Prediction>>);
+
 /// The policy's selection for a scene: every frame characterized (Vulkan when a device is found, else the CPU
 /// path) and its features computed; then the thesis policy over the frames, or the calibrated policy for the
 /// workload of `config` (rays per frame counted by generating the workload's rays as the oracle will).
@@ -186,7 +189,7 @@ fn select(
     policy: &str,
     model: &CostModel,
     tie_margin: f64,
-) -> Result<(StructureName, Vec<String>, Option<Vec<Prediction>>), String> {
+) -> Result<Selected, String> {
     let chars = engine.characterize_animation(scene, &Params::default()).map_err(|e| e.to_string())?;
     let features: Vec<Features> = scene
         .frames

@@ -37,8 +37,9 @@ fn solve(mut a: Vec<Vec<f64>>) -> Option<Vec<f64>> {
             if r != c {
                 let f = a[r][c] / a[c][c];
                 if f != 0.0 {
-                    for k in c..=p {
-                        a[r][k] -= f * a[c][k];
+                    let pivot_row = a[c].clone();
+                    for (x, y) in a[r][c..=p].iter_mut().zip(&pivot_row[c..=p]) {
+                        *x -= f * y;
                     }
                 }
             }
