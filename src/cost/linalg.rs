@@ -50,17 +50,21 @@ fn solve(mut a: Vec<Vec<f64>>) -> Option<Vec<f64>> {
 }
 
 /// Weighted least squares with `beta >= 0` for the columns flagged in `nonneg`: solve, drop (fix at zero) the most
-/// negative flagged coefficient, repeat. Small `p` only.
+/// negative flagged coefficient, repeat. Columns that are zero in every row are fixed at zero. Small `p` only.
 pub fn weighted_nonneg(rows: &[Vec<f64>], y: &[f64], w: &[f64], nonneg: &[bool]) -> Option<Vec<f64>> {
     let p = nonneg.len();
-    let mut active: Vec<bool> = vec![true; p];
+    let mut active: Vec<bool> = (0..p).map(|j| rows.iter().any(|r| r.get(j).is_some_and(|&v| v != 0.0))).collect();
     loop {
         let cols: Vec<usize> = (0..p).filter(|&j| active[j]).collect();
         if cols.is_empty() {
             return Some(vec![0.0; p]);
         }
         let sub: Vec<Vec<f64>> = rows.iter().map(|r| cols.iter().map(|&j| r[j]).collect()).collect();
-        let beta = weighted_ridge(&sub, y, w, &vec![0.0; cols.len()])?;
+        // A tiny ridge keeps duplicate columns (e.g. coherent and incoherent prices when only one kind of rays was
+        // measured) solvable: the fit is then shared between them.
+        let diag: f64 = sub.iter().zip(w).map(|(r, wi)| r.iter().map(|v| wi * v * v).sum::<f64>()).sum();
+        let tiny = 1e-9 * diag / cols.len() as f64;
+        let beta = weighted_ridge(&sub, y, w, &vec![tiny; cols.len()])?;
         let worst = cols.iter().zip(&beta).filter(|(&j, &b)| nonneg[j] && b < 0.0).min_by(|a, b| a.1.total_cmp(b.1));
         match worst {
             Some((&j, _)) => active[j] = false,
