@@ -179,7 +179,7 @@ fn the_fitter_recovers_known_constants() {
         assert!((sm.build_exponent - b).abs() < 1e-6, "{s}: b {} vs {b}", sm.build_exponent);
         assert_eq!(sm.trace_price.len(), PRICE_NAMES.len());
         for (got, want) in sm.trace_price.iter().zip(price) {
-            assert!((got - want).abs() < 1e-4 * want.max(1.0), "{s}: price {:?} vs {price:?}", sm.trace_price);
+            assert!((got - want).abs() < 1e-6 * want.max(1.0), "{s}: price {:?} vs {price:?}", sm.trace_price);
         }
         // The counts are log-linear in phi: the ridge fit reproduces them closely.
         assert!(sm.fit.box_tests < 0.05 && sm.fit.prim_tests < 0.05, "{s}: {:?}", sm.fit);

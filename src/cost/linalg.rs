@@ -60,11 +60,12 @@ pub fn weighted_nonneg(rows: &[Vec<f64>], y: &[f64], w: &[f64], nonneg: &[bool])
             return Some(vec![0.0; p]);
         }
         let sub: Vec<Vec<f64>> = rows.iter().map(|r| cols.iter().map(|&j| r[j]).collect()).collect();
-        // A tiny ridge keeps duplicate columns (e.g. coherent and incoherent prices when only one kind of rays was
+        // Where the plain system is singular, a tiny ridge keeps duplicate columns (e.g. coherent and incoherent prices when only one kind of rays was
         // measured) solvable: the fit is then shared between them.
         let diag: f64 = sub.iter().zip(w).map(|(r, wi)| r.iter().map(|v| wi * v * v).sum::<f64>()).sum();
         let tiny = 1e-9 * diag / cols.len() as f64;
-        let beta = weighted_ridge(&sub, y, w, &vec![tiny; cols.len()])?;
+        let beta = weighted_ridge(&sub, y, w, &vec![0.0; cols.len()])
+            .or_else(|| weighted_ridge(&sub, y, w, &vec![tiny; cols.len()]))?;
         let worst = cols.iter().zip(&beta).filter(|(&j, &b)| nonneg[j] && b < 0.0).min_by(|a, b| a.1.total_cmp(b.1));
         match worst {
             Some((&j, _)) => active[j] = false,
