@@ -3,6 +3,8 @@
 //! ```text
 //! cargo run --release --example characterize -- [FILE|DIR ...] [--json] [--backend vulkan|cpu|naive]
 //!     [--morton-bits 30|63] [--alpha A] [--sample-stride S] [--class-rule doane|sturges|sqrt|N]
+//!     [--policy thesis|calibrated] [--cost-model FILE] [--workload primary|shadow|diffuse] [--resolution N]
+//!     [--frames F]
 //! ```
 //!
 //! A FILE is a static mesh (.obj or .ply); a DIR holds the frames of an animation (one report per frame, `kind`
@@ -13,7 +15,10 @@ use meshchar::characterize::{
     cpu, Backend, Characterization, Characterizer, ClassRule, MortonBits, Params, Policy, Report, SceneSummary,
     ThesisPolicy,
 };
+use meshchar::characterize::{features_cpu, Features};
+use meshchar::cost::{CalibratedPolicy, CostModel};
 use meshchar::mesh::Animation;
+use meshchar::trace::WorkloadKind;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -31,6 +36,13 @@ options:
   --alpha A             significance of the chi-square test, in (0, 1) (default 0.005)
   --sample-stride S     characterize every S-th triangle only (default 1: all)
   --class-rule R        doane, sturges, sqrt or a fixed number of classes (default doane)
+  --policy P            thesis or calibrated (default calibrated): the selection policy
+  --cost-model FILE     calibration file of the calibrated policy (default: the shipped one; a missing or stale
+                        file falls back to it with a warning)
+  --workload KIND       calibrated policy: primary (default), shadow or diffuse rays
+  --resolution N        calibrated policy: N x N rays per frame (default 1024; for shadow and diffuse rays an upper
+                        bound, as only rays that hit spawn them)
+  --frames F            calibrated policy: frames rendered with one build of a static scene (default 1)
   -h, --help            this text";
 
 struct Args {
@@ -38,10 +50,25 @@ struct Args {
     json: bool,
     backend: Option<Backend>,
     params: Params,
+    policy: String,
+    cost_model: Option<PathBuf>,
+    workload: WorkloadKind,
+    resolution: u64,
+    frames: u64,
 }
 
 fn parse_args(argv: Vec<String>) -> Result<Option<Args>, String> {
-    let mut args = Args { paths: Vec::new(), json: false, backend: None, params: Params::default() };
+    let mut args = Args {
+        paths: Vec::new(),
+        json: false,
+        backend: None,
+        params: Params::default(),
+        policy: "calibrated".into(),
+        cost_model: None,
+        workload: WorkloadKind::Primary,
+        resolution: 1024,
+        frames: 1,
+    };
     let mut it = argv.into_iter();
     while let Some(arg) = it.next() {
         let (flag, inline) = match arg.split_once('=') {
@@ -75,6 +102,27 @@ fn parse_args(argv: Vec<String>) -> Result<Option<Args>, String> {
             "--class-rule" => {
                 args.params.class_rule = value("--class-rule")?.parse::<ClassRule>().map_err(|e| format!("{e}"))?;
             }
+            "--policy" => {
+                args.policy = value("--policy")?;
+                if args.policy != "thesis" && args.policy != "calibrated" {
+                    return Err(format!("--policy must be thesis or calibrated, got {:?}", args.policy));
+                }
+            }
+            "--cost-model" => args.cost_model = Some(PathBuf::from(value("--cost-model")?)),
+            "--workload" => args.workload = value("--workload")?.parse()?,
+            "--resolution" => {
+                let v = value("--resolution")?;
+                args.resolution = v
+                    .parse()
+                    .ok()
+                    .filter(|n| (1..=16384).contains(n))
+                    .ok_or_else(|| format!("--resolution must be an integer in 1..=16384, got {v:?}"))?;
+            }
+            "--frames" => {
+                let v = value("--frames")?;
+                args.frames =
+                    v.parse().ok().filter(|&n| n >= 1).ok_or_else(|| format!("--frames must be >= 1, got {v:?}"))?;
+            }
             f if f.starts_with('-') && f.len() > 1 => return Err(format!("unknown option {f}")),
             _ => args.paths.push(PathBuf::from(arg)),
         }
@@ -90,7 +138,7 @@ fn default_scene() -> Animation {
 }
 
 /// Characterizes every frame of a scene and prints one report per frame. Returns false after an error (printed).
-fn process(engine: &mut Characterizer, scene: &Animation, args: &Args) -> bool {
+fn process(engine: &mut Characterizer, scene: &Animation, args: &Args, model: &CostModel) -> bool {
     let results: Vec<Characterization> = match engine.characterize_animation(scene, &args.params) {
         Ok(r) => r,
         Err(e) => {
@@ -98,14 +146,28 @@ fn process(engine: &mut Characterizer, scene: &Animation, args: &Args) -> bool {
             return false;
         }
     };
-    let policy = ThesisPolicy::default();
-    let summary = SceneSummary::new(scene.name.clone(), &results);
+    let features: Vec<Features> = match scene.frames.iter().map(|m| features_cpu(m, &args.params)).collect() {
+        Ok(f) => f,
+        Err(e) => {
+            eprintln!("characterize: features: {e}");
+            return false;
+        }
+    };
+    let summary = SceneSummary::new(scene.name.clone(), &results).with_features(&features);
+    let calibrated =
+        CalibratedPolicy::new(model.clone(), args.workload, args.resolution * args.resolution, args.frames);
+    let thesis = ThesisPolicy::default();
+    let policy: &dyn Policy = if args.policy == "thesis" { &thesis } else { &calibrated };
     let selection = policy.select(&summary);
+    let predicted = (args.policy != "thesis").then(|| calibrated.predictions(&summary)).flatten();
     let dynamic = scene.frames.len() > 1;
     for (i, (frame, c)) in scene.frames.iter().zip(&results).enumerate() {
         let mut report = Report::new(if dynamic { scene.name.clone() } else { frame.name.clone() }, c)
             .selection(summary.kind, policy.name(), &selection)
             .zero_area(cpu::zero_area_triangles(frame, args.params.sample_stride));
+        if let Some(p) = &predicted {
+            report = report.predicted(p.clone());
+        }
         if dynamic {
             report = report.frame(i, frame.name.clone());
         }
@@ -140,9 +202,21 @@ fn main() -> ExitCode {
     if let Some(note) = engine.note() {
         eprintln!("characterize: {note}");
     }
+    let model = match CostModel::load(args.cost_model.as_deref()) {
+        Ok((m, note)) => {
+            if let Some(n) = note {
+                eprintln!("characterize: warning: {n}");
+            }
+            m
+        }
+        Err(e) => {
+            eprintln!("characterize: cost model: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
     let mut ok = true;
     if args.paths.is_empty() {
-        ok &= process(&mut engine, &default_scene(), &args);
+        ok &= process(&mut engine, &default_scene(), &args, &model);
     }
     for path in &args.paths {
         match meshchar::mesh::load_path(path) {
@@ -150,7 +224,7 @@ fn main() -> ExitCode {
                 eprintln!("characterize: {}: no frames found", path.display());
                 ok = false;
             }
-            Ok(scene) => ok &= process(&mut engine, &scene, &args),
+            Ok(scene) => ok &= process(&mut engine, &scene, &args, &model),
             Err(e) => {
                 eprintln!("characterize: {e}");
                 ok = false;

@@ -5,13 +5,23 @@
 //! ```text
 //! cargo run --release --example evaluate -- [FILE|DIR ...] [--json] [--workload primary|shadow|diffuse]
 //!     [--resolution N] [--frames F] [--repeats R] [--rebuild once|frame] [--structures bvh,kdtree,...]
-//!     [--camera EX,EY,EZ,TX,TY,TZ[,FOV]] [--charts DIR] [--help]
+//!     [--camera EX,EY,EZ,TX,TY,TZ[,FOV]] [--charts DIR] [--policy thesis|calibrated] [--cost-model FILE]
+//!     [--tie-margin X] [--oracle-cache FILE] [--help]
+//! cargo run --release --example evaluate -- --compare-policies FILE.jsonl ... [--charts DIR] [--json]
 //! ```
+//!
+//! With `--compare-policies`, nothing is measured: the cached oracle results are read back, the thesis policy's
+//! recorded selections and the calibrated policy (fitted on all scenes, and leave-one-scene-out) are scored side by
+//! side.
 
-use meshchar::accel::StructureName;
-use meshchar::characterize::{Characterizer, Params, Policy, SceneSummary, ThesisPolicy};
+use meshchar::accel::{AccelStructure, StructureName};
+use meshchar::characterize::{features_cpu, Characterizer, Features, Params, Policy, SceneSummary, ThesisPolicy};
+use meshchar::cost::dataset::{compare, load_oracle_samples};
+use meshchar::cost::{CalibratedPolicy, CostModel, Prediction};
+use meshchar::eval::chart::BarChart;
 use meshchar::eval::{evaluate_scene, OracleConfig, Rebuild, SceneEvaluation};
 use meshchar::mesh::Animation;
+use meshchar::trace::workload::{build_workload, mesh_bounds};
 use meshchar::trace::{Camera, WorkloadKind};
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
@@ -34,7 +44,16 @@ options:
   --camera EX,EY,EZ,TX,TY,TZ[,FOV]
                              eye, target (and vertical field of view in degrees, default 45); +y is up;
                              default: a camera framing the scene
-  --charts DIR               write SVG bar charts (build time, frame rate, tests per ray) into DIR
+  --charts DIR               write SVG bar charts (build time, frame rate, tests per ray) into DIR; with
+                             --compare-policies, the per-scene regret chart policy-regret.svg
+  --policy thesis|calibrated the selection policy whose choice is `selected` and `regret` (default calibrated)
+  --cost-model FILE          calibration file of the calibrated policy (default: the shipped one; a missing or
+                             stale file falls back to it with a warning)
+  --tie-margin X             calibrated policy: relative margin within which the cheaper build wins (default 0.05)
+  --oracle-cache FILE        append every scene's JSON line to FILE (to compare policies later without measuring)
+  --compare-policies FILE    read cached oracle JSON lines (repeatable) and compare the thesis policy's recorded
+                             selections with the calibrated policy, in sample and leave-one-scene-out; measures
+                             nothing (meshes are loaded from the recorded paths for their features)
   --help                     this text
 ";
 
@@ -44,10 +63,26 @@ struct Args {
     config: OracleConfig,
     rebuild: Option<Rebuild>,
     charts: Option<PathBuf>,
+    policy: String,
+    cost_model: Option<PathBuf>,
+    tie_margin: f64,
+    oracle_cache: Option<PathBuf>,
+    compare: Vec<PathBuf>,
 }
 
 fn parse_args() -> Result<Args, String> {
-    let mut a = Args { inputs: Vec::new(), json: false, config: OracleConfig::default(), rebuild: None, charts: None };
+    let mut a = Args {
+        inputs: Vec::new(),
+        json: false,
+        config: OracleConfig::default(),
+        rebuild: None,
+        charts: None,
+        policy: "calibrated".into(),
+        cost_model: None,
+        tie_margin: 0.05,
+        oracle_cache: None,
+        compare: Vec::new(),
+    };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
         let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value"));
@@ -110,11 +145,27 @@ fn parse_args() -> Result<Args, String> {
                 a.config.camera = Some(cam);
             }
             "--charts" => a.charts = Some(PathBuf::from(value("--charts")?)),
+            "--policy" => {
+                a.policy = value("--policy")?;
+                if a.policy != "thesis" && a.policy != "calibrated" {
+                    return Err(format!("--policy: {:?} is not thesis or calibrated", a.policy));
+                }
+            }
+            "--cost-model" => a.cost_model = Some(PathBuf::from(value("--cost-model")?)),
+            "--tie-margin" => {
+                a.tie_margin = value("--tie-margin")?
+                    .parse()
+                    .ok()
+                    .filter(|x: &f64| (0.0..=1.0).contains(x))
+                    .ok_or("--tie-margin needs a number in 0..=1")?
+            }
+            "--oracle-cache" => a.oracle_cache = Some(PathBuf::from(value("--oracle-cache")?)),
+            "--compare-policies" => a.compare.push(PathBuf::from(value("--compare-policies")?)),
             s if s.starts_with("--") => return Err(format!("unknown option {s} (see --help)")),
             _ => a.inputs.push(PathBuf::from(arg)),
         }
     }
-    if a.inputs.is_empty() {
+    if a.inputs.is_empty() && a.compare.is_empty() {
         return Err("no input: give mesh files or directories of frames (see --help)".into());
     }
     Ok(a)
@@ -125,14 +176,60 @@ fn load_scene(path: &Path) -> Result<Animation, String> {
     meshchar::mesh::load_path(path).map_err(|e| e.to_string())
 }
 
-/// The characterization's selection for a scene: every frame characterized (Vulkan when a device is found, else
-/// the CPU path), then the thesis policy over the frames.
-fn select(engine: &mut Characterizer, scene: &Animation) -> Result<(StructureName, Vec<String>), String> {
-    let frames = engine.characterize_animation(scene, &Params::default()).map_err(|e| e.to_string())?;
-    let summary = SceneSummary::new(scene.name.clone(), &frames);
-    let sel = ThesisPolicy::default().select(&summary);
-    let name = sel.structure.name().parse::<StructureName>().map_err(|e| format!("{e:?}"))?;
-    Ok((name, sel.reasons))
+/// A selection, its reasons, and the calibrated policy's predictions.
+type Selected = (StructureName, Vec<String>, Option<Vec<Prediction>>);
+
+/// The policy's selection for a scene: every frame characterized (Vulkan when a device is found, else the CPU
+/// path) and its features computed; then the thesis policy over the frames, or the calibrated policy for the
+/// workload of `config` (rays per frame counted by generating the workload's rays as the oracle will).
+fn select(
+    engine: &mut Characterizer,
+    scene: &Animation,
+    config: &OracleConfig,
+    policy: &str,
+    model: &CostModel,
+    tie_margin: f64,
+) -> Result<Selected, String> {
+    let chars = engine.characterize_animation(scene, &Params::default()).map_err(|e| e.to_string())?;
+    let features: Vec<Features> = scene
+        .frames
+        .iter()
+        .map(|m| features_cpu(m, &Params::default()))
+        .collect::<Result<_, _>>()
+        .map_err(|e| e.to_string())?;
+    let (sel, preds) = if policy == "thesis" {
+        let summary = SceneSummary::new(scene.name.clone(), &chars).with_features(&features);
+        (ThesisPolicy::default().select(&summary), None)
+    } else {
+        let rays = rays_per_frame(scene, config)?;
+        let frames = if scene.is_dynamic() { config.frames.unwrap_or(scene.frames.len()) } else { 1 };
+        let mut p = CalibratedPolicy::new(model.clone(), config.workload, rays, config.frames.unwrap_or(1) as u64);
+        p.tie_margin = tie_margin;
+        let used = frames.clamp(1, features.len());
+        let summary = SceneSummary::new(scene.name.clone(), &chars[..used]).with_features(&features[..used]);
+        let preds = p.predictions(&summary);
+        (p.select(&summary), preds)
+    };
+    let name = sel.structure.name().parse::<StructureName>()?;
+    Ok((name, sel.reasons, preds))
+}
+
+/// Rays per frame of the oracle's workload on the first frame: `resolution^2` primary rays, or the secondary rays
+/// generated from their hits (same camera and reference structure as the oracle, untimed).
+fn rays_per_frame(scene: &Animation, config: &OracleConfig) -> Result<u64, String> {
+    let n = config.resolution as u64 * config.resolution as u64;
+    if config.workload == WorkloadKind::Primary {
+        return Ok(n);
+    }
+    let first = scene.frames.first().ok_or("no frames")?;
+    let f =
+        if scene.is_dynamic() { config.frames.unwrap_or(scene.frames.len()).clamp(1, scene.frames.len()) } else { 1 };
+    let camera = config.camera.unwrap_or_else(|| {
+        let b = scene.frames[..f].iter().fold(meshchar::accel::Aabb::EMPTY, |a, m| a.union(&mesh_bounds(m)));
+        Camera::frame(&b)
+    });
+    let reference = meshchar::accel::bvh::Bvh::build(first).map_err(|e| e.to_string())?;
+    Ok(build_workload(config.workload, first, &camera, config.resolution, &reference).rays.len() as u64)
 }
 
 fn fmt_opt(v: Option<f64>, prec: usize) -> String {
@@ -202,6 +299,131 @@ fn print_table(e: &SceneEvaluation) {
     }
 }
 
+fn append_line(path: &Path, line: &str) -> std::io::Result<()> {
+    let mut f = std::fs::OpenOptions::new().create(true).append(true).open(path)?;
+    writeln!(f, "{line}")
+}
+
+/// Predicted against measured totals of the calibrated policy, per structure.
+fn print_predictions(e: &SceneEvaluation, preds: &[Prediction]) {
+    println!("  calibrated prediction vs measurement (ms):");
+    println!("  {:<7} {:>12} {:>12} {:>12} {:>12}", "", "pred build", "pred trace", "pred total", "measured");
+    for p in preds {
+        let m = e.get(p.structure).map(|s| format!("{:.2}", s.total_ms.median)).unwrap_or_else(|| "-".into());
+        println!(
+            "  {:<7} {:>12.2} {:>12.2} {:>12.2} {:>12}",
+            p.structure.as_str(),
+            p.build_ms,
+            p.trace_ms,
+            p.total_ms,
+            m
+        );
+    }
+}
+
+fn pct(x: Option<f64>) -> String {
+    x.map(|v| format!("{:.1}%", 100.0 * v)).unwrap_or_else(|| "-".into())
+}
+
+/// `--compare-policies`: thesis (recorded) against calibrated (in sample and leave-one-scene-out) on cached
+/// oracle results. Returns the exit code.
+fn compare_policies(args: &Args) -> i32 {
+    let samples = match load_oracle_samples(&args.compare, &Params::default(), &|m| {
+        if std::io::stderr().is_terminal() {
+            eprint!("\r\x1b[Kfeatures of {m}");
+        }
+    }) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("\nevaluate: {e}");
+            return 1;
+        }
+    };
+    if std::io::stderr().is_terminal() {
+        eprint!("\r\x1b[K");
+    }
+    let device = meshchar::characterize::cpu::cpu_device_name(rayon::current_num_threads());
+    let c = match compare(&samples, args.tie_margin, &device) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("evaluate: {e}");
+            return 1;
+        }
+    };
+    if args.json {
+        println!("{}", serde_json::json!(c));
+    } else {
+        println!(
+            "{:<44} {:<8} {:>7} | {:>7} {:>7} | {:>7} {:>7} | {:>7} {:>7}",
+            "scene", "workload", "best", "thesis", "regret", "cal-in", "regret", "cal-out", "regret"
+        );
+        let name = |s: Option<meshchar::accel::StructureName>| s.map(|x| x.as_str()).unwrap_or("-");
+        for r in &c.rows {
+            let scene: String = r.scene.chars().rev().take(44).collect::<Vec<_>>().into_iter().rev().collect();
+            println!(
+                "{:<44} {:<8} {:>7} | {:>7} {:>7} | {:>7} {:>7} | {:>7} {:>7}",
+                scene,
+                r.workload.as_str(),
+                name(r.oracle_best),
+                name(r.baseline),
+                pct(r.baseline_regret),
+                name(r.calibrated_in_sample),
+                pct(r.calibrated_in_sample_regret),
+                name(r.calibrated_held_out),
+                pct(r.calibrated_held_out_regret)
+            );
+        }
+        println!(
+            "\n{:<34} {:>6} {:>9} {:>12} {:>12} {:>12}  worst at",
+            "policy", "scored", "accuracy", "within noise", "mean regret", "worst regret"
+        );
+        for (label, s) in [
+            ("thesis (recorded selections)", &c.baseline),
+            ("calibrated, calibration scenes", &c.calibrated_in_sample),
+            ("calibrated, held out (LOO)", &c.calibrated_held_out),
+        ] {
+            println!(
+                "{:<34} {:>6} {:>8.1}% {:>11.1}% {:>11.1}% {:>11.1}%  {}",
+                label,
+                s.scored,
+                100.0 * s.accuracy,
+                100.0 * s.within_noise,
+                100.0 * s.mean_regret,
+                100.0 * s.worst_regret,
+                s.worst
+            );
+        }
+        println!("(tie margin {:.2}; leave-one-out holds out every workload of a scene together)", c.tie_margin);
+    }
+    if let Some(dir) = &args.charts {
+        let chart = BarChart {
+            title: "Regret per scene and workload: thesis policy vs calibrated policy (held out)".into(),
+            y_label: "regret (total / best total - 1)".into(),
+            categories: c
+                .rows
+                .iter()
+                .map(|r| {
+                    let stem = Path::new(&r.scene).file_stem().and_then(|s| s.to_str()).unwrap_or(&r.scene);
+                    format!("{stem} {}", &r.workload.as_str()[..1])
+                })
+                .collect(),
+            series: vec![
+                ("thesis".into(), c.rows.iter().map(|r| r.baseline_regret).collect()),
+                ("calibrated (held out)".into(), c.rows.iter().map(|r| r.calibrated_held_out_regret).collect()),
+            ],
+        };
+        let path = dir.join("policy-regret.svg");
+        if let Err(e) = std::fs::create_dir_all(dir).and_then(|_| std::fs::write(&path, chart.to_svg())) {
+            eprintln!("evaluate: {}: {e}", path.display());
+            return 1;
+        }
+        if !args.json {
+            println!("chart: {}", path.display());
+        }
+    }
+    0
+}
+
 fn main() {
     let args = match parse_args() {
         Ok(a) => a,
@@ -216,6 +438,21 @@ fn main() {
             let mut err = std::io::stderr();
             let _ = write!(err, "\r\x1b[K{msg}");
             let _ = err.flush();
+        }
+    };
+    if !args.compare.is_empty() {
+        std::process::exit(compare_policies(&args));
+    }
+    let model = match CostModel::load(args.cost_model.as_deref()) {
+        Ok((m, note)) => {
+            if let Some(n) = note {
+                eprintln!("evaluate: warning: {n}");
+            }
+            m
+        }
+        Err(e) => {
+            eprintln!("evaluate: cost model: {e}");
+            std::process::exit(1);
         }
     };
     let mut evals = Vec::new();
@@ -239,14 +476,16 @@ fn main() {
         let mut config = args.config.clone();
         config.rebuild = args.rebuild.unwrap_or(if scene.is_dynamic() { Rebuild::PerFrame } else { Rebuild::Once });
 
-        let selected = match select(&mut engine, &scene) {
-            Ok((s, reasons)) => {
+        let predictions;
+        let selected = match select(&mut engine, &scene, &config, &args.policy, &model, args.tie_margin) {
+            Ok((s, reasons, preds)) => {
                 if !args.json {
-                    println!("\n{}: the thesis policy selects {}", scene.name, s.as_str());
+                    println!("\n{}: the {} policy selects {}", scene.name, args.policy, s.as_str());
                     for r in &reasons {
                         println!("  - {r}");
                     }
                 }
+                predictions = preds;
                 Some(s)
             }
             Err(e) => {
@@ -261,10 +500,24 @@ fn main() {
                 if tty {
                     eprint!("\r\x1b[K");
                 }
+                let mut json = e.to_json();
+                json["policy"] = serde_json::json!(args.policy);
+                if let Some(p) = &predictions {
+                    json["predicted"] = serde_json::json!(p);
+                }
                 if args.json {
-                    println!("{}", e.to_json());
+                    println!("{json}");
                 } else {
                     print_table(&e);
+                    if let Some(p) = &predictions {
+                        print_predictions(&e, p);
+                    }
+                }
+                if let Some(path) = &args.oracle_cache {
+                    if let Err(err) = append_line(path, &json.to_string()) {
+                        eprintln!("evaluate: {}: {err}", path.display());
+                        failed = true;
+                    }
                 }
                 evals.push(e);
             }

@@ -9,6 +9,7 @@
 
 pub mod accel;
 pub mod characterize;
+pub mod cost;
 pub mod eval;
 pub mod gpu;
 pub mod keys;

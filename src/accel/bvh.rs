@@ -184,6 +184,59 @@ impl BvhTree {
         }
     }
 
+    /// Refits the tree to new vertex positions of the same triangles (the next frame of an animation): every
+    /// triangle record is recomputed from `mesh` and every box from its children, bottom up; the topology is kept.
+    ///
+    /// # Errors
+    ///
+    /// [`AccelError::Invalid`] when `mesh` has another triangle count or the tree is malformed (a child index out
+    /// of range), [`AccelError::Mesh`] for an invalid mesh.
+    pub fn refit(&mut self, mesh: &Mesh) -> Result<(), AccelError> {
+        mesh.validate()?;
+        let bad = |reason: String| AccelError::Invalid { structure: "refit", reason };
+        if mesh.triangle_count() != self.tris.len() {
+            return Err(bad(format!("mesh has {} triangles, the tree {}", mesh.triangle_count(), self.tris.len())));
+        }
+        for (t, &id) in self.tris.iter_mut().zip(&self.ids) {
+            *t = Triangle::new(&mesh.triangle(id as usize));
+        }
+        if self.nodes.is_empty() {
+            return Ok(());
+        }
+        // Post order by an explicit stack: (node, children done).
+        let n = self.nodes.len();
+        let mut stack = vec![(0u32, false)];
+        let mut steps = 0usize;
+        while let Some((i, done)) = stack.pop() {
+            steps += 1;
+            if steps > 2 * n + 2 {
+                return Err(bad("the nodes do not form a tree".into()));
+            }
+            let node = *self.nodes.get(i as usize).ok_or_else(|| bad(format!("node {i} out of range")))?;
+            if node.is_leaf() {
+                let (first, count) = (node.left_or_first as usize, node.count() as usize);
+                let ids = self.ids.get(first..first + count).ok_or_else(|| bad(format!("leaf {i} out of range")))?;
+                let mut b = Aabb::EMPTY;
+                for &id in ids {
+                    for v in mesh.triangle(id as usize) {
+                        b.grow(v);
+                    }
+                }
+                self.nodes[i as usize] = BvhNode::leaf(&b, node.left_or_first, node.count());
+            } else if !done {
+                stack.push((i, true));
+                stack.push((node.left_or_first, false));
+                stack.push((node.right_or_count, false));
+            } else {
+                let l = self.nodes.get(node.left_or_first as usize).ok_or_else(|| bad(format!("node {i}: child")))?;
+                let r = self.nodes.get(node.right_or_count as usize).ok_or_else(|| bad(format!("node {i}: child")))?;
+                let b = l.aabb().union(&r.aabb());
+                self.nodes[i as usize] = BvhNode::internal(&b, node.left_or_first, node.right_or_count);
+            }
+        }
+        Ok(())
+    }
+
     /// SAH cost of the tree (see [`super::sah_cost`]).
     pub fn sah_cost(&self) -> f64 {
         let Some(root) = self.nodes.first() else {

@@ -233,6 +233,10 @@ impl Lbvh {
     pub fn tree(&self) -> &BvhTree {
         &self.tree
     }
+    /// The tree, by value (to refit it for later frames, [`BvhTree::refit`]).
+    pub fn into_tree(self) -> BvhTree {
+        self.tree
+    }
     /// Sorted Morton codes (position `k` belongs to triangle `tree().triangle_ids()[k]`).
     pub fn sorted_codes(&self) -> &[u64] {
         &self.codes

@@ -12,12 +12,14 @@
 //! the moments are within rounding of the exact real values (much closer than the 1e-9 of an f64 two-pass).
 
 pub mod cpu;
+pub mod features;
 pub mod finalize;
 pub mod policy;
 pub mod report;
 pub mod vulkan;
 
 pub use crate::keys::MortonBits;
+pub use features::{features_cpu, Features};
 pub use finalize::{class_count, class_of, class_thresholds, histogram_stats, histogram_stats_exact, moments};
 pub use policy::{Policy, SceneKind, SceneSummary, Selection, Structure, ThesisPolicy};
 pub use report::Report;

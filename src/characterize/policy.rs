@@ -106,6 +106,9 @@ pub struct SceneSummary<'a> {
     pub hi: [f32; 3],
     /// Frame-to-frame change, for more than one frame.
     pub change: Option<FrameChange>,
+    /// Cost-model features of every frame ([`crate::characterize::features`]); empty unless set with
+    /// [`SceneSummary::with_features`]. [`ThesisPolicy`] ignores them; the calibrated policy needs them.
+    pub features: &'a [super::Features],
 }
 
 fn diagonal(lo: [f32; 3], hi: [f32; 3]) -> f64 {
@@ -158,7 +161,14 @@ impl<'a> SceneSummary<'a> {
             lo,
             hi,
             change,
+            features: &[],
         }
+    }
+
+    /// The summary with the cost-model features of every frame.
+    pub fn with_features(mut self, features: &'a [super::Features]) -> Self {
+        self.features = features;
+        self
     }
 
     /// Ratio of the largest to the smallest extent of the union bounds (`f64::INFINITY` for a flat scene, 1 for an

@@ -97,6 +97,9 @@ pub struct Report {
     pub policy: String,
     /// Why.
     pub reasons: Vec<String>,
+    /// The calibrated policy's predicted costs per structure (absent for the thesis policy).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub predicted: Option<Vec<crate::cost::Prediction>>,
     /// `naive`, `cpu` or `vulkan`.
     pub backend: String,
     /// The device.
@@ -148,6 +151,7 @@ impl Report {
             selected: Structure::Bvh,
             policy: String::new(),
             reasons: Vec::new(),
+            predicted: None,
             backend: c.backend.clone(),
             device: c.device.clone(),
             timings_ms: Timings(timings),
@@ -167,6 +171,12 @@ impl Report {
         self.policy = policy.to_string();
         self.selected = sel.structure;
         self.reasons = sel.reasons.clone();
+        self
+    }
+
+    /// Sets the calibrated policy's predicted costs.
+    pub fn predicted(mut self, p: Vec<crate::cost::Prediction>) -> Report {
+        self.predicted = Some(p);
         self
     }
 

@@ -1,0 +1,274 @@
+//! Scene features for the cost model ([`crate::cost`]): cheap (O(n)) integer summaries of a mesh, defined so that a
+//! GPU pass can reproduce them bit for bit.
+//!
+//! Every quantity is an exact integer computed from IEEE f32 operations that a GPU kernel performs identically
+//! (subtraction, min/max, bit extraction; no division, no logarithm, no fused multiply-add):
+//!
+//! - **Counts**: triangles (sampled, as in the characterization) and the mesh's total.
+//! - **Occupancy of Morton cells**: for depth `d = 1 ..= OCCUPANCY_DEPTHS`, the number of distinct prefixes of
+//!   `3 d` bits among the SPEC.md Morton codes (steps 1 to 4, the codes the characterization already computes).
+//!   Depth `d` splits the key bounds into `2^d` cells per axis; the count says how much of space is occupied at that
+//!   scale (`8^d` cells in all, at most `n` occupied). A GPU pass sets one bit per code in a `2^21`-bit mask of the
+//!   depth-7 prefixes (atomic OR) and counts set bits of the mask and of its 8-way ORs.
+//! - **Triangle sizes**: for every triangle, its largest box extent `t = max_a (max_v p_a - min_v p_a)` (f32), and
+//!   the histogram of `k = e(S) - e(t)`, where `e(x)` is the unbiased f32 exponent read from the bits (`floor(log2
+//!   x)` for normal numbers) and `S` the largest extent of the vertex bounds of the sampled triangles. Bin `k` for
+//!   `0 <= k < SIZE_BINS - 1`; the last bin collects `k >= SIZE_BINS - 1` (tiny triangles); zero-extent triangles
+//!   (all three vertices equal) and subnormal extents are counted apart in `zero_extent`. So a triangle in bin `k`
+//!   spans between `2^-(k+1)` and `2^-(k-1)` of the scene.
+//! - **Aspect**: the exponents `e(extent_a)` of the three vertex-bound extents (`i32::MIN` for a zero extent); the
+//!   aspect is `2^(max - min)` within a factor of 2.
+//!
+//! Derived real-valued quantities for models ([`Features::derived`]) are computed from these integers on the host.
+
+use super::{CharError, Params};
+use crate::keys;
+use crate::mesh::Mesh;
+
+/// Deepest Morton-prefix depth counted (`3 * 7 = 21` bits, a `2^21`-bit mask).
+pub const OCCUPANCY_DEPTHS: usize = 7;
+/// Bins of the triangle size histogram (the last one is open-ended).
+pub const SIZE_BINS: usize = 24;
+
+/// Integer features of one mesh (one frame). See the module docs for the definitions.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Features {
+    /// Triangles characterized (after sampling).
+    pub triangles: u64,
+    /// Triangles of the mesh.
+    pub total_triangles: u64,
+    /// Bits of the Morton codes (30 or 63).
+    pub morton_bits: u32,
+    /// `occupied_cells[d - 1]`: distinct `3 d`-bit prefixes of the codes, `d = 1 ..= OCCUPANCY_DEPTHS`.
+    pub occupied_cells: Vec<u64>,
+    /// Triangle size histogram over `k = e(S) - e(t)` (see the module docs), `SIZE_BINS` bins.
+    pub size_histogram: Vec<u64>,
+    /// Triangles whose largest extent is zero or subnormal.
+    pub zero_extent: u64,
+    /// Unbiased f32 exponents of the vertex-bound extents per axis (`i32::MIN` where the extent is zero or
+    /// subnormal).
+    pub extent_exponents: [i32; 3],
+    /// Lower corner of the vertex bounds of the sampled triangles.
+    pub lo: [f32; 3],
+    /// Upper corner of the vertex bounds.
+    pub hi: [f32; 3],
+}
+
+/// Unbiased exponent of a positive normal f32 (`floor(log2 x)`), `None` for zero, subnormals, infinities and NaN.
+#[inline]
+pub fn exponent(x: f32) -> Option<i32> {
+    let e = ((x.to_bits() >> 23) & 0xff) as i32;
+    if e == 0 || e == 0xff {
+        None
+    } else {
+        Some(e - 127)
+    }
+}
+
+/// Real-valued quantities derived from [`Features`] for the cost model (host side; see [`Features::derived`]).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Derived {
+    /// `ln n` (n >= 1).
+    pub ln_n: f64,
+    /// Share of occupied cells at the depth where `8^d` is closest to `n` (interpolated in `d`), of `min(8^d, n)`:
+    /// 1 when the triangles fill space at the scale of one cell per triangle, small when space is mostly empty.
+    pub fill_at_n: f64,
+    /// `ln` of the triangles per occupied cell at the depth of a uniform grid with 4 cells per triangle
+    /// (`8^d = 4 n`, clamped to the deepest counted depth; interpolated in `d`).
+    pub ln_tris_per_cell: f64,
+    /// Share of empty cells at depth 3 (512 cells), of the cells that `n` triangles could occupy.
+    pub empty_d3: f64,
+    /// Mean of the size exponent difference `k` (triangles are about `2^-k` of the scene).
+    pub size_mean: f64,
+    /// Standard deviation of `k`.
+    pub size_spread: f64,
+    /// `log2` of the aspect (max minus min extent exponent), capped at 24 (flat scenes).
+    pub aspect_log2: f64,
+}
+
+impl Features {
+    /// Occupied cells at depth `d` (1-based), 0 outside `1 ..= OCCUPANCY_DEPTHS`.
+    pub fn occupied(&self, d: usize) -> u64 {
+        if d == 0 {
+            return 1.min(self.triangles);
+        }
+        self.occupied_cells.get(d - 1).copied().unwrap_or(0)
+    }
+
+    fn occ_interp(&self, d: f64) -> f64 {
+        let d = d.clamp(0.0, OCCUPANCY_DEPTHS as f64);
+        let d0 = d.floor() as usize;
+        let d1 = (d0 + 1).min(OCCUPANCY_DEPTHS);
+        let t = d - d0 as f64;
+        let a = (self.occupied(d0).max(1) as f64).ln();
+        let b = (self.occupied(d1).max(1) as f64).ln();
+        (a + t * (b - a)).exp()
+    }
+
+    /// The derived quantities of [`Derived`].
+    pub fn derived(&self) -> Derived {
+        let n = self.triangles.max(1) as f64;
+        let d_n = n.ln() / 8f64.ln();
+        let fill_at_n = (self.occ_interp(d_n) / n.min(8f64.powf(d_n.min(OCCUPANCY_DEPTHS as f64)))).clamp(0.0, 1.0);
+        let d_grid = (4.0 * n).ln() / 8f64.ln();
+        let ln_tris_per_cell = (n / self.occ_interp(d_grid).max(1.0)).ln();
+        let cap3 = n.min(512.0);
+        let empty_d3 = (1.0 - self.occupied(3) as f64 / cap3).clamp(0.0, 1.0);
+        let total: u64 = self.size_histogram.iter().sum();
+        let (mut m, mut m2) = (0.0, 0.0);
+        if total > 0 {
+            for (k, &c) in self.size_histogram.iter().enumerate() {
+                m += k as f64 * c as f64;
+                m2 += (k * k) as f64 * c as f64;
+            }
+            m /= total as f64;
+            m2 /= total as f64;
+        }
+        let size_spread = (m2 - m * m).max(0.0).sqrt();
+        let exps: Vec<i32> = self.extent_exponents.iter().copied().filter(|&e| e != i32::MIN).collect();
+        let aspect_log2 = if exps.len() < 3 {
+            24.0
+        } else {
+            let mx = exps.iter().max().copied().unwrap_or(0);
+            let mn = exps.iter().min().copied().unwrap_or(0);
+            ((mx - mn) as f64).min(24.0)
+        };
+        Derived { ln_n: n.ln(), fill_at_n, ln_tris_per_cell, empty_d3, size_mean: m, size_spread, aspect_log2 }
+    }
+}
+
+/// How much features change between two frames (for animations), from [`Features`] only.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct FeatureChange {
+    /// Largest `|ln occ_d(b) - ln occ_d(a)|` over the depths.
+    pub occupancy: f64,
+    /// Largest relative change of a vertex-bound extent, `|e_b - e_a| / max(e_a, e_b)`.
+    pub bounds: f64,
+    /// Change of the mean size exponent.
+    pub size: f64,
+}
+
+impl FeatureChange {
+    /// Change from `a` to `b`.
+    pub fn between(a: &Features, b: &Features) -> FeatureChange {
+        let mut occ: f64 = 0.0;
+        for d in 1..=OCCUPANCY_DEPTHS {
+            let x = (a.occupied(d).max(1) as f64).ln();
+            let y = (b.occupied(d).max(1) as f64).ln();
+            occ = occ.max((x - y).abs());
+        }
+        let mut bounds: f64 = 0.0;
+        for ax in 0..3 {
+            let ea = (a.hi[ax] - a.lo[ax]) as f64;
+            let eb = (b.hi[ax] - b.lo[ax]) as f64;
+            let m = ea.max(eb);
+            if m > 0.0 {
+                bounds = bounds.max((ea - eb).abs() / m);
+            }
+        }
+        FeatureChange { occupancy: occ, bounds, size: (a.derived().size_mean - b.derived().size_mean).abs() }
+    }
+}
+
+/// CPU reference of the features of `mesh` for `params` (`morton_bits` and `sample_stride` apply as in the
+/// characterization). Sequential exact integer arithmetic; O(n) time plus a `2^21`-bit mask.
+///
+/// # Errors
+///
+/// [`CharError`] for invalid parameters, an empty sample, or bounds that cannot be quantized (as the
+/// characterization).
+pub fn features_cpu(mesh: &Mesh, params: &Params) -> Result<Features, CharError> {
+    params.validate()?;
+    mesh.validate()?;
+    let stride = params.sample_stride.max(1) as usize;
+    let total = mesh.triangle_count();
+    let ids: Vec<usize> = (0..total).step_by(stride).collect();
+    if ids.is_empty() {
+        return Err(CharError::Empty { mesh: mesh.name.clone() });
+    }
+    let bits = params.morton_bits;
+    let p = &mesh.positions;
+    let tri = |i: usize| {
+        let [a, b, c] = mesh.indices[i];
+        [p[a as usize], p[b as usize], p[c as usize]]
+    };
+    // Key bounds (SPEC steps 1-2) and vertex bounds.
+    let mut klo = [f32::INFINITY; 3];
+    let mut khi = [f32::NEG_INFINITY; 3];
+    let mut vlo = [f32::INFINITY; 3];
+    let mut vhi = [f32::NEG_INFINITY; 3];
+    for &i in &ids {
+        let [v0, v1, v2] = tri(i);
+        let k = keys::centroid_key(v0, v1, v2);
+        for a in 0..3 {
+            if !k[a].is_finite() {
+                return Err(CharError::KeyOverflow { mesh: mesh.name.clone(), triangle: i, key: k });
+            }
+            klo[a] = keys::min_total(klo[a], k[a]);
+            khi[a] = keys::max_total(khi[a], k[a]);
+            for v in [v0, v1, v2] {
+                vlo[a] = keys::min_total(vlo[a], v[a]);
+                vhi[a] = keys::max_total(vhi[a], v[a]);
+            }
+        }
+    }
+    let scale = keys::quantization_scale(klo, khi, bits).ok_or_else(|| CharError::Extent {
+        mesh: mesh.name.clone(),
+        lo: klo,
+        hi: khi,
+        reason: "the key bounds cannot be quantized in f32".into(),
+    })?;
+    let shift = bits.total() - 3 * OCCUPANCY_DEPTHS as u32;
+    let mut mask = vec![0u64; (1usize << (3 * OCCUPANCY_DEPTHS)) / 64];
+    let extent = |lo: &[f32; 3], hi: &[f32; 3]| -> f32 {
+        let mut m = 0.0f32;
+        for a in 0..3 {
+            m = m.max(hi[a] - lo[a]);
+        }
+        m
+    };
+    let scene_exp = exponent(extent(&vlo, &vhi));
+    let mut size_histogram = vec![0u64; SIZE_BINS];
+    let mut zero_extent = 0u64;
+    for &i in &ids {
+        let [v0, v1, v2] = tri(i);
+        let code = keys::morton(keys::quantize(keys::centroid_key(v0, v1, v2), klo, scale, bits), bits);
+        let prefix = (code >> shift) as usize;
+        mask[prefix / 64] |= 1u64 << (prefix % 64);
+        let mut tlo = v0;
+        let mut thi = v0;
+        for v in [v1, v2] {
+            for a in 0..3 {
+                tlo[a] = tlo[a].min(v[a]);
+                thi[a] = thi[a].max(v[a]);
+            }
+        }
+        match (exponent(extent(&tlo, &thi)), scene_exp) {
+            (Some(t), Some(s)) => size_histogram[((s - t).max(0) as usize).min(SIZE_BINS - 1)] += 1,
+            _ => zero_extent += 1,
+        }
+    }
+    // Occupancy per depth: the depth-7 mask, then 8-way ORs down to depth 1.
+    let mut occupied_cells = vec![0u64; OCCUPANCY_DEPTHS];
+    let mut level: Vec<bool> =
+        (0..(1usize << (3 * OCCUPANCY_DEPTHS))).map(|b| mask[b / 64] >> (b % 64) & 1 == 1).collect();
+    for d in (1..=OCCUPANCY_DEPTHS).rev() {
+        occupied_cells[d - 1] = level.iter().filter(|&&x| x).count() as u64;
+        level = level.chunks(8).map(|c| c.iter().any(|&x| x)).collect();
+    }
+    let mut extent_exponents = [i32::MIN; 3];
+    for a in 0..3 {
+        extent_exponents[a] = exponent(vhi[a] - vlo[a]).unwrap_or(i32::MIN);
+    }
+    Ok(Features {
+        triangles: ids.len() as u64,
+        total_triangles: total as u64,
+        morton_bits: bits.total(),
+        occupied_cells,
+        size_histogram,
+        zero_extent,
+        extent_exponents,
+        lo: vlo,
+        hi: vhi,
+    })
+}

@@ -1,0 +1,207 @@
+//! The calibrated selection policy: predict every structure's total for the scene and workload at hand with a
+//! [`CostModel`], and pick the smallest; among structures whose predicted totals are within `tie_margin` of the
+//! smallest, the one that is cheapest to build (a cheaper build is the smaller risk when the totals cannot be told
+//! apart).
+//!
+//! For animations, [`plan_frames`] decides per frame between rebuilding (with which builder) and refitting the
+//! current BVH-family tree, from the [`super::RefitModel`]: the refitted tree's trace cost is the fresh tree's
+//! times `1 + g * drift`, where the drift ([`super::dataset::drift`]) is measured from the features of the frame the
+//! tree was built for to the current frame.
+
+use super::{CostModel, Prediction, Workload};
+use crate::accel::StructureName;
+use crate::characterize::policy::{Policy, SceneSummary, Selection, Structure, ThesisPolicy};
+use crate::characterize::Features;
+
+/// The calibrated choice among predictions: the smallest predicted total, then, within `tie_margin` (relative) of
+/// it, the smallest predicted build. `None` for no predictions.
+pub fn choose(preds: &[Prediction], tie_margin: f64) -> Option<StructureName> {
+    let best = preds.iter().filter(|p| p.total_ms.is_finite()).min_by(|a, b| a.total_ms.total_cmp(&b.total_ms))?;
+    let limit = best.total_ms * (1.0 + tie_margin.max(0.0));
+    preds.iter().filter(|p| p.total_ms <= limit).min_by(|a, b| a.build_ms.total_cmp(&b.build_ms)).map(|p| p.structure)
+}
+
+/// One frame's decision for an animation.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct FrameDecision {
+    /// Frame index.
+    pub frame: usize,
+    /// `rebuild` or `refit`.
+    pub action: &'static str,
+    /// The structure traced in this frame.
+    pub structure: StructureName,
+    /// Predicted ms of the action (build or refit).
+    pub update_ms: f64,
+    /// Predicted trace ms of the frame.
+    pub trace_ms: f64,
+    /// Drift since the tree was built (0 after a rebuild).
+    pub drift: f64,
+}
+
+fn bvh_family(s: StructureName) -> bool {
+    matches!(s, StructureName::Bvh | StructureName::Lbvh | StructureName::Hlbvh)
+}
+
+/// Per-frame rebuild-or-refit plan for an animation with per-frame `features` and `rays_per_frame` rays of `kind`
+/// per frame: greedy, frame by frame, the cheaper of rebuilding with the calibrated choice and refitting the tree in
+/// use (BVH family only, and only with a refit model).
+pub fn plan_frames(
+    model: &CostModel,
+    features: &[Features],
+    kind: crate::trace::WorkloadKind,
+    rays_per_frame: u64,
+    tie_margin: f64,
+) -> Vec<FrameDecision> {
+    let w = Workload { kind, rays_per_frame, frames: 1, builds: 1 };
+    let mut out = Vec::new();
+    let mut built: Option<(usize, StructureName)> = None;
+    for (i, f) in features.iter().enumerate() {
+        let preds = model.predict(f, &w);
+        let Some(fresh) = choose(&preds, tie_margin) else { break };
+        let pf = preds.iter().find(|p| p.structure == fresh).copied();
+        let Some(pf) = pf else { break };
+        let rebuild = FrameDecision {
+            frame: i,
+            action: "rebuild",
+            structure: fresh,
+            update_ms: pf.build_ms,
+            trace_ms: pf.trace_ms,
+            drift: 0.0,
+        };
+        let refit = match (built, model.refit) {
+            (Some((b, s)), Some(r)) if bvh_family(s) => preds.iter().find(|p| p.structure == s).map(|p| {
+                let d = super::dataset::drift(&features[b], f);
+                FrameDecision {
+                    frame: i,
+                    action: "refit",
+                    structure: s,
+                    update_ms: r.refit_ns_per_triangle * f.triangles as f64 * 1e-6,
+                    trace_ms: p.trace_ms * (1.0 + r.sah_growth_per_drift.max(0.0) * d),
+                    drift: d,
+                }
+            }),
+            _ => None,
+        };
+        let pick = match refit {
+            Some(r) if r.update_ms + r.trace_ms < rebuild.update_ms + rebuild.trace_ms => r,
+            _ => {
+                built = Some((i, fresh));
+                rebuild
+            }
+        };
+        out.push(pick);
+    }
+    out
+}
+
+/// The calibrated policy (see the module docs). Needs the scene's features ([`SceneSummary::with_features`]);
+/// without them it falls back to the thesis policy and says so in the reasons.
+#[derive(Clone, Debug)]
+pub struct CalibratedPolicy {
+    /// The cost model.
+    pub model: CostModel,
+    /// Rays of the workload per frame and their kind.
+    pub kind: crate::trace::WorkloadKind,
+    /// Rays per frame.
+    pub rays_per_frame: u64,
+    /// Frames of a static scene rendered with one build (animations: one frame per characterized frame, rebuilt or
+    /// refitted every frame).
+    pub frames: u64,
+    /// Relative margin within which the cheaper build wins (default 0.05).
+    pub tie_margin: f64,
+}
+
+impl CalibratedPolicy {
+    /// A policy for `rays_per_frame` rays of `kind` over `frames` frames of a static scene (one build).
+    pub fn new(model: CostModel, kind: crate::trace::WorkloadKind, rays_per_frame: u64, frames: u64) -> Self {
+        CalibratedPolicy { model, kind, rays_per_frame, frames: frames.max(1), tie_margin: 0.05 }
+    }
+
+    /// The workload a scene of `frame_count` frames implies.
+    pub fn workload(&self, frame_count: usize) -> Workload {
+        if frame_count > 1 {
+            let f = frame_count as u64;
+            Workload { kind: self.kind, rays_per_frame: self.rays_per_frame, frames: f, builds: f }
+        } else {
+            Workload { kind: self.kind, rays_per_frame: self.rays_per_frame, frames: self.frames, builds: 1 }
+        }
+    }
+
+    /// Predictions for a scene (first frame's features), `None` without features.
+    pub fn predictions(&self, scene: &SceneSummary<'_>) -> Option<Vec<Prediction>> {
+        let f = scene.features.first()?;
+        Some(self.model.predict(f, &self.workload(scene.features.len())))
+    }
+}
+
+fn to_structure(s: StructureName) -> Structure {
+    Structure::from_name(s.as_str()).unwrap_or(Structure::Bvh)
+}
+
+impl Policy for CalibratedPolicy {
+    fn name(&self) -> &str {
+        "calibrated"
+    }
+
+    fn select(&self, scene: &SceneSummary<'_>) -> Selection {
+        let Some(preds) = self.predictions(scene) else {
+            let mut s = ThesisPolicy::default().select(scene);
+            s.reasons.insert(0, "calibrated policy: no features for this scene, the thesis policy decides".into());
+            return s;
+        };
+        let w = self.workload(scene.features.len());
+        let Some(choice) = choose(&preds, self.tie_margin) else {
+            let mut s = ThesisPolicy::default().select(scene);
+            s.reasons.insert(0, "calibrated policy: the model predicts nothing, the thesis policy decides".into());
+            return s;
+        };
+        let best = preds.iter().map(|p| p.total_ms).fold(f64::INFINITY, f64::min);
+        let mut reasons = vec![format!(
+            "calibrated cost model ({}; total fit error {:.0}% RMS) for {} {} rays/frame x {} frame(s), {} build(s), \
+             n = {}: {choice} has the smallest predicted total{}",
+            self.model.device,
+            100.0 * self.model.total_rms_log,
+            self.rays_per_frame,
+            self.kind.as_str(),
+            w.frames,
+            w.builds,
+            scene.features[0].triangles,
+            if preds.iter().any(|p| p.structure == choice && p.total_ms > best) {
+                format!(" within {:.0}% and the cheapest build", 100.0 * self.tie_margin)
+            } else {
+                String::new()
+            }
+        )];
+        let mut sorted = preds.clone();
+        sorted.sort_by(|a, b| a.total_ms.total_cmp(&b.total_ms));
+        for p in &sorted {
+            reasons.push(format!(
+                "{}: predicted build {:.2} ms ({} x {:.2}), trace {:.2} ms ({:.1} ns/ray: {:.1} box + {:.2} triangle \
+                 tests/ray), total {:.2} ms",
+                p.structure,
+                p.build_ms,
+                w.builds,
+                p.build_ms_per_build,
+                p.trace_ms,
+                p.trace_ns_per_ray,
+                p.box_tests_per_ray,
+                p.prim_tests_per_ray,
+                p.total_ms
+            ));
+        }
+        if scene.features.len() > 1 {
+            let plan = plan_frames(&self.model, scene.features, self.kind, self.rays_per_frame, self.tie_margin);
+            let refits = plan.iter().filter(|d| d.action == "refit").count();
+            let total: f64 = plan.iter().map(|d| d.update_ms + d.trace_ms).sum();
+            reasons.push(format!(
+                "per frame: {} rebuild(s), {refits} refit(s), predicted {total:.2} ms in all: {}",
+                plan.len() - refits,
+                plan.iter()
+                    .map(|d| format!("{}:{} {} (drift {:.3})", d.frame, d.action, d.structure, d.drift))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ));
+        }
+        Selection { structure: to_structure(choice), reasons }
+    }
+}

@@ -1,0 +1,347 @@
+//! Features, the cost model's fit and files, the calibrated policy, leave-one-out, and the BVH refit.
+
+mod common;
+
+use meshchar::accel::lbvh::Lbvh;
+use meshchar::accel::{AccelStructure, StructureName};
+use meshchar::characterize::features::{exponent, SIZE_BINS};
+use meshchar::characterize::{cpu, features_cpu, Features, Params, Policy, SceneSummary};
+use meshchar::cost::dataset::{compare, Measured, Sample};
+use meshchar::cost::policy::choose;
+use meshchar::cost::{
+    phi, price_row, CalibratedPolicy, CostModel, Prediction, Workload, COST_MODEL_VERSION, FEATURE_NAMES, PRICE_NAMES,
+};
+use meshchar::mesh::{generate, Mesh};
+use meshchar::trace::WorkloadKind;
+
+/// An 8 x 8 x 8 lattice (spacing 1) of small right triangles with legs 0.125 along x and y.
+fn lattice() -> Mesh {
+    let h = 0.125f32;
+    let mut tris = Vec::new();
+    for i in 0..8 {
+        for j in 0..8 {
+            for k in 0..8 {
+                let p = glam::Vec3::new(i as f32, j as f32, k as f32);
+                tris.push([p, p + glam::Vec3::new(h, 0.0, 0.0), p + glam::Vec3::new(0.0, h, 0.0)]);
+            }
+        }
+    }
+    Mesh::from_triangles("lattice", &tris).unwrap()
+}
+
+#[test]
+fn features_of_one_triangle() {
+    let f = features_cpu(&generate::single_triangle(), &Params::default()).unwrap();
+    assert_eq!(f.triangles, 1);
+    assert_eq!(f.occupied_cells, vec![1; 7]);
+    // The triangle's largest extent is the scene's: exponent difference 0.
+    assert_eq!(f.size_histogram[0], 1);
+    assert_eq!(f.size_histogram.iter().sum::<u64>(), 1);
+    assert_eq!(f.zero_extent, 0);
+}
+
+#[test]
+fn features_of_a_lattice_are_exact() {
+    let f = features_cpu(&lattice(), &Params::default()).unwrap();
+    assert_eq!(f.triangles, 512);
+    // Keys span 3 * 7 = 21 per axis; lattice index i lands in depth-d cell floor(i * 2^d / 7) (7 -> the last): 2, 4, 8
+    // distinct cells per axis at depths 1, 2, 3, then every triangle alone.
+    assert_eq!(f.occupied_cells, vec![8, 64, 512, 512, 512, 512, 512]);
+    // Scene extent 7.125 (exponent 2), triangle extent 0.125 (exponent -3): k = 5 for all.
+    assert_eq!(f.size_histogram[5], 512);
+    assert_eq!(f.extent_exponents, [2, 2, 2]);
+    let d = f.derived();
+    assert_eq!(d.size_mean, 5.0);
+    assert_eq!(d.size_spread, 0.0);
+    assert_eq!(d.aspect_log2, 0.0);
+    assert_eq!(d.empty_d3, 0.0);
+    // 512 triangles fill their 512 cells at depth 3 exactly.
+    assert!((d.fill_at_n - 1.0).abs() < 1e-12, "{}", d.fill_at_n);
+}
+
+#[test]
+fn features_of_a_flat_scene() {
+    let f = features_cpu(&generate::flat(1000, 7), &Params::default()).unwrap();
+    let flat_axes = f.extent_exponents.iter().filter(|&&e| e == i32::MIN).count();
+    assert_eq!(flat_axes, 1, "{:?}", f.extent_exponents);
+    assert_eq!(f.derived().aspect_log2, 24.0);
+    // A plane cannot occupy more than 4 of the 8 octants' worth of cells per level beyond the first: at depth d at
+    // most 4^d cells.
+    for d in 1..=7 {
+        assert!(f.occupied(d) <= 4u64.pow(d as u32), "depth {d}: {}", f.occupied(d));
+    }
+    assert_eq!(f.size_histogram.len(), SIZE_BINS);
+}
+
+#[test]
+fn exponent_reads_the_bits() {
+    assert_eq!(exponent(1.0), Some(0));
+    assert_eq!(exponent(0.75), Some(-1));
+    assert_eq!(exponent(1024.5), Some(10));
+    assert_eq!(exponent(0.0), None);
+    assert_eq!(exponent(f32::MIN_POSITIVE / 2.0), None);
+}
+
+/// Features with pseudo-random but valid contents, `i` picks the variant.
+fn synthetic_features(i: u64) -> Features {
+    let mut x = i.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+    let mut next = || {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x
+    };
+    let n = 500 + next() % 500_000;
+    let mut occ = Vec::new();
+    let mut prev = 1u64;
+    for d in 1..=7u32 {
+        let cap = 8u64.pow(d).min(n);
+        let v = (prev + next() % cap.max(1)).clamp(prev, cap);
+        occ.push(v);
+        prev = v;
+    }
+    let mut hist = vec![0u64; SIZE_BINS];
+    for _ in 0..5 {
+        hist[(next() % 16) as usize] += 1 + next() % 1000;
+    }
+    Features {
+        triangles: n,
+        total_triangles: n,
+        morton_bits: 30,
+        occupied_cells: occ,
+        size_histogram: hist,
+        zero_extent: 0,
+        extent_exponents: [0, -((next() % 5) as i32), (next() % 3) as i32],
+        lo: [0.0; 3],
+        hi: [1.0; 3],
+    }
+}
+
+/// A structure's true constants: name, `a`, `b`, prices.
+type Truth = (StructureName, f64, f64, Vec<f64>);
+
+/// Samples measured exactly by a known model: build = exp(a_s) n^b_s, tests = exp(theta . phi), price row.
+fn known_samples(count: u64) -> (Vec<Sample>, Vec<Truth>) {
+    let truth: Vec<Truth> = vec![
+        (StructureName::Bvh, -7.0, 1.05, vec![2.0, 1.0, 0.5, 0.0, 6.0, 0.0, 3.0]),
+        (StructureName::Grid, -8.0, 0.9, vec![1.0, 20.0, 4.0, 9.0, 12.0, 1.0, 5.0]),
+    ];
+    let kinds = [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse];
+    let mut samples = Vec::new();
+    for i in 0..count {
+        let f = synthetic_features(i + 1);
+        let kind = kinds[(i % 3) as usize];
+        let x = phi(&f.derived(), kind);
+        let n = f.triangles as f64;
+        let workload = Workload { kind, rays_per_frame: 10_000 + 1000 * i, frames: 1, builds: 1 };
+        let measured = truth
+            .iter()
+            .enumerate()
+            .map(|(si, (s, a, b, price))| {
+                let bx = (1.0 + 0.2 * si as f64 + 0.1 * x[3] - 0.05 * x[4]).exp();
+                let pr = (0.5 - 0.3 * si as f64 + 0.2 * x[7] * 0.1).exp();
+                let build = (a + b * n.ln()).exp();
+                let ns: f64 = price.iter().zip(price_row(kind, bx, pr)).map(|(p, r)| p * r).sum();
+                let trace = ns * 1e-6 * workload.rays_per_frame as f64;
+                Measured {
+                    structure: *s,
+                    valid: true,
+                    total_ms: build + trace,
+                    build_ms: build,
+                    trace_ms: trace,
+                    build_ms_per_build: build,
+                    trace_ns_per_ray: ns,
+                    box_tests_per_ray: bx,
+                    prim_tests_per_ray: pr,
+                    within_noise_of_best: false,
+                }
+            })
+            .collect();
+        samples.push(Sample {
+            scene: format!("scene{i}"),
+            workload,
+            features: f,
+            measured,
+            baseline: Some(StructureName::Grid),
+        });
+    }
+    (samples, truth)
+}
+
+#[test]
+fn the_fitter_recovers_known_constants() {
+    let (samples, truth) = known_samples(40);
+    let m = CostModel::fit(&samples, "test", "synthetic").unwrap();
+    assert_eq!(m.structures.len(), 2);
+    for (s, a, b, price) in &truth {
+        let sm = m.get(*s).unwrap();
+        assert!((sm.build_ln_a - a).abs() < 1e-6, "{s}: a {} vs {a}", sm.build_ln_a);
+        assert!((sm.build_exponent - b).abs() < 1e-6, "{s}: b {} vs {b}", sm.build_exponent);
+        assert_eq!(sm.trace_price.len(), PRICE_NAMES.len());
+        for (got, want) in sm.trace_price.iter().zip(price) {
+            assert!((got - want).abs() < 1e-6 * want.max(1.0), "{s}: price {:?} vs {price:?}", sm.trace_price);
+        }
+        // The counts are log-linear in phi: the ridge fit reproduces them closely.
+        assert!(sm.fit.box_tests < 0.05 && sm.fit.prim_tests < 0.05, "{s}: {:?}", sm.fit);
+        assert!(sm.fit.total < 0.05, "{s}: {:?}", sm.fit);
+    }
+}
+
+#[test]
+fn calibration_files_round_trip_and_fall_back() {
+    let (samples, _) = known_samples(12);
+    let m = CostModel::fit(&samples, "test device", "synthetic").unwrap();
+    assert_eq!(m.version, COST_MODEL_VERSION);
+    let dir = common::temp_dir("cost");
+    let path = dir.join("cal.json");
+    m.save(&path).unwrap();
+    let (back, note) = CostModel::load(Some(&path)).unwrap();
+    assert!(note.is_none());
+    assert_eq!(back.device, "test device");
+    assert_eq!(back.structures.len(), m.structures.len());
+    for (x, y) in back.structures.iter().zip(&m.structures) {
+        assert!((x.build_ln_a - y.build_ln_a).abs() < 1e-12);
+        assert_eq!(x.trace_price.len(), y.trace_price.len());
+    }
+    let shipped = CostModel::shipped().unwrap();
+    assert_eq!(shipped.structures.len(), 6, "the shipped default covers every structure");
+    assert_eq!(shipped.feature_names, FEATURE_NAMES.iter().map(|s| s.to_string()).collect::<Vec<_>>());
+
+    // Another version: stale, falls back with a note.
+    let text = std::fs::read_to_string(&path).unwrap().replacen(
+        &format!("\"version\": {COST_MODEL_VERSION}"),
+        &format!("\"version\": {}", COST_MODEL_VERSION + 1),
+        1,
+    );
+    let stale = dir.join("stale.json");
+    std::fs::write(&stale, text).unwrap();
+    let (fb, note) = CostModel::load(Some(&stale)).unwrap();
+    assert!(note.as_deref().unwrap().contains("version"), "{note:?}");
+    assert_eq!(fb, shipped);
+    // Missing and unparsable files fall back too.
+    let (fb, note) = CostModel::load(Some(&dir.join("missing.json"))).unwrap();
+    assert!(note.is_some());
+    assert_eq!(fb, shipped);
+    let garbage = dir.join("garbage.json");
+    std::fs::write(&garbage, "{ not json").unwrap();
+    let (fb, note) = CostModel::load(Some(&garbage)).unwrap();
+    assert!(note.is_some());
+    assert_eq!(fb, shipped);
+}
+
+fn pred(s: StructureName, build: f64, total: f64) -> Prediction {
+    Prediction {
+        structure: s,
+        build_ms_per_build: build,
+        build_ms: build,
+        box_tests_per_ray: 1.0,
+        prim_tests_per_ray: 1.0,
+        trace_ns_per_ray: 1.0,
+        trace_ms: total - build,
+        total_ms: total,
+    }
+}
+
+#[test]
+fn choose_takes_the_smallest_total_then_the_cheaper_build_within_the_margin() {
+    let p = vec![
+        pred(StructureName::Bvh, 40.0, 100.0),
+        pred(StructureName::Lbvh, 10.0, 103.0),
+        pred(StructureName::Grid, 5.0, 200.0),
+    ];
+    assert_eq!(choose(&p, 0.0), Some(StructureName::Bvh));
+    assert_eq!(choose(&p, 0.05), Some(StructureName::Lbvh));
+    assert_eq!(choose(&p, 0.02), Some(StructureName::Bvh));
+    assert_eq!(choose(&[], 0.05), None);
+}
+
+#[test]
+fn the_calibrated_policy_picks_the_cheapest_prediction() {
+    let mesh = generate::clustered(3000, 4, 5);
+    let params = Params::default();
+    let chars = vec![cpu::fast(&mesh, &params).unwrap()];
+    let feats = vec![features_cpu(&mesh, &params).unwrap()];
+    let summary = SceneSummary::new("clustered", &chars).with_features(&feats);
+    for (kind, rays) in [(WorkloadKind::Primary, 1u64 << 20), (WorkloadKind::Shadow, 1000)] {
+        let mut policy = CalibratedPolicy::new(CostModel::shipped().unwrap(), kind, rays, 1);
+        policy.tie_margin = 0.0;
+        let preds = policy.predictions(&summary).unwrap();
+        assert_eq!(preds.len(), 6);
+        let best = preds.iter().min_by(|a, b| a.total_ms.total_cmp(&b.total_ms)).unwrap();
+        let sel = policy.select(&summary);
+        assert_eq!(sel.structure.name(), best.structure.as_str());
+        // One reason per structure with its numbers, plus the verdict.
+        assert_eq!(sel.reasons.len(), 7, "{:?}", sel.reasons);
+        assert!(sel.reasons.iter().any(|r| r.starts_with(&format!("{}: predicted build", best.structure))));
+    }
+    // Without features the thesis policy decides, and says so.
+    let bare = SceneSummary::new("clustered", &chars);
+    let policy = CalibratedPolicy::new(CostModel::shipped().unwrap(), WorkloadKind::Primary, 1 << 20, 1);
+    let sel = policy.select(&bare);
+    assert!(sel.reasons[0].contains("thesis policy decides"));
+}
+
+#[test]
+fn leave_one_out_scores_held_out_scenes() {
+    let (mut samples, _) = known_samples(24);
+    // The baseline always says grid; the exact model knows better wherever grid is not the best.
+    for s in samples.iter_mut() {
+        s.baseline = Some(StructureName::Grid);
+    }
+    let c = compare(&samples, 0.0, "test").unwrap();
+    assert_eq!(c.rows.len(), 24);
+    assert_eq!(c.calibrated_held_out.scored, 24);
+    assert_eq!(c.baseline.scored, 24);
+    // Exact synthetic data: held-out selections are (nearly) always right.
+    assert!(c.calibrated_held_out.accuracy >= 0.9, "{:?}", c.calibrated_held_out);
+    assert!(c.calibrated_held_out.mean_regret <= c.baseline.mean_regret);
+    for r in &c.rows {
+        let smp = samples.iter().find(|s| s.scene == r.scene).unwrap();
+        assert_eq!(r.oracle_best, smp.best().map(|m| m.structure));
+        assert_eq!(r.baseline_regret, smp.regret(StructureName::Grid));
+        assert!(r.calibrated_held_out_regret.unwrap() >= 0.0);
+    }
+}
+
+#[test]
+fn oracle_records_parse_into_samples() {
+    let rec = serde_json::json!({
+        "mesh": "m.obj", "workload": "shadow", "rebuild": "per_frame", "frames": 3, "frames_measured": 3,
+        "rays_per_frame": 1000, "selected": "bvh",
+        "structures": [
+            {"name": "bvh", "build_ms": 30.0, "trace_ms": 6.0, "total_ms": 36.0, "mrays_per_s": 0.5,
+             "box_tests_per_ray": 10.0, "prim_tests_per_ray": 2.0, "valid": true, "hits_agree": true,
+             "within_noise_of_best": false},
+            {"name": "grid", "build_ms": 3.0, "trace_ms": 9.0, "total_ms": 12.0, "mrays_per_s": 0.25,
+             "box_tests_per_ray": 5.0, "prim_tests_per_ray": 4.0, "valid": true, "hits_agree": true,
+             "within_noise_of_best": true}
+        ]
+    });
+    let f = features_cpu(&generate::single_triangle(), &Params::default()).unwrap();
+    let s = Sample::from_json(&rec, f, None).unwrap();
+    assert_eq!(s.workload, Workload { kind: WorkloadKind::Shadow, rays_per_frame: 1000, frames: 3, builds: 3 });
+    assert_eq!(s.baseline, Some(StructureName::Bvh));
+    let bvh = s.get(StructureName::Bvh).unwrap();
+    assert_eq!(bvh.build_ms_per_build, 10.0);
+    assert_eq!(bvh.trace_ns_per_ray, 2000.0);
+    assert_eq!(s.best().unwrap().structure, StructureName::Grid);
+    assert_eq!(s.regret(StructureName::Bvh), Some(2.0));
+}
+
+#[test]
+fn refit_keeps_a_valid_tree_and_tracks_the_geometry() {
+    let mesh = generate::clustered(2000, 3, 11);
+    let anim = generate::explode(&mesh, 3, 4).unwrap();
+    let mut tree = Lbvh::build(&anim.frames[0]).unwrap().into_tree();
+    let sah0 = tree.sah_cost();
+    tree.refit(&anim.frames[0]).unwrap();
+    assert_eq!(tree.sah_cost(), sah0, "refitting to the same positions changes nothing");
+    for frame in &anim.frames[1..] {
+        tree.refit(frame).unwrap();
+        tree.validate("refit").unwrap();
+        // validate() checks every triangle record lies in its leaf's box and every child in its parent's.
+        assert_ne!(tree.sah_cost(), sah0, "the boxes follow the moved geometry");
+    }
+    let other = generate::random_soup(10, 1);
+    assert!(tree.refit(&other).is_err());
+}
