@@ -95,6 +95,9 @@ fn every_push_constant_struct_matches_its_shader() {
     check_push_layout::<MortonPush>(&shaders::morton_moments::INFO).expect("morton_moments");
     check_push_layout::<ClassesPush>(&shaders::classes_histogram::INFO).expect("classes_histogram");
     check_push_layout::<ChiPush>(&shaders::chi_square::INFO).expect("chi_square");
+    check_push_layout::<meshchar::ops::features::FeatureBoundsPush>(&shaders::features_bounds::INFO)
+        .expect("features_bounds");
+    check_push_layout::<meshchar::ops::features::FeaturesPush>(&shaders::features::INFO).expect("features");
     // Every shader is reflected with an entry point and a local size.
     for s in shaders::ALL {
         assert_eq!(s.entry, "main", "{}", s.name);

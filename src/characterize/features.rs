@@ -248,27 +248,54 @@ pub fn features_cpu(mesh: &Mesh, params: &Params) -> Result<Features, CharError>
             _ => zero_extent += 1,
         }
     }
-    // Occupancy per depth: the depth-7 mask, then 8-way ORs down to depth 1.
-    let mut occupied_cells = vec![0u64; OCCUPANCY_DEPTHS];
-    let mut level: Vec<bool> =
-        (0..(1usize << (3 * OCCUPANCY_DEPTHS))).map(|b| mask[b / 64] >> (b % 64) & 1 == 1).collect();
-    for d in (1..=OCCUPANCY_DEPTHS).rev() {
-        occupied_cells[d - 1] = level.iter().filter(|&&x| x).count() as u64;
-        level = level.chunks(8).map(|c| c.iter().any(|&x| x)).collect();
-    }
-    let mut extent_exponents = [i32::MIN; 3];
-    for a in 0..3 {
-        extent_exponents[a] = exponent(vhi[a] - vlo[a]).unwrap_or(i32::MIN);
-    }
     Ok(Features {
         triangles: ids.len() as u64,
         total_triangles: total as u64,
         morton_bits: bits.total(),
-        occupied_cells,
+        occupied_cells: occupancy_from_mask(&mask),
         size_histogram,
         zero_extent,
-        extent_exponents,
+        extent_exponents: extent_exponents(&vlo, &vhi),
         lo: vlo,
         hi: vhi,
     })
+}
+
+/// Occupied cells per depth `1 ..= OCCUPANCY_DEPTHS` from the mask of occupied deepest cells (`2^(3
+/// OCCUPANCY_DEPTHS)` bits as u64 words, bit `b` of word `w` being cell `64 w + b`): the set bits, then 8-way ORs
+/// down to depth 1. Shared by the CPU reference and the GPU pass, which produce the same mask.
+pub fn occupancy_from_mask(mask: &[u64]) -> Vec<u64> {
+    let mut occupied_cells = vec![0u64; OCCUPANCY_DEPTHS];
+    let mut level: Vec<bool> = (0..mask.len() * 64).map(|b| mask[b / 64] >> (b % 64) & 1 == 1).collect();
+    for d in (1..=OCCUPANCY_DEPTHS).rev() {
+        occupied_cells[d - 1] = level.iter().filter(|&&x| x).count() as u64;
+        level = level.chunks(8).map(|c| c.iter().any(|&x| x)).collect();
+    }
+    occupied_cells
+}
+
+/// Unbiased exponents of the extents `hi - lo` per axis, `i32::MIN` where zero or not normal.
+pub fn extent_exponents(lo: &[f32; 3], hi: &[f32; 3]) -> [i32; 3] {
+    std::array::from_fn(|a| exponent(hi[a] - lo[a]).unwrap_or(i32::MIN))
+}
+
+/// The features from the GPU pass's integers ([`crate::ops::features::FeaturesGpu`]) for `triangles` sampled
+/// triangles of a `total_triangles`-triangle mesh with `bits` codes.
+pub fn features_from_gpu(
+    g: &crate::ops::features::GpuFeatures,
+    triangles: u64,
+    total_triangles: u64,
+    bits: keys::MortonBits,
+) -> Features {
+    Features {
+        triangles,
+        total_triangles,
+        morton_bits: bits.total(),
+        occupied_cells: occupancy_from_mask(&g.mask),
+        size_histogram: g.size_histogram.clone(),
+        zero_extent: g.zero_extent,
+        extent_exponents: extent_exponents(&g.lo, &g.hi),
+        lo: g.lo,
+        hi: g.hi,
+    }
 }

@@ -1,5 +1,7 @@
 //! The Vulkan backend: [`crate::ops::characterize`]'s exact GPU passes, finished by this module's host math.
 
+use super::features::{features_from_gpu, SIZE_BINS};
+use super::Features;
 use super::{
     class_count, class_thresholds, moments, CharError, Characterization, ClassRule, CodeStats, Params, PassTime,
     PerTriangle,
@@ -7,6 +9,7 @@ use super::{
 use crate::gpu::Context;
 use crate::mesh::{Animation, Mesh};
 use crate::ops::characterize::{CharacterizeGpu, ClassPlan, CodeSums, MeshBuffers, RunError};
+use crate::ops::features::FeaturesGpu;
 use num_bigint::BigUint;
 use std::time::Instant;
 
@@ -30,13 +33,19 @@ fn code_stats(s: &CodeSums) -> CodeStats {
 pub struct VulkanBackend {
     ctx: Context,
     gpu: CharacterizeGpu,
+    features: Option<FeaturesGpu>,
     mesh: Option<MeshBuffers>,
 }
 
 impl VulkanBackend {
     /// Builds the pipelines on `ctx`'s device.
     pub fn new(ctx: &Context) -> Result<Self, CharError> {
-        Ok(VulkanBackend { ctx: ctx.clone(), gpu: CharacterizeGpu::new(ctx).map_err(gpu_err)?, mesh: None })
+        Ok(VulkanBackend {
+            ctx: ctx.clone(),
+            gpu: CharacterizeGpu::new(ctx).map_err(gpu_err)?,
+            features: None,
+            mesh: None,
+        })
     }
 
     /// The context.
@@ -52,6 +61,40 @@ impl VulkanBackend {
     /// Characterizes one mesh (uploads it).
     pub fn characterize(&mut self, mesh: &Mesh, params: &Params) -> Result<Characterization, CharError> {
         self.run(mesh, params, false)
+    }
+
+    /// Characterizes one mesh and measures its scene features ([`super::features`]) with one more pass over the
+    /// codes the characterization left on the device (no second upload). The features equal
+    /// [`super::features_cpu`] exactly. The pass's GPU time is appended to the characterization's timings as
+    /// `features`.
+    pub fn characterize_with_features(
+        &mut self,
+        mesh: &Mesh,
+        params: &Params,
+    ) -> Result<(Characterization, Features), CharError> {
+        let mut c = self.run(mesh, params, false)?;
+        let (f, timings) = self.features_of_last(mesh, params, c.triangles)?;
+        c.timings.extend(timings.into_iter().map(|(name, ms)| PassTime { name, ms }));
+        Ok((c, f))
+    }
+
+    fn features_of_last(
+        &mut self,
+        mesh: &Mesh,
+        params: &Params,
+        n: u64,
+    ) -> Result<(Features, Vec<(String, f64)>), CharError> {
+        if self.features.is_none() {
+            self.features = Some(FeaturesGpu::new(&self.ctx, SIZE_BINS as u32).map_err(gpu_err)?);
+        }
+        let (Some(fg), Some(buffers), Some((_, codes, _))) =
+            (self.features.as_mut(), self.mesh.as_ref(), self.gpu.device_arrays())
+        else {
+            return Err(CharError::Gpu("feature pass without a characterized mesh".into()));
+        };
+        let g = fg.run(buffers, codes, n, params.sample_stride as u64, params.morton_bits).map_err(gpu_err)?;
+        let f = features_from_gpu(&g, n, mesh.triangle_count() as u64, params.morton_bits);
+        Ok((f, g.timings))
     }
 
     /// Characterizes every frame of an animation: the indices are uploaded once, each frame uploads only its

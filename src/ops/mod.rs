@@ -3,6 +3,7 @@
 
 mod bounds;
 pub mod characterize;
+pub mod features;
 pub mod lbvh;
 pub mod sort;
 

@@ -1,0 +1,40 @@
+#version 460
+// Scene features, pass 1: per-axis min and max (IEEE total order) of the vertices of every sampled triangle: the
+// vertex bounds whose largest extent scales the triangle-size histogram (see src/characterize/features.rs).
+// result: uint[6] in ordered-bit form, filled by the host with ~0 x3, 0 x3.
+#include "common.glsl"
+#include "bounds.glsl"
+
+layout(local_size_x_id = 0) in;
+layout(constant_id = 1) const uint ITEMS = 8;
+
+layout(push_constant) uniform Push {
+    uint64_t positions;
+    uint64_t indices;
+    uint64_t result;
+    uint64_t count;
+    uint64_t stride;
+} pc;
+
+void main() {
+    uvec3 lo = uvec3(0xffffffffu);
+    uvec3 hi = uvec3(0u);
+    uint tile = gl_WorkGroupSize.x * ITEMS;
+    uint tiles = tile_count(pc.count, tile);
+    for (uint t = gl_WorkGroupID.x; t < tiles; t += gl_NumWorkGroups.x) {
+        uint64_t base = uint64_t(t) * uint64_t(tile) + gl_LocalInvocationID.x;
+        for (uint j = 0u; j < ITEMS; ++j) {
+            uint64_t i = base + uint64_t(j * gl_WorkGroupSize.x);
+            if (i < pc.count) {
+                uvec3 tri = ld_uvec3(pc.indices, i * pc.stride);
+                for (uint v = 0u; v < 3u; ++v) {
+                    vec3 p = ld_vec3(pc.positions, tri[v]);
+                    uvec3 o = uvec3(ordered_bits(p.x), ordered_bits(p.y), ordered_bits(p.z));
+                    lo = min(lo, o);
+                    hi = max(hi, o);
+                }
+            }
+        }
+    }
+    reduce_bounds_to_global(lo, hi, pc.result);
+}
