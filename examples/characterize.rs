@@ -11,11 +11,11 @@
 //! dynamic when there is more than one). Without a path, the embedded default scene is characterized. Without
 //! `--json` the reports are printed for people; with it, one JSON object per mesh or frame per line.
 
+use meshchar::characterize::Features;
 use meshchar::characterize::{
     cpu, Backend, Characterization, Characterizer, ClassRule, MortonBits, Params, Policy, Report, SceneSummary,
     ThesisPolicy,
 };
-use meshchar::characterize::{features_cpu, Features};
 use meshchar::cost::{CalibratedPolicy, CostModel};
 use meshchar::mesh::Animation;
 use meshchar::trace::WorkloadKind;
@@ -139,20 +139,14 @@ fn default_scene() -> Animation {
 
 /// Characterizes every frame of a scene and prints one report per frame. Returns false after an error (printed).
 fn process(engine: &mut Characterizer, scene: &Animation, args: &Args, model: &CostModel) -> bool {
-    let results: Vec<Characterization> = match engine.characterize_animation(scene, &args.params) {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("characterize: {e}");
-            return false;
-        }
-    };
-    let features: Vec<Features> = match scene.frames.iter().map(|m| features_cpu(m, &args.params)).collect() {
-        Ok(f) => f,
-        Err(e) => {
-            eprintln!("characterize: features: {e}");
-            return false;
-        }
-    };
+    let (results, features): (Vec<Characterization>, Vec<Features>) =
+        match engine.characterize_animation_with_features(scene, &args.params) {
+            Ok(r) => r,
+            Err(e) => {
+                eprintln!("characterize: {e}");
+                return false;
+            }
+        };
     let summary = SceneSummary::new(scene.name.clone(), &results).with_features(&features);
     let calibrated =
         CalibratedPolicy::new(model.clone(), args.workload, args.resolution * args.resolution, args.frames);
@@ -164,7 +158,8 @@ fn process(engine: &mut Characterizer, scene: &Animation, args: &Args, model: &C
     for (i, (frame, c)) in scene.frames.iter().zip(&results).enumerate() {
         let mut report = Report::new(if dynamic { scene.name.clone() } else { frame.name.clone() }, c)
             .selection(summary.kind, policy.name(), &selection)
-            .zero_area(cpu::zero_area_triangles(frame, args.params.sample_stride));
+            .zero_area(cpu::zero_area_triangles(frame, args.params.sample_stride))
+            .features(features[i].clone());
         if let Some(p) = &predicted {
             report = report.predicted(p.clone());
         }

@@ -15,7 +15,7 @@
 //! side.
 
 use meshchar::accel::{AccelStructure, StructureName};
-use meshchar::characterize::{features_cpu, Characterizer, Features, Params, Policy, SceneSummary, ThesisPolicy};
+use meshchar::characterize::{Characterizer, Params, Policy, SceneSummary, ThesisPolicy};
 use meshchar::cost::dataset::{compare, load_oracle_samples};
 use meshchar::cost::{CalibratedPolicy, CostModel, Prediction};
 use meshchar::eval::chart::BarChart;
@@ -190,13 +190,8 @@ fn select(
     model: &CostModel,
     tie_margin: f64,
 ) -> Result<Selected, String> {
-    let chars = engine.characterize_animation(scene, &Params::default()).map_err(|e| e.to_string())?;
-    let features: Vec<Features> = scene
-        .frames
-        .iter()
-        .map(|m| features_cpu(m, &Params::default()))
-        .collect::<Result<_, _>>()
-        .map_err(|e| e.to_string())?;
+    let (chars, features) =
+        engine.characterize_animation_with_features(scene, &Params::default()).map_err(|e| e.to_string())?;
     let (sel, preds) = if policy == "thesis" {
         let summary = SceneSummary::new(scene.name.clone(), &chars).with_features(&features);
         (ThesisPolicy::default().select(&summary), None)

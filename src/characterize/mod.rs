@@ -237,6 +237,37 @@ impl Characterizer {
     }
 }
 
+impl Characterizer {
+    /// Characterizes one mesh and measures its scene features ([`features`]): on Vulkan with one more GPU pass over
+    /// the codes already on the device, on the CPU paths with [`features_cpu`]. Both give the same integers.
+    pub fn characterize_with_features(
+        &mut self,
+        mesh: &Mesh,
+        params: &Params,
+    ) -> Result<(Characterization, Features), CharError> {
+        match &mut self.vulkan {
+            Some(vk) => vk.characterize_with_features(mesh, params),
+            None => Ok((self.characterize(mesh, params)?, features_cpu(mesh, params)?)),
+        }
+    }
+
+    /// [`Characterizer::characterize_with_features`] for every frame of an animation.
+    pub fn characterize_animation_with_features(
+        &mut self,
+        anim: &Animation,
+        params: &Params,
+    ) -> Result<(Vec<Characterization>, Vec<Features>), CharError> {
+        let mut chars = Vec::with_capacity(anim.frames.len());
+        let mut feats = Vec::with_capacity(anim.frames.len());
+        for frame in &anim.frames {
+            let (c, f) = self.characterize_with_features(frame, params)?;
+            chars.push(c);
+            feats.push(f);
+        }
+        Ok((chars, feats))
+    }
+}
+
 /// The largest class count any rule may produce (the GPU privatizes the histogram in shared memory of this size).
 pub const MAX_CLASSES: u32 = 4096;
 

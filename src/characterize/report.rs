@@ -100,6 +100,9 @@ pub struct Report {
     /// The calibrated policy's predicted costs per structure (absent for the thesis policy).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub predicted: Option<Vec<crate::cost::Prediction>>,
+    /// The scene features of this frame the calibrated policy read (see [`super::features`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub features: Option<super::Features>,
     /// `naive`, `cpu` or `vulkan`.
     pub backend: String,
     /// The device.
@@ -152,6 +155,7 @@ impl Report {
             policy: String::new(),
             reasons: Vec::new(),
             predicted: None,
+            features: None,
             backend: c.backend.clone(),
             device: c.device.clone(),
             timings_ms: Timings(timings),
@@ -177,6 +181,12 @@ impl Report {
     /// Sets the calibrated policy's predicted costs.
     pub fn predicted(mut self, p: Vec<crate::cost::Prediction>) -> Report {
         self.predicted = Some(p);
+        self
+    }
+
+    /// Sets the scene features of this frame.
+    pub fn features(mut self, f: super::Features) -> Report {
+        self.features = Some(f);
         self
     }
 
