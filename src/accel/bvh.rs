@@ -184,6 +184,59 @@ impl BvhTree {
         }
     }
 
+    /// Refits the tree to new vertex positions: the topology (nodes, leaf contents, triangle order) is kept, every
+    /// triangle record and every box is recomputed from `mesh` bottom-up. `mesh` must have the triangles the tree was
+    /// built for (same count; an animation frame). Refitting to the positions the tree was built from gives the
+    /// tree back unchanged. Fails on an invalid mesh or a different triangle count.
+    pub fn refit(&mut self, mesh: &Mesh, structure: &'static str) -> Result<(), AccelError> {
+        mesh.validate()?;
+        if mesh.triangle_count() != self.tris.len() {
+            return Err(invalid(
+                structure,
+                format!("refit: the mesh has {} triangles, the tree {}", mesh.triangle_count(), self.tris.len()),
+            ));
+        }
+        let mut boxes = Vec::with_capacity(self.ids.len());
+        for (rec, &id) in self.tris.iter_mut().zip(&self.ids) {
+            let v = mesh.triangle(id as usize);
+            *rec = Triangle::new(&v);
+            boxes.push(Aabb::of_triangle(&v));
+        }
+        if self.nodes.is_empty() {
+            return Ok(());
+        }
+        // Pre-order from the root; visiting it backwards handles every child before its parent.
+        let mut order = Vec::with_capacity(self.nodes.len());
+        let mut stack = vec![0usize];
+        while let Some(i) = stack.pop() {
+            let node = self.nodes.get(i).ok_or_else(|| invalid(structure, format!("refit: node {i} out of range")))?;
+            if order.len() >= self.nodes.len() {
+                return Err(invalid(structure, "refit: the tree has a cycle or a shared node"));
+            }
+            order.push(i);
+            if !node.is_leaf() {
+                stack.push(node.left_or_first as usize);
+                stack.push(node.right_or_count as usize);
+            }
+        }
+        for &i in order.iter().rev() {
+            let node = self.nodes[i];
+            let b = if node.is_leaf() {
+                let (first, count) = (node.left_or_first as usize, node.count() as usize);
+                let leaf = boxes
+                    .get(first..first + count)
+                    .ok_or_else(|| invalid(structure, format!("refit: leaf {i} out of range")))?;
+                leaf.iter().fold(Aabb::default(), |acc, b| acc.union(b))
+            } else {
+                let (l, r) = (node.left_or_first as usize, node.right_or_count as usize);
+                self.nodes[l].aabb().union(&self.nodes[r].aabb())
+            };
+            self.nodes[i].min = b.min.to_array();
+            self.nodes[i].max = b.max.to_array();
+        }
+        Ok(())
+    }
+
     /// SAH cost of the tree (see [`super::sah_cost`]).
     pub fn sah_cost(&self) -> f64 {
         let Some(root) = self.nodes.first() else {
@@ -638,6 +691,10 @@ impl Bvh {
         let (nodes, order) = build_sah_tree(&boxes, options);
         let tris = order.par_iter().map(|&i| tris[i as usize]).collect();
         Ok(Bvh { tree: BvhTree { nodes, tris, ids: order } })
+    }
+    /// Refits the tree to the positions of `mesh` (the next frame of an animation): see [`BvhTree::refit`].
+    pub fn refit(&mut self, mesh: &Mesh) -> Result<(), AccelError> {
+        self.tree.refit(mesh, "bvh")
     }
     /// The nodes and triangle records.
     pub fn tree(&self) -> &BvhTree {

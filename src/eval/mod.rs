@@ -28,6 +28,7 @@
 //! within noise: use at least three repeats to judge.
 
 pub mod chart;
+pub mod study;
 
 use crate::accel::{build_structure, AccelStats, AccelStructure, StructureName};
 use crate::mesh::{Animation, Mesh};
