@@ -133,7 +133,10 @@ fn run(a: &Args) -> Result<(), String> {
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), f| (lo.min(f.effect_size), hi.max(f.effect_size)));
         let v = if stats.frames.len() > 1 { format!("{vmin:.4}-{vmax:.4}") } else { format!("{:.4}", f.effect_size) };
         let best = eval.as_ref().and_then(|e| e.oracle_best).map_or("-".into(), |b| b.as_str().to_string());
-        let regret = eval.as_ref().and_then(|e| e.regret).map_or("-".into(), |r| format!("{:.0}%", 100.0 * r));
+        let regret = eval.as_ref().and_then(|e| e.regret.map(|r| (r, e.regret_within_noise == Some(true)))).map_or(
+            "-".into(),
+            |(r, noise)| format!("{:.0}%{}", 100.0 * r, if noise { " (noise)" } else { "" }),
+        );
         println!(
             "| {} | {} | {} | {:.1} | {} | {} | {} | {:.0}% | {} | {} | {} | {} |",
             case.name,
