@@ -14,5 +14,6 @@ pub mod gpu;
 pub mod keys;
 pub mod mesh;
 pub mod ops;
+pub mod render;
 pub mod stats;
 pub mod trace;
