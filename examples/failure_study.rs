@@ -120,7 +120,9 @@ fn run(a: &Args) -> Result<(), String> {
         a.repeats,
         r = a.resolution
     );
-    println!("| case | n | k | chi-square | p | V | empty | conc. share | zero-area | selected | oracle best | regret |");
+    println!(
+        "| case | n | k | chi-square | p | V | empty | conc. share | zero-area | selected | oracle best | regret |"
+    );
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|---:|");
     let mut json_cases = Vec::new();
     for case in &cases {
@@ -133,10 +135,10 @@ fn run(a: &Args) -> Result<(), String> {
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), f| (lo.min(f.effect_size), hi.max(f.effect_size)));
         let v = if stats.frames.len() > 1 { format!("{vmin:.4}-{vmax:.4}") } else { format!("{:.4}", f.effect_size) };
         let best = eval.as_ref().and_then(|e| e.oracle_best).map_or("-".into(), |b| b.as_str().to_string());
-        let regret = eval.as_ref().and_then(|e| e.regret.map(|r| (r, e.regret_within_noise == Some(true)))).map_or(
-            "-".into(),
-            |(r, noise)| format!("{:.0}%{}", 100.0 * r, if noise { " (noise)" } else { "" }),
-        );
+        let regret = eval
+            .as_ref()
+            .and_then(|e| e.regret.map(|r| (r, e.regret_within_noise == Some(true))))
+            .map_or("-".into(), |(r, noise)| format!("{:.0}%{}", 100.0 * r, if noise { " (noise)" } else { "" }));
         println!(
             "| {} | {} | {} | {:.1} | {} | {} | {} | {:.0}% | {} | {} | {} | {} |",
             case.name,
@@ -174,7 +176,10 @@ fn run(a: &Args) -> Result<(), String> {
     if let Some(case) = cases.iter().find(|c| c.name == "explosion") {
         let anim = case.animation().map_err(|e| e.to_string())?;
         let rows = study::refit_study(&anim, a.resolution).map_err(|e| e.to_string())?;
-        println!("\nExplosion: frame-0 trees refitted against trees rebuilt per frame ({r}x{r} primary rays):\n", r = a.resolution);
+        println!(
+            "\nExplosion: frame-0 trees refitted against trees rebuilt per frame ({r}x{r} primary rays):\n",
+            r = a.resolution
+        );
         println!(
             "| frame | BVH SAH rebuild / refit | LBVH SAH rebuild / refit | tri tests/ray rebuild / refit | BVH build \
              / refit ms | trace ms rebuild / refit |"

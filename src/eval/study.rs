@@ -46,12 +46,13 @@ pub fn concat(name: impl Into<String>, meshes: &[&Mesh]) -> Result<Mesh, MeshErr
     let name = name.into();
     for m in meshes {
         m.validate()?;
-        let base = u32::try_from(positions.len() + m.positions.len()).map(|_| positions.len() as u32).map_err(|_| {
-            MeshError::Invalid {
-                file: name.clone(),
-                reason: "the meshes together need more vertices than 32-bit indices address".into(),
-            }
-        })?;
+        let base =
+            u32::try_from(positions.len() + m.positions.len()).map(|_| positions.len() as u32).map_err(|_| {
+                MeshError::Invalid {
+                    file: name.clone(),
+                    reason: "the meshes together need more vertices than 32-bit indices address".into(),
+                }
+            })?;
         positions.extend_from_slice(&m.positions);
         indices.extend(m.indices.iter().map(|t| t.map(|i| i + base)));
     }
@@ -241,7 +242,8 @@ pub struct HitCount {
 /// Counts the hits of the primary rays of the automatic camera (see [`HitCount`]).
 pub fn primary_hits(mesh: &Mesh, resolution: u32) -> Result<HitCount, AccelError> {
     let camera = Camera::frame(&mesh_bounds(mesh));
-    let rays = RaySet { kind: WorkloadKind::Primary, rays: primary_rays(&camera, resolution, resolution), any_hit: false };
+    let rays =
+        RaySet { kind: WorkloadKind::Primary, rays: primary_rays(&camera, resolution, resolution), any_hit: false };
     let bvh = Bvh::build(mesh)?;
     let brute = crate::accel::brute::BruteForce::build(mesh)?;
     let count = |a: &dyn AccelStructure| trace(a, &rays).hits.iter().filter(|h| h.is_some()).count();
@@ -287,7 +289,8 @@ pub fn refit_study(anim: &Animation, resolution: u32) -> Result<Vec<RefitFrame>,
         bounds = bounds.union(&mesh_bounds(f));
     }
     let camera = Camera::frame(&bounds);
-    let rays = RaySet { kind: WorkloadKind::Primary, rays: primary_rays(&camera, resolution, resolution), any_hit: false };
+    let rays =
+        RaySet { kind: WorkloadKind::Primary, rays: primary_rays(&camera, resolution, resolution), any_hit: false };
     let per_ray = |tests: u64| tests as f64 / rays.rays.len().max(1) as f64;
     let mut bvh = Bvh::build(first)?;
     let mut lbvh = Lbvh::build(first)?;
