@@ -15,6 +15,7 @@ pub mod gpu;
 pub mod keys;
 pub mod mesh;
 pub mod ops;
+pub mod render;
 pub mod rng;
 pub mod stats;
 pub mod trace;

@@ -692,6 +692,10 @@ impl Bvh {
         let tris = order.par_iter().map(|&i| tris[i as usize]).collect();
         Ok(Bvh { tree: BvhTree { nodes, tris, ids: order } })
     }
+    /// Refits the tree to the positions of `mesh` (the next frame of an animation): see [`BvhTree::refit`].
+    pub fn refit(&mut self, mesh: &Mesh) -> Result<(), AccelError> {
+        self.tree.refit(mesh)
+    }
     /// The nodes and triangle records.
     pub fn tree(&self) -> &BvhTree {
         &self.tree

@@ -237,6 +237,11 @@ impl Lbvh {
     pub fn into_tree(self) -> BvhTree {
         self.tree
     }
+    /// Refits the tree to the positions of `mesh` (the next frame of an animation): see [`BvhTree::refit`]. The
+    /// sorted codes are those of the frame the tree was built for.
+    pub fn refit(&mut self, mesh: &Mesh) -> Result<(), AccelError> {
+        self.tree.refit(mesh)
+    }
     /// Sorted Morton codes (position `k` belongs to triangle `tree().triangle_ids()[k]`).
     pub fn sorted_codes(&self) -> &[u64] {
         &self.codes

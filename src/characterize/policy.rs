@@ -215,6 +215,9 @@ pub trait Policy {
 ///    for almost every real mesh, even for deviations too small to matter. A grid also needs few empty classes
 ///    (3.1.3, "Empty classes": empty cells are wasted tests): the share of empty classes must be at most
 ///    `grid_max_empty_share`. Then: **grid**.
+///    One exception: `k = 1` because every centroid has the same Morton code (more than two triangles) is a point
+///    mass, not a uniform distribution, and falls through to the rules below (the failure study's "all centroids
+///    equal" case: a grid puts every triangle in every cell it overlaps and traces about 10x slower than a BVH).
 /// 2. **Kind of scene** (3.1.3, "Kind of scenes"; Table 5.2): a dynamic scene (more than one frame) needs a
 ///    structure that is rebuilt or refit fast rather than the best static one; the thesis selects a BVH for every
 ///    frame of its animation. Then: **bvh**, with the frame-to-frame change in the reasons.
@@ -281,6 +284,16 @@ impl ThesisPolicy {
     /// Whether a frame's distribution counts as uniform, and why in words.
     fn uniformity(&self, c: &Characterization) -> (bool, String) {
         let s = &c.stats;
+        if s.dof == 0 && c.triangles > 2 && c.code_stats.code_min == c.code_stats.code_max {
+            return (
+                false,
+                format!(
+                    "k = 1 class because all {} centroids share one Morton code: a point mass, the most concentrated \
+                     distribution there is, not a uniform one",
+                    c.triangles
+                ),
+            );
+        }
         if s.dof == 0 {
             return (
                 true,
@@ -447,6 +460,9 @@ impl Policy for ThesisPolicy {
         }
         if s.cramers_v > self.spread_max_v {
             why.push(format!("Cramér's V = {:.4} > {}", s.cramers_v, self.spread_max_v));
+        }
+        if s.dof == 0 && c.code_stats.code_min == c.code_stats.code_max {
+            why.push(format!("all {} centroids share one Morton code", c.triangles));
         }
         if why.is_empty() {
             why.push(format!("Cramér's V = {:.4}, no rule above applies", s.cramers_v));

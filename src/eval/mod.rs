@@ -37,6 +37,7 @@
 //! `oracle_cheapest_within_noise` instead.
 
 pub mod chart;
+pub mod study;
 pub mod tradeoff;
 
 use crate::accel::{build_structure, AccelStats, AccelStructure, StructureName};
