@@ -45,7 +45,7 @@ options:
                              eye, target (and vertical field of view in degrees, default 45); +y is up;
                              default: a camera framing the scene
   --charts DIR               write SVG bar charts (build time, frame rate, tests per ray) into DIR; with
-                             --compare-policies, the per-scene regret chart policy-regret.svg
+                             --compare-policies, the per-scene regret charts policy-regret-<workload>.svg
   --policy thesis|calibrated the selection policy whose choice is `selected` and `regret` (default calibrated)
   --cost-model FILE          calibration file of the calibrated policy (default: the shipped one; a missing or
                              stale file falls back to it with a warning)
@@ -391,29 +391,36 @@ fn compare_policies(args: &Args) -> i32 {
         println!("(tie margin {:.2}; leave-one-out holds out every workload of a scene together)", c.tie_margin);
     }
     if let Some(dir) = &args.charts {
-        let chart = BarChart {
-            title: "Regret per scene and workload: thesis policy vs calibrated policy (held out)".into(),
-            y_label: "regret (total / best total - 1)".into(),
-            categories: c
-                .rows
-                .iter()
-                .map(|r| {
-                    let stem = Path::new(&r.scene).file_stem().and_then(|s| s.to_str()).unwrap_or(&r.scene);
-                    format!("{stem} {}", &r.workload.as_str()[..1])
-                })
-                .collect(),
-            series: vec![
-                ("thesis".into(), c.rows.iter().map(|r| r.baseline_regret).collect()),
-                ("calibrated (held out)".into(), c.rows.iter().map(|r| r.calibrated_held_out_regret).collect()),
-            ],
-        };
-        let path = dir.join("policy-regret.svg");
-        if let Err(e) = std::fs::create_dir_all(dir).and_then(|_| std::fs::write(&path, chart.to_svg())) {
-            eprintln!("evaluate: {}: {e}", path.display());
-            return 1;
-        }
-        if !args.json {
-            println!("chart: {}", path.display());
+        // One chart per workload (a scene's bars side by side: thesis, calibrated held out).
+        let mut workloads: Vec<&str> = c.rows.iter().map(|r| r.workload.as_str()).collect();
+        workloads.dedup();
+        workloads.sort_unstable();
+        workloads.dedup();
+        for wl in workloads {
+            let rows: Vec<_> = c.rows.iter().filter(|r| r.workload.as_str() == wl).collect();
+            let chart = BarChart {
+                title: format!("Regret per scene, {wl} rays: thesis policy vs calibrated policy (held out)"),
+                y_label: "regret (total / best total - 1)".into(),
+                categories: rows
+                    .iter()
+                    .map(|r| {
+                        let p = Path::new(&r.scene);
+                        p.file_stem().and_then(|s| s.to_str()).unwrap_or(&r.scene).to_string()
+                    })
+                    .collect(),
+                series: vec![
+                    ("thesis".into(), rows.iter().map(|r| r.baseline_regret).collect()),
+                    ("calibrated (held out)".into(), rows.iter().map(|r| r.calibrated_held_out_regret).collect()),
+                ],
+            };
+            let path = dir.join(format!("policy-regret-{wl}.svg"));
+            if let Err(e) = std::fs::create_dir_all(dir).and_then(|_| std::fs::write(&path, chart.to_svg())) {
+                eprintln!("evaluate: {}: {e}", path.display());
+                return 1;
+            }
+            if !args.json {
+                println!("chart: {}", path.display());
+            }
         }
     }
     0

@@ -56,8 +56,13 @@ fn fmt_tick(v: f64, step: f64) -> String {
 impl BarChart {
     /// The chart as a standalone SVG document.
     pub fn to_svg(&self) -> String {
-        let (w, h) = (900.0f64, 480.0f64);
-        let (left, right, top, bottom) = (80.0, 170.0, 50.0, 90.0);
+        // Wider for many categories (at least 26 px per group), taller bottom margin for their slanted labels.
+        let many = self.categories.len() > 12;
+        let longest = self.categories.iter().map(|c| c.chars().count()).max().unwrap_or(0) as f64;
+        let bottom = if many { (30.0 + 6.0 * longest).clamp(90.0, 200.0) } else { 90.0 };
+        let (left, right, top) = (80.0, 170.0, 50.0);
+        let w = (left + right + 26.0 * self.categories.len() as f64).max(900.0);
+        let h = 390.0 + bottom;
         let pw = w - left - right;
         let ph = h - top - bottom;
         let max = self
@@ -133,9 +138,10 @@ impl BarChart {
             }
             let _ = writeln!(
                 s,
-                r#"<text transform="translate({:.1} {:.1}) rotate(-25)" text-anchor="end">{}</text>"#,
+                r#"<text transform="translate({:.1} {:.1}) rotate({})" text-anchor="end">{}</text>"#,
                 gx + gw / 2.0,
                 top + ph + 16.0,
+                if many { -60 } else { -25 },
                 esc(cat)
             );
         }
