@@ -124,6 +124,16 @@ impl StructureName {
         StructureName::Hlbvh,
     ];
 
+    /// The name used in reports and on the command line (the same as [`StructureName::as_str`]).
+    pub fn name(self) -> &'static str {
+        self.as_str()
+    }
+
+    /// Parses a name of [`StructureName::name`] exactly (the [`std::str::FromStr`] impl also takes aliases).
+    pub fn from_name(s: &str) -> Option<StructureName> {
+        StructureName::ALL.into_iter().chain([StructureName::Brute]).find(|x| x.as_str() == s)
+    }
+
     /// The lowercase name.
     pub fn as_str(self) -> &'static str {
         match self {

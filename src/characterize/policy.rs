@@ -7,53 +7,9 @@
 
 use super::Characterization;
 
-/// An acceleration structure a policy can select.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Structure {
-    /// Bounding volume hierarchy (SAH build).
-    Bvh,
-    /// kd-tree.
-    #[serde(rename = "kdtree")]
-    KdTree,
-    /// Uniform grid.
-    Grid,
-    /// Bounding interval hierarchy.
-    Bih,
-    /// Linear BVH (Morton-sorted GPU build).
-    Lbvh,
-    /// Hierarchical linear BVH (treelets on Morton prefixes, SAH on top).
-    Hlbvh,
-}
-
-impl Structure {
-    /// Every structure, in declaration order.
-    pub const ALL: [Structure; 6] =
-        [Structure::Bvh, Structure::KdTree, Structure::Grid, Structure::Bih, Structure::Lbvh, Structure::Hlbvh];
-
-    /// The name used in reports: `bvh`, `kdtree`, `grid`, `bih`, `lbvh`, `hlbvh`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Structure::Bvh => "bvh",
-            Structure::KdTree => "kdtree",
-            Structure::Grid => "grid",
-            Structure::Bih => "bih",
-            Structure::Lbvh => "lbvh",
-            Structure::Hlbvh => "hlbvh",
-        }
-    }
-
-    /// Parses a name of [`Structure::name`].
-    pub fn from_name(s: &str) -> Option<Structure> {
-        Structure::ALL.into_iter().find(|x| x.name() == s)
-    }
-}
-
-impl std::fmt::Display for Structure {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
+/// An acceleration structure a policy can select: the oracle's [`crate::accel::StructureName`] (a policy never
+/// selects [`crate::accel::StructureName::Brute`]).
+pub use crate::accel::StructureName as Structure;
 
 /// Whether the scene's geometry changes between frames.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize)]

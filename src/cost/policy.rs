@@ -10,7 +10,7 @@
 
 use super::{CostModel, Prediction, Workload};
 use crate::accel::StructureName;
-use crate::characterize::policy::{Policy, SceneSummary, Selection, Structure, ThesisPolicy};
+use crate::characterize::policy::{Policy, SceneSummary, Selection, ThesisPolicy};
 use crate::characterize::Features;
 
 /// The calibrated choice among predictions: the smallest predicted total, then, within `tie_margin` (relative) of
@@ -134,10 +134,6 @@ impl CalibratedPolicy {
     }
 }
 
-fn to_structure(s: StructureName) -> Structure {
-    Structure::from_name(s.as_str()).unwrap_or(Structure::Bvh)
-}
-
 impl Policy for CalibratedPolicy {
     fn name(&self) -> &str {
         "calibrated"
@@ -202,6 +198,6 @@ impl Policy for CalibratedPolicy {
                     .join(", ")
             ));
         }
-        Selection { structure: to_structure(choice), reasons }
+        Selection { structure: choice, reasons }
     }
 }
