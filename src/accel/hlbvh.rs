@@ -19,7 +19,10 @@
 //!    A top node's box is the union of its children's. With one cluster, node 0 is that cluster's root.
 
 use super::bvh::{BvhNode, BvhTree};
-use super::lbvh::{check_karras_shape, fit_boxes_bottom_up, morton_codes, radix_tree_children, sorted_keys};
+use super::lbvh::{
+    check_depth_first_shape, check_karras_shape, collapse_leaves, fit_boxes_bottom_up, morton_codes,
+    radix_tree_children, sorted_keys, MAX_COLLAPSE_LEAF,
+};
 use super::{invalid, prepare, Aabb, AccelError, AccelStats, AccelStructure, StructureName};
 use crate::keys::MortonBits;
 use crate::mesh::Mesh;
@@ -35,11 +38,14 @@ pub struct HlbvhOptions {
     pub cluster_bits: u32,
     /// Bins per axis of the top-level SAH (2 to 64).
     pub bins: usize,
+    /// Largest leaf the SAH collapse (step 5 of the module docs) may form, clamped to `1 ..=`
+    /// [`MAX_COLLAPSE_LEAF`]; 1 turns the collapse off (one triangle per leaf, the layout of steps 3 and 4).
+    pub max_leaf: u32,
 }
 
 impl Default for HlbvhOptions {
     fn default() -> Self {
-        HlbvhOptions { bits: MortonBits::Bits30, cluster_bits: 12, bins: 16 }
+        HlbvhOptions { bits: MortonBits::Bits30, cluster_bits: 21, bins: 16, max_leaf: 8 }
     }
 }
 
@@ -49,6 +55,7 @@ pub struct Hlbvh {
     tree: BvhTree,
     /// `(first position, count, block offset)` of every cluster.
     clusters: Vec<(u32, u32, u32)>,
+    max_leaf: u32,
 }
 
 pub(crate) fn top_tree(
@@ -181,11 +188,12 @@ impl Hlbvh {
         for b in blocks {
             nodes.extend(b);
         }
+        let nodes = collapse_leaves(&nodes, o.max_leaf);
         let ids: Vec<u32> = keys.iter().map(|k| k.1).collect();
         let tris = ids.par_iter().map(|&i| tris[i as usize]).collect();
         let clusters =
             ranges.iter().zip(&offsets).map(|(&(s, e), &off)| (s as u32, (e - s) as u32, off as u32)).collect();
-        Ok(Hlbvh { tree: BvhTree { nodes, tris, ids }, clusters })
+        Ok(Hlbvh { tree: BvhTree { nodes, tris, ids }, clusters, max_leaf: o.max_leaf })
     }
 
     /// The nodes and triangle records.
@@ -219,6 +227,14 @@ impl AccelStructure for Hlbvh {
     /// cluster covering its positions, clusters contiguous and in order.
     fn validate(&self) -> Result<AccelStats, AccelError> {
         let s = self.tree.validate("hlbvh")?;
+        if self.max_leaf.min(MAX_COLLAPSE_LEAF) > 1 {
+            check_depth_first_shape("hlbvh", &self.tree.nodes, self.max_leaf)?;
+            let covered: u32 = self.clusters.iter().map(|c| c.1).sum();
+            if covered as usize != self.tree.tris.len() {
+                return Err(invalid("hlbvh", "clusters do not cover the records"));
+            }
+            return Ok(s);
+        }
         let c = self.clusters.len();
         let mut pos = 0usize;
         let mut off = c.saturating_sub(1);

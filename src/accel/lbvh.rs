@@ -36,11 +36,23 @@ use rayon::prelude::*;
 use std::sync::atomic::{AtomicU32, Ordering};
 
 /// Options of the LBVH.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LbvhOptions {
     /// Morton code width.
     pub bits: MortonBits,
+    /// Largest leaf the SAH collapse (step 7 of the module docs) may form, clamped to `1 ..= MAX_COLLAPSE_LEAF`;
+    /// 1 (the default) turns the collapse off and keeps one triangle per leaf in the Karras numbering.
+    pub max_leaf: u32,
 }
+
+impl Default for LbvhOptions {
+    fn default() -> Self {
+        LbvhOptions { bits: MortonBits::Bits30, max_leaf: 1 }
+    }
+}
+
+/// Largest leaf the SAH collapse forms.
+pub const MAX_COLLAPSE_LEAF: u32 = 64;
 
 /// Morton codes of SPEC.md for every triangle, in mesh order.
 pub fn morton_codes(mesh: &Mesh, bits: MortonBits, structure: &'static str) -> Result<Vec<u64>, AccelError> {
@@ -213,11 +225,112 @@ pub(crate) fn karras_tree(
     (nodes, sorted_tris, ids)
 }
 
+/// `x`, or 0 where it is below the smallest normal f32: the collapse's arithmetic never meets a subnormal, so a
+/// device that flushes subnormals computes the same values as the host.
+#[inline]
+pub fn flush_subnormal(x: f32) -> f32 {
+    if x < f32::MIN_POSITIVE {
+        0.0
+    } else {
+        x
+    }
+}
+
+/// Half the surface area of a node's box as the SAH collapse computes it (step 7 of the module docs):
+/// `e = max - min` per axis, then `(e.x e.y + e.y e.z) + e.z e.x`, every difference and product flushed with
+/// [`flush_subnormal`], no fused multiply-add.
+#[inline]
+pub fn collapse_half_area(nd: &BvhNode) -> f32 {
+    let e: [f32; 3] = std::array::from_fn(|a| flush_subnormal(nd.max[a] - nd.min[a]));
+    let xy = flush_subnormal(e[0] * e[1]);
+    let yz = flush_subnormal(e[1] * e[2]);
+    let zx = flush_subnormal(e[2] * e[0]);
+    (xy + yz) + zx
+}
+
+/// Per-node results of the collapse's bottom-up pass.
+#[derive(Clone, Copy, Debug, Default)]
+struct CollapseInfo {
+    first: u32,
+    end: u32,
+    count: u32,
+    cost: f32,
+    size: u32,
+    collapse: bool,
+}
+
+/// The SAH leaf collapse (step 7 of the module docs) of a tree in the crate's layout whose leaves hold one record
+/// each: bottom-up costs, then the surviving nodes in depth-first order. `max_leaf <= 1` returns the tree as is.
+pub fn collapse_leaves(nodes: &[BvhNode], max_leaf: u32) -> Vec<BvhNode> {
+    let max_leaf = max_leaf.min(MAX_COLLAPSE_LEAF);
+    if max_leaf <= 1 || nodes.is_empty() {
+        return nodes.to_vec();
+    }
+    // Preorder from the root; its reverse visits children before parents.
+    let mut order = Vec::with_capacity(nodes.len());
+    let mut stack = vec![0u32];
+    while let Some(k) = stack.pop() {
+        order.push(k);
+        let nd = &nodes[k as usize];
+        if !nd.is_leaf() {
+            stack.push(nd.right_or_count);
+            stack.push(nd.left_or_first);
+        }
+    }
+    let mut info = vec![CollapseInfo::default(); nodes.len()];
+    for &k in order.iter().rev() {
+        let nd = &nodes[k as usize];
+        let h = collapse_half_area(nd);
+        info[k as usize] = if nd.is_leaf() {
+            CollapseInfo {
+                first: nd.left_or_first,
+                end: nd.left_or_first + nd.count(),
+                count: nd.count(),
+                cost: h * nd.count() as f32,
+                size: 1,
+                collapse: false,
+            }
+        } else {
+            let (l, r) = (info[nd.left_or_first as usize], info[nd.right_or_count as usize]);
+            let first = l.first.min(r.first);
+            let end = l.end.max(r.end);
+            let count = l.count + r.count;
+            let split = (h + l.cost) + r.cost;
+            let leaf = h * count as f32;
+            let collapse = count <= max_leaf && end - first == count && leaf <= split;
+            CollapseInfo {
+                first,
+                end,
+                count,
+                cost: if collapse { leaf } else { split },
+                size: if collapse { 1 } else { 1 + l.size + r.size },
+                collapse,
+            }
+        };
+    }
+    let mut out = vec![BvhNode::default(); info[0].size as usize];
+    let mut stack = vec![(0u32, 0u32)];
+    while let Some((old, new)) = stack.pop() {
+        let nd = &nodes[old as usize];
+        let i = info[old as usize];
+        out[new as usize] = if nd.is_leaf() || i.collapse {
+            BvhNode::leaf(&nd.aabb(), i.first, i.count)
+        } else {
+            let (l, r) = (new + 1, new + 1 + info[nd.left_or_first as usize].size);
+            stack.push((nd.right_or_count, r));
+            stack.push((nd.left_or_first, l));
+            BvhNode::internal(&nd.aabb(), l, r)
+        };
+    }
+    out
+}
+
 /// The LBVH (see the module docs).
 #[derive(Clone, Debug, Default)]
 pub struct Lbvh {
     tree: BvhTree,
     codes: Vec<u64>,
+    max_leaf: u32,
 }
 
 impl Lbvh {
@@ -227,7 +340,8 @@ impl Lbvh {
         let codes = morton_codes(mesh, o.bits, "lbvh")?;
         let keys = sorted_keys(&codes);
         let (nodes, tris, ids) = karras_tree(&keys, o.bits, &boxes, &tris);
-        Ok(Lbvh { tree: BvhTree { nodes, tris, ids }, codes: keys.iter().map(|k| k.0).collect() })
+        let nodes = collapse_leaves(&nodes, o.max_leaf);
+        Ok(Lbvh { tree: BvhTree { nodes, tris, ids }, codes: keys.iter().map(|k| k.0).collect(), max_leaf: o.max_leaf })
     }
     /// The nodes and triangle records.
     pub fn tree(&self) -> &BvhTree {
@@ -256,11 +370,16 @@ impl AccelStructure for Lbvh {
         self.tree.traverse(ray, true, c).is_some()
     }
     /// The BVH checks of [`BvhTree::validate`], plus the LBVH shape: `n - 1` internal nodes and `n` leaves of one
-    /// record each, leaf `n - 1 + p` holding record `p`, codes sorted with ids ascending among equal codes.
+    /// record each, leaf `n - 1 + p` holding record `p` (after the collapse: the depth-first numbering of step 7 and
+    /// leaves of at most `max_leaf` records), codes sorted with ids ascending among equal codes.
     fn validate(&self) -> Result<AccelStats, AccelError> {
         let s = self.tree.validate("lbvh")?;
         let n = self.tree.tris.len();
-        check_karras_shape("lbvh", &self.tree.nodes, n, 0, 0)?;
+        if self.max_leaf.min(MAX_COLLAPSE_LEAF) > 1 {
+            check_depth_first_shape("lbvh", &self.tree.nodes, self.max_leaf)?;
+        } else {
+            check_karras_shape("lbvh", &self.tree.nodes, n, 0, 0)?;
+        }
         let keys: Vec<(u64, u32)> = self.codes.iter().copied().zip(self.tree.ids.iter().copied()).collect();
         if keys.windows(2).any(|w| w[0] >= w[1]) {
             return Err(super::invalid("lbvh", "keys not strictly increasing"));
@@ -273,6 +392,29 @@ impl AccelStructure for Lbvh {
     fn sah_cost(&self) -> Option<f64> {
         Some(self.tree.sah_cost())
     }
+}
+
+/// Checks the depth-first numbering of a collapsed tree (step 7 of the module docs): every internal node `k` has
+/// its left child at `k + 1` and its right child after it, and no leaf holds more than `max_leaf` records.
+pub(crate) fn check_depth_first_shape(
+    structure: &'static str,
+    nodes: &[BvhNode],
+    max_leaf: u32,
+) -> Result<(), AccelError> {
+    for (k, nd) in nodes.iter().enumerate() {
+        let ok = if nd.is_leaf() {
+            nd.count() <= max_leaf.min(MAX_COLLAPSE_LEAF)
+        } else {
+            nd.left_or_first as usize == k + 1 && nd.right_or_count > nd.left_or_first
+        };
+        if !ok {
+            return Err(super::invalid(
+                structure,
+                format!("node {k} breaks the depth-first numbering of the collapse"),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Checks the Karras numbering of a block of `2m - 1` nodes starting at `offset` whose records start at
