@@ -22,6 +22,24 @@
 //! 6. Boxes bottom-up: a leaf's box is its triangle's box (from the mesh vertices), an internal node's the union of
 //!    its children's. (Here: the parallel bottom-up pass of Karras 2012, each leaf walking up and the second
 //!    arrival at a node computing its box.)
+//! 7. Optional SAH leaf collapse ([`LbvhOptions::max_leaf`] `> 1`; off by default, on by default in the
+//!    [`super::hlbvh`]), applied by [`collapse_leaves`] to any tree of one-record leaves. A radix tree splits at
+//!    Morton bits down to single triangles, where the binned-SAH builder ([`super::bvh`]) stops as soon as a leaf
+//!    is cheaper; the collapse takes that decision back bottom-up, in the spirit of the post-processing of Karras
+//!    and Aila 2013 ("Fast parallel construction of high-quality bounding volume hierarchies", HPG), which also
+//!    collapses subtrees into leaves by the SAH. Bottom-up, with the SAH constants `K_T = K_I = 1` of the crate and
+//!    half areas `h` ([`collapse_half_area`]): a leaf of `c` records costs `h c`; an internal node's record range
+//!    is `first = min`, `end = max` of its children's, `count` their sum; its split cost is `(h + C_L) + C_R`, its
+//!    leaf cost `h count`; it *collapses* when `end - first == count` (its records are contiguous, always true
+//!    inside a Karras tree, not always above the HLBVH's clusters), `count <= max_leaf` and leaf cost `<=` split
+//!    cost; its cost is then the leaf cost, else the split cost. Each of these values is an f32 computed in that
+//!    order, without fused multiply-add, every difference and product flushed to 0 below the smallest normal
+//!    ([`flush_subnormal`]): a GPU computes the same bits, so GPU and CPU make the same decisions. The kept nodes
+//!    (those with no collapsed ancestor) are renumbered depth first: the root is 0, an internal node `k` has its
+//!    left child at `k + 1` and its right child at `k + 1 + size(left)` (`size` = kept nodes of a subtree); a
+//!    collapsed node becomes the leaf `first .. end`. The records keep their sorted order. The greedy bottom-up
+//!    choice is optimal for the SAH cost of the crate over all collapses of the given tree (the cost is a sum over
+//!    nodes; a subtree's best cost does not depend on what lies above it).
 //!
 //! [`min_total`]: crate::keys::min_total
 //! [`max_total`]: crate::keys::max_total
@@ -463,6 +481,70 @@ mod tests {
         // index 2 (bit 1) from 0 and 1 (bit 0).
         let keys = [(5, 0), (5, 1), (5, 2)];
         assert_eq!(radix_tree_children(&keys, 3), vec![(1, 4), (2, 3)]);
+    }
+
+    fn unit_box_at(x: f32) -> Aabb {
+        Aabb::new(Vec3::splat(x), Vec3::splat(x + 1.0))
+    }
+
+    #[test]
+    fn collapse_merges_coincident_leaves_and_keeps_distant_ones() {
+        // Root 0 over internal 1 (leaves 3, 4: unit boxes at 0, records 0 and 1) and leaf 2 (unit box at 10,
+        // record 2). Node 1: split (3 + 3) + 3 = 9 > leaf 3 * 2 = 6: collapses. Root: half area 3 * 121 = 363,
+        // split (363 + 6) + 3 = 372 < leaf 363 * 3: stays.
+        let near = unit_box_at(0.0);
+        let far = unit_box_at(10.0);
+        let all = near.union(&far);
+        let nodes = [
+            BvhNode::internal(&all, 1, 2),
+            BvhNode::internal(&near, 3, 4),
+            BvhNode::leaf(&far, 2, 1),
+            BvhNode::leaf(&near, 0, 1),
+            BvhNode::leaf(&near, 1, 1),
+        ];
+        let out = collapse_leaves(&nodes, 8);
+        assert_eq!(out, vec![BvhNode::internal(&all, 1, 2), BvhNode::leaf(&near, 0, 2), BvhNode::leaf(&far, 2, 1)]);
+        check_depth_first_shape("test", &out, 8).unwrap();
+        // Off: the tree comes back as it was.
+        assert_eq!(collapse_leaves(&nodes, 1), nodes.to_vec());
+        // A cap of 1 record per leaf is the same as off.
+        assert_eq!(collapse_leaves(&nodes, 0), nodes.to_vec());
+    }
+
+    #[test]
+    fn collapse_respects_the_cap_and_needs_contiguous_records() {
+        let b = unit_box_at(0.0);
+        // Three coincident leaves: everything would collapse, but the cap of 2 keeps the root.
+        let nodes = [
+            BvhNode::internal(&b, 1, 2),
+            BvhNode::internal(&b, 3, 4),
+            BvhNode::leaf(&b, 2, 1),
+            BvhNode::leaf(&b, 0, 1),
+            BvhNode::leaf(&b, 1, 1),
+        ];
+        assert_eq!(collapse_leaves(&nodes, 2), vec![BvhNode::internal(&b, 1, 2), BvhNode::leaf(&b, 0, 2), nodes[2]]);
+        assert_eq!(collapse_leaves(&nodes, 3), vec![BvhNode::leaf(&b, 0, 3)]);
+        // Records 0 and 2 under one node (as above the HLBVH's clusters): not a range, no collapse there.
+        let split = [
+            BvhNode::internal(&b, 1, 2),
+            BvhNode::internal(&b, 3, 4),
+            BvhNode::leaf(&b, 1, 1),
+            BvhNode::leaf(&b, 0, 1),
+            BvhNode::leaf(&b, 2, 1),
+        ];
+        let out = collapse_leaves(&split, 2);
+        assert_eq!(out.len(), 5);
+        assert!(out.iter().all(|n| !n.is_leaf() || n.count() == 1));
+        check_depth_first_shape("test", &out, 2).unwrap();
+    }
+
+    #[test]
+    fn half_area_flushes_subnormal_products() {
+        let tiny = BvhNode::leaf(&Aabb::new(Vec3::ZERO, Vec3::splat(1e-20)), 0, 1);
+        assert_eq!(collapse_half_area(&tiny), 0.0);
+        assert_eq!(collapse_half_area(&BvhNode::leaf(&unit_box_at(0.0), 0, 1)), 3.0);
+        assert_eq!(flush_subnormal(f32::MIN_POSITIVE / 2.0), 0.0);
+        assert_eq!(flush_subnormal(f32::MIN_POSITIVE), f32::MIN_POSITIVE);
     }
 
     #[test]

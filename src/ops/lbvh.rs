@@ -17,16 +17,25 @@
 //! 7. `fit` (`glsl/bvh_fit.comp`): internal boxes bottom-up with one atomic arrival counter per node; the second
 //!    arrival computes the union, nobody waits.
 //! 8. HLBVH only: `hlbvh_roots` gathers the cluster roots; the host builds the binned-SAH top over them (at most
-//!    `2^cluster_bits` clusters, 4,096 by default) and uploads those `C - 1` nodes, whose parent links
+//!    `2^cluster_bits` clusters, at most n) and uploads those `C - 1` nodes, whose parent links
 //!    `bvh_parents` then writes so refit walks through the top as well.
+//! 9. With the SAH leaf collapse (`max_leaf > 1`: the HLBVH's default, an option of the LBVH; defined in
+//!    [`crate::accel::lbvh`], step 7): `collapse_cost` (`glsl/bvh_collapse_cost.comp`), bottom-up with the arrival
+//!    counters of `fit`, computes every node's record range, cost, kept size and collapse flag; `compact`
+//!    (`glsl/bvh_compact.comp`) has every node walk up to the root to find whether it is kept and its depth-first
+//!    index, and writes the collapsed tree and its parent links (O(depth) per node, no invocation waits). The host
+//!    reads back the kept node count.
 //!
-//! The top level of the HLBVH runs on the host: it is the same function as the CPU reference's, over at most a few
-//! thousand cluster boxes; its cost is reported in [`GpuBvh::timings`] as `top_cpu` (with the readback of the
-//! cluster roots and the upload of the top nodes) beside the GPU passes.
+//! The top level of the HLBVH runs on the host: it is the same function as the CPU reference's, over the cluster
+//! boxes (tens of thousands with the default 21 cluster bits on meshes of 10^5 triangles); its cost is reported in
+//! [`GpuBvh::timings`] as `top_cpu` (with the readback of the cluster roots and the upload of the top nodes) beside
+//! the GPU passes. A GPU top level (the binned SAH over clusters of Garanzha et al. 2011) is not written yet: the
+//! host top is the measured status quo, not a measured win (see `docs/bvh-builders.md`).
 //!
 //! # Result
 //!
-//! [`GpuBvh`] keeps the tree on the device: [`GpuBvh::nodes`] (`2n - 1` [`BvhNode`]s, root at 0, the layout
+//! [`GpuBvh`] keeps the tree on the device: [`GpuBvh::nodes`] ([`GpuBvh::node_count`] [`BvhNode`]s: `2n - 1`, fewer
+//! after the collapse, whose leaves hold up to `max_leaf` records; root at 0, the layout
 //! documented in [`crate::accel::bvh`] and mirrored in `glsl/include/bvh.glsl` for engines' shaders) and
 //! [`GpuBvh::ids`] (`n` `u32`: record `r` of a leaf is triangle `ids[r]`), both with device addresses.
 //! [`GpuBvh::read_back`] copies them to a [`BvhTree`], so [`BvhTree::validate`] and [`BvhTree::sah_cost`] apply.
@@ -67,7 +76,7 @@ use glam::Vec3;
 
 /// Items per invocation of the per-element kernels.
 const ITEMS: u32 = 8;
-/// Largest cluster width the GPU HLBVH accepts: its cluster table has `2^cluster_bits` entries.
+/// Largest cluster width the GPU HLBVH accepts: its cluster table has `2^cluster_bits` entries (64 MiB at 24).
 pub const MAX_GPU_CLUSTER_BITS: u32 = 24;
 
 crate::push_layout!(BvhNode { min, left_or_first, max, right_or_count });
