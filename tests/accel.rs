@@ -391,15 +391,18 @@ fn morton_63_bit_lbvh_and_hlbvh_agree_with_brute_force() {
     use meshchar::accel::lbvh::LbvhOptions;
     use meshchar::keys::MortonBits;
     for mesh in [clustered(1500, 11), one_point(50), flat_grid(10)] {
-        let l = Lbvh::build_with(&mesh, &LbvhOptions { bits: MortonBits::Bits63 }).unwrap();
+        let l = Lbvh::build_with(&mesh, &LbvhOptions { bits: MortonBits::Bits63, ..Default::default() }).unwrap();
         let h = Hlbvh::build_with(&mesh, &HlbvhOptions { bits: MortonBits::Bits63, ..Default::default() }).unwrap();
+        let lc = Lbvh::build_with(&mesh, &LbvhOptions { bits: MortonBits::Bits63, max_leaf: 8 }).unwrap();
         l.validate().unwrap();
         h.validate().unwrap();
+        lc.validate().unwrap();
         assert!(l.sorted_codes().iter().any(|&c| c >= 1 << 30) || mesh.name != "clustered", "63-bit codes in use");
         let brute = BruteForce::build(&mesh).unwrap();
         let (rays, _) = test_rays(&mesh, 24, 5);
         let want = trace(&brute, &rays);
         assert_eq!(meshchar::trace::count_disagreements(&trace(&l, &rays), &want), 0, "{}", mesh.name);
         assert_eq!(meshchar::trace::count_disagreements(&trace(&h, &rays), &want), 0, "{}", mesh.name);
+        assert_eq!(meshchar::trace::count_disagreements(&trace(&lc, &rays), &want), 0, "{}", mesh.name);
     }
 }

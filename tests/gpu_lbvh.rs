@@ -1,8 +1,11 @@
 //! GPU LBVH and HLBVH against the CPU references, node for node, on every static shared mesh and on degenerate
-//! meshes; the HLBVH's SAH cost against the CPU binned-SAH BVH; refit after a BART frame change against a fresh fit.
+//! meshes, with and without the SAH leaf collapse; the HLBVH's SAH cost against the CPU binned-SAH BVH; refit after
+//! a BART frame change against a fresh fit.
 //!
 //! Nodes are compared field by field with floats compared as values (so `-0.0 == +0.0`: `min` of signed zeros may
-//! pick either on the device), and the triangle id order exactly.
+//! pick either on the device), and the triangle id order exactly. The collapse decisions compare f32 costs that
+//! both sides compute with the same operations in the same order (see `accel::lbvh`, step 7), so they are compared
+//! exactly too.
 
 mod common;
 mod gpu_support;
@@ -33,16 +36,22 @@ fn same_tree(what: &str, gpu: &BvhTree, cpu: &BvhTree) {
     same_nodes(what, gpu.nodes(), cpu.nodes());
 }
 
-fn check_lbvh(ctx: &Context, builder: &mut BvhBuilder, mesh: &Mesh, bits: MortonBits) {
-    let what = format!("{} ({bits:?})", mesh.name);
+fn check_lbvh(ctx: &Context, builder: &mut BvhBuilder, mesh: &Mesh, bits: MortonBits, max_leaf: u32) {
+    let what = format!("{} ({bits:?}, max_leaf {max_leaf})", mesh.name);
     let buffers = MeshBuffers::upload(ctx, &mesh.positions, &mesh.indices).unwrap();
-    let o = LbvhOptions { bits };
+    let o = LbvhOptions { bits, max_leaf };
     let gpu = builder.build_lbvh(&buffers, &o).unwrap();
     assert_eq!(gpu.kind(), GpuBvhKind::Lbvh);
     let tree = gpu.read_back(ctx, &buffers).unwrap();
     let cpu = Lbvh::build_with(mesh, &o).unwrap();
     same_tree(&what, &tree, cpu.tree());
     tree.validate("lbvh").unwrap();
+    cpu.validate().unwrap();
+    let n = mesh.triangle_count();
+    if max_leaf > 1 && n >= 100 {
+        assert!(tree.nodes().len() < 2 * n - 1, "{what}: the collapse removed no node");
+        assert!(tree.nodes().iter().all(|nd| !nd.is_leaf() || nd.count() <= max_leaf), "{what}: leaf above the cap");
+    }
 }
 
 fn static_meshes() -> Vec<&'static str> {
@@ -86,9 +95,10 @@ fn gpu_lbvh_equals_cpu_lbvh_on_shared_meshes() {
     let mut builder = BvhBuilder::new(&ctx).unwrap();
     for rel in static_meshes() {
         let mesh = load_mesh(&common::shared_mesh(rel)).unwrap();
-        check_lbvh(&ctx, &mut builder, &mesh, MortonBits::Bits30);
+        check_lbvh(&ctx, &mut builder, &mesh, MortonBits::Bits30, 1);
         if rel.contains("res4") || rel.starts_with("small/") || rel.contains("sponza") {
-            check_lbvh(&ctx, &mut builder, &mesh, MortonBits::Bits63);
+            check_lbvh(&ctx, &mut builder, &mesh, MortonBits::Bits63, 1);
+            check_lbvh(&ctx, &mut builder, &mesh, MortonBits::Bits30, 8);
         }
     }
     gpu_support::assert_no_validation_messages(&ctx);
@@ -109,7 +119,8 @@ fn gpu_lbvh_equals_cpu_lbvh_on_degenerate_meshes() {
     ];
     for mesh in &meshes {
         for bits in [MortonBits::Bits30, MortonBits::Bits63] {
-            check_lbvh(&ctx, &mut builder, mesh, bits);
+            check_lbvh(&ctx, &mut builder, mesh, bits, 1);
+            check_lbvh(&ctx, &mut builder, mesh, bits, 4);
         }
     }
     // An empty mesh is an error, not a panic.
@@ -124,10 +135,10 @@ fn gpu_hlbvh_equals_cpu_hlbvh() {
     hlbvh_on_static_meshes(false);
 }
 
-/// The bound. Not met yet: the HLBVH as defined (one triangle per leaf, SAH over clusters only) costs
-/// about 1.2x the binned-SAH BVH on the scanned meshes; run with `--ignored` to see every ratio.
+/// The bound: the GPU HLBVH (default options: 21 cluster bits, SAH leaf collapse up to 8 triangles) costs at
+/// most 1.15 x the CPU binned-SAH BVH on every static shared mesh but the full dragon (which the benchmark
+/// covers); prints every ratio, LBVH's beside it (`--nocapture`).
 #[test]
-#[ignore = "HLBVH SAH cost is above 1.15x the binned SAH BVH on some meshes (reported, not yet fixed)"]
 fn gpu_hlbvh_sah_within_15_percent_of_binned_sah() {
     hlbvh_on_static_meshes(true);
 }
@@ -154,8 +165,13 @@ fn hlbvh_on_static_meshes(check_sah: bool) {
         }
         let sah = Bvh::build(&mesh).unwrap().sah_cost().unwrap();
         let lbvh = Lbvh::build(&mesh).unwrap().sah_cost().unwrap();
+        let lbvh8 = Lbvh::build_with(&mesh, &LbvhOptions { max_leaf: 8, ..Default::default() }).unwrap();
         let ratio = tree.sah_cost() / sah;
-        println!("{rel:45} hlbvh/sah {ratio:.3}  lbvh/sah {:.3}", lbvh / sah);
+        println!(
+            "{rel:45} hlbvh/sah {ratio:.3}  lbvh/sah {:.3}  lbvh(max_leaf 8)/sah {:.3}",
+            lbvh / sah,
+            lbvh8.sah_cost().unwrap() / sah
+        );
         worst = worst.max(ratio);
     }
     if check_sah {
@@ -167,6 +183,18 @@ fn hlbvh_on_static_meshes(check_sah: bool) {
         let buffers = MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).unwrap();
         let tree = builder.build_hlbvh(&buffers, &o).unwrap().read_back(&ctx, &buffers).unwrap();
         same_tree(&mesh.name, &tree, Hlbvh::build_with(&mesh, &o).unwrap().tree());
+    }
+    // Without the collapse (one triangle per leaf, cluster blocks in the Karras numbering) and with the previous
+    // 12 cluster bits.
+    for rel in ["stanford-bunny/bun_zipper_res2.ply", "dabrovic-sponza/sponza.obj", "small/cow.obj"] {
+        let mesh = load_mesh(&common::shared_mesh(rel)).unwrap();
+        let buffers = MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).unwrap();
+        for o in [HlbvhOptions { max_leaf: 1, ..o }, HlbvhOptions { cluster_bits: 12, ..o }] {
+            let tree = builder.build_hlbvh(&buffers, &o).unwrap().read_back(&ctx, &buffers).unwrap();
+            let cpu = Hlbvh::build_with(&mesh, &o).unwrap();
+            cpu.validate().unwrap();
+            same_tree(&format!("{rel} {o:?}"), &tree, cpu.tree());
+        }
     }
     gpu_support::assert_no_validation_messages(&ctx);
 }

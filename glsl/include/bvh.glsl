@@ -5,7 +5,9 @@
 //   12 uint left_or_first  internal: left child node; leaf: first triangle record
 //   16 vec3 max            box upper corner
 //   28 uint right_or_count internal: right child node (bit 31 clear); leaf: BVH_LEAF_FLAG | record count
-// The root is node 0. Record r of a leaf is triangle ids[r] of the mesh.
+// The root is node 0. Record r of a leaf is triangle ids[r] of the mesh. A leaf may hold several records (the
+// binned-SAH BVH, and the LBVH/HLBVH after their SAH leaf collapse: up to max_leaf, 8 by default for the HLBVH):
+// loop over first .. first + count.
 struct BvhNode {
     vec3 min;
     uint left_or_first;

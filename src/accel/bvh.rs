@@ -15,7 +15,9 @@
 //! visits the child with the nearer box entry first. Where the children of a node lie in the array is builder
 //! specific: the binned-SAH builder stores the two children of a node next to each other (`right = left + 1`, one
 //! cache line for both boxes), the LBVH uses the
-//! Karras 2012 numbering (internal nodes `0 .. n-1`, leaves `n-1 .. 2n-1`), see [`super::lbvh`].
+//! Karras 2012 numbering (internal nodes `0 .. n-1`, leaves `n-1 .. 2n-1`), see [`super::lbvh`]; after their SAH
+//! leaf collapse the LBVH and HLBVH use a depth-first numbering (left child at `k + 1`) with leaves of up to
+//! `max_leaf` records. Traversal code must not assume one record per leaf.
 //!
 //! # Builder
 //!

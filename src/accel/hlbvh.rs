@@ -1,11 +1,18 @@
 //! Hierarchical LBVH (Pantaleoni and Luebke 2010, in the form pbrt gives it: Morton clusters, an LBVH per cluster,
-//! SAH over the clusters at the top).
+//! SAH over the clusters at the top), with the SAH leaf collapse of the [`super::lbvh`] step 7.
+//!
+//! The default options reach an SAH cost within 1.15 x the binned-SAH BVH's ([`super::bvh`]) on the shared static
+//! meshes (measured in `tests/gpu_lbvh.rs` and `benches/bvh_build.rs`; `docs/bvh-builders.md` has the table):
+//! 21 cluster bits (7 of the 10 Morton bits per axis, up to 2^21 clusters; pbrt's 12 bits left 1.2 to 1.4 x, the
+//! Morton splits below the clusters being the expensive part) and leaves of up to 8 triangles where the SAH
+//! prefers them. Garanzha et al. 2011 ("Simpler and faster HLBVH with work queues", HPG) likewise build the SAH
+//! levels over fine Morton clusters.
 //!
 //! # Definition (what a GPU builder reproduces)
 //!
 //! 1. Keys and sort exactly as the [`super::lbvh`] steps 1 and 2.
 //! 2. Clusters: maximal runs of sorted positions whose codes share their top [`HlbvhOptions::cluster_bits`] bits
-//!    (12 by default, as pbrt does with 30-bit codes), numbered in sorted order. Cluster `c` covers positions
+//!    (21 by default; pbrt uses 12 with 30-bit codes), numbered in sorted order. Cluster `c` covers positions
 //!    `s_c .. e_c`, `m_c = e_c - s_c`.
 //! 3. Bottom: each cluster is a Karras 2012 radix tree over its positions (the [`super::lbvh`] steps 3 to 6 applied
 //!    to the sub-array, with `delta = -1` outside it), stored as a block of `2 m_c - 1` nodes in the LBVH numbering
@@ -17,9 +24,15 @@
 //!    clusters keep their order within each side; a node with one cluster is that cluster's root (the parent
 //!    points into the block); a node whose cluster centroids coincide on every axis splits its list in the middle.
 //!    A top node's box is the union of its children's. With one cluster, node 0 is that cluster's root.
+//! 5. With [`HlbvhOptions::max_leaf`] `> 1` (8 by default), the SAH leaf collapse of the [`super::lbvh`] step 7
+//!    over the whole tree (a top node collapses only where its clusters are adjacent in sorted order), which
+//!    renumbers the kept nodes depth first; with 1 the layout of steps 3 and 4 stays.
 
 use super::bvh::{BvhNode, BvhTree};
-use super::lbvh::{check_karras_shape, fit_boxes_bottom_up, morton_codes, radix_tree_children, sorted_keys};
+use super::lbvh::{
+    check_depth_first_shape, check_karras_shape, collapse_leaves, fit_boxes_bottom_up, morton_codes,
+    radix_tree_children, sorted_keys, MAX_COLLAPSE_LEAF,
+};
 use super::{invalid, prepare, Aabb, AccelError, AccelStats, AccelStructure, StructureName};
 use crate::keys::MortonBits;
 use crate::mesh::Mesh;
@@ -35,11 +48,14 @@ pub struct HlbvhOptions {
     pub cluster_bits: u32,
     /// Bins per axis of the top-level SAH (2 to 64).
     pub bins: usize,
+    /// Largest leaf the SAH collapse (step 5 of the module docs) may form, clamped to `1 ..=`
+    /// [`MAX_COLLAPSE_LEAF`]; 1 turns the collapse off (one triangle per leaf, the layout of steps 3 and 4).
+    pub max_leaf: u32,
 }
 
 impl Default for HlbvhOptions {
     fn default() -> Self {
-        HlbvhOptions { bits: MortonBits::Bits30, cluster_bits: 12, bins: 16 }
+        HlbvhOptions { bits: MortonBits::Bits30, cluster_bits: 21, bins: 16, max_leaf: 8 }
     }
 }
 
@@ -49,21 +65,12 @@ pub struct Hlbvh {
     tree: BvhTree,
     /// `(first position, count, block offset)` of every cluster.
     clusters: Vec<(u32, u32, u32)>,
+    max_leaf: u32,
 }
 
-pub(crate) fn top_tree(
-    list: &mut [u32],
-    roots: &[u32],
-    boxes: &[Aabb],
-    bins: usize,
-    out: &mut Vec<BvhNode>,
-) -> (u32, Aabb) {
-    if list.len() == 1 {
-        let c = list[0] as usize;
-        return (roots[c], boxes[c]);
-    }
-    let here = out.len();
-    out.push(BvhNode::default());
+/// Split position of a top node's cluster list (reordered in place, stable on each side) by the binned SAH of
+/// step 4; `scratch` is reused storage.
+fn top_split(list: &mut [u32], boxes: &[Aabb], bins: usize, scratch: &mut Vec<u32>) -> usize {
     let mut cb = Aabb::EMPTY;
     for &c in list.iter() {
         cb.grow(boxes[c as usize].center());
@@ -79,49 +86,91 @@ pub(crate) fn top_tree(
         if ext[a].is_nan() || ext[a] <= 0.0 {
             continue;
         }
-        let mut bb = vec![Aabb::EMPTY; nb];
-        let mut bn = vec![0usize; nb];
+        let mut bb = [Aabb::EMPTY; 64];
+        let mut bn = [0usize; 64];
         for &c in list.iter() {
             let b = bin_of(c, a);
             bb[b] = bb[b].union(&boxes[c as usize]);
             bn[b] += 1;
         }
+        // Right sides by a backward sweep, left sides forward: the same boxes (unions are exact) as summing the
+        // bins of each side from scratch.
+        let mut right = [(0.0f32, 0usize); 64];
+        let (mut rb, mut rn) = (Aabb::EMPTY, 0);
+        for i in (1..nb).rev() {
+            rb = rb.union(&bb[i]);
+            rn += bn[i];
+            right[i] = (rb.half_area(), rn);
+        }
+        let (mut lb, mut ln) = (Aabb::EMPTY, 0);
         for s in 1..nb {
-            let (mut lb, mut ln, mut rb, mut rn) = (Aabb::EMPTY, 0, Aabb::EMPTY, 0);
-            for i in 0..s {
-                lb = lb.union(&bb[i]);
-                ln += bn[i];
-            }
-            for i in s..nb {
-                rb = rb.union(&bb[i]);
-                rn += bn[i];
-            }
+            lb = lb.union(&bb[s - 1]);
+            ln += bn[s - 1];
+            let (ra, rn) = right[s];
             if ln == 0 || rn == 0 {
                 continue;
             }
-            let cost = lb.half_area() * ln as f32 + rb.half_area() * rn as f32;
+            let cost = lb.half_area() * ln as f32 + ra * rn as f32;
             if best.is_none_or(|(_, _, c)| cost < c) {
                 best = Some((a, s, cost));
             }
         }
     }
-    let m = match best {
+    match best {
         Some((a, s, _)) => {
             // Stable partition: clusters keep their order on each side.
-            let (l, r): (Vec<u32>, Vec<u32>) = list.iter().partition(|&&c| bin_of(c, a) < s);
-            let m = l.len();
-            list[..m].copy_from_slice(&l);
-            list[m..].copy_from_slice(&r);
+            scratch.clear();
+            scratch.extend(list.iter().copied().filter(|&c| bin_of(c, a) < s));
+            let m = scratch.len();
+            scratch.extend(list.iter().copied().filter(|&c| bin_of(c, a) >= s));
+            list.copy_from_slice(scratch);
             m
         }
         None => list.len() / 2,
-    };
-    let (ll, rl) = list.split_at_mut(m);
-    let (li, lbox) = top_tree(ll, roots, boxes, bins, out);
-    let (ri, rbox) = top_tree(rl, roots, boxes, bins, out);
-    let b = lbox.union(&rbox);
-    out[here] = BvhNode::internal(&b, li, ri);
-    (here as u32, b)
+    }
+}
+
+/// The top tree of step 4 over the clusters in `list` (their root node indices `roots` and boxes `boxes`),
+/// appended to `out` in depth-first order; returns the index and box of its root (a cluster's root when `list`
+/// holds one cluster). Iterative: a top node of `m` clusters has `m - 1` top nodes below and including it, so the
+/// right child's index is known before the left subtree is built.
+pub(crate) fn top_tree(
+    list: &mut [u32],
+    roots: &[u32],
+    boxes: &[Aabb],
+    bins: usize,
+    out: &mut Vec<BvhNode>,
+) -> (u32, Aabb) {
+    if list.len() == 1 {
+        let c = list[0] as usize;
+        return (roots[c], boxes[c]);
+    }
+    let base = out.len() as u32;
+    let mut root_box = Aabb::EMPTY;
+    let mut scratch = Vec::new();
+    let mut stack = vec![(0usize, list.len())];
+    while let Some((s, e)) = stack.pop() {
+        let here = out.len() as u32;
+        let sub = &mut list[s..e];
+        let mut b = Aabb::EMPTY;
+        for &c in sub.iter() {
+            b = b.union(&boxes[c as usize]);
+        }
+        let m = top_split(sub, boxes, bins, &mut scratch);
+        let li = if m == 1 { roots[sub[0] as usize] } else { here + 1 };
+        let ri = if e - s - m == 1 { roots[sub[m] as usize] } else { here + m as u32 };
+        out.push(BvhNode::internal(&b, li, ri));
+        if here == base {
+            root_box = b;
+        }
+        if e - s - m > 1 {
+            stack.push((s + m, e));
+        }
+        if m > 1 {
+            stack.push((s, s + m));
+        }
+    }
+    (base, root_box)
 }
 
 impl Hlbvh {
@@ -181,11 +230,12 @@ impl Hlbvh {
         for b in blocks {
             nodes.extend(b);
         }
+        let nodes = collapse_leaves(&nodes, o.max_leaf);
         let ids: Vec<u32> = keys.iter().map(|k| k.1).collect();
         let tris = ids.par_iter().map(|&i| tris[i as usize]).collect();
         let clusters =
             ranges.iter().zip(&offsets).map(|(&(s, e), &off)| (s as u32, (e - s) as u32, off as u32)).collect();
-        Ok(Hlbvh { tree: BvhTree { nodes, tris, ids }, clusters })
+        Ok(Hlbvh { tree: BvhTree { nodes, tris, ids }, clusters, max_leaf: o.max_leaf })
     }
 
     /// The nodes and triangle records.
@@ -216,9 +266,18 @@ impl AccelStructure for Hlbvh {
         self.tree.traverse(ray, true, c).is_some()
     }
     /// The BVH checks of [`BvhTree::validate`], plus the HLBVH shape: `C - 1` top nodes, then one Karras block per
-    /// cluster covering its positions, clusters contiguous and in order.
+    /// cluster covering its positions, clusters contiguous and in order; after the collapse, the depth-first
+    /// numbering, leaves of at most `max_leaf` records and clusters covering the records.
     fn validate(&self) -> Result<AccelStats, AccelError> {
         let s = self.tree.validate("hlbvh")?;
+        if self.max_leaf.min(MAX_COLLAPSE_LEAF) > 1 {
+            check_depth_first_shape("hlbvh", &self.tree.nodes, self.max_leaf)?;
+            let covered: u32 = self.clusters.iter().map(|c| c.1).sum();
+            if covered as usize != self.tree.tris.len() {
+                return Err(invalid("hlbvh", "clusters do not cover the records"));
+            }
+            return Ok(s);
+        }
         let c = self.clusters.len();
         let mut pos = 0usize;
         let mut off = c.saturating_sub(1);

@@ -17,16 +17,25 @@
 //! 7. `fit` (`glsl/bvh_fit.comp`): internal boxes bottom-up with one atomic arrival counter per node; the second
 //!    arrival computes the union, nobody waits.
 //! 8. HLBVH only: `hlbvh_roots` gathers the cluster roots; the host builds the binned-SAH top over them (at most
-//!    `2^cluster_bits` clusters, 4,096 by default) and uploads those `C - 1` nodes, whose parent links
+//!    `2^cluster_bits` clusters, at most n) and uploads those `C - 1` nodes, whose parent links
 //!    `bvh_parents` then writes so refit walks through the top as well.
+//! 9. With the SAH leaf collapse (`max_leaf > 1`: the HLBVH's default, an option of the LBVH; defined in
+//!    [`crate::accel::lbvh`], step 7): `collapse_cost` (`glsl/bvh_collapse_cost.comp`), bottom-up with the arrival
+//!    counters of `fit`, computes every node's record range, cost, kept size and collapse flag; `compact`
+//!    (`glsl/bvh_compact.comp`) has every node walk up to the root to find whether it is kept and its depth-first
+//!    index, and writes the collapsed tree and its parent links (O(depth) per node, no invocation waits). The host
+//!    reads back the kept node count.
 //!
-//! The top level of the HLBVH runs on the host: it is the same function as the CPU reference's, over at most a few
-//! thousand cluster boxes; its cost is reported in [`GpuBvh::timings`] as `top_cpu` (with the readback of the
-//! cluster roots and the upload of the top nodes) beside the GPU passes.
+//! The top level of the HLBVH runs on the host: it is the same function as the CPU reference's, over the cluster
+//! boxes (tens of thousands with the default 21 cluster bits on meshes of 10^5 triangles); its cost is reported in
+//! [`GpuBvh::timings`] as `top_cpu` (with the readback of the cluster roots and the upload of the top nodes) beside
+//! the GPU passes. A GPU top level (the binned SAH over clusters of Garanzha et al. 2011) is not written yet: the
+//! host top is the measured status quo, not a measured win (see `docs/bvh-builders.md`).
 //!
 //! # Result
 //!
-//! [`GpuBvh`] keeps the tree on the device: [`GpuBvh::nodes`] (`2n - 1` [`BvhNode`]s, root at 0, the layout
+//! [`GpuBvh`] keeps the tree on the device: [`GpuBvh::nodes`] ([`GpuBvh::node_count`] [`BvhNode`]s: `2n - 1`, fewer
+//! after the collapse, whose leaves hold up to `max_leaf` records; root at 0, the layout
 //! documented in [`crate::accel::bvh`] and mirrored in `glsl/include/bvh.glsl` for engines' shaders) and
 //! [`GpuBvh::ids`] (`n` `u32`: record `r` of a leaf is triangle `ids[r]`), both with device addresses.
 //! [`GpuBvh::read_back`] copies them to a [`BvhTree`], so [`BvhTree::validate`] and [`BvhTree::sah_cost`] apply.
@@ -59,7 +68,7 @@ use super::characterize::{InputError, KeysPush, MeshBuffers, RunError};
 use super::sort::{KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
 use crate::accel::bvh::{BvhNode, BvhTree};
 use crate::accel::hlbvh::HlbvhOptions;
-use crate::accel::lbvh::LbvhOptions;
+use crate::accel::lbvh::{LbvhOptions, MAX_COLLAPSE_LEAF};
 use crate::accel::{Aabb, Triangle, MAX_TRIANGLES};
 use crate::gpu::{shaders, Buffer, Context, GpuError, Kernel, KernelDesc, MemoryKind, Recorder, Result, Timer};
 use crate::keys::{from_ordered_bits, quantization_scale, MortonBits};
@@ -67,8 +76,8 @@ use glam::Vec3;
 
 /// Items per invocation of the per-element kernels.
 const ITEMS: u32 = 8;
-/// Largest cluster width the GPU HLBVH accepts: its cluster table has `2^cluster_bits` entries.
-pub const MAX_GPU_CLUSTER_BITS: u32 = 20;
+/// Largest cluster width the GPU HLBVH accepts: its cluster table has `2^cluster_bits` entries (64 MiB at 24).
+pub const MAX_GPU_CLUSTER_BITS: u32 = 24;
 
 crate::push_layout!(BvhNode { min, left_or_first, max, right_or_count });
 
@@ -169,6 +178,46 @@ pub struct ParentsPush {
 }
 crate::push_layout!(ParentsPush { nodes, parents, count });
 
+/// Push constants of `glsl/bvh_collapse_cost.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct CollapseCostPush {
+    /// Address of the nodes.
+    pub nodes: u64,
+    /// Address of the parent links.
+    pub parents: u64,
+    /// Address of the zeroed arrival counters.
+    pub counters: u64,
+    /// Address of the per-node results (8 `u32` each).
+    pub info: u64,
+    /// Number of nodes.
+    pub count: u64,
+    /// Largest leaf the collapse forms.
+    pub max_leaf: u32,
+    /// Padding.
+    pub pad: u32,
+}
+crate::push_layout!(CollapseCostPush { nodes, parents, counters, info, count, max_leaf, pad });
+
+/// Push constants of `glsl/bvh_compact.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct CompactPush {
+    /// Address of the nodes before the collapse.
+    pub nodes: u64,
+    /// Address of their parent links.
+    pub parents: u64,
+    /// Address of the per-node results of the cost pass.
+    pub info: u64,
+    /// Address of the output nodes.
+    pub out_nodes: u64,
+    /// Address of the output parent links.
+    pub out_parents: u64,
+    /// Number of nodes before the collapse.
+    pub count: u64,
+}
+crate::push_layout!(CompactPush { nodes, parents, info, out_nodes, out_parents, count });
+
 /// Push constants of `glsl/hlbvh_heads.comp`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
@@ -237,6 +286,7 @@ pub enum GpuBvhKind {
 pub struct GpuBvh {
     kind: GpuBvhKind,
     triangles: u64,
+    node_count: u64,
     nodes: Buffer,
     ids: Buffer,
     parents: Buffer,
@@ -253,11 +303,12 @@ impl GpuBvh {
     pub fn triangle_count(&self) -> u64 {
         self.triangles
     }
-    /// Nodes (`2n - 1`).
+    /// Nodes: `2n - 1`, or fewer after the SAH collapse.
     pub fn node_count(&self) -> u64 {
-        2 * self.triangles - 1
+        self.node_count
     }
-    /// The nodes ([`BvhNode`], 32 bytes each, root at 0).
+    /// The nodes ([`BvhNode`], 32 bytes each, root at 0; the first [`GpuBvh::node_count`] are the tree, the buffer
+    /// holds `2n - 1`).
     pub fn nodes(&self) -> &Buffer {
         &self.nodes
     }
@@ -278,7 +329,7 @@ impl GpuBvh {
     /// the tree was built or refitted for).
     pub fn read_back(&self, ctx: &Context, mesh: &MeshBuffers) -> Result<BvhTree> {
         let n = self.triangles as usize;
-        let nodes: Vec<BvhNode> = ctx.read_buffer(&self.nodes, 0, 2 * n - 1)?;
+        let nodes: Vec<BvhNode> = ctx.read_buffer(&self.nodes, 0, self.node_count as usize)?;
         let ids: Vec<u32> = ctx.read_buffer(&self.ids, 0, n)?;
         let positions: Vec<[f32; 3]> = ctx.read_buffer(&mesh.positions, 0, mesh.vertices as usize)?;
         let indices: Vec<[u32; 3]> = ctx.read_buffer(&mesh.indices, 0, mesh.triangles as usize)?;
@@ -316,6 +367,8 @@ pub struct BvhBuilder {
     heads: [Kernel<HeadsPush>; 2],
     scan: Kernel<ScanPush>,
     roots: Kernel<RootsPush>,
+    collapse_cost: Kernel<CollapseCostPush>,
+    compact: Kernel<CompactPush>,
     sort: RadixSort,
     scratch: Option<Scratch>,
 }
@@ -354,6 +407,12 @@ impl BvhBuilder {
             heads: [heads(0)?, heads(1)?],
             scan: Kernel::new(ctx, &scan_desc)?,
             roots: Kernel::new(ctx, &KernelDesc::new(&shaders::hlbvh_roots::INFO))?,
+            collapse_cost: Kernel::new(
+                ctx,
+                &KernelDesc::new(&shaders::bvh_collapse_cost::INFO)
+                    .constant("FENCES", u32::from(ctx.caps().device_type != "cpu")),
+            )?,
+            compact: Kernel::new(ctx, &KernelDesc::new(&shaders::bvh_compact::INFO))?,
             sort: RadixSort::new(ctx, SortConfig::for_device(ctx.caps()))?,
             scratch: None,
         })
@@ -377,7 +436,7 @@ impl BvhBuilder {
 
     /// Builds the LBVH of the mesh on the device (two submissions: the bounds, then the tree).
     pub fn build_lbvh(&mut self, mesh: &MeshBuffers, o: &LbvhOptions) -> std::result::Result<GpuBvh, RunError> {
-        self.build(mesh, o.bits, None)
+        self.build(mesh, o.bits, None, o.max_leaf)
     }
 
     /// Builds the HLBVH of the mesh: everything but the top level over the clusters on the device (see the module
@@ -392,7 +451,7 @@ impl BvhBuilder {
             }
             .into());
         }
-        self.build(mesh, o.bits, Some((cb, o.bins)))
+        self.build(mesh, o.bits, Some((cb, o.bins)), o.max_leaf)
     }
 
     fn build(
@@ -400,7 +459,10 @@ impl BvhBuilder {
         mesh: &MeshBuffers,
         bits: MortonBits,
         hl: Option<(u32, usize)>,
+        max_leaf: u32,
     ) -> std::result::Result<GpuBvh, RunError> {
+        let max_leaf = max_leaf.min(MAX_COLLAPSE_LEAF);
+        let collapse = max_leaf > 1;
         let n = mesh.triangles;
         if n == 0 {
             return Err(InputError::Empty.into());
@@ -424,6 +486,17 @@ impl BvhBuilder {
         let bvh_ids = ctx.create_buffer("bvh ids", 4 * n, dl)?;
         let parents = ctx.create_buffer("bvh parents", 4 * total, dl)?;
         let counters = ctx.create_buffer("bvh counters", 4 * total, dl)?;
+        // With the collapse the tree above is the input of the collapse and these are the output.
+        let collapsed = if collapse {
+            Some((
+                ctx.create_buffer("bvh collapsed nodes", 32 * total, dl)?,
+                ctx.create_buffer("bvh collapsed parents", 4 * total, dl)?,
+                ctx.create_buffer("bvh collapse info", 32 * total, dl)?,
+                ctx.create_buffer("bvh collapse readback", 32, MemoryKind::Readback)?,
+            ))
+        } else {
+            None
+        };
 
         // Submission 1: keys and their bounds.
         ctx.submit_and_wait(|rec| {
@@ -531,6 +604,9 @@ impl BvhBuilder {
             rec.barrier();
             rec.copy(ids_buf, 0, &bvh_ids, 0, 4 * n);
             self.record_boxes(rec, mesh, ids_buf, &bvh_nodes, &parents, &counters, total, Some(timer));
+            if let (None, Some(cl)) = (hl, &collapsed) {
+                self.record_collapse(rec, &bvh_nodes, &parents, &counters, total, cl, max_leaf, timer);
+            }
             if hl.is_some() {
                 rec.barrier();
                 let push = RootsPush {
@@ -558,6 +634,7 @@ impl BvhBuilder {
                 if c == 0 || c > max_clusters {
                     return Err(GpuError::Buffer(format!("hlbvh: {c} clusters read back")).into());
                 }
+                let mut timer2 = Timer::new(&ctx, 8)?;
                 if c > 1 {
                     let starts_host: Vec<u32> = readback.read(4, c as usize)?;
                     let root_nodes: Vec<BvhNode> = readback.read(4 * (max_clusters + 2), c as usize)?;
@@ -574,14 +651,100 @@ impl BvhBuilder {
                         rec.barrier();
                         let push = ParentsPush { nodes: bvh_nodes.address(), parents: parents.address(), count: c - 1 };
                         rec.dispatch(&self.parents, &push, rec.groups_for(c - 1, self.parents.workgroup_size() as u64));
+                        if let Some(cl) = &collapsed {
+                            rec.reset_timer(&mut timer2);
+                            rec.timestamp(&mut timer2, "-");
+                            self.record_collapse(
+                                rec,
+                                &bvh_nodes,
+                                &parents,
+                                &counters,
+                                total,
+                                cl,
+                                max_leaf,
+                                &mut timer2,
+                            );
+                        }
+                        Ok(())
+                    })?;
+                } else if let Some(cl) = &collapsed {
+                    ctx.submit_and_wait(|rec| {
+                        rec.reset_timer(&mut timer2);
+                        rec.timestamp(&mut timer2, "-");
+                        self.record_collapse(rec, &bvh_nodes, &parents, &counters, total, cl, max_leaf, &mut timer2);
                         Ok(())
                     })?;
                 }
-                timings.push(("top_cpu".into(), t0.elapsed().as_secs_f64() * 1e3));
+                let host_ms = t0.elapsed().as_secs_f64() * 1e3;
+                let collapse_ms: Vec<(String, f64)> = if collapsed.is_some() {
+                    timer2.read()?.into_iter().filter(|(name, _)| name != "-").collect()
+                } else {
+                    Vec::new()
+                };
+                let device_ms: f64 = collapse_ms.iter().map(|t| t.1).sum();
+                timings.push(("top_cpu".into(), host_ms - device_ms));
+                timings.extend(collapse_ms);
                 GpuBvhKind::Hlbvh { clusters: c as u32 }
             }
         };
-        Ok(GpuBvh { kind, triangles: n, nodes: bvh_nodes, ids: bvh_ids, parents, counters, timings })
+        let (nodes, parents, node_count) = match collapsed {
+            Some((out_nodes, out_parents, _, readback)) => {
+                let size: Vec<u32> = readback.read(0, 1)?;
+                let size = size[0] as u64;
+                if size == 0 || size > total {
+                    return Err(GpuError::Buffer(format!("collapse: {size} nodes read back")).into());
+                }
+                (out_nodes, out_parents, size)
+            }
+            None => (bvh_nodes, parents, total),
+        };
+        Ok(GpuBvh { kind, triangles: n, node_count, nodes, ids: bvh_ids, parents, counters, timings })
+    }
+
+    /// Records the SAH collapse (`bvh_collapse_cost`, `bvh_compact`) of the `count` nodes of a fitted tree with
+    /// one record per leaf into `out = (nodes, parents, info, readback)`, and copies the root's surviving node
+    /// count to `readback` (begins with the barrier it needs after the fit).
+    #[allow(clippy::too_many_arguments)]
+    fn record_collapse(
+        &self,
+        rec: &mut Recorder<'_>,
+        nodes: &Buffer,
+        parents: &Buffer,
+        counters: &Buffer,
+        count: u64,
+        out: &(Buffer, Buffer, Buffer, Buffer),
+        max_leaf: u32,
+        timer: &mut Timer,
+    ) {
+        let (out_nodes, out_parents, info, readback) = out;
+        rec.barrier();
+        rec.fill(counters, 0, Some(4 * count), 0);
+        rec.barrier();
+        let push = CollapseCostPush {
+            nodes: nodes.address(),
+            parents: parents.address(),
+            counters: counters.address(),
+            info: info.address(),
+            count,
+            max_leaf,
+            pad: 0,
+        };
+        rec.dispatch(&self.collapse_cost, &push, rec.groups_for(count, self.collapse_cost.workgroup_size() as u64));
+        rec.timestamp(timer, "collapse_cost");
+        rec.barrier();
+        let push = CompactPush {
+            nodes: nodes.address(),
+            parents: parents.address(),
+            info: info.address(),
+            out_nodes: out_nodes.address(),
+            out_parents: out_parents.address(),
+            count,
+        };
+        rec.dispatch(&self.compact, &push, rec.groups_for(count, self.compact.workgroup_size() as u64));
+        rec.timestamp(timer, "compact");
+        rec.barrier();
+        rec.copy(info, 16, readback, 0, 4);
+        rec.host_read_barrier();
     }
 
     /// Records the leaf boxes and the bottom-up fit of `count` nodes (begins with the barrier it needs after the
