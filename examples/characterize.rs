@@ -22,6 +22,9 @@ use meshchar::trace::WorkloadKind;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+#[path = "support/cli.rs"]
+mod cli;
+
 const USAGE: &str = "\
 usage: characterize [FILE|DIR ...] [options]
 
@@ -197,15 +200,10 @@ fn main() -> ExitCode {
     if let Some(note) = engine.note() {
         eprintln!("characterize: {note}");
     }
-    let model = match CostModel::load(args.cost_model.as_deref()) {
-        Ok((m, note)) => {
-            if let Some(n) = note {
-                eprintln!("characterize: warning: {n}");
-            }
-            m
-        }
+    let model = match cli::cost_model("characterize", args.cost_model.as_deref()) {
+        Ok(m) => m,
         Err(e) => {
-            eprintln!("characterize: cost model: {e}");
+            eprintln!("characterize: {e}");
             return ExitCode::FAILURE;
         }
     };

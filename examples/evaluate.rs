@@ -26,6 +26,9 @@ use meshchar::trace::{Camera, WorkloadKind};
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 
+#[path = "support/cli.rs"]
+mod cli;
+
 const USAGE: &str = "\
 usage: evaluate [FILE|DIR ...] [options]
 
@@ -445,18 +448,10 @@ fn main() {
     if !args.compare.is_empty() {
         std::process::exit(compare_policies(&args));
     }
-    let model = match CostModel::load(args.cost_model.as_deref()) {
-        Ok((m, note)) => {
-            if let Some(n) = note {
-                eprintln!("evaluate: warning: {n}");
-            }
-            m
-        }
-        Err(e) => {
-            eprintln!("evaluate: cost model: {e}");
-            std::process::exit(1);
-        }
-    };
+    let model = cli::cost_model("evaluate", args.cost_model.as_deref()).unwrap_or_else(|e| {
+        eprintln!("evaluate: {e}");
+        std::process::exit(1);
+    });
     let mut evals = Vec::new();
     let mut failed = false;
     let mut engine = match Characterizer::new(None) {

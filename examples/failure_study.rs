@@ -14,6 +14,9 @@ use meshchar::mesh::load_mesh;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+#[path = "support/cli.rs"]
+mod cli;
+
 const USAGE: &str = "\
 usage: failure_study [options]
 
@@ -223,22 +226,5 @@ fn run(a: &Args) -> Result<(), String> {
 }
 
 fn main() -> ExitCode {
-    let args = match parse_args(std::env::args().skip(1).collect()) {
-        Ok(Some(a)) => a,
-        Ok(None) => {
-            println!("{USAGE}");
-            return ExitCode::SUCCESS;
-        }
-        Err(e) => {
-            eprintln!("failure_study: {e}\n\n{USAGE}");
-            return ExitCode::from(2);
-        }
-    };
-    match run(&args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("failure_study: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    cli::main_with("failure_study", USAGE, parse_args(std::env::args().skip(1).collect()), run)
 }

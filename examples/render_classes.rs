@@ -12,6 +12,9 @@ use meshchar::render::{class_colour, interior_camera, render_classes};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+#[path = "support/cli.rs"]
+mod cli;
+
 const USAGE: &str = "\
 usage: render_classes FILE|DIR --out FILE.png [options]
 
@@ -138,22 +141,5 @@ fn run(a: &Args) -> Result<(), String> {
 }
 
 fn main() -> ExitCode {
-    let args = match parse_args(std::env::args().skip(1).collect()) {
-        Ok(Some(a)) => a,
-        Ok(None) => {
-            println!("{USAGE}");
-            return ExitCode::SUCCESS;
-        }
-        Err(e) => {
-            eprintln!("render_classes: {e}\n\n{USAGE}");
-            return ExitCode::from(2);
-        }
-    };
-    match run(&args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("render_classes: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    cli::main_with("render_classes", USAGE, parse_args(std::env::args().skip(1).collect()), run)
 }

@@ -1,0 +1,45 @@
+//! What the example binaries share: the parse-then-run main with its exit codes, and loading the cost model with
+//! its fallback warning. Included by `#[path = "support/cli.rs"] mod cli;` (Cargo does not build this folder as an
+//! example of its own).
+#![allow(dead_code)]
+
+use meshchar::cost::CostModel;
+use std::path::Path;
+use std::process::ExitCode;
+
+/// Exit code 0 after `--help` (`Ok(None)`: `usage` printed) or a successful `run`; 2 with the usage for bad
+/// arguments; 1 when `run` fails. Every message is prefixed with the binary's `name`.
+pub fn main_with<A>(
+    name: &str,
+    usage: &str,
+    parsed: Result<Option<A>, String>,
+    run: impl FnOnce(&A) -> Result<(), String>,
+) -> ExitCode {
+    let args = match parsed {
+        Ok(Some(a)) => a,
+        Ok(None) => {
+            println!("{}", usage.trim_end());
+            return ExitCode::SUCCESS;
+        }
+        Err(e) => {
+            eprintln!("{name}: {e}\n\n{}", usage.trim_end());
+            return ExitCode::from(2);
+        }
+    };
+    match run(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("{name}: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// The calibration file at `path` (the shipped defaults without one), with the fallback note printed as a warning.
+pub fn cost_model(name: &str, path: Option<&Path>) -> Result<CostModel, String> {
+    let (model, note) = CostModel::load(path).map_err(|e| format!("cost model: {e}"))?;
+    if let Some(n) = note {
+        eprintln!("{name}: warning: {n}");
+    }
+    Ok(model)
+}
