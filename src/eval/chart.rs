@@ -25,6 +25,28 @@ fn esc(s: &str) -> String {
     s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
 }
 
+/// The start of an SVG document of `w x h` on a white background, with `title` centred at `title_x`.
+fn svg_open(w: f64, h: f64, title_x: f64, title: &str) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}" font-family="sans-serif" font-size="12">"#
+    );
+    let _ = writeln!(s, r#"<rect width="{w}" height="{h}" fill="white"/>"#);
+    let _ = writeln!(s, r#"<text x="{title_x}" y="28" text-anchor="middle" font-size="16">{}</text>"#, esc(title));
+    s
+}
+
+/// A horizontal grid line from `x0` to `x1` at `y`, labelled at its left end.
+fn grid_line(s: &mut String, x0: f64, x1: f64, y: f64, label: &str) {
+    let _ = writeln!(
+        s,
+        r##"<line x1="{x0}" y1="{y:.1}" x2="{x1:.1}" y2="{y:.1}" stroke="#ddd"/><text x="{:.1}" y="{:.1}" text-anchor="end">{label}</text>"##,
+        x0 - 6.0,
+        y + 4.0
+    );
+}
+
 /// A "nice" step (1, 2 or 5 times a power of ten) so that `max` spans about `ticks` steps.
 fn nice_step(max: f64, ticks: f64) -> f64 {
     let raw = (max / ticks).max(f64::MIN_POSITIVE);
@@ -75,31 +97,13 @@ impl BarChart {
         let step = nice_step(if max > 0.0 { max } else { 1.0 }, 5.0);
         let top_v = (max / step).ceil().max(1.0) * step;
         let y = |v: f64| top + ph - (v / top_v).clamp(0.0, 1.0) * ph;
-        let mut s = String::new();
-        let _ = writeln!(
-            s,
-            r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}" font-family="sans-serif" font-size="12">"#
-        );
-        let _ = writeln!(s, r#"<rect width="{w}" height="{h}" fill="white"/>"#);
-        let _ = writeln!(
-            s,
-            r#"<text x="{}" y="28" text-anchor="middle" font-size="16">{}</text>"#,
-            left + pw / 2.0,
-            esc(&self.title)
-        );
+        let mut s = svg_open(w, h, left + pw / 2.0, &self.title);
         // Grid and ticks.
         let ticks = (top_v / step).round() as usize;
         for i in 0..=ticks {
             let v = i as f64 * step;
             let yy = y(v);
-            let _ = writeln!(
-                s,
-                r##"<line x1="{left}" y1="{yy:.1}" x2="{:.1}" y2="{yy:.1}" stroke="#ddd"/><text x="{:.1}" y="{:.1}" text-anchor="end">{}</text>"##,
-                left + pw,
-                left - 6.0,
-                yy + 4.0,
-                fmt_tick(v, step)
-            );
+            grid_line(&mut s, left, left + pw, yy, &fmt_tick(v, step));
         }
         let _ = writeln!(
             s,
@@ -318,31 +322,13 @@ impl ScatterChart {
         let (y0, y1) = ((ymin / step).floor() * step, ((ymax / step).ceil().max(1.0)) * step);
         let sx = |x: f64| left + (x.log10() - lx0) / (lx1 - lx0) * pw;
         let sy = |y: f64| top + ph - (y - y0) / (y1 - y0) * ph;
-        let mut s = String::new();
-        let _ = writeln!(
-            s,
-            r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}" font-family="sans-serif" font-size="12">"#
-        );
-        let _ = writeln!(s, r#"<rect width="{w}" height="{h}" fill="white"/>"#);
-        let _ = writeln!(
-            s,
-            r#"<text x="{}" y="28" text-anchor="middle" font-size="16">{}</text>"#,
-            left + pw / 2.0,
-            esc(&self.title)
-        );
+        let mut s = svg_open(w, h, left + pw / 2.0, &self.title);
         // y grid.
         let ticks = ((y1 - y0) / step).round() as usize;
         for i in 0..=ticks {
             let v = y0 + i as f64 * step;
             let yy = sy(v);
-            let _ = writeln!(
-                s,
-                r##"<line x1="{left}" y1="{yy:.1}" x2="{:.1}" y2="{yy:.1}" stroke="#ddd"/><text x="{:.1}" y="{:.1}" text-anchor="end">{}</text>"##,
-                left + pw,
-                left - 6.0,
-                yy + 4.0,
-                fmt_tick(v, step)
-            );
+            grid_line(&mut s, left, left + pw, yy, &fmt_tick(v, step));
         }
         // x grid: decades, with 2 and 5 between.
         let mut d = lx0 as i32;
