@@ -7,7 +7,8 @@
 //! ```
 
 use meshchar::characterize::{Backend, Characterizer, ClassRule, MortonBits, ThesisPolicy};
-use meshchar::eval::tradeoff::{self, GridSpec, OracleScene, StatsTolerance};
+use meshchar::cost::CostModel;
+use meshchar::eval::tradeoff::{self, GridSpec, OracleScene, Selector, StatsTolerance};
 use meshchar::eval::{evaluate_scene, OracleConfig, Rebuild};
 use meshchar::mesh::Animation;
 use meshchar::trace::WorkloadKind;
@@ -20,8 +21,10 @@ usage: tradeoff [FILE|DIR ...] --out DIR [options]
 
 For each characterization setting (one knob at a time around the reference: the CPU backend, every triangle,
 30-bit codes, Doane) and each scene: the median time of the characterization, the drift of its statistics (k,
-histogram, Cramér's V, empty classes) from the full computation, the thesis policy's selection, and, against
-oracle results, whether the selection is the measured best or within noise of it and its regret. Writes into DIR:
+histogram, Cramér's V, empty classes) from the full computation, the policy's selection, and, against oracle
+results, whether the selection is the measured best or within noise of it and its regret. The calibrated policy
+selects per scene and workload (rays per frame and frames from the oracle line), from features computed with the
+setting's parameters on the CPU (one more pass, not timed); the thesis policy selects once per scene. Writes into DIR:
   tradeoff-<workload>.svg    time (log) against mean regret per setting, Pareto front marked
   tradeoff-statistics.svg    time (log) against the largest drift of Cramér's V
   tradeoff.json              every number
@@ -31,6 +34,9 @@ Without FILE|DIR, the scenes are those of the oracle files.
 
 options:
   --out DIR              where to write (required)
+  --policy NAME          thesis | calibrated (default calibrated)
+  --cost-model FILE      cost model JSON for the calibrated policy (default: the shipped model)
+  --tie-margin X         calibrated policy: relative margin within which the cheaper build wins (default 0.05)
   --oracle FILE          oracle results, `evaluate --json` lines (repeat for several workloads); without it
                          the oracle is measured here, at --oracle-resolution
   --workloads LIST       workloads to measure when no --oracle is given (default primary)
@@ -56,6 +62,9 @@ struct Args {
     oracle_frames: usize,
     grid: GridSpec,
     repeats: usize,
+    policy: String,
+    cost_model: Option<PathBuf>,
+    tie_margin: f64,
 }
 
 fn list<T>(v: &str, name: &str, f: impl Fn(&str) -> Option<T>) -> Result<Vec<T>, String> {
@@ -81,6 +90,9 @@ fn parse_args() -> Result<Args, String> {
         oracle_frames: 3,
         grid: GridSpec::default(),
         repeats: 3,
+        policy: "calibrated".into(),
+        cost_model: None,
+        tie_margin: 0.05,
     };
     let mut out = None;
     let mut it = std::env::args().skip(1);
@@ -95,6 +107,20 @@ fn parse_args() -> Result<Args, String> {
                 std::process::exit(0);
             }
             "--out" => out = Some(PathBuf::from(value("--out")?)),
+            "--policy" => {
+                a.policy = value("--policy")?;
+                if a.policy != "thesis" && a.policy != "calibrated" {
+                    return Err(format!("--policy: {:?} is not thesis or calibrated", a.policy));
+                }
+            }
+            "--cost-model" => a.cost_model = Some(PathBuf::from(value("--cost-model")?)),
+            "--tie-margin" => {
+                a.tie_margin = value("--tie-margin")?
+                    .parse()
+                    .ok()
+                    .filter(|x: &f64| x.is_finite() && *x >= 0.0)
+                    .ok_or("--tie-margin needs a number >= 0")?
+            }
             "--oracle" => a.oracle.push(PathBuf::from(value("--oracle")?)),
             "--workloads" => a.workloads = list(&value("--workloads")?, "--workloads", |s| s.parse().ok())?,
             "--oracle-resolution" => {
@@ -225,13 +251,30 @@ fn main() {
         }
     }
     let settings = args.grid.settings();
-    let policy = ThesisPolicy::default();
+    let thesis = ThesisPolicy::default();
+    let model = if args.policy == "calibrated" {
+        match CostModel::load(args.cost_model.as_deref()) {
+            Ok((m, note)) => {
+                if let Some(n) = note {
+                    eprintln!("tradeoff: warning: {n}");
+                }
+                Some(m)
+            }
+            Err(e) => fail(format!("cost model: {e}")),
+        }
+    } else {
+        None
+    };
+    let policy = match &model {
+        Some(model) => Selector::Calibrated { model, tie_margin: args.tie_margin },
+        None => Selector::Policy(&thesis),
+    };
     let mut engine_for = |b: Backend| Characterizer::new(Some(b));
     let t0 = Instant::now();
     let study = tradeoff::Study {
         scenes: &scenes,
         settings: &settings,
-        policy: &policy,
+        policy,
         oracle: &oracle,
         workloads: &workloads,
         repeats: args.repeats,
@@ -263,7 +306,8 @@ fn main() {
     md.push_str(&tradeoff::structures_markdown(&oracle, &workloads));
     written.push(write("tradeoff.md", &md));
     let json = serde_json::json!({
-        "policy": "thesis",
+        "policy": policy.name(),
+        "tie_margin": model.as_ref().map(|_| args.tie_margin),
         "reference": settings.first().map(|s| s.label()),
         "repeats": args.repeats,
         "workloads": workloads,

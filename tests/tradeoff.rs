@@ -128,7 +128,7 @@ fn sweep_with_a_pluggable_policy_and_the_least_work_table() {
     let study = tradeoff::Study {
         scenes: &scenes,
         settings: &settings,
-        policy: &policy,
+        policy: tradeoff::Selector::Policy(&policy),
         oracle: &oracle,
         workloads: &workloads,
         repeats: 1,
@@ -304,4 +304,89 @@ fn sampled_settings_characterize_identically_on_cpu_and_vulkan() {
     }
     drop(vk);
     gpu_support::assert_no_validation_messages(&ctx);
+}
+
+#[test]
+fn calibrated_policy_selects_per_workload_and_its_regret_is_its_own() {
+    use meshchar::characterize::features_cpu;
+    use meshchar::cost::{CalibratedPolicy, CostModel};
+    let model = CostModel::shipped().unwrap();
+    let mesh = generate::random_soup(2000, 3);
+    let scenes = [Animation::new("soup", vec![mesh.clone()]).unwrap()];
+    // The calibrated policy alone, on features computed with `params`.
+    let alone = |params: &Params, kind: WorkloadKind, rays: u64| -> StructureName {
+        let features = [features_cpu(&mesh, params).unwrap()];
+        let chars = [cpu::fast(&mesh, params).unwrap()];
+        let summary = SceneSummary::new("soup", &chars).with_features(&features);
+        CalibratedPolicy::new(model.clone(), kind, rays, 1).select(&summary).structure
+    };
+    // One primary ray per frame: the build dominates. Shadow rays: enough that the trace dominates and the model
+    // picks another structure (the model trades build against trace, so some count does).
+    let full = Params::default();
+    let few = alone(&full, WorkloadKind::Primary, 1);
+    let many = (1..=12)
+        .map(|k| 10u64.pow(k))
+        .find(|&r| alone(&full, WorkloadKind::Shadow, r) != few)
+        .expect("some ray count makes the calibrated policy change its selection");
+    let line = |workload: &str, rays: u64, totals: [f64; 6]| {
+        let names = ["bvh", "kdtree", "grid", "bih", "lbvh", "hlbvh"];
+        let structures: Vec<serde_json::Value> = names
+            .iter()
+            .zip(totals)
+            .map(|(n, t)| {
+                serde_json::json!({"name": n, "total_ms": t, "total_ms_spread": 0.01, "build_ms": t / 2.0,
+                    "memory_bytes": 10, "valid": true, "hits_agree": true})
+            })
+            .collect();
+        let v = serde_json::json!({"mesh": "soup", "workload": workload, "resolution": 1, "frames": 1,
+            "rays_per_frame": rays, "structures": structures});
+        OracleScene::from_json(&v).unwrap()
+    };
+    let oracle = vec![
+        line("primary", 1, [10.0, 17.0, 12.0, 11.0, 13.0, 15.0]),
+        line("shadow", many, [20.0, 21.0, 29.0, 27.0, 23.0, 25.0]),
+    ];
+    assert_eq!((oracle[1].rays_per_frame, oracle[1].frames), (many, 1));
+    let workloads = vec!["primary".to_string(), "shadow".to_string()];
+    let settings = [
+        Setting::reference(),
+        Setting { backend: Backend::Cpu, params: Params { sample_stride: 4, ..Params::default() } },
+    ];
+    let mut engine_for = |b: Backend| Characterizer::new(Some(b));
+    let study = tradeoff::Study {
+        scenes: &scenes,
+        settings: &settings,
+        policy: tradeoff::Selector::Calibrated { model: &model, tie_margin: 0.05 },
+        oracle: &oracle,
+        workloads: &workloads,
+        repeats: 1,
+    };
+    let results = tradeoff::sweep(&study, &mut engine_for, &|_| {}).unwrap();
+    assert_eq!(results.len(), 2);
+    for (r, setting) in results.iter().zip(&settings) {
+        let run = &r.scenes[0];
+        let expect =
+            [alone(&setting.params, WorkloadKind::Primary, 1), alone(&setting.params, WorkloadKind::Shadow, many)];
+        let got: Vec<Option<StructureName>> = run.per_workload.iter().map(|w| w.selected).collect();
+        assert_eq!(got, [Some(expect[0]), Some(expect[1])], "{}", r.label);
+        for ((w, o), sel) in workloads.iter().zip(&oracle).zip(expect) {
+            let a = r.accuracy(w).unwrap();
+            assert_eq!(a.scenes, 1, "{} {w}", r.label);
+            assert_eq!(a.mean_regret, o.regret(sel).unwrap(), "{} {w}", r.label);
+            assert_eq!(a.agree_best, if o.best().unwrap().name == sel { 1.0 } else { 0.0 }, "{} {w}", r.label);
+        }
+    }
+    // The full setting: the two workloads select differently, and the label names both.
+    let run = &results[0].scenes[0];
+    assert_eq!(run.per_workload[0].selected, Some(few));
+    assert_ne!(run.per_workload[0].selected, run.per_workload[1].selected);
+    let m = alone(&full, WorkloadKind::Shadow, many);
+    assert_eq!(run.selected, format!("primary={few},shadow={m}"));
+    assert!(run.same_selection);
+    // A line without rays per frame is an error for the calibrated policy, named.
+    let mut bare = oracle.clone();
+    bare[0].rays_per_frame = 0;
+    let study = tradeoff::Study { oracle: &bare, ..study };
+    let err = tradeoff::sweep(&study, &mut engine_for, &|_| {}).unwrap_err().to_string();
+    assert!(err.contains("rays_per_frame"), "{err}");
 }

@@ -14,7 +14,12 @@
 //!   Cramér's V (the effect size), of the empty-class count and of the concentrated share, and the total-variation
 //!   distance between the two class histograms read as step densities over the normalized code range
 //!   ([`histogram_distance`], defined for different `k` too).
-//! * **Selection**: the policy passed in (any [`Policy`]) on the scene's characterized frames.
+//! * **Selection** ([`Selector`]): either one policy (any [`Policy`], e.g. the thesis policy) on the scene's
+//!   characterized frames, one selection per scene; or the calibrated policy ([`CalibratedPolicy`]), one selection
+//!   per scene *and workload*, since its answer depends on the rays per frame: for each workload, the oracle line's
+//!   `rays_per_frame` and `frames` and the scene's features ([`features_cpu`]) computed with the setting's
+//!   parameters (sampling and bit depth change the features too). The features are one more pass over the
+//!   triangles on the CPU reference, after the timed characterization and not counted in the setting's time.
 //! * **Accuracy** against oracle results ([`OracleScene`], read from `evaluate --json` lines or measured): whether
 //!   the selection is the oracle's best, whether it is within noise of it, and its regret
 //!   `total(selected) / total(best) - 1`; per setting the mean and the worst regret over the scenes.
@@ -27,9 +32,12 @@ use super::chart::{ScatterChart, ScatterPoint};
 use super::{EvalError, Measurement, SceneEvaluation};
 use crate::accel::StructureName;
 use crate::characterize::{
-    Backend, CharError, Characterization, Characterizer, ClassRule, MortonBits, Params, Policy, SceneSummary,
+    features_cpu, Backend, CharError, Characterization, Characterizer, ClassRule, Features, MortonBits, Params, Policy,
+    SceneSummary,
 };
+use crate::cost::{CalibratedPolicy, CostModel};
 use crate::mesh::Animation;
+use crate::trace::WorkloadKind;
 use std::path::Path;
 use std::time::Instant;
 
@@ -274,6 +282,11 @@ pub struct OracleScene {
     pub workload: String,
     /// Image side of the measurement.
     pub resolution: u32,
+    /// Rays traced per frame (0 when the line does not say).
+    pub rays_per_frame: u64,
+    /// Frames the totals are for (a static scene rendered `frames` times with one build, or the frames of an
+    /// animation used; 1 when the line does not say).
+    pub frames: u64,
     /// Per structure.
     pub structures: Vec<OracleStructure>,
 }
@@ -285,6 +298,8 @@ impl OracleScene {
             mesh: e.mesh.clone(),
             workload: e.workload.as_str().to_string(),
             resolution: e.resolution,
+            rays_per_frame: e.rays_per_frame as u64,
+            frames: e.frames.max(1) as u64,
             structures: e
                 .structures
                 .iter()
@@ -301,7 +316,8 @@ impl OracleScene {
         }
     }
 
-    /// From one line of `evaluate --json` (fields `mesh`, `workload`, `resolution`, `structures[]` with `name`,
+    /// From one line of `evaluate --json` (fields `mesh`, `workload`, `resolution`, optional `rays_per_frame` and
+    /// `frames`, `structures[]` with `name`,
     /// `total_ms`, `total_ms_spread`, `build_ms`, `memory_bytes`, `valid`, `hits_agree`).
     pub fn from_json(v: &serde_json::Value) -> Result<OracleScene, String> {
         let str_field = |o: &serde_json::Value, k: &str| -> Result<String, String> {
@@ -311,6 +327,8 @@ impl OracleScene {
         let mesh = str_field(v, "mesh")?;
         let workload = str_field(v, "workload")?;
         let resolution = v.get("resolution").and_then(|x| x.as_u64()).unwrap_or(0) as u32;
+        let rays_per_frame = v.get("rays_per_frame").and_then(|x| x.as_u64()).unwrap_or(0);
+        let frames = v.get("frames").and_then(|x| x.as_u64()).unwrap_or(1).max(1);
         let list = v.get("structures").and_then(|x| x.as_array()).ok_or("missing array field \"structures\"")?;
         let mut structures = Vec::new();
         for s in list {
@@ -328,7 +346,7 @@ impl OracleScene {
                 ok,
             });
         }
-        Ok(OracleScene { mesh, workload, resolution, structures })
+        Ok(OracleScene { mesh, workload, resolution, rays_per_frame, frames, structures })
     }
 
     fn get(&self, name: StructureName) -> Option<&OracleStructure> {
@@ -403,8 +421,12 @@ pub struct SceneRun {
     pub frames: usize,
     /// Wall time of characterizing every frame, over the repeats, ms.
     pub time_ms: Measurement,
-    /// The policy's selection.
+    /// The policy's selection: the structure, or, when the selection is made per workload and differs between
+    /// workloads, `workload=structure` pairs separated by commas (`-` for none).
     pub selected: String,
+    /// The selection per workload of the study (the same structure for every workload when one policy selects;
+    /// `None` where the calibrated policy has no oracle line, hence no rays per frame, for the scene).
+    pub per_workload: Vec<WorkloadSelection>,
     /// Drift from the reference computation.
     pub drift: Drift,
     /// `k` of the first frame.
@@ -416,6 +438,15 @@ pub struct SceneRun {
     /// For a sampled setting with the reference's class rule: the same sample read with the reference's `k` (per
     /// frame), which isolates the sampling error from the change of `k` with `n`.
     pub same_k: Option<SameK>,
+}
+
+/// One workload's selection on one scene.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct WorkloadSelection {
+    /// The workload.
+    pub workload: String,
+    /// The selected structure, if a selection was made.
+    pub selected: Option<StructureName>,
 }
 
 /// A sample characterized with the full computation's class count.
@@ -450,6 +481,122 @@ pub fn time_characterization(
 pub fn select(policy: &dyn Policy, name: &str, frames: &[Characterization]) -> Result<StructureName, TradeoffError> {
     let sel = policy.select(&SceneSummary::new(name, frames));
     sel.structure.name().parse::<StructureName>().map_err(|e| TradeoffError::Input(format!("{e:?}")))
+}
+
+/// How a sweep selects.
+#[derive(Clone, Copy)]
+pub enum Selector<'a> {
+    /// One policy for every workload (e.g. [`crate::characterize::ThesisPolicy`]): one selection per scene, from
+    /// the characterized frames alone.
+    Policy(&'a dyn Policy),
+    /// The calibrated policy with this cost model and tie margin (see [`CalibratedPolicy`]): one selection per
+    /// scene and workload, for the rays per frame and frames of the scene's oracle line of that workload, from the
+    /// features computed with the setting's parameters.
+    Calibrated {
+        /// The cost model.
+        model: &'a CostModel,
+        /// Relative margin within which the cheaper build wins ([`CalibratedPolicy::tie_margin`]).
+        tie_margin: f64,
+    },
+}
+
+impl Selector<'_> {
+    /// The policy's name: the policy's own, or `calibrated`.
+    pub fn name(&self) -> &str {
+        match self {
+            Selector::Policy(p) => p.name(),
+            Selector::Calibrated { .. } => "calibrated",
+        }
+    }
+
+    /// Whether the selection needs the scene's features.
+    pub fn needs_features(&self) -> bool {
+        matches!(self, Selector::Calibrated { .. })
+    }
+}
+
+/// The calibrated policy for `scene` on `workload`, from the scene's oracle line of that workload: its rays per
+/// frame and frames. `None` when there is no such line; an error when the line has no rays per frame or the
+/// workload is not one the cost model knows.
+pub fn calibrated_for(
+    model: &CostModel,
+    tie_margin: f64,
+    scene: &str,
+    workload: &str,
+    oracle: &[OracleScene],
+) -> Result<Option<(CalibratedPolicy, usize)>, TradeoffError> {
+    let key = scene_key(scene);
+    let Some(o) = oracle.iter().find(|o| o.workload == workload && scene_key(&o.mesh) == key) else {
+        return Ok(None);
+    };
+    if o.rays_per_frame == 0 {
+        return Err(TradeoffError::Input(format!(
+            "{}: the {workload} oracle line has no rays_per_frame, which the calibrated policy needs",
+            o.mesh
+        )));
+    }
+    let kind: WorkloadKind = workload.parse().map_err(TradeoffError::Input)?;
+    let mut p = CalibratedPolicy::new(model.clone(), kind, o.rays_per_frame, o.frames);
+    p.tie_margin = tie_margin;
+    Ok(Some((p, o.frames.max(1) as usize)))
+}
+
+/// The selections of `selector` on one scene: a label ([`SceneRun::selected`]) and one per workload.
+/// `features` (one per frame) are needed for [`Selector::Calibrated`] only.
+pub fn select_per_workload(
+    selector: &Selector<'_>,
+    scene: &Animation,
+    frames: &[Characterization],
+    features: &[Features],
+    workloads: &[String],
+    oracle: &[OracleScene],
+) -> Result<(String, Vec<WorkloadSelection>), TradeoffError> {
+    match selector {
+        Selector::Policy(p) => {
+            let sel = select(*p, &scene.name, frames)?;
+            let per = workloads.iter().map(|w| WorkloadSelection { workload: w.clone(), selected: Some(sel) });
+            Ok((sel.as_str().to_string(), per.collect()))
+        }
+        Selector::Calibrated { model, tie_margin } => {
+            let mut per = Vec::new();
+            for w in workloads {
+                let selected = match calibrated_for(model, *tie_margin, &scene.name, w, oracle)? {
+                    None => None,
+                    Some((p, used)) => {
+                        // An animation: the frames the oracle measured; a static scene: its one frame.
+                        let used = if scene.is_dynamic() { used } else { 1 }.clamp(1, features.len().max(1));
+                        let n = used.min(frames.len()).min(features.len());
+                        let summary = SceneSummary::new(&scene.name, &frames[..n]).with_features(&features[..n]);
+                        let sel = p.select(&summary);
+                        Some(
+                            sel.structure
+                                .name()
+                                .parse::<StructureName>()
+                                .map_err(|e| TradeoffError::Input(format!("{e:?}")))?,
+                        )
+                    }
+                };
+                per.push(WorkloadSelection { workload: w.clone(), selected });
+            }
+            let name = |s: Option<StructureName>| s.map_or("-", |s| s.as_str());
+            let first = per.first().and_then(|x| x.selected);
+            let label = if per.iter().all(|x| x.selected == first) {
+                name(first).to_string()
+            } else {
+                per.iter().map(|x| format!("{}={}", x.workload, name(x.selected))).collect::<Vec<_>>().join(",")
+            };
+            Ok((label, per))
+        }
+    }
+}
+
+/// The features of every frame of `scene` with `params` (CPU reference), or none when `selector` does not need
+/// them.
+fn features_for(selector: &Selector<'_>, scene: &Animation, params: &Params) -> Result<Vec<Features>, CharError> {
+    if !selector.needs_features() {
+        return Ok(Vec::new());
+    }
+    scene.frames.iter().map(|m| features_cpu(m, params)).collect()
 }
 
 /// Accuracy of one setting against the oracle on one workload.
@@ -672,15 +819,16 @@ pub fn sufficiency(results: &[SettingResult], tol: &StatsTolerance) -> Vec<Suffi
 }
 
 /// What a sweep measures: the scenes, the settings (the first is the reference, normally
-/// [`Setting::reference`]), the policy that selects, and the oracle results and workloads to judge it by.
+/// [`Setting::reference`]), how the policy selects, and the oracle results and workloads to judge it by.
 pub struct Study<'a> {
     /// The scenes.
     pub scenes: &'a [Animation],
     /// The settings; the first is the reference the drift is measured from.
     pub settings: &'a [Setting],
-    /// The selection policy (any [`Policy`]).
-    pub policy: &'a dyn Policy,
-    /// Oracle results (scenes are matched by [`scene_key`], workloads by name).
+    /// How the selection is made: one [`Policy`] per scene, or the calibrated policy per scene and workload.
+    pub policy: Selector<'a>,
+    /// Oracle results (scenes are matched by [`scene_key`], workloads by name; the calibrated policy also takes
+    /// the rays per frame and frames of each workload from them).
     pub oracle: &'a [OracleScene],
     /// The workloads to report accuracy for.
     pub workloads: &'a [String],
@@ -689,7 +837,8 @@ pub struct Study<'a> {
 }
 
 /// Runs the sweep: every setting on every scene, drift against the first setting, selections by the study's
-/// policy, accuracy against its oracle results for each of its workloads.
+/// policy (per workload for [`Selector::Calibrated`], from features computed with the setting's parameters, untimed),
+/// accuracy against its oracle results for each of its workloads.
 ///
 /// `engine_for` gives the characterizer of a backend (so that the caller decides how the Vulkan device is made);
 /// each is made once. `progress` receives one line per step.
@@ -721,7 +870,8 @@ pub fn sweep(
     for (i, scene) in scenes.iter().enumerate() {
         progress(&format!("reference {} ({}/{}): {}", reference.label(), i + 1, scenes.len(), scene.name));
         let frames = engines[ei].1.characterize_animation(scene, &reference.params)?;
-        ref_sel.push(select(policy, &scene.name, &frames)?);
+        let features = features_for(&policy, scene, &reference.params)?;
+        ref_sel.push(select_per_workload(&policy, scene, &frames, &features, workloads, oracle)?);
         ref_frames.push(frames);
     }
     let names: Vec<String> = scenes.iter().map(|s| s.name.clone()).collect();
@@ -742,11 +892,12 @@ pub fn sweep(
                 scene.name
             ));
             let (frames, time_ms) = time_characterization(&mut engines[ei].1, scene, &setting.params, repeats)?;
-            let sel = select(policy, &scene.name, &frames)?;
+            let features = features_for(&policy, scene, &setting.params)?;
+            let sel = select_per_workload(&policy, scene, &frames, &features, workloads, oracle)?;
             if let Some(f) = frames.first() {
                 device.clone_from(&f.device);
             }
-            sels.push(sel);
+            sels.push(sel.1.clone());
             // A sample read with the full computation's class count: separates sampling error from the change of
             // k that Doane's rule makes for a smaller n (computed on the reference backend, untimed).
             let same_k = if setting.params.sample_stride > 1 && setting.params.class_rule == reference.params.class_rule
@@ -756,7 +907,8 @@ pub fn sweep(
                     let p = Params { class_rule: ClassRule::Fixed(r.classes), ..setting.params.clone() };
                     fk.push(engines[ref_engine].1.characterize(mesh, &p)?);
                 }
-                let sel_k = select(policy, &scene.name, &fk)?;
+                // The features do not depend on the class rule: the setting's serve.
+                let sel_k = select_per_workload(&policy, scene, &fk, &features, workloads, oracle)?;
                 Some(SameK { drift: drift(&ref_frames[i], &fk), same_selection: sel_k == ref_sel[i] })
             } else {
                 None
@@ -767,11 +919,12 @@ pub fn sweep(
                 triangles: scene.frames.first().map_or(0, |f| f.triangle_count() as u64),
                 frames: frames.len(),
                 time_ms,
-                selected: sel.as_str().to_string(),
+                same_selection: sel == ref_sel[i],
+                selected: sel.0,
+                per_workload: sel.1,
                 drift: drift(&ref_frames[i], &frames),
                 k: frames.first().map_or(0, |f| f.classes),
                 effect_size: frames.first().map_or(0.0, |f| f.stats.cramers_v),
-                same_selection: sel == ref_sel[i],
             });
         }
         let n = runs.len().max(1) as f64;
@@ -788,7 +941,15 @@ pub fn sweep(
             mean_effect_size_drift: runs.iter().map(|r| r.drift.effect_size).sum::<f64>() / n,
             mean_histogram_distance: runs.iter().map(|r| r.drift.histogram).sum::<f64>() / n,
             max_k_delta: runs.iter().map(|r| r.drift.k_delta.abs()).max().unwrap_or(0),
-            accuracy: workloads.iter().map(|w| accuracy(w, &names, &sels, oracle)).collect(),
+            accuracy: workloads
+                .iter()
+                .enumerate()
+                .map(|(wi, w)| {
+                    let (n, s): (Vec<String>, Vec<StructureName>) =
+                        names.iter().zip(&sels).filter_map(|(n, s)| Some((n.clone(), s.get(wi)?.selected?))).unzip();
+                    accuracy(w, &n, &s, oracle)
+                })
+                .collect(),
             scenes: runs,
         });
     }
