@@ -68,7 +68,7 @@ pub fn exponent(x: f32) -> Option<i32> {
 /// Real-valued quantities derived from [`Features`] for the cost model (host side; see [`Features::derived`]).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Derived {
-    /// `ln n` (n >= 1).
+    /// `ln n`, `n` the mesh's triangle count (not the sample's; n >= 1).
     pub ln_n: f64,
     /// Share of occupied cells at the depth where `8^d` is closest to `n` (interpolated in `d`), of `min(8^d, n)`:
     /// 1 when the triangles fill space at the scale of one cell per triangle, small when space is mostly empty.
@@ -133,7 +133,10 @@ impl Features {
             let mn = exps.iter().min().copied().unwrap_or(0);
             ((mx - mn) as f64).min(24.0)
         };
-        Derived { ln_n: n.ln(), fill_at_n, ln_tris_per_cell, empty_d3, size_mean: m, size_spread, aspect_log2 }
+        // The scene's size is the mesh's (a sample is a smaller set of the same scene); the occupancy ratios above
+        // compare the sample with itself.
+        let n_scene = self.total_triangles.max(self.triangles).max(1) as f64;
+        Derived { ln_n: n_scene.ln(), fill_at_n, ln_tris_per_cell, empty_d3, size_mean: m, size_spread, aspect_log2 }
     }
 }
 

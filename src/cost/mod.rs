@@ -335,7 +335,7 @@ impl CostModel {
     /// Predicted costs of every calibrated structure for a scene (its first frame's features) and a workload.
     pub fn predict(&self, f: &Features, w: &Workload) -> Vec<Prediction> {
         let d = f.derived();
-        self.structures.iter().map(|m| m.predict(&d, f.triangles, w)).collect()
+        self.structures.iter().map(|m| m.predict(&d, f.total_triangles.max(f.triangles), w)).collect()
     }
 
     /// Fits a model on oracle samples (see the module docs). Structures with fewer than 3 valid samples are left
@@ -400,8 +400,10 @@ fn fit_structure(samples: &[Sample], s: StructureName) -> Result<Option<Structur
     }
     let err = |what: &str| CostError::Fit(format!("{}: {what} system is singular", s.as_str()));
     // Build law.
-    let bx: Vec<Vec<f64>> =
-        rows.iter().map(|(smp, _)| vec![1.0, (smp.features.triangles.max(1) as f64).ln()]).collect();
+    let bx: Vec<Vec<f64>> = rows
+        .iter()
+        .map(|(smp, _)| vec![1.0, (smp.features.total_triangles.max(smp.features.triangles).max(1) as f64).ln()])
+        .collect();
     let by: Vec<f64> = rows.iter().map(|(_, m)| m.build_ms_per_build.ln()).collect();
     let ones = vec![1.0; rows.len()];
     let build = linalg::weighted_ridge(&bx, &by, &ones, &[0.0, 1e-9]).ok_or_else(|| err("build"))?;
@@ -431,7 +433,8 @@ fn fit_structure(samples: &[Sample], s: StructureName) -> Result<Option<Structur
     };
     let (mut eb, mut ebox, mut eprim, mut etc, mut et, mut etot) = (vec![], vec![], vec![], vec![], vec![], vec![]);
     for (smp, meas) in &rows {
-        let pr = m.predict(&smp.features.derived(), smp.features.triangles, &smp.workload);
+        let pr =
+            m.predict(&smp.features.derived(), smp.features.total_triangles.max(smp.features.triangles), &smp.workload);
         let lr = |a: f64, b: f64| (a.max(1e-12) / b.max(1e-12)).ln();
         eb.push(lr(pr.build_ms_per_build, meas.build_ms_per_build));
         ebox.push(lr(pr.box_tests_per_ray, meas.box_tests_per_ray.max(1e-3)));

@@ -75,7 +75,7 @@ pub fn plan_frames(
                     frame: i,
                     action: "refit",
                     structure: s,
-                    update_ms: r.refit_ns_per_triangle * f.triangles as f64 * 1e-6,
+                    update_ms: r.refit_ns_per_triangle * f.total_triangles.max(f.triangles) as f64 * 1e-6,
                     trace_ms: p.trace_ms * (1.0 + r.sah_growth_per_drift.max(0.0) * d),
                     drift: d,
                 }
@@ -161,7 +161,7 @@ impl Policy for CalibratedPolicy {
             self.kind.as_str(),
             w.frames,
             w.builds,
-            scene.features[0].triangles,
+            scene.features[0].total_triangles.max(scene.features[0].triangles),
             if preds.iter().any(|p| p.structure == choice && p.total_ms > best) {
                 format!(" within {:.0}% and the cheapest build", 100.0 * self.tie_margin)
             } else {
