@@ -12,6 +12,9 @@ use meshchar::ops::characterize::MeshBuffers;
 use meshchar::ops::lbvh::{BvhBuilder, MAX_GPU_CLUSTER_BITS};
 use std::time::Instant;
 
+#[path = "support/cli.rs"]
+mod cli;
+
 const USAGE: &str = "usage: build_bvh FILE [--builder lbvh|hlbvh|sah] [--backend vulkan|cpu] [--max-leaf N]
                  [--cluster-bits B] [--json]
   FILE            a mesh (OBJ or PLY)
@@ -22,6 +25,7 @@ const USAGE: &str = "usage: build_bvh FILE [--builder lbvh|hlbvh|sah] [--backend
   --json          one JSON object instead of text";
 
 fn main() {
+    cli::exit_quietly_on_broken_pipe();
     if let Err(e) = run() {
         eprintln!("build_bvh: {e}");
         std::process::exit(2);

@@ -263,5 +263,6 @@ fn run(args: &Args) -> Result<(), String> {
 }
 
 fn main() -> ExitCode {
+    cli::exit_quietly_on_broken_pipe();
     cli::main_with("calibrate", USAGE, parse_args(), run)
 }

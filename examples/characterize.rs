@@ -179,6 +179,7 @@ fn process(engine: &mut Characterizer, scene: &Animation, args: &Args, model: &C
 }
 
 fn main() -> ExitCode {
+    cli::exit_quietly_on_broken_pipe();
     let args = match parse_args(std::env::args().skip(1).collect()) {
         Ok(Some(a)) => a,
         Ok(None) => {

@@ -5,6 +5,9 @@
 use meshchar::gpu::enumerate_devices;
 use std::process::ExitCode;
 
+#[path = "support/cli.rs"]
+mod cli;
+
 const HELP: &str = "devices: list Vulkan devices and the one meshchar would use
 
 USAGE: devices [--json]
@@ -15,6 +18,7 @@ USAGE: devices [--json]
 MESHCHAR_DEVICE=<index or name substring> overrides the choice; VK_DRIVER_FILES selects drivers.";
 
 fn main() -> ExitCode {
+    cli::exit_quietly_on_broken_pipe();
     let mut json = false;
     for a in std::env::args().skip(1) {
         match a.as_str() {

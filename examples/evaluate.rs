@@ -430,6 +430,7 @@ fn compare_policies(args: &Args) -> i32 {
 }
 
 fn main() {
+    cli::exit_quietly_on_broken_pipe();
     let args = match parse_args() {
         Ok(a) => a,
         Err(e) => {

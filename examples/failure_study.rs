@@ -226,5 +226,6 @@ fn run(a: &Args) -> Result<(), String> {
 }
 
 fn main() -> ExitCode {
+    cli::exit_quietly_on_broken_pipe();
     cli::main_with("failure_study", USAGE, parse_args(std::env::args().skip(1).collect()), run)
 }

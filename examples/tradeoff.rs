@@ -16,6 +16,9 @@ use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::time::Instant;
 
+#[path = "support/cli.rs"]
+mod cli;
+
 const USAGE: &str = "\
 usage: tradeoff [FILE|DIR ...] --out DIR [options]
 
@@ -158,6 +161,7 @@ fn fail(msg: impl std::fmt::Display) -> ! {
 }
 
 fn main() {
+    cli::exit_quietly_on_broken_pipe();
     let mut args = match parse_args() {
         Ok(a) => a,
         Err(e) => {

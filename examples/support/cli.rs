@@ -43,3 +43,21 @@ pub fn cost_model(name: &str, path: Option<&Path>) -> Result<CostModel, String> 
     }
     Ok(model)
 }
+
+/// Makes a closed standard output (`example | head`) end the program quietly with status 141, as a shell tool
+/// would, instead of a panic message: Rust ignores SIGPIPE, so `println!` panics on a closed pipe.
+pub fn exit_quietly_on_broken_pipe() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let msg = info
+            .payload()
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| info.payload().downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if msg.contains("Broken pipe") {
+            std::process::exit(141);
+        }
+        default(info);
+    }));
+}
