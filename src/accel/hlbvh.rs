@@ -37,6 +37,7 @@ use super::{invalid, prepare, Aabb, AccelError, AccelStats, AccelStructure, Stru
 use crate::keys::MortonBits;
 use crate::mesh::Mesh;
 use crate::trace::{Hit, Ray, TraceCounters};
+use glam::Vec3;
 use rayon::prelude::*;
 
 /// Options of the HLBVH.
@@ -69,16 +70,32 @@ pub struct Hlbvh {
 }
 
 /// Split position of a top node's cluster list (reordered in place, stable on each side) by the binned SAH of
-/// step 4; `scratch` is reused storage.
-fn top_split(list: &mut [u32], boxes: &[Aabb], bins: usize, scratch: &mut Vec<u32>) -> usize {
+/// step 4; `centers` are the cluster boxes' centres (`Aabb::center`), `scratch` is reused storage.
+/// Reused storage of [`top_split`]: the partition buffer and the bins (only the first `bins` entries are used).
+struct SplitScratch {
+    list: Vec<u32>,
+    bb: [Aabb; 64],
+    bn: [usize; 64],
+    right: [(f32, usize); 64],
+}
+
+impl SplitScratch {
+    fn new() -> Self {
+        SplitScratch { list: Vec::new(), bb: [Aabb::EMPTY; 64], bn: [0; 64], right: [(0.0, 0); 64] }
+    }
+}
+
+fn top_split(list: &mut [u32], boxes: &[Aabb], centers: &[Vec3], bins: usize, scratch: &mut SplitScratch) -> usize {
     let mut cb = Aabb::EMPTY;
     for &c in list.iter() {
-        cb.grow(boxes[c as usize].center());
+        cb.grow(centers[c as usize]);
     }
     let nb = bins.clamp(2, 64);
     let ext = cb.max - cb.min;
+    // The scale of every axis, evaluated as the definition writes it (the same f32 operations in the same order).
+    let scale: [f32; 3] = std::array::from_fn(|a| nb as f32 * (1.0 - 1e-6) / ext[a]);
     let bin_of = |c: u32, a: usize| -> usize {
-        let x = (boxes[c as usize].center()[a] - cb.min[a]) * (nb as f32 * (1.0 - 1e-6) / ext[a]);
+        let x = (centers[c as usize][a] - cb.min[a]) * scale[a];
         (x as usize).min(nb - 1)
     };
     let mut best: Option<(usize, usize, f32)> = None;
@@ -86,8 +103,9 @@ fn top_split(list: &mut [u32], boxes: &[Aabb], bins: usize, scratch: &mut Vec<u3
         if ext[a].is_nan() || ext[a] <= 0.0 {
             continue;
         }
-        let mut bb = [Aabb::EMPTY; 64];
-        let mut bn = [0usize; 64];
+        let (bb, bn, right) = (&mut scratch.bb, &mut scratch.bn, &mut scratch.right);
+        bb[..nb].fill(Aabb::EMPTY);
+        bn[..nb].fill(0);
         for &c in list.iter() {
             let b = bin_of(c, a);
             bb[b] = bb[b].union(&boxes[c as usize]);
@@ -95,7 +113,6 @@ fn top_split(list: &mut [u32], boxes: &[Aabb], bins: usize, scratch: &mut Vec<u3
         }
         // Right sides by a backward sweep, left sides forward: the same boxes (unions are exact) as summing the
         // bins of each side from scratch.
-        let mut right = [(0.0f32, 0usize); 64];
         let (mut rb, mut rn) = (Aabb::EMPTY, 0);
         for i in (1..nb).rev() {
             rb = rb.union(&bb[i]);
@@ -119,21 +136,136 @@ fn top_split(list: &mut [u32], boxes: &[Aabb], bins: usize, scratch: &mut Vec<u3
     match best {
         Some((a, s, _)) => {
             // Stable partition: clusters keep their order on each side.
-            scratch.clear();
-            scratch.extend(list.iter().copied().filter(|&c| bin_of(c, a) < s));
-            let m = scratch.len();
-            scratch.extend(list.iter().copied().filter(|&c| bin_of(c, a) >= s));
-            list.copy_from_slice(scratch);
+            let buf = &mut scratch.list;
+            buf.clear();
+            buf.extend(list.iter().copied().filter(|&c| bin_of(c, a) < s));
+            let m = buf.len();
+            buf.extend(list.iter().copied().filter(|&c| bin_of(c, a) >= s));
+            list.copy_from_slice(buf);
             m
         }
         None => list.len() / 2,
     }
 }
 
+/// Top lists larger than this are split into two tasks that build their subtrees in parallel.
+const PARALLEL_TOP: usize = 4096;
+
+/// Splits the top node over `list` (at least two clusters), writes it at `out[pos]` (global index `base + pos`)
+/// and returns the split position and the node's box. A node of `m` clusters has `m - 1` top nodes in its subtree,
+/// so its left child's block starts at `pos + 1` and its right child's at `pos + split`.
+#[allow(clippy::too_many_arguments)]
+fn top_node(
+    list: &mut [u32],
+    roots: &[u32],
+    boxes: &[Aabb],
+    centers: &[Vec3],
+    bins: usize,
+    scratch: &mut SplitScratch,
+    out: &mut [BvhNode],
+    base: u32,
+    pos: usize,
+) -> (usize, Aabb) {
+    let mut b = Aabb::EMPTY;
+    for &c in list.iter() {
+        b = b.union(&boxes[c as usize]);
+    }
+    let m = top_split(list, boxes, centers, bins, scratch);
+    let n = list.len();
+    let here = base + pos as u32;
+    let li = if m == 1 { roots[list[0] as usize] } else { here + 1 };
+    let ri = if n - m == 1 { roots[list[m] as usize] } else { here + m as u32 };
+    out[pos] = BvhNode::internal(&b, li, ri);
+    (m, b)
+}
+
+/// The subtree over `list` (at least two clusters) into `out` (its `list.len() - 1` nodes, global indices from
+/// `base`), one node at a time with an explicit stack (no recursion, whatever the tree's depth).
+fn top_sequential(
+    list: &mut [u32],
+    roots: &[u32],
+    boxes: &[Aabb],
+    centers: &[Vec3],
+    bins: usize,
+    out: &mut [BvhNode],
+    base: u32,
+) {
+    let mut scratch = SplitScratch::new();
+    let mut stack = vec![(0usize, list.len(), 0usize)];
+    while let Some((s, e, pos)) = stack.pop() {
+        let (m, _) = top_node(&mut list[s..e], roots, boxes, centers, bins, &mut scratch, out, base, pos);
+        if e - s - m > 1 {
+            stack.push((s + m, e, pos + m));
+        }
+        if m > 1 {
+            stack.push((s, s + m, pos + 1));
+        }
+    }
+}
+
+/// The subtree over `list` (at least two clusters) into `out` (its `list.len() - 1` nodes, global indices from
+/// `base`); returns its box. While both sides of a split are large they are built in parallel into disjoint slices
+/// (the result does not depend on the schedule); a small side is built sequentially and the loop goes on with the
+/// large one, so the recursion is at most `log2(C / PARALLEL_TOP)` deep.
+fn top_subtree(
+    mut list: &mut [u32],
+    roots: &[u32],
+    boxes: &[Aabb],
+    centers: &[Vec3],
+    bins: usize,
+    mut out: &mut [BvhNode],
+    mut base: u32,
+) -> Aabb {
+    let mut scratch = SplitScratch::new();
+    let mut root_box = None;
+    while list.len() > PARALLEL_TOP {
+        let (m, b) = top_node(list, roots, boxes, centers, bins, &mut scratch, out, base, 0);
+        root_box.get_or_insert(b);
+        let (l, r) = list.split_at_mut(m);
+        let (lo, ro) = out[1..].split_at_mut(m - 1);
+        let (lbase, rbase) = (base + 1, base + m as u32);
+        let side = |x: &mut [u32], o: &mut [BvhNode], b0: u32| {
+            if x.len() > 1 {
+                top_subtree(x, roots, boxes, centers, bins, o, b0);
+            }
+        };
+        if l.len() > PARALLEL_TOP && r.len() > PARALLEL_TOP {
+            rayon::join(|| side(l, lo, lbase), || side(r, ro, rbase));
+            return b_or(root_box, b);
+        }
+        // One side is small: build it here, go on with the other.
+        if l.len() > r.len() {
+            side(r, ro, rbase);
+            (list, out, base) = (l, lo, lbase);
+        } else {
+            side(l, lo, lbase);
+            (list, out, base) = (r, ro, rbase);
+        }
+        if list.len() == 1 {
+            return b_or(root_box, b);
+        }
+    }
+    if list.len() > 1 {
+        // The first node's box, when the loop above did not run.
+        let mut b = Aabb::EMPTY;
+        if root_box.is_none() {
+            for &c in list.iter() {
+                b = b.union(&boxes[c as usize]);
+            }
+        }
+        top_sequential(list, roots, boxes, centers, bins, out, base);
+        return b_or(root_box, b);
+    }
+    root_box.unwrap_or(Aabb::EMPTY)
+}
+
+fn b_or(root: Option<Aabb>, b: Aabb) -> Aabb {
+    root.unwrap_or(b)
+}
+
 /// The top tree of step 4 over the clusters in `list` (their root node indices `roots` and boxes `boxes`),
 /// appended to `out` in depth-first order; returns the index and box of its root (a cluster's root when `list`
-/// holds one cluster). Iterative: a top node of `m` clusters has `m - 1` top nodes below and including it, so the
-/// right child's index is known before the left subtree is built.
+/// holds one cluster).
 pub(crate) fn top_tree(
     list: &mut [u32],
     roots: &[u32],
@@ -146,30 +278,10 @@ pub(crate) fn top_tree(
         return (roots[c], boxes[c]);
     }
     let base = out.len() as u32;
-    let mut root_box = Aabb::EMPTY;
-    let mut scratch = Vec::new();
-    let mut stack = vec![(0usize, list.len())];
-    while let Some((s, e)) = stack.pop() {
-        let here = out.len() as u32;
-        let sub = &mut list[s..e];
-        let mut b = Aabb::EMPTY;
-        for &c in sub.iter() {
-            b = b.union(&boxes[c as usize]);
-        }
-        let m = top_split(sub, boxes, bins, &mut scratch);
-        let li = if m == 1 { roots[sub[0] as usize] } else { here + 1 };
-        let ri = if e - s - m == 1 { roots[sub[m] as usize] } else { here + m as u32 };
-        out.push(BvhNode::internal(&b, li, ri));
-        if here == base {
-            root_box = b;
-        }
-        if e - s - m > 1 {
-            stack.push((s + m, e));
-        }
-        if m > 1 {
-            stack.push((s, s + m));
-        }
-    }
+    let centers: Vec<Vec3> = boxes.iter().map(Aabb::center).collect();
+    out.resize(out.len() + list.len() - 1, BvhNode::default());
+    let block = &mut out[base as usize..];
+    let root_box = top_subtree(list, roots, boxes, &centers, bins, block, base);
     (base, root_box)
 }
 
