@@ -39,6 +39,23 @@ use crate::trace::{intersect_triangle, Hit, Ray, RayInv, TraceCounters};
 use glam::{Vec3, Vec4};
 use rayon::prelude::*;
 
+/// The [`AccelStructure`] methods every structure stored as a [`BvhTree`] in a field `tree` shares (BVH, LBVH,
+/// HLBVH): triangle count, closest hit and any hit by the tree's traversal.
+macro_rules! bvh_tree_traversal {
+    () => {
+        fn triangle_count(&self) -> usize {
+            self.tree.tris.len()
+        }
+        fn intersect(&self, ray: &Ray, c: &mut TraceCounters) -> Option<Hit> {
+            self.tree.traverse(ray, false, c)
+        }
+        fn occluded(&self, ray: &Ray, c: &mut TraceCounters) -> bool {
+            self.tree.traverse(ray, true, c).is_some()
+        }
+    };
+}
+pub(crate) use bvh_tree_traversal;
+
 /// Bit 31 of [`BvhNode::right_or_count`] marks a leaf.
 pub const LEAF_FLAG: u32 = 1 << 31;
 
@@ -711,15 +728,7 @@ impl AccelStructure for Bvh {
     fn name(&self) -> StructureName {
         StructureName::Bvh
     }
-    fn triangle_count(&self) -> usize {
-        self.tree.tris.len()
-    }
-    fn intersect(&self, ray: &Ray, c: &mut TraceCounters) -> Option<Hit> {
-        self.tree.traverse(ray, false, c)
-    }
-    fn occluded(&self, ray: &Ray, c: &mut TraceCounters) -> bool {
-        self.tree.traverse(ray, true, c).is_some()
-    }
+    bvh_tree_traversal!();
     fn validate(&self) -> Result<AccelStats, AccelError> {
         self.tree.validate("bvh")
     }

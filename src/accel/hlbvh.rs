@@ -28,7 +28,7 @@
 //!    over the whole tree (a top node collapses only where its clusters are adjacent in sorted order), which
 //!    renumbers the kept nodes depth first; with 1 the layout of steps 3 and 4 stays.
 
-use super::bvh::{BvhNode, BvhTree};
+use super::bvh::{bvh_tree_traversal, BvhNode, BvhTree};
 use super::lbvh::{
     check_depth_first_shape, check_karras_shape, collapse_leaves, fit_boxes_bottom_up, morton_codes,
     radix_tree_children, sorted_keys, MAX_COLLAPSE_LEAF,
@@ -368,15 +368,7 @@ impl AccelStructure for Hlbvh {
     fn name(&self) -> StructureName {
         StructureName::Hlbvh
     }
-    fn triangle_count(&self) -> usize {
-        self.tree.tris.len()
-    }
-    fn intersect(&self, ray: &Ray, c: &mut TraceCounters) -> Option<Hit> {
-        self.tree.traverse(ray, false, c)
-    }
-    fn occluded(&self, ray: &Ray, c: &mut TraceCounters) -> bool {
-        self.tree.traverse(ray, true, c).is_some()
-    }
+    bvh_tree_traversal!();
     /// The BVH checks of [`BvhTree::validate`], plus the HLBVH shape: `C - 1` top nodes, then one Karras block per
     /// cluster covering its positions, clusters contiguous and in order; after the collapse, the depth-first
     /// numbering, leaves of at most `max_leaf` records and clusters covering the records.

@@ -44,7 +44,7 @@
 //! [`min_total`]: crate::keys::min_total
 //! [`max_total`]: crate::keys::max_total
 
-use super::bvh::{BvhNode, BvhTree};
+use super::bvh::{bvh_tree_traversal, BvhNode, BvhTree};
 use super::{prepare, Aabb, AccelError, AccelStats, AccelStructure, StructureName, Triangle};
 use crate::keys::{centroid_key, max_total, min_total, morton, quantization_scale, quantize, MortonBits};
 use crate::mesh::Mesh;
@@ -387,15 +387,7 @@ impl AccelStructure for Lbvh {
     fn name(&self) -> StructureName {
         StructureName::Lbvh
     }
-    fn triangle_count(&self) -> usize {
-        self.tree.tris.len()
-    }
-    fn intersect(&self, ray: &Ray, c: &mut TraceCounters) -> Option<Hit> {
-        self.tree.traverse(ray, false, c)
-    }
-    fn occluded(&self, ray: &Ray, c: &mut TraceCounters) -> bool {
-        self.tree.traverse(ray, true, c).is_some()
-    }
+    bvh_tree_traversal!();
     /// The BVH checks of [`BvhTree::validate`], plus the LBVH shape: `n - 1` internal nodes and `n` leaves of one
     /// record each, leaf `n - 1 + p` holding record `p` (after the collapse: the depth-first numbering of step 7 and
     /// leaves of at most `max_leaf` records), codes sorted with ids ascending among equal codes.
