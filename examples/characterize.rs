@@ -105,12 +105,7 @@ fn parse_args(argv: Vec<String>) -> Result<Option<Args>, String> {
             "--class-rule" => {
                 args.params.class_rule = value("--class-rule")?.parse::<ClassRule>().map_err(|e| format!("{e}"))?;
             }
-            "--policy" => {
-                args.policy = value("--policy")?;
-                if args.policy != "thesis" && args.policy != "calibrated" {
-                    return Err(format!("--policy must be thesis or calibrated, got {:?}", args.policy));
-                }
-            }
+            "--policy" => args.policy = cli::policy_arg(value("--policy")?)?,
             "--cost-model" => args.cost_model = Some(PathBuf::from(value("--cost-model")?)),
             "--workload" => args.workload = value("--workload")?.parse()?,
             "--resolution" => {

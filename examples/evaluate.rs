@@ -148,20 +148,9 @@ fn parse_args() -> Result<Args, String> {
                 a.config.camera = Some(cam);
             }
             "--charts" => a.charts = Some(PathBuf::from(value("--charts")?)),
-            "--policy" => {
-                a.policy = value("--policy")?;
-                if a.policy != "thesis" && a.policy != "calibrated" {
-                    return Err(format!("--policy: {:?} is not thesis or calibrated", a.policy));
-                }
-            }
+            "--policy" => a.policy = cli::policy_arg(value("--policy")?)?,
             "--cost-model" => a.cost_model = Some(PathBuf::from(value("--cost-model")?)),
-            "--tie-margin" => {
-                a.tie_margin = value("--tie-margin")?
-                    .parse()
-                    .ok()
-                    .filter(|x: &f64| (0.0..=1.0).contains(x))
-                    .ok_or("--tie-margin needs a number in 0..=1")?
-            }
+            "--tie-margin" => a.tie_margin = cli::tie_margin_arg(&value("--tie-margin")?)?,
             "--oracle-cache" => a.oracle_cache = Some(PathBuf::from(value("--oracle-cache")?)),
             "--compare-policies" => a.compare.push(PathBuf::from(value("--compare-policies")?)),
             s if s.starts_with("--") => return Err(format!("unknown option {s} (see --help)")),

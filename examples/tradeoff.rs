@@ -110,20 +110,9 @@ fn parse_args() -> Result<Args, String> {
                 std::process::exit(0);
             }
             "--out" => out = Some(PathBuf::from(value("--out")?)),
-            "--policy" => {
-                a.policy = value("--policy")?;
-                if a.policy != "thesis" && a.policy != "calibrated" {
-                    return Err(format!("--policy: {:?} is not thesis or calibrated", a.policy));
-                }
-            }
+            "--policy" => a.policy = cli::policy_arg(value("--policy")?)?,
             "--cost-model" => a.cost_model = Some(PathBuf::from(value("--cost-model")?)),
-            "--tie-margin" => {
-                a.tie_margin = value("--tie-margin")?
-                    .parse()
-                    .ok()
-                    .filter(|x: &f64| x.is_finite() && *x >= 0.0)
-                    .ok_or("--tie-margin needs a number >= 0")?
-            }
+            "--tie-margin" => a.tie_margin = cli::tie_margin_arg(&value("--tie-margin")?)?,
             "--oracle" => a.oracle.push(PathBuf::from(value("--oracle")?)),
             "--workloads" => a.workloads = list(&value("--workloads")?, "--workloads", |s| s.parse().ok())?,
             "--oracle-resolution" => {

@@ -61,3 +61,20 @@ pub fn exit_quietly_on_broken_pipe() {
         default(info);
     }));
 }
+
+/// The value of `--policy`: `thesis` or `calibrated`.
+pub fn policy_arg(v: String) -> Result<String, String> {
+    if v == "thesis" || v == "calibrated" {
+        Ok(v)
+    } else {
+        Err(format!("--policy: {v:?} is not thesis or calibrated"))
+    }
+}
+
+/// The value of `--tie-margin`: a share of the best predicted total in `0..=1`.
+pub fn tie_margin_arg(v: &str) -> Result<f64, String> {
+    v.parse()
+        .ok()
+        .filter(|x: &f64| (0.0..=1.0).contains(x))
+        .ok_or_else(|| "--tie-margin needs a number in 0..=1".into())
+}
