@@ -13,9 +13,11 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use meshchar::accel::{build_structure, StructureName};
+use meshchar::geom::Ray;
+use meshchar::geom::WorkloadKind;
 use meshchar::mesh::Mesh;
 use meshchar::trace::workload::{mesh_bounds, primary_rays};
-use meshchar::trace::{trace, Camera, Ray, RaySet, WorkloadKind};
+use meshchar::trace::{trace, Camera, RaySet};
 use rayon::prelude::*;
 use std::time::{Duration, Instant};
 
@@ -250,7 +252,7 @@ fn median_of<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
 }
 
 /// Hits that differ from ours in triangle, allowing equal distances (ties) and the rounding of other triangle tests.
-fn disagreements(ours: &[Option<meshchar::trace::Hit>], theirs: &[Option<(f32, usize)>]) -> usize {
+fn disagreements(ours: &[Option<meshchar::geom::Hit>], theirs: &[Option<(f32, usize)>]) -> usize {
     ours.iter()
         .zip(theirs)
         .filter(|(a, b)| match (a, b) {

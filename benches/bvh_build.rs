@@ -12,12 +12,12 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode};
 use meshchar::accel::bvh::{Bvh, BvhTree};
+use meshchar::accel::gpu::{BvhBuilder, GpuBvh};
 use meshchar::accel::hlbvh::{Hlbvh, HlbvhOptions};
 use meshchar::accel::lbvh::{Lbvh, LbvhOptions};
+use meshchar::gpu::MeshBuffers;
 use meshchar::gpu::{Context, ContextDesc};
 use meshchar::mesh::{load_mesh, Mesh};
-use meshchar::ops::characterize::MeshBuffers;
-use meshchar::ops::lbvh::{BvhBuilder, GpuBvh};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 

@@ -13,8 +13,8 @@
 //! rayon, on the same cores. lavapipe is the correctness device; throughput claims for the sort belong to a GPU.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode, Throughput};
+use meshchar::gpu::sort::{KeyBits, RadixSort, SortConfig, SortStorage};
 use meshchar::gpu::{Context, ContextDesc, Timer};
-use meshchar::ops::sort::{KeyBits, RadixSort, SortConfig, SortStorage};
 use meshchar::rng::SplitMix64 as Rng;
 use rayon::slice::ParallelSliceMut;
 use std::time::Duration;

@@ -4,12 +4,12 @@
 //! [--max-leaf N] [--cluster-bits B] [--json]`
 
 use meshchar::accel::bvh::{Bvh, BvhTree};
+use meshchar::accel::gpu::{BvhBuilder, MAX_GPU_CLUSTER_BITS};
 use meshchar::accel::hlbvh::{Hlbvh, HlbvhOptions};
 use meshchar::accel::lbvh::{Lbvh, LbvhOptions, MAX_COLLAPSE_LEAF};
 use meshchar::accel::AccelStructure;
+use meshchar::gpu::MeshBuffers;
 use meshchar::gpu::{Context, ContextDesc};
-use meshchar::ops::characterize::MeshBuffers;
-use meshchar::ops::lbvh::{BvhBuilder, MAX_GPU_CLUSTER_BITS};
 use std::time::Instant;
 
 #[path = "support/cli.rs"]

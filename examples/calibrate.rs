@@ -10,11 +10,12 @@
 use meshchar::accel::lbvh::Lbvh;
 use meshchar::accel::AccelStructure;
 use meshchar::characterize::{features_cpu, Features, Params};
-use meshchar::cost::dataset::{drift, load_oracle_samples};
+use meshchar::cost::drift;
 use meshchar::cost::{CostModel, RefitModel, Sample};
+use meshchar::eval::record::load_samples as load_oracle_samples;
 use meshchar::eval::{evaluate_scene, OracleConfig, Rebuild};
+use meshchar::geom::WorkloadKind;
 use meshchar::mesh::{generate, Animation};
-use meshchar::trace::WorkloadKind;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -135,7 +136,7 @@ fn measure(args: &Args) -> Result<Vec<Sample>, String> {
             let t = Instant::now();
             let e = evaluate_scene(scene, &config, None, &|_| {}).map_err(|e| e.to_string())?;
             eprintln!("calibrate: {} {}: {:.1} s", scene.name, kind.as_str(), t.elapsed().as_secs_f64());
-            out.push(Sample::from_evaluation(&e, f.clone(), None).map_err(|e| e.to_string())?);
+            out.push(e.record().sample(f.clone(), None));
         }
     }
     Ok(out)

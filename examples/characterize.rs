@@ -1,4 +1,4 @@
-//! Characterizes meshes and animations (SPEC.md) and selects an acceleration structure for each.
+//! Characterizes meshes and animations (docs/spec.md) and selects an acceleration structure for each.
 //!
 //! ```text
 //! cargo run --release --example characterize -- [FILE|DIR ...] [--json] [--backend vulkan|cpu|naive]
@@ -12,13 +12,11 @@
 //! `--json` the reports are printed for people; with it, one JSON object per mesh or frame per line.
 
 use meshchar::characterize::Features;
-use meshchar::characterize::{
-    cpu, Backend, Characterization, Characterizer, ClassRule, MortonBits, Params, Policy, Report, SceneSummary,
-    ThesisPolicy,
-};
-use meshchar::cost::{CalibratedPolicy, CostModel};
+use meshchar::characterize::{cpu, Backend, Characterization, Characterizer, ClassRule, MortonBits, Params};
+use meshchar::cost::CostModel;
+use meshchar::geom::WorkloadKind;
 use meshchar::mesh::Animation;
-use meshchar::trace::WorkloadKind;
+use meshchar::select::{select_for_scene, CalibratedPolicy, PolicyChoice, Report, TargetWorkload};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -145,20 +143,24 @@ fn process(engine: &mut Characterizer, scene: &Animation, args: &Args, model: &C
                 return false;
             }
         };
-    let summary = SceneSummary::new(scene.name.clone(), &results).with_features(&features);
-    let calibrated =
-        CalibratedPolicy::new(model.clone(), args.workload, args.resolution * args.resolution, args.frames);
-    let thesis = ThesisPolicy::default();
-    let policy: &dyn Policy = if args.policy == "thesis" { &thesis } else { &calibrated };
-    let selection = policy.select(&summary);
-    let predicted = (args.policy != "thesis").then(|| calibrated.predictions(&summary)).flatten();
+    let policy = match args.policy.as_str() {
+        "thesis" => PolicyChoice::Thesis,
+        _ => PolicyChoice::Calibrated { model, tie_margin: CalibratedPolicy::DEFAULT_TIE_MARGIN },
+    };
+    let workload = TargetWorkload {
+        kind: args.workload,
+        rays_per_frame: args.resolution * args.resolution,
+        frames: args.frames,
+        animation_frames: None,
+    };
+    let chosen = select_for_scene(&scene.name, &results, &features, policy, &workload);
     let dynamic = scene.frames.len() > 1;
     for (i, (frame, c)) in scene.frames.iter().zip(&results).enumerate() {
         let mut report = Report::new(if dynamic { scene.name.clone() } else { frame.name.clone() }, c)
-            .selection(summary.kind, policy.name(), &selection)
+            .selection(chosen.kind, chosen.policy, &chosen.selection)
             .zero_area(cpu::zero_area_triangles(frame, args.params.sample_stride))
             .features(features[i].clone());
-        if let Some(p) = &predicted {
+        if let Some(p) = &chosen.predicted {
             report = report.predicted(p.clone());
         }
         if dynamic {

@@ -15,14 +15,17 @@
 //! side.
 
 use meshchar::accel::{AccelStructure, StructureName};
-use meshchar::characterize::{Characterizer, Params, Policy, SceneSummary, ThesisPolicy};
-use meshchar::cost::dataset::{compare, load_oracle_samples};
-use meshchar::cost::{CalibratedPolicy, CostModel, Prediction};
+use meshchar::characterize::{Characterizer, Params};
+use meshchar::cost::{CostModel, Prediction};
 use meshchar::eval::chart::BarChart;
+use meshchar::eval::compare::compare;
+use meshchar::eval::record::load_samples as load_oracle_samples;
 use meshchar::eval::{evaluate_scene, OracleConfig, Rebuild, SceneEvaluation};
+use meshchar::geom::WorkloadKind;
 use meshchar::mesh::Animation;
+use meshchar::select::{select_for_scene, PolicyChoice, TargetWorkload};
 use meshchar::trace::workload::{build_workload, mesh_bounds};
-use meshchar::trace::{Camera, WorkloadKind};
+use meshchar::trace::Camera;
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 
@@ -184,20 +187,19 @@ fn select(
 ) -> Result<Selected, String> {
     let (chars, features) =
         engine.characterize_animation_with_features(scene, &Params::default()).map_err(|e| e.to_string())?;
-    let (sel, preds) = if policy == "thesis" {
-        let summary = SceneSummary::new(scene.name.clone(), &chars).with_features(&features);
-        (ThesisPolicy::default().select(&summary), None)
-    } else {
-        let rays = rays_per_frame(scene, config)?;
-        let frames = if scene.is_dynamic() { config.frames.unwrap_or(scene.frames.len()) } else { 1 };
-        let mut p = CalibratedPolicy::new(model.clone(), config.workload, rays, config.frames.unwrap_or(1) as u64);
-        p.tie_margin = tie_margin;
-        let used = frames.clamp(1, features.len());
-        let summary = SceneSummary::new(scene.name.clone(), &chars[..used]).with_features(&features[..used]);
-        let preds = p.predictions(&summary);
-        (p.select(&summary), preds)
+    let choice = match policy {
+        "thesis" => PolicyChoice::Thesis,
+        _ => PolicyChoice::Calibrated { model, tie_margin },
     };
-    let name = sel.structure.name().parse::<StructureName>()?;
+    let workload = TargetWorkload {
+        kind: config.workload,
+        rays_per_frame: if policy == "thesis" { 0 } else { rays_per_frame(scene, config)? },
+        frames: config.frames.unwrap_or(1) as u64,
+        animation_frames: config.frames,
+    };
+    let chosen = select_for_scene(&scene.name, &chars, &features, choice, &workload);
+    let (sel, preds) = (chosen.selection, chosen.predicted);
+    let name = sel.structure;
     Ok((name, sel.reasons, preds))
 }
 
@@ -212,7 +214,7 @@ fn rays_per_frame(scene: &Animation, config: &OracleConfig) -> Result<u64, Strin
     let f =
         if scene.is_dynamic() { config.frames.unwrap_or(scene.frames.len()).clamp(1, scene.frames.len()) } else { 1 };
     let camera = config.camera.unwrap_or_else(|| {
-        let b = scene.frames[..f].iter().fold(meshchar::accel::Aabb::EMPTY, |a, m| a.union(&mesh_bounds(m)));
+        let b = scene.frames[..f].iter().fold(meshchar::geom::Aabb::EMPTY, |a, m| a.union(&mesh_bounds(m)));
         Camera::frame(&b)
     });
     let reference = meshchar::accel::bvh::Bvh::build(first).map_err(|e| e.to_string())?;

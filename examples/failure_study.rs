@@ -6,9 +6,8 @@
 //!     [--repeats R] [--large-n-max N] [--no-oracle] [--conference FILE]
 //! ```
 
-use meshchar::accel::StructureName;
 use meshchar::characterize::{Backend, Characterizer, Params};
-use meshchar::eval::study::{self, Case, CaseStats};
+use meshchar::eval::failure_study::{self, Case, CaseStats};
 use meshchar::eval::{evaluate_scene, OracleConfig, Rebuild, SceneEvaluation};
 use meshchar::mesh::load_mesh;
 use std::path::PathBuf;
@@ -94,7 +93,7 @@ fn oracle(case: &Case, stats: &CaseStats, a: &Args) -> Result<SceneEvaluation, S
         rebuild: if dynamic { Rebuild::PerFrame } else { Rebuild::Once },
         ..OracleConfig::default()
     };
-    let selected = stats.selected.name().parse::<StructureName>().ok();
+    let selected = Some(stats.selected);
     evaluate_scene(&anim, &config, selected, &|_| {}).map_err(|e| format!("{}: oracle: {e}", case.name))
 }
 
@@ -111,7 +110,7 @@ fn fmt_p(p: f64) -> String {
 fn run(a: &Args) -> Result<(), String> {
     let mut engine = Characterizer::new(a.backend).map_err(|e| e.to_string())?;
     let params = Params::default();
-    let mut cases = study::generated_cases(a.large_n_max).map_err(|e| e.to_string())?;
+    let mut cases = failure_study::generated_cases(a.large_n_max).map_err(|e| e.to_string())?;
     if let Some(path) = &a.conference {
         let mesh = load_mesh(path).map_err(|e| e.to_string())?;
         cases.push(Case::fixed("conference", "the conference room (real zero-area triangles)", mesh));
@@ -129,7 +128,8 @@ fn run(a: &Args) -> Result<(), String> {
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|---:|");
     let mut json_cases = Vec::new();
     for case in &cases {
-        let stats = study::characterize_case(case, &mut engine, &params).map_err(|e| format!("{}: {e}", case.name))?;
+        let stats =
+            failure_study::characterize_case(case, &mut engine, &params).map_err(|e| format!("{}: {e}", case.name))?;
         let eval = if a.oracle && case.name != "conference" { Some(oracle(case, &stats, a)?) } else { None };
         let f = &stats.frames[0];
         let (vmin, vmax) = stats
@@ -170,7 +170,7 @@ fn run(a: &Args) -> Result<(), String> {
     println!("|---|---:|---:|---:|");
     let mut json_hits = Vec::new();
     for case in cases.iter().filter(|c| ["soup_5000", "huge_1e30", "tiny_1e-30"].contains(&c.name.as_str())) {
-        let h = study::primary_hits(&case.frames[0], a.resolution).map_err(|e| e.to_string())?;
+        let h = failure_study::primary_hits(&case.frames[0], a.resolution).map_err(|e| e.to_string())?;
         println!("| {} | {} | {} | {} |", case.name, h.rays, h.bvh_hits, h.brute_hits);
         json_hits.push(serde_json::json!({"case": case.name, "hits": h}));
     }
@@ -178,7 +178,7 @@ fn run(a: &Args) -> Result<(), String> {
     let mut json_refit = serde_json::Value::Null;
     if let Some(case) = cases.iter().find(|c| c.name == "explosion") {
         let anim = case.animation().map_err(|e| e.to_string())?;
-        let rows = study::refit_study(&anim, a.resolution).map_err(|e| e.to_string())?;
+        let rows = failure_study::refit_study(&anim, a.resolution).map_err(|e| e.to_string())?;
         println!(
             "\nExplosion: frame-0 trees refitted against trees rebuilt per frame ({r}x{r} primary rays):\n",
             r = a.resolution

@@ -7,8 +7,8 @@
 //! ```
 
 use meshchar::characterize::{Backend, Characterizer, MortonBits, Params};
+use meshchar::eval::render::{class_colour, interior_camera, render_classes};
 use meshchar::mesh::load_path;
-use meshchar::render::{class_colour, interior_camera, render_classes};
 use std::path::PathBuf;
 use std::process::ExitCode;
 

@@ -6,12 +6,14 @@
 //! cargo run --release --example tradeoff -- [FILE|DIR ...] [--oracle FILE ...] --out DIR [options]
 //! ```
 
-use meshchar::characterize::{Backend, Characterizer, ClassRule, MortonBits, ThesisPolicy};
+use meshchar::characterize::{Backend, Characterizer, ClassRule, MortonBits};
 use meshchar::cost::CostModel;
-use meshchar::eval::tradeoff::{self, GridSpec, OracleScene, Selector, StatsTolerance};
+use meshchar::eval::tradeoff::{self, GridSpec, Selector, StatsTolerance};
+use meshchar::eval::OracleRecord;
 use meshchar::eval::{evaluate_scene, OracleConfig, Rebuild};
+use meshchar::geom::WorkloadKind;
 use meshchar::mesh::Animation;
-use meshchar::trace::WorkloadKind;
+use meshchar::select::ThesisPolicy;
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -177,9 +179,9 @@ fn main() {
     };
 
     // Oracle results from files.
-    let mut oracle: Vec<OracleScene> = Vec::new();
+    let mut oracle: Vec<OracleRecord> = Vec::new();
     for f in &args.oracle {
-        match tradeoff::read_oracle_jsonl(f) {
+        match meshchar::eval::record::read_jsonl(f) {
             Ok(v) => oracle.extend(v),
             Err(e) => fail(e),
         }
@@ -205,8 +207,8 @@ fn main() {
     // Workloads: those of the files, or measured here.
     let mut workloads: Vec<String> = Vec::new();
     for o in &oracle {
-        if !workloads.contains(&o.workload) {
-            workloads.push(o.workload.clone());
+        if !workloads.iter().any(|w| w == o.workload.as_str()) {
+            workloads.push(o.workload.as_str().to_string());
         }
     }
     if args.oracle.is_empty() {
@@ -224,7 +226,7 @@ fn main() {
                     progress(&format!("oracle ({} {}x{}): {m}", w.as_str(), config.resolution, config.resolution))
                 };
                 match evaluate_scene(scene, &config, None, &pr) {
-                    Ok(e) => oracle.push(OracleScene::from_evaluation(&e)),
+                    Ok(e) => oracle.push(e.record()),
                     Err(e) => fail(e),
                 }
             }

@@ -1,4 +1,4 @@
-//! Centroid keys, quantization and Morton codes exactly as `SPEC.md` steps 1 to 4 pin them.
+//! Centroid keys, quantization and Morton codes exactly as `docs/spec.md` steps 1 to 4 pin them.
 //!
 //! These are the scalar definitions shared by the CPU paths, the tests that check the GPU, and the BVH builders
 //! (LBVH and HLBVH sort triangles by the same codes). Every function is exact IEEE f32 or integer arithmetic, so a

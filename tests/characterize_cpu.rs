@@ -1,12 +1,10 @@
 //! The CPU characterization: the naive reference and the rayon path agree bit for bit; moments agree with an f64
-//! two-pass; SPEC.md's degenerate cases; sampling; 63-bit codes; the JSON report.
+//! two-pass; docs/spec.md's degenerate cases; sampling; 63-bit codes; the JSON report.
 
-use meshchar::characterize::{
-    cpu, finalize, run, Backend, CharError, Characterization, ClassRule, MortonBits, Params, Policy, Report,
-    SceneSummary, ThesisPolicy,
-};
+use meshchar::characterize::{cpu, finalize, run, Backend, CharError, Characterization, ClassRule, MortonBits, Params};
 use meshchar::mesh::{Mesh, MeshError};
 use meshchar::rng::SplitMix64 as Rng;
+use meshchar::select::{Policy, Report, SceneSummary, ThesisPolicy};
 use std::path::{Path, PathBuf};
 
 // ---------------------------------------------------------------------------------------------------------------
@@ -326,7 +324,7 @@ fn animation_frames_and_policy() {
 }
 
 // ---------------------------------------------------------------------------------------------------------------
-// SPEC.md's degenerate cases
+// docs/spec.md's degenerate cases
 
 #[test]
 fn one_two_and_equal_triangles_have_one_class() {

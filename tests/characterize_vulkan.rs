@@ -6,8 +6,9 @@ mod common;
 mod gpu_support;
 
 use meshchar::characterize::vulkan::VulkanBackend;
-use meshchar::characterize::{cpu, CharError, Characterization, ClassRule, MortonBits, Params, Report};
+use meshchar::characterize::{cpu, CharError, Characterization, ClassRule, MortonBits, Params};
 use meshchar::mesh::{generate, load_mesh, load_path, Mesh};
+use meshchar::select::Report;
 use std::path::Path;
 
 /// Everything a report carries, compared exactly (floats by their bits), plus the per-triangle arrays.

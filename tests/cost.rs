@@ -5,14 +5,16 @@ mod common;
 use meshchar::accel::lbvh::Lbvh;
 use meshchar::accel::{AccelStructure, StructureName};
 use meshchar::characterize::features::{exponent, SIZE_BINS};
-use meshchar::characterize::{cpu, features_cpu, Features, Params, Policy, SceneSummary};
-use meshchar::cost::dataset::{compare, Measured, Sample};
-use meshchar::cost::policy::choose;
-use meshchar::cost::{
-    phi, price_row, CalibratedPolicy, CostModel, Prediction, Workload, COST_MODEL_VERSION, FEATURE_NAMES, PRICE_NAMES,
-};
+use meshchar::characterize::{cpu, features_cpu, Features, Params};
+use meshchar::cost::{phi, price_row, CostModel, Prediction, Workload, COST_MODEL_VERSION, FEATURE_NAMES, PRICE_NAMES};
+use meshchar::cost::{Measured, Sample};
+use meshchar::eval::compare::compare;
+use meshchar::eval::OracleRecord;
+use meshchar::geom::WorkloadKind;
 use meshchar::mesh::{generate, Mesh};
-use meshchar::trace::WorkloadKind;
+use meshchar::select::choose;
+use meshchar::select::CalibratedPolicy;
+use meshchar::select::{Policy, SceneSummary};
 
 /// An 8 x 8 x 8 lattice (spacing 1) of small right triangles with legs 0.125 along x and y.
 fn lattice() -> Mesh {
@@ -318,7 +320,7 @@ fn oracle_records_parse_into_samples() {
         ]
     });
     let f = features_cpu(&generate::single_triangle(), &Params::default()).unwrap();
-    let s = Sample::from_json(&rec, f, None).unwrap();
+    let s = OracleRecord::from_json(&rec).unwrap().sample(f, None);
     assert_eq!(s.workload, Workload { kind: WorkloadKind::Shadow, rays_per_frame: 1000, frames: 3, builds: 3 });
     assert_eq!(s.baseline, Some(StructureName::Bvh));
     let bvh = s.get(StructureName::Bvh).unwrap();

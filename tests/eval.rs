@@ -3,8 +3,8 @@
 use glam::Vec3;
 use meshchar::accel::StructureName;
 use meshchar::eval::{evaluate_scene, Measurement, OracleConfig, Rebuild};
+use meshchar::geom::WorkloadKind;
 use meshchar::mesh::{Animation, Mesh};
-use meshchar::trace::WorkloadKind;
 
 fn scene(n: usize, shift: f32) -> Mesh {
     let tris: Vec<[Vec3; 3]> = (0..n)

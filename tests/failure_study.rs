@@ -10,18 +10,20 @@ use meshchar::accel::bvh::Bvh;
 use meshchar::accel::grid::Grid;
 use meshchar::accel::lbvh::Lbvh;
 use meshchar::accel::AccelStructure;
-use meshchar::characterize::{Backend, Characterizer, Params, SceneKind, Structure};
-use meshchar::eval::study::{self, Case, CaseStats};
+use meshchar::characterize::{Backend, Characterizer, Params};
+use meshchar::eval::failure_study::{self, Case, CaseStats};
+use meshchar::geom::WorkloadKind;
 use meshchar::mesh::{generate, load_mesh, Mesh};
+use meshchar::select::{SceneKind, Structure};
 use meshchar::trace::workload::{mesh_bounds, primary_rays};
-use meshchar::trace::{trace, Camera, RaySet, WorkloadKind};
+use meshchar::trace::{trace, Camera, RaySet};
 use std::sync::OnceLock;
 
 const LARGE_N_MAX: usize = 100_000;
 
 fn cases() -> &'static [Case] {
     static CASES: OnceLock<Vec<Case>> = OnceLock::new();
-    CASES.get_or_init(|| study::generated_cases(LARGE_N_MAX).expect("cases"))
+    CASES.get_or_init(|| failure_study::generated_cases(LARGE_N_MAX).expect("cases"))
 }
 
 fn case(name: &str) -> &'static Case {
@@ -30,7 +32,7 @@ fn case(name: &str) -> &'static Case {
 
 fn stats(name: &str) -> CaseStats {
     let mut cpu = Characterizer::new(Some(Backend::Cpu)).expect("cpu");
-    let s = study::characterize_case(case(name), &mut cpu, &Params::default()).expect("characterize");
+    let s = failure_study::characterize_case(case(name), &mut cpu, &Params::default()).expect("characterize");
     for f in &s.frames {
         for x in [f.chi_square, f.p_value, f.effect_size, f.concentrated_share] {
             assert!(x.is_finite(), "{name}: non-finite figure in {f:?}");
@@ -142,10 +144,10 @@ fn extreme_scales_characterize_like_the_unit_scene_but_trace_nothing() {
         assert_eq!(f.effect_size.to_bits(), g.effect_size.to_bits(), "{name}");
         assert_eq!(s.selected, base.selected, "{name}");
         // f32 Möller-Trumbore: products of 1e30 overflow, of 1e-30 underflow; no ray hits, whatever the structure.
-        let h = study::primary_hits(&case(name).frames[0], 64).expect("hits");
+        let h = failure_study::primary_hits(&case(name).frames[0], 64).expect("hits");
         assert_eq!((h.bvh_hits, h.brute_hits), (0, 0), "{name}");
     }
-    let h = study::primary_hits(&case("soup_5000").frames[0], 64).expect("hits");
+    let h = failure_study::primary_hits(&case("soup_5000").frames[0], 64).expect("hits");
     assert!(h.bvh_hits > 0 && h.bvh_hits == h.brute_hits);
     // The grid cannot be built at 1e30: an error, not a panic or a wrong structure.
     assert!(Grid::build(&case("huge_1e30").frames[0]).and_then(|g| g.validate()).is_err());
@@ -163,7 +165,7 @@ fn zero_area_triangles_are_characterized_like_any_other() {
     assert_eq!(c.triangles as usize, conf.triangle_count());
     assert!(conf.zero_area_count() * 10 > conf.triangle_count(), "more than 10% zero-area");
     // The tracer never hits them: a BVH over zero-area triangles only sees no hit.
-    let h = study::primary_hits(&case("zero_area").frames[0], 32).expect("hits");
+    let h = failure_study::primary_hits(&case("zero_area").frames[0], 32).expect("hits");
     assert_eq!((h.bvh_hits, h.brute_hits), (0, 0));
 }
 
@@ -185,7 +187,7 @@ fn long_thin_triangle_is_invisible_to_the_statistics_but_not_to_the_grid() {
     let s = stats("long_thin");
     let mut cpu = Characterizer::new(Some(Backend::Cpu)).expect("cpu");
     let plain = Case::fixed("plain", "", generate::random_soup(1000, 0x5eed));
-    let p = study::characterize_case(&plain, &mut cpu, &Params::default()).expect("plain");
+    let p = failure_study::characterize_case(&plain, &mut cpu, &Params::default()).expect("plain");
     assert!((s.frames[0].effect_size - p.frames[0].effect_size).abs() < 0.02);
     assert_eq!((s.selected, p.selected), (Structure::Grid, Structure::Grid));
     let with = Grid::build(&case("long_thin").frames[0]).expect("grid").validate().expect("valid");
@@ -212,8 +214,8 @@ fn explosion_changes_the_statistics_and_refit_stops_paying() {
     let v: Vec<f64> = s.frames.iter().map(|f| f.effect_size).collect();
     let (lo, hi) = v.iter().fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
     assert!(hi - lo > 0.05, "V over frames {v:?}");
-    let rows = study::refit_study(&case("explosion").animation().expect("anim"), 64).expect("refit");
-    assert_eq!(rows.len(), study::EXPLOSION_FRAMES);
+    let rows = failure_study::refit_study(&case("explosion").animation().expect("anim"), 64).expect("refit");
+    assert_eq!(rows.len(), failure_study::EXPLOSION_FRAMES);
     assert_eq!(rows[0].bvh_refit_sah.to_bits(), rows[0].bvh_rebuild_sah.to_bits(), "refit to frame 0 is the tree");
     let last = rows.last().expect("rows");
     assert!(last.bvh_refit_sah > 1.8 * last.bvh_rebuild_sah, "{last:?}");
@@ -250,7 +252,7 @@ fn every_case_gives_the_same_report_on_every_backend_and_run() {
     let params = Params::default();
     let small: Vec<&Case> = cases().iter().filter(|c| c.name != "large_n_100000").collect();
     let run = |engine: &mut Characterizer| -> Vec<CaseStats> {
-        small.iter().map(|c| study::characterize_case(c, engine, &params).expect("characterize")).collect()
+        small.iter().map(|c| failure_study::characterize_case(c, engine, &params).expect("characterize")).collect()
     };
     let cpu = run(&mut Characterizer::new(Some(Backend::Cpu)).expect("cpu"));
     assert_eq!(run(&mut Characterizer::new(Some(Backend::Cpu)).expect("cpu")), cpu, "second run");

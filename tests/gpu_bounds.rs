@@ -2,9 +2,9 @@
 
 mod gpu_support;
 
+use meshchar::gpu::PointBounds;
 use meshchar::gpu::{shaders, Context};
 use meshchar::keys::{max_total, min_total};
-use meshchar::ops::PointBounds;
 use meshchar::rng::SplitMix64 as Rng;
 
 fn cpu_bounds(p: &[[f32; 3]]) -> Option<([f32; 3], [f32; 3])> {
@@ -88,16 +88,18 @@ fn bounds_more_workgroups_than_one_dispatch_dimension() {
 
 #[test]
 fn every_push_constant_struct_matches_its_shader() {
+    use meshchar::characterize::gpu::passes::{ChiPush, ClassesPush, MortonPush};
     use meshchar::gpu::check_push_layout;
-    use meshchar::ops::characterize::{ChiPush, ClassesPush, KeysPush, MortonPush};
-    check_push_layout::<meshchar::ops::BoundsPush>(&shaders::bounds::INFO).expect("bounds");
+    use meshchar::gpu::KeysPush;
+    check_push_layout::<meshchar::gpu::BoundsPush>(&shaders::bounds::INFO).expect("bounds");
     check_push_layout::<KeysPush>(&shaders::keys_bounds::INFO).expect("keys_bounds");
     check_push_layout::<MortonPush>(&shaders::morton_moments::INFO).expect("morton_moments");
     check_push_layout::<ClassesPush>(&shaders::classes_histogram::INFO).expect("classes_histogram");
     check_push_layout::<ChiPush>(&shaders::chi_square::INFO).expect("chi_square");
-    check_push_layout::<meshchar::ops::features::FeatureBoundsPush>(&shaders::features_bounds::INFO)
+    check_push_layout::<meshchar::characterize::gpu::features::FeatureBoundsPush>(&shaders::features_bounds::INFO)
         .expect("features_bounds");
-    check_push_layout::<meshchar::ops::features::FeaturesPush>(&shaders::features::INFO).expect("features");
+    check_push_layout::<meshchar::characterize::gpu::features::FeaturesPush>(&shaders::features::INFO)
+        .expect("features");
     // Every shader is reflected with an entry point and a local size.
     for s in shaders::ALL {
         assert_eq!(s.entry, "main", "{}", s.name);
@@ -121,5 +123,5 @@ fn layout_mismatches_are_caught() {
     let err = check_push_layout::<Swapped>(&shaders::bounds::INFO).expect_err("swapped members must not match");
     assert!(err.contains("points"), "{err}");
     assert!(check_struct_layout::<Swapped>(&shaders::bounds::INFO, "Push").is_err());
-    check_struct_layout::<meshchar::ops::BoundsPush>(&shaders::bounds::INFO, "Push").expect("the real mirror matches");
+    check_struct_layout::<meshchar::gpu::BoundsPush>(&shaders::bounds::INFO, "Push").expect("the real mirror matches");
 }

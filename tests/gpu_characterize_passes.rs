@@ -1,15 +1,16 @@
-//! The GPU characterization passes against a direct CPU computation of the same exact quantities (SPEC steps 1-10
+//! The GPU characterization passes against a direct CPU computation of the same exact quantities (docs/spec.md steps 1-10
 //! as integers): bounds, every code, the code range, the exact power sums, every class, the histogram and the
 //! chi-square numerator. Any subgroup size and count: edge counts, a sample stride, 63-bit codes, and a mesh whose
 //! arrays exceed one storage-buffer binding.
 
 mod gpu_support;
 
+use meshchar::characterize::gpu::passes::{CharacterizeGpu, ClassPlan, CodeSums};
+use meshchar::gpu::MeshBuffers;
 use meshchar::keys::{centroid_key, max_total, min_total, morton, quantization_scale, quantize, MortonBits};
-use meshchar::ops::characterize::{CharacterizeGpu, ClassPlan, CodeSums, MeshBuffers};
 use meshchar::rng::SplitMix64 as Rng;
 
-/// The thresholds of SPEC step 7 for `k` classes, computed with u128.
+/// The thresholds of docs/spec.md step 7 for `k` classes, computed with u128.
 fn thresholds(min: u64, max: u64, k: u32) -> Vec<u64> {
     let d = (max - min) as u128;
     (1..k as u128).map(|j| (j * d).div_ceil(k as u128) as u64).collect()

@@ -11,14 +11,14 @@ mod common;
 mod gpu_support;
 
 use meshchar::accel::bvh::{Bvh, BvhNode, BvhTree};
+use meshchar::accel::gpu::{BvhBuilder, GpuBvhKind};
 use meshchar::accel::hlbvh::{Hlbvh, HlbvhOptions};
 use meshchar::accel::lbvh::{Lbvh, LbvhOptions};
 use meshchar::accel::AccelStructure;
+use meshchar::gpu::MeshBuffers;
 use meshchar::gpu::{shaders, Context};
 use meshchar::keys::MortonBits;
 use meshchar::mesh::{generate, load::load_mesh, Mesh};
-use meshchar::ops::characterize::MeshBuffers;
-use meshchar::ops::lbvh::{BvhBuilder, GpuBvhKind};
 
 fn same_nodes(what: &str, gpu: &[BvhNode], cpu: &[BvhNode]) {
     assert_eq!(gpu.len(), cpu.len(), "{what}: node count");

@@ -5,8 +5,8 @@
 
 mod gpu_support;
 
+use meshchar::gpu::sort::{sort_cpu, KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
 use meshchar::gpu::{Context, GpuError, MemoryKind};
-use meshchar::ops::sort::{sort_cpu, KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
 use meshchar::rng::SplitMix64 as Rng;
 use std::fmt::Debug;
 

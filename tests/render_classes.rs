@@ -3,7 +3,7 @@
 //! class counts.
 
 use meshchar::characterize::{cpu, Params};
-use meshchar::render::{decode_class, read_legend_count, render_classes, BACKGROUND};
+use meshchar::eval::render::{decode_class, read_legend_count, render_classes, BACKGROUND};
 
 #[test]
 fn picture_decodes_and_its_colours_map_back_to_classes() {
@@ -44,7 +44,7 @@ fn picture_decodes_and_its_colours_map_back_to_classes() {
     let (bar_y, _) = img.bar;
     let n: u64 = c.histogram.iter().sum();
     for (k, &count) in c.histogram.iter().enumerate() {
-        let colour = meshchar::render::class_colour(k as u32);
+        let colour = meshchar::eval::render::class_colour(k as u32);
         let width = (0..img.width).filter(|&x| pixel(x, bar_y + 2) == colour).count() as f64;
         let share = count as f64 / n as f64 * img.width as f64;
         // Colours of other classes never repeat this one, so a run is this class's segment.

@@ -6,16 +6,12 @@ mod common;
 mod gpu_support;
 
 use meshchar::accel::StructureName;
-use meshchar::characterize::{
-    cpu, Backend, Characterization, Characterizer, ClassRule, MortonBits, Params, Policy, SceneSummary, Selection,
-    Structure, ThesisPolicy,
-};
-use meshchar::eval::tradeoff::{
-    self, drift, histogram_distance, pareto_front, GridSpec, OracleScene, Setting, StatsTolerance,
-};
-use meshchar::eval::{evaluate_scene, OracleConfig};
+use meshchar::characterize::{cpu, Backend, Characterization, Characterizer, ClassRule, MortonBits, Params};
+use meshchar::eval::tradeoff::{self, drift, histogram_distance, pareto_front, GridSpec, Setting, StatsTolerance};
+use meshchar::eval::{evaluate_scene, OracleConfig, OracleRecord};
+use meshchar::geom::WorkloadKind;
 use meshchar::mesh::{generate, load_mesh, Animation};
-use meshchar::trace::WorkloadKind;
+use meshchar::select::{Policy, SceneSummary, Selection, Structure, ThesisPolicy};
 
 #[test]
 fn pareto_front_on_hand_data() {
@@ -122,7 +118,7 @@ fn sweep_with_a_pluggable_policy_and_the_least_work_table() {
              "valid": true, "hits_agree": true},
         ]
     });
-    let oracle = vec![OracleScene::from_json(&oracle_line).unwrap()];
+    let oracle = vec![OracleRecord::from_json(&oracle_line).unwrap()];
     let workloads = vec!["primary".to_string()];
     let mut engine_for = |b: Backend| Characterizer::new(Some(b));
     let study = tradeoff::Study {
@@ -213,12 +209,12 @@ fn oracle_reports_the_cheapest_structure_within_noise() {
     let v = e.to_json();
     assert_eq!(v["oracle_cheapest_within_noise"], serde_json::json!(cheapest.as_str()));
     assert_eq!(v["oracle_within_noise"].as_array().unwrap().len(), e.oracle_within_noise.len());
-    let o = OracleScene::from_json(&v).unwrap();
-    assert_eq!(o.best().map(|b| b.name), Some(best));
+    let o = OracleRecord::from_json(&v).unwrap();
+    assert_eq!(o.best().and_then(|b| b.name), Some(best));
     assert_eq!(o.within_noise(), e.oracle_within_noise);
     assert_eq!(o.cheapest_within_noise(), Some(cheapest));
     assert_eq!(o.regret(StructureName::Bvh), Some(r));
-    assert_eq!(OracleScene::from_evaluation(&e).cheapest_within_noise(), Some(cheapest));
+    assert_eq!(e.record().cheapest_within_noise(), Some(cheapest));
 }
 
 #[test]
@@ -235,10 +231,10 @@ fn oracle_files_are_read_and_bad_lines_are_named() {
          "valid": true, "hits_agree": true}]});
     let p = dir.join("o.jsonl");
     std::fs::write(&p, format!("{good}\n\n{good}\n")).unwrap();
-    let v = tradeoff::read_oracle_jsonl(&p).unwrap();
+    let v = meshchar::eval::record::read_jsonl(&p).unwrap();
     assert_eq!(v.len(), 2);
     // The kd-tree disagreed with the reference hits: it cannot be the best.
-    assert_eq!(v[0].best().map(|b| b.name), Some(StructureName::Lbvh));
+    assert_eq!(v[0].best().and_then(|b| b.name), Some(StructureName::Lbvh));
     assert_eq!(v[0].regret(StructureName::KdTree), None);
     // bih (2.15 +- 0.1) is within noise of lbvh (2.0 +- 0.1) and builds faster; grid (2.25) is not within noise.
     assert_eq!(v[0].within_noise(), vec![StructureName::Lbvh, StructureName::Bih]);
@@ -248,9 +244,9 @@ fn oracle_files_are_read_and_bad_lines_are_named() {
     assert!(md.contains("| shadow | a.obj | lbvh | lbvh, bih | bih (cheaper than the best) |"), "{md}");
     assert!(md.contains("shadow: 2 of 2 scenes"), "{md}");
     std::fs::write(&p, format!("{good}\n{{\"mesh\": 1}}\n")).unwrap();
-    let err = tradeoff::read_oracle_jsonl(&p).unwrap_err().to_string();
+    let err = meshchar::eval::record::read_jsonl(&p).unwrap_err().to_string();
     assert!(err.contains("o.jsonl:2"), "{err}");
-    assert!(tradeoff::read_oracle_jsonl(&dir.join("missing.jsonl")).is_err());
+    assert!(meshchar::eval::record::read_jsonl(&dir.join("missing.jsonl")).is_err());
 }
 
 fn assert_same(a: &Characterization, b: &Characterization, what: &str) {
@@ -309,7 +305,8 @@ fn sampled_settings_characterize_identically_on_cpu_and_vulkan() {
 #[test]
 fn calibrated_policy_selects_per_workload_and_its_regret_is_its_own() {
     use meshchar::characterize::features_cpu;
-    use meshchar::cost::{CalibratedPolicy, CostModel};
+    use meshchar::cost::CostModel;
+    use meshchar::select::CalibratedPolicy;
     let model = CostModel::shipped().unwrap();
     let mesh = generate::random_soup(2000, 3);
     let scenes = [Animation::new("soup", vec![mesh.clone()]).unwrap()];
@@ -340,13 +337,13 @@ fn calibrated_policy_selects_per_workload_and_its_regret_is_its_own() {
             .collect();
         let v = serde_json::json!({"mesh": "soup", "workload": workload, "resolution": 1, "frames": 1,
             "rays_per_frame": rays, "structures": structures});
-        OracleScene::from_json(&v).unwrap()
+        OracleRecord::from_json(&v).unwrap()
     };
     let oracle = vec![
         line("primary", 1, [10.0, 17.0, 12.0, 11.0, 13.0, 15.0]),
         line("shadow", many, [20.0, 21.0, 29.0, 27.0, 23.0, 25.0]),
     ];
-    assert_eq!((oracle[1].rays_per_frame, oracle[1].frames), (many, 1));
+    assert_eq!((oracle[1].rays_per_frame, oracle[1].frames), (many as usize, 1));
     let workloads = vec!["primary".to_string(), "shadow".to_string()];
     let settings = [
         Setting::reference(),
@@ -373,7 +370,7 @@ fn calibrated_policy_selects_per_workload_and_its_regret_is_its_own() {
             let a = r.accuracy(w).unwrap();
             assert_eq!(a.scenes, 1, "{} {w}", r.label);
             assert_eq!(a.mean_regret, o.regret(sel).unwrap(), "{} {w}", r.label);
-            assert_eq!(a.agree_best, if o.best().unwrap().name == sel { 1.0 } else { 0.0 }, "{} {w}", r.label);
+            assert_eq!(a.agree_best, if o.best().unwrap().name == Some(sel) { 1.0 } else { 0.0 }, "{} {w}", r.label);
         }
     }
     // The full setting: the two workloads select differently, and the label names both.

@@ -29,11 +29,11 @@
 
 use super::bvh::partition;
 use super::{
-    bytes_of, invalid, prepare, sah_cost, Aabb, AccelError, AccelStats, AccelStructure, StructureName, TraversalStack,
-    Triangle,
+    bytes_of, invalid, prepare, sah_cost, AccelError, AccelStats, AccelStructure, StructureName, TraversalStack,
 };
+use crate::geom::{intersect_triangle, Hit, Ray, RayInv, TraceCounters};
+use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
-use crate::trace::{intersect_triangle, Hit, Ray, RayInv, TraceCounters};
 use glam::Vec3;
 
 /// One BIH node (see the module docs).

@@ -1,8 +1,9 @@
 //! Brute force: every ray against every triangle. The reference of the tests.
 
-use super::{bytes_of, prepare, AccelError, AccelStats, AccelStructure, StructureName, Triangle};
+use super::{bytes_of, prepare, AccelError, AccelStats, AccelStructure, StructureName};
+use crate::geom::Triangle;
+use crate::geom::{intersect_triangle, Hit, Ray, TraceCounters};
 use crate::mesh::Mesh;
-use crate::trace::{intersect_triangle, Hit, Ray, TraceCounters};
 
 /// Tests every triangle, in mesh order, keeping the closest hit (the first of equal distances).
 #[derive(Clone, Debug, Default)]

@@ -25,9 +25,10 @@
 //! (indexed by the low bits of the triangle index), so a triangle spanning several cells is usually tested once.
 //! `box_tests` counts cells visited (plus the test against the grid box).
 
-use super::{bytes_of, invalid, prepare, Aabb, AccelError, AccelStats, AccelStructure, StructureName, Triangle};
+use super::{bytes_of, invalid, prepare, AccelError, AccelStats, AccelStructure, StructureName};
+use crate::geom::{intersect_triangle, Hit, Ray, RayInv, TraceCounters};
+use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
-use crate::trace::{intersect_triangle, Hit, Ray, RayInv, TraceCounters};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU32, Ordering};

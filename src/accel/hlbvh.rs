@@ -33,10 +33,10 @@ use super::lbvh::{
     check_depth_first_shape, check_karras_shape, collapse_leaves, fit_boxes_bottom_up, morton_codes,
     radix_tree_children, sorted_keys, MAX_COLLAPSE_LEAF,
 };
-use super::{invalid, prepare, Aabb, AccelError, AccelStats, AccelStructure, StructureName};
+use super::{invalid, prepare, AccelError, AccelStats, AccelStructure, StructureName};
+use crate::geom::Aabb;
 use crate::keys::MortonBits;
 use crate::mesh::Mesh;
-use crate::trace::{Hit, Ray, TraceCounters};
 use glam::Vec3;
 use rayon::prelude::*;
 

@@ -1,11 +1,11 @@
-//! Linear BVH over the Morton codes of SPEC.md, as a binary radix tree (Karras 2012): the reference that a GPU
+//! Linear BVH over the Morton codes of docs/spec.md, as a binary radix tree (Karras 2012): the reference that a GPU
 //! builder must reproduce node for node.
 //!
 //! # Definition
 //!
 //! 1. Keys: for triangle `i`, `s_i = centroid_key(v0, v1, v2)`; bounds `lo`, `hi` = per-axis [`min_total`] /
 //!    [`max_total`] of all `s_i`; `scale = quantization_scale(lo, hi, bits)`; `code_i = morton(quantize(s_i, lo,
-//!    scale, bits), bits)` ([`crate::keys`], SPEC.md steps 1 to 4; 30-bit by default, 63-bit optional).
+//!    scale, bits), bits)` ([`crate::keys`], docs/spec.md steps 1 to 4; 30-bit by default, 63-bit optional).
 //! 2. Sort by the pair `(code_i, i)`; position `k` of the sorted order holds triangle `ids[k]`. The *extended key*
 //!    of position `k` is the concatenation `code_k ‖ ids[k]` (`3b + 32` bits); all extended keys are distinct.
 //! 3. `delta(k, j)` = length of the common prefix of the extended keys of positions `k` and `j`, or `-1` when `j`
@@ -45,10 +45,10 @@
 //! [`max_total`]: crate::keys::max_total
 
 use super::bvh::{bvh_tree_traversal, BvhNode, BvhTree};
-use super::{prepare, Aabb, AccelError, AccelStats, AccelStructure, StructureName, Triangle};
+use super::{prepare, AccelError, AccelStats, AccelStructure, StructureName};
+use crate::geom::{Aabb, Triangle};
 use crate::keys::{centroid_key, max_total, min_total, morton, quantization_scale, quantize, MortonBits};
 use crate::mesh::Mesh;
-use crate::trace::{Hit, Ray, TraceCounters};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -72,7 +72,7 @@ impl Default for LbvhOptions {
 /// Largest leaf the SAH collapse forms.
 pub const MAX_COLLAPSE_LEAF: u32 = 64;
 
-/// Morton codes of SPEC.md for every triangle, in mesh order.
+/// Morton codes of docs/spec.md for every triangle, in mesh order.
 pub fn morton_codes(mesh: &Mesh, bits: MortonBits, structure: &'static str) -> Result<Vec<u64>, AccelError> {
     let n = mesh.triangle_count();
     let keys: Vec<[f32; 3]> = (0..n)

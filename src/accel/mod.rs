@@ -8,14 +8,14 @@
 //! | `kdtree` | [`kdtree`] | binned-SAH kd-tree with empty-space cut-off (after Wald and Havran 2006) |
 //! | `grid` | [`grid`] | uniform grid, 3D-DDA traversal (Amanatides and Woo 1987) with mailboxing |
 //! | `bih` | [`bih`] | bounding interval hierarchy, global spatial-median heuristic (Wächter and Keller 2006) |
-//! | `lbvh` | [`lbvh`] | linear BVH over SPEC.md Morton codes, binary radix tree of Karras 2012 |
+//! | `lbvh` | [`lbvh`] | linear BVH over docs/spec.md Morton codes, binary radix tree of Karras 2012 |
 //! | `hlbvh` | [`hlbvh`] | hierarchical LBVH: Morton clusters, LBVH per cluster, binned SAH on top (Pantaleoni and Luebke 2010) |
 //!
 //! [`brute::BruteForce`] tests every triangle and is the reference in tests.
 //!
 //! # Conventions shared by every structure
 //!
-//! * **Intersection**: every structure calls [`crate::trace::intersect_triangle`] (Möller and Trumbore 1997, in f32)
+//! * **Intersection**: every structure calls [`crate::geom::intersect_triangle`] (Möller and Trumbore 1997, in f32)
 //!   on the same precomputed [`Triangle`] records, so a ray hitting one triangle yields the same `t` bit for bit in
 //!   every structure. Zero-area triangles (exactly zero in f64) are stored with zero edges: their determinant is
 //!   exactly zero and they are never hit. They still belong to every structure (they are real input) and count as
@@ -35,14 +35,14 @@
 pub mod bih;
 pub mod brute;
 pub mod bvh;
+pub mod gpu;
 pub mod grid;
 pub mod hlbvh;
 pub mod kdtree;
 pub mod lbvh;
 
+use crate::geom::{Aabb, Hit, Ray, TraceCounters, Triangle};
 use crate::mesh::{Mesh, MeshError};
-use crate::trace::{Hit, Ray, TraceCounters};
-use glam::Vec3;
 
 /// `K_T` of the SAH cost model: cost of one traversal step.
 pub const SAH_TRAVERSAL_COST: f64 = 1.0;
@@ -70,7 +70,7 @@ pub enum AccelError {
         /// The limit.
         limit: usize,
     },
-    /// Coordinates span more than f32 can represent as an extent (Morton quantization of SPEC.md step 3, grid
+    /// Coordinates span more than f32 can represent as an extent (Morton quantization of docs/spec.md step 3, grid
     /// cells).
     #[error("{structure}: bounds {lo:?}..{hi:?} too wide for f32 extents")]
     CoordinateRange {
@@ -171,7 +171,7 @@ impl std::str::FromStr for StructureName {
 }
 
 /// Statistics returned by `validate()`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct AccelStats {
     /// Triangles in the mesh.
     pub triangles: usize,
@@ -225,137 +225,6 @@ pub fn build_structure(name: StructureName, mesh: &Mesh) -> Result<Box<dyn Accel
         StructureName::Hlbvh => Box::new(hlbvh::Hlbvh::build(mesh)?),
         StructureName::Brute => Box::new(brute::BruteForce::build(mesh)?),
     })
-}
-
-/// An axis-aligned bounding box. The empty box has `min = +inf`, `max = -inf`.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Aabb {
-    /// Lower corner.
-    pub min: Vec3,
-    /// Upper corner.
-    pub max: Vec3,
-}
-
-impl Default for Aabb {
-    fn default() -> Self {
-        Aabb::EMPTY
-    }
-}
-
-impl Aabb {
-    /// The empty box (identity of [`Aabb::union`]).
-    pub const EMPTY: Aabb = Aabb { min: Vec3::splat(f32::INFINITY), max: Vec3::splat(f32::NEG_INFINITY) };
-
-    /// Box from two corners.
-    pub fn new(min: Vec3, max: Vec3) -> Self {
-        Aabb { min, max }
-    }
-
-    /// Bounding box of three points.
-    pub fn of_triangle(v: &[Vec3; 3]) -> Self {
-        Aabb { min: v[0].min(v[1]).min(v[2]), max: v[0].max(v[1]).max(v[2]) }
-    }
-
-    /// Whether the box contains no point.
-    pub fn is_empty(&self) -> bool {
-        !(self.min.x <= self.max.x && self.min.y <= self.max.y && self.min.z <= self.max.z)
-    }
-
-    /// Grows the box to contain `p`.
-    #[inline]
-    pub fn grow(&mut self, p: Vec3) {
-        self.min = self.min.min(p);
-        self.max = self.max.max(p);
-    }
-
-    /// Smallest box containing both.
-    #[inline]
-    pub fn union(&self, o: &Aabb) -> Aabb {
-        Aabb { min: self.min.min(o.min), max: self.max.max(o.max) }
-    }
-
-    /// `max - min` (zero for the empty box).
-    pub fn extent(&self) -> Vec3 {
-        if self.is_empty() {
-            Vec3::ZERO
-        } else {
-            self.max - self.min
-        }
-    }
-
-    /// Centre of the box.
-    pub fn center(&self) -> Vec3 {
-        (self.min + self.max) * 0.5
-    }
-
-    /// Surface area (zero for the empty box), in f64 so that sums over many nodes stay accurate.
-    pub fn surface_area(&self) -> f64 {
-        let e = self.extent().as_dvec3();
-        2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
-    }
-
-    /// Surface area in f32, for builders.
-    #[inline]
-    pub fn half_area(&self) -> f32 {
-        let e = self.max - self.min;
-        if e.x < 0.0 {
-            return 0.0;
-        }
-        e.x * e.y + e.y * e.z + e.z * e.x
-    }
-
-    /// Axis of the largest extent (0, 1 or 2; x on ties).
-    pub fn longest_axis(&self) -> usize {
-        let e = self.extent();
-        if e.x >= e.y && e.x >= e.z {
-            0
-        } else if e.y >= e.z {
-            1
-        } else {
-            2
-        }
-    }
-
-    /// Whether `o` lies inside this box (boundaries included). The empty box is inside every box.
-    pub fn contains(&self, o: &Aabb) -> bool {
-        o.is_empty() || (self.min.cmple(o.min).all() && o.max.cmple(self.max).all())
-    }
-
-    /// Whether the boxes share at least one point.
-    pub fn overlaps(&self, o: &Aabb) -> bool {
-        self.min.cmple(o.max).all() && o.min.cmple(self.max).all()
-    }
-}
-
-/// A triangle as the intersection test wants it: a vertex and two edges.
-///
-/// Zero-area triangles (cross product of the edges exactly zero in f64) are stored with zero edges, so that the
-/// Möller-Trumbore determinant is exactly zero and they are never hit.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Triangle {
-    /// First vertex.
-    pub v0: Vec3,
-    /// `v1 - v0` (zero for a zero-area triangle).
-    pub e1: Vec3,
-    /// `v2 - v0` (zero for a zero-area triangle).
-    pub e2: Vec3,
-}
-
-impl Triangle {
-    /// Precomputes the record of a triangle.
-    pub fn new(v: &[Vec3; 3]) -> Self {
-        let (a, b, c) = (v[0].as_dvec3(), v[1].as_dvec3(), v[2].as_dvec3());
-        if (b - a).cross(c - a).length_squared() == 0.0 {
-            Triangle { v0: v[0], e1: Vec3::ZERO, e2: Vec3::ZERO }
-        } else {
-            Triangle { v0: v[0], e1: v[1] - v[0], e2: v[2] - v[0] }
-        }
-    }
-
-    /// Whether the triangle has zero area (and is never hit).
-    pub fn is_degenerate(&self) -> bool {
-        self.e1 == Vec3::ZERO && self.e2 == Vec3::ZERO
-    }
 }
 
 /// Triangle records and bounding boxes of a mesh, in mesh order, after checking the mesh.

@@ -1,4 +1,4 @@
-//! The CPU paths of `SPEC.md`: [`naive`], a single-threaded transcription of the steps (the reference, and the
+//! The CPU paths of `docs/spec.md`: [`naive`], a single-threaded transcription of the steps (the reference, and the
 //! thesis's "naive implementation" of Table 5.3), and [`fast`], chunked over rayon with fixed-width integer
 //! accumulators. Both produce the same [`Characterization`] bit for bit (timings, backend and device aside).
 
@@ -75,7 +75,7 @@ fn moments_and_k(stats: &CodeStats, params: &Params) -> (super::Moments, u32) {
     (m, k)
 }
 
-/// The single-threaded reference: SPEC steps 1 to 10 written out one element at a time, power sums in `BigUint`.
+/// The single-threaded reference: docs/spec.md steps 1 to 10 written out one element at a time, power sums in `BigUint`.
 ///
 /// Errors: invalid parameters, an invalid mesh (the error names the vertex), no (sampled) triangles, a centroid key
 /// that overflows f32, bounds that f32 cannot quantize.

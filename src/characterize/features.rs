@@ -6,7 +6,7 @@
 //!
 //! - **Counts**: triangles (sampled, as in the characterization) and the mesh's total.
 //! - **Occupancy of Morton cells**: for depth `d = 1 ..= OCCUPANCY_DEPTHS`, the number of distinct prefixes of
-//!   `3 d` bits among the SPEC.md Morton codes (steps 1 to 4, the codes the characterization already computes).
+//!   `3 d` bits among the docs/spec.md Morton codes (steps 1 to 4, the codes the characterization already computes).
 //!   Depth `d` splits the key bounds into `2^d` cells per axis; the count says how much of space is occupied at that
 //!   scale (`8^d` cells in all, at most `n` occupied). A GPU pass sets one bit per code in a `2^21`-bit mask of the
 //!   depth-7 prefixes (atomic OR) and counts set bits of the mask and of its 8-way ORs.
@@ -195,7 +195,7 @@ pub fn features_cpu(mesh: &Mesh, params: &Params) -> Result<Features, CharError>
         let [a, b, c] = mesh.indices[i];
         [p[a as usize], p[b as usize], p[c as usize]]
     };
-    // Key bounds (SPEC steps 1-2) and vertex bounds.
+    // Key bounds (docs/spec.md steps 1-2) and vertex bounds.
     let mut klo = [f32::INFINITY; 3];
     let mut khi = [f32::NEG_INFINITY; 3];
     let mut vlo = [f32::INFINITY; 3];
@@ -282,10 +282,10 @@ pub fn extent_exponents(lo: &[f32; 3], hi: &[f32; 3]) -> [i32; 3] {
     std::array::from_fn(|a| exponent(hi[a] - lo[a]).unwrap_or(i32::MIN))
 }
 
-/// The features from the GPU pass's integers ([`crate::ops::features::FeaturesGpu`]) for `triangles` sampled
+/// The features from the GPU pass's integers ([`crate::characterize::gpu::features::FeaturesGpu`]) for `triangles` sampled
 /// triangles of a `total_triangles`-triangle mesh with `bits` codes.
 pub fn features_from_gpu(
-    g: &crate::ops::features::GpuFeatures,
+    g: &super::gpu::features::GpuFeatures,
     triangles: u64,
     total_triangles: u64,
     bits: keys::MortonBits,

@@ -1,5 +1,5 @@
 //! Host-side math shared by every backend: from the exact quantities ([`CodeStats`], the histogram) to the reported
-//! figures (SPEC steps 5, 6, 7, 9, 10).
+//! figures (docs/spec.md steps 5, 6, 7, 9, 10).
 //!
 //! Every function here is deterministic and takes only exact integers (or figures computed from them by this module),
 //! so all backends report the same bits. Integer work is exact (`BigInt`, `u128`); each division that produces a
@@ -85,7 +85,7 @@ pub fn central_moments(s: &CodeStats) -> (BigUint, BigInt) {
     (m2, m3)
 }
 
-/// Mean, population standard deviation and population skewness of the codes (SPEC step 5), from the exact power
+/// Mean, population standard deviation and population skewness of the codes (docs/spec.md step 5), from the exact power
 /// sums.
 ///
 /// * `mean = S1 / n`, correctly rounded;
@@ -112,7 +112,7 @@ pub fn moments(s: &CodeStats) -> Moments {
     Moments { mean, std_dev, skewness: if skewness.is_finite() { skewness } else { 0.0 } }
 }
 
-/// Number of classes `k` (SPEC step 6 for [`ClassRule::Doane`]), clamped to `1..=MAX_CLASSES`.
+/// Number of classes `k` (docs/spec.md step 6 for [`ClassRule::Doane`]), clamped to `1..=MAX_CLASSES`.
 ///
 /// * Doane: `sigma_g1 = sqrt(6 (n - 2) / ((n + 1)(n + 3)))`, `k = ceil(1 + log2 n + log2(1 + |g1| / sigma_g1))`;
 ///   `k = 1` when `n <= 2`, `std_dev == 0` or `all_equal` (every code the same).
@@ -143,7 +143,7 @@ pub fn class_count(rule: ClassRule, n: u64, m: &Moments, all_equal: bool) -> u32
     k.clamp(1.0, MAX_CLASSES as f64) as u32
 }
 
-/// Class of a code (SPEC step 7): `min(((m - m_min) k) div (m_max - m_min), k - 1)`, exact in `u128`; 0 when
+/// Class of a code (docs/spec.md step 7): `min(((m - m_min) k) div (m_max - m_min), k - 1)`, exact in `u128`; 0 when
 /// `m_max == m_min` or `k <= 1`. Codes outside `[m_min, m_max]` are clamped to the nearest end.
 #[inline]
 pub fn class_of(code: u64, code_min: u64, code_max: u64, k: u32) -> u32 {
@@ -210,7 +210,7 @@ fn chi_numerator(hist: &[u64], n: u64) -> BigUint {
         .sum()
 }
 
-/// Chi-square against uniform, p-value, critical value, Cramér's V, concentrated and empty classes (SPEC steps 9
+/// Chi-square against uniform, p-value, critical value, Cramér's V, concentrated and empty classes (docs/spec.md steps 9
 /// and 10) of a histogram of `n` codes at significance `alpha`.
 ///
 /// Counts the exact quantities (`T = sum (k O_i - n)^2`, empty classes `O_i == 0`, concentrated classes

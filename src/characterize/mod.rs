@@ -1,5 +1,5 @@
-//! The characterization of `SPEC.md`: bounds, Morton codes, moments, Doane's class count, the class histogram,
-//! chi-square, concentration and empty classes; the report and the selection policies.
+//! The characterization of `docs/spec.md`: bounds, Morton codes, moments, Doane's class count, the class histogram,
+//! chi-square, concentration and empty classes, and the scene features; on the CPU (naive and rayon) and on the device.
 //!
 //! # How the backends stay bit-identical
 //!
@@ -14,15 +14,12 @@
 pub mod cpu;
 pub mod features;
 pub mod finalize;
-pub mod policy;
-pub mod report;
+pub mod gpu;
 pub mod vulkan;
 
 pub use crate::keys::MortonBits;
 pub use features::{features_cpu, Features};
 pub use finalize::{class_count, class_of, class_thresholds, histogram_stats, histogram_stats_exact, moments};
-pub use policy::{Policy, SceneKind, SceneSummary, Selection, Structure, ThesisPolicy};
-pub use report::Report;
 
 use crate::mesh::{Animation, Mesh, MeshError};
 use num_bigint::BigUint;
@@ -274,7 +271,7 @@ pub const MAX_CLASSES: u32 = 4096;
 /// Rule for the number of classes `k`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 pub enum ClassRule {
-    /// Doane (SPEC step 6), the thesis's rule and the default.
+    /// Doane (docs/spec.md step 6), the thesis's rule and the default.
     #[default]
     Doane,
     /// Sturges: `ceil(1 + log2 n)`.
@@ -330,7 +327,7 @@ pub struct CodeStats {
     pub s3: BigUint,
 }
 
-/// Mean, population standard deviation and population skewness of the codes (SPEC step 5).
+/// Mean, population standard deviation and population skewness of the codes (docs/spec.md step 5).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Moments {
     /// `mu`.
@@ -341,7 +338,7 @@ pub struct Moments {
     pub skewness: f64,
 }
 
-/// Chi-square test, effect size, concentration and empty classes of a histogram (SPEC steps 9 and 10).
+/// Chi-square test, effect size, concentration and empty classes of a histogram (docs/spec.md steps 9 and 10).
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct HistogramStats {
     /// `sum (O_i - E)^2 / E`.

@@ -1,15 +1,15 @@
 //! The Vulkan backend: [`crate::ops::characterize`]'s exact GPU passes, finished by this module's host math.
 
 use super::features::{features_from_gpu, SIZE_BINS};
+use super::gpu::features::FeaturesGpu;
+use super::gpu::passes::{CharacterizeGpu, ClassPlan, CodeSums};
 use super::Features;
 use super::{
     class_count, class_thresholds, moments, CharError, Characterization, ClassRule, CodeStats, Params, PassTime,
     PerTriangle,
 };
-use crate::gpu::Context;
+use crate::gpu::{Context, MeshBuffers, RunError};
 use crate::mesh::{Animation, Mesh};
-use crate::ops::characterize::{CharacterizeGpu, ClassPlan, CodeSums, MeshBuffers, RunError};
-use crate::ops::features::FeaturesGpu;
 use num_bigint::BigUint;
 use std::time::Instant;
 

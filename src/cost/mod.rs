@@ -25,7 +25,7 @@
 //!
 //! # Fit
 //!
-//! [`CostModel::fit`] takes oracle results ([`dataset::Sample`]: measured build ms, trace ms, tests per ray of every
+//! [`CostModel::fit`] takes oracle results ([`Sample`]: measured build ms, trace ms, tests per ray of every
 //! structure on every scene and workload) and fits, per structure: the build law by least squares in log space
 //! (`ln build = a + b ln n`); the test counts by ridge regression in log space (ridge [`RIDGE`] on all but the
 //! intercept); the per-ray prices by non-negative least squares on the measured counts, weighted by `1 / t^2` so
@@ -39,18 +39,16 @@
 //! oracle data: the CPU structures of the oracle on the build machine; lavapipe runs on the same CPU, so it serves
 //! for lavapipe hosts too) with a warning when the file is missing, unreadable, unparsable or of another version.
 
-pub mod dataset;
 pub mod linalg;
-pub mod policy;
+mod sample;
 
 use crate::accel::StructureName;
 use crate::characterize::features::Derived;
 use crate::characterize::Features;
-use crate::trace::WorkloadKind;
+use crate::geom::WorkloadKind;
 use std::path::Path;
 
-pub use dataset::Sample;
-pub use policy::CalibratedPolicy;
+pub use sample::{drift, Measured, Sample};
 
 /// Version of the calibration file format (and of the feature set `phi`). Files of another version are stale.
 pub const COST_MODEL_VERSION: u32 = 1;
@@ -193,7 +191,7 @@ pub struct StructureModel {
 }
 
 /// A structure's predicted costs for a scene and workload.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Prediction {
     /// The structure.
     pub structure: StructureName,
@@ -241,7 +239,7 @@ impl StructureModel {
 /// `refit_ns_per_triangle * n`.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RefitModel {
-    /// Slope of the SAH ratio in the drift ([`dataset::drift`]).
+    /// Slope of the SAH ratio in the drift ([`drift`]).
     pub sah_growth_per_drift: f64,
     /// Refit time per triangle, ns.
     pub refit_ns_per_triangle: f64,
@@ -389,7 +387,7 @@ fn rms(v: &[f64]) -> f64 {
 }
 
 fn fit_structure(samples: &[Sample], s: StructureName) -> Result<Option<StructureModel>, CostError> {
-    let rows: Vec<(&Sample, &dataset::Measured)> = samples
+    let rows: Vec<(&Sample, &Measured)> = samples
         .iter()
         .filter_map(|smp| {
             smp.get(s).filter(|m| m.valid && m.build_ms_per_build > 0.0 && m.trace_ns_per_ray > 0.0).map(|m| (smp, m))

@@ -12,18 +12,23 @@
 //! buffer limits, and kernels are specialized for them at pipeline creation. Large arrays are addressed through
 //! buffer device addresses, so no work is limited by `maxStorageBufferRange`.
 
+mod bounds;
 mod buffer;
 mod context;
 mod kernel;
+mod mesh;
 mod record;
 pub mod shaders;
+pub mod sort;
 
+pub use bounds::{BoundsPush, PointBounds};
 pub use buffer::{Buffer, MemoryKind};
 pub use context::{
     enumerate_devices, required_device_extensions, required_device_features, Context, ContextDesc, DeviceCaps,
     DeviceSummary, RawDevice,
 };
 pub use kernel::{Kernel, KernelDesc};
+pub use mesh::{InputError, KeysPush, MeshBuffers, RunError};
 pub use record::{Recorder, Timer};
 pub use shaders::{check_push_layout, check_struct_layout, PushConstants, ShaderInfo};
 

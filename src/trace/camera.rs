@@ -1,7 +1,7 @@
 //! Pinhole cameras: given explicitly, or framing a scene automatically.
 
-use super::Ray;
-use crate::accel::Aabb;
+use crate::geom::Aabb;
+use crate::geom::Ray;
 use glam::Vec3;
 
 /// A pinhole camera with a vertical field of view; pixel `(x, y)` of a `w x h` image maps to a ray through the

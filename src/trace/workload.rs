@@ -4,45 +4,11 @@
 //! Shadow and diffuse rays start at the hit points of the primary rays; primary rays that miss spawn nothing. The
 //! hit points come from a reference structure before any timing, so every structure traces the same rays.
 
-use super::{trace, Camera, Hit, Ray};
-use crate::accel::{Aabb, AccelStructure};
+use super::{trace, Camera};
+use crate::accel::AccelStructure;
+use crate::geom::{Aabb, Hit, Ray, WorkloadKind};
 use crate::mesh::Mesh;
 use glam::Vec3;
-
-/// Kind of rays of a workload.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum WorkloadKind {
-    /// Camera rays, one per pixel, closest hit.
-    Primary,
-    /// From each primary hit to the point light, any hit.
-    Shadow,
-    /// From each primary hit in a cosine-distributed random direction about the normal, closest hit.
-    Diffuse,
-}
-
-impl WorkloadKind {
-    /// Lowercase name.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            WorkloadKind::Primary => "primary",
-            WorkloadKind::Shadow => "shadow",
-            WorkloadKind::Diffuse => "diffuse",
-        }
-    }
-}
-
-impl std::str::FromStr for WorkloadKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "primary" => Ok(WorkloadKind::Primary),
-            "shadow" => Ok(WorkloadKind::Shadow),
-            "diffuse" => Ok(WorkloadKind::Diffuse),
-            other => Err(format!("unknown workload {other:?} (primary, shadow, diffuse)")),
-        }
-    }
-}
 
 /// A set of rays to trace, and whether they are any-hit (shadow) queries.
 #[derive(Clone, Debug)]

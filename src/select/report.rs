@@ -1,7 +1,7 @@
-//! The report of one characterized mesh (or one frame): the JSON object of `SPEC.md` and a text rendering for people.
+//! The report of one characterized mesh (or one frame): the JSON object of `docs/spec.md` and a text rendering for people.
 
-use super::policy::{SceneKind, Selection, Structure};
-use super::{Characterization, PassTime};
+use super::{SceneKind, Selection, Structure};
+use crate::characterize::{Characterization, Features, PassTime};
 use serde::ser::SerializeMap;
 use std::fmt::Write as _;
 
@@ -28,7 +28,7 @@ impl serde::Serialize for Timings {
     }
 }
 
-/// One JSON object per mesh or frame: every field `SPEC.md` asks for, and more.
+/// One JSON object per mesh or frame: every field `docs/spec.md` asks for, and more.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Report {
     /// The input path or mesh name.
@@ -100,9 +100,9 @@ pub struct Report {
     /// The calibrated policy's predicted costs per structure (absent for the thesis policy).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub predicted: Option<Vec<crate::cost::Prediction>>,
-    /// The scene features of this frame the calibrated policy read (see [`super::features`]).
+    /// The scene features of this frame the calibrated policy read (see [`crate::characterize::features`]).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub features: Option<super::Features>,
+    pub features: Option<Features>,
     /// `naive`, `cpu` or `vulkan`.
     pub backend: String,
     /// The device.
@@ -185,7 +185,7 @@ impl Report {
     }
 
     /// Sets the scene features of this frame.
-    pub fn features(mut self, f: super::Features) -> Report {
+    pub fn features(mut self, f: Features) -> Report {
         self.features = Some(f);
         self
     }

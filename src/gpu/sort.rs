@@ -29,7 +29,7 @@
 //!
 //! ```no_run
 //! use meshchar::gpu::{Context, ContextDesc};
-//! use meshchar::ops::sort::{RadixSort, SortConfig};
+//! use meshchar::gpu::sort::{RadixSort, SortConfig};
 //! let ctx = Context::new(&ContextDesc::default())?;
 //! let sort = RadixSort::new(&ctx, SortConfig::for_device(ctx.caps()))?;
 //! let (keys, order) = sort.sort_u64(&[30, 10, 20, 10], Some(&[0, 1, 2, 3]))?;

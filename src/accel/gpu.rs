@@ -5,7 +5,7 @@
 //! # Passes
 //!
 //! 1. `keys_bounds` (`glsl/keys_bounds.comp`, shared with the characterization): centroid keys and their bounds.
-//!    The host reads the bounds back and computes the quantization scale (SPEC.md forbids device division).
+//!    The host reads the bounds back and computes the quantization scale (docs/spec.md forbids device division).
 //! 2. `codes` (`glsl/lbvh_codes.comp`): Morton code of every key (30-bit in `u32`, 63-bit in `u64`) and the
 //!    identity payload.
 //! 3. `sort` ([`RadixSort`], stable): codes with their triangle indices, i.e. the `(code, index)` order.
@@ -50,8 +50,8 @@
 //!
 //! ```no_run
 //! use meshchar::gpu::{Context, ContextDesc};
-//! use meshchar::ops::characterize::MeshBuffers;
-//! use meshchar::ops::lbvh::BvhBuilder;
+//! use meshchar::gpu::MeshBuffers;
+//! use meshchar::accel::gpu::BvhBuilder;
 //! use meshchar::accel::lbvh::LbvhOptions;
 //! let ctx = Context::new(&ContextDesc::default())?;
 //! let mesh = meshchar::mesh::generate::random_soup(1000, 1);
@@ -64,13 +64,16 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-use super::characterize::{InputError, KeysPush, MeshBuffers, RunError};
-use super::sort::{KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
 use crate::accel::bvh::{BvhNode, BvhTree};
 use crate::accel::hlbvh::HlbvhOptions;
 use crate::accel::lbvh::{LbvhOptions, MAX_COLLAPSE_LEAF};
-use crate::accel::{Aabb, Triangle, MAX_TRIANGLES};
-use crate::gpu::{shaders, Buffer, Context, GpuError, Kernel, KernelDesc, MemoryKind, Recorder, Result, Timer};
+use crate::accel::MAX_TRIANGLES;
+use crate::geom::{Aabb, Triangle};
+use crate::gpu::sort::{KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
+use crate::gpu::{
+    shaders, Buffer, Context, GpuError, InputError, Kernel, KernelDesc, KeysPush, MemoryKind, MeshBuffers, Recorder,
+    Result, RunError, Timer,
+};
 use crate::keys::{from_ordered_bits, quantization_scale, MortonBits};
 use glam::Vec3;
 

@@ -7,8 +7,7 @@
 //! bits by atomic OR, size histogram privatized in shared memory), which reads the bounds from device memory, so
 //! no host round trip separates them.
 
-use super::characterize::MeshBuffers;
-use crate::gpu::{shaders, Buffer, Context, GpuError, Kernel, KernelDesc, MemoryKind, Result, Timer};
+use crate::gpu::{shaders, Buffer, Context, GpuError, Kernel, KernelDesc, MemoryKind, MeshBuffers, Result, Timer};
 use crate::keys::{from_ordered_bits, MortonBits};
 
 const ITEMS: u32 = 8;
@@ -125,7 +124,7 @@ impl FeaturesGpu {
     }
 
     /// Runs the pass over `n` sampled triangles (every `stride`-th of `mesh`) whose `bits` Morton codes are in
-    /// `codes` (as [`super::characterize::CharacterizeGpu::device_arrays`] leaves them), submits and waits.
+    /// `codes` (as [`super::passes::CharacterizeGpu::device_arrays`] leaves them), submits and waits.
     pub fn run(
         &mut self,
         mesh: &MeshBuffers,

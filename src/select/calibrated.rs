@@ -4,14 +4,14 @@
 //! apart).
 //!
 //! For animations, [`plan_frames`] decides per frame between rebuilding (with which builder) and refitting the
-//! current BVH-family tree, from the [`super::RefitModel`]: the refitted tree's trace cost is the fresh tree's
-//! times `1 + g * drift`, where the drift ([`super::dataset::drift`]) is measured from the features of the frame the
+//! current BVH-family tree, from the [`crate::cost::RefitModel`]: the refitted tree's trace cost is the fresh tree's
+//! times `1 + g * drift`, where the drift ([`crate::cost::drift`]) is measured from the features of the frame the
 //! tree was built for to the current frame.
 
-use super::{CostModel, Prediction, Workload};
+use super::{Policy, SceneSummary, Selection, ThesisPolicy};
 use crate::accel::StructureName;
-use crate::characterize::policy::{Policy, SceneSummary, Selection, ThesisPolicy};
 use crate::characterize::Features;
+use crate::cost::{CostModel, Prediction, Workload};
 
 /// The calibrated choice among predictions: the smallest predicted total, then, within `tie_margin` (relative) of
 /// it, the smallest predicted build. `None` for no predictions.
@@ -48,7 +48,7 @@ fn bvh_family(s: StructureName) -> bool {
 pub fn plan_frames(
     model: &CostModel,
     features: &[Features],
-    kind: crate::trace::WorkloadKind,
+    kind: crate::geom::WorkloadKind,
     rays_per_frame: u64,
     tie_margin: f64,
 ) -> Vec<FrameDecision> {
@@ -70,7 +70,7 @@ pub fn plan_frames(
         };
         let refit = match (built, model.refit) {
             (Some((b, s)), Some(r)) if bvh_family(s) => preds.iter().find(|p| p.structure == s).map(|p| {
-                let d = super::dataset::drift(&features[b], f);
+                let d = crate::cost::drift(&features[b], f);
                 FrameDecision {
                     frame: i,
                     action: "refit",
@@ -101,7 +101,7 @@ pub struct CalibratedPolicy {
     /// The cost model.
     pub model: CostModel,
     /// Rays of the workload per frame and their kind.
-    pub kind: crate::trace::WorkloadKind,
+    pub kind: crate::geom::WorkloadKind,
     /// Rays per frame.
     pub rays_per_frame: u64,
     /// Frames of a static scene rendered with one build (animations: one frame per characterized frame, rebuilt or
@@ -112,9 +112,12 @@ pub struct CalibratedPolicy {
 }
 
 impl CalibratedPolicy {
+    /// The default [`CalibratedPolicy::tie_margin`].
+    pub const DEFAULT_TIE_MARGIN: f64 = 0.05;
+
     /// A policy for `rays_per_frame` rays of `kind` over `frames` frames of a static scene (one build).
-    pub fn new(model: CostModel, kind: crate::trace::WorkloadKind, rays_per_frame: u64, frames: u64) -> Self {
-        CalibratedPolicy { model, kind, rays_per_frame, frames: frames.max(1), tie_margin: 0.05 }
+    pub fn new(model: CostModel, kind: crate::geom::WorkloadKind, rays_per_frame: u64, frames: u64) -> Self {
+        CalibratedPolicy { model, kind, rays_per_frame, frames: frames.max(1), tie_margin: Self::DEFAULT_TIE_MARGIN }
     }
 
     /// The workload a scene of `frame_count` frames implies.

@@ -1,11 +1,14 @@
-//! The characterization passes of `SPEC.md` on the GPU, producing only exact quantities (bounds, codes, their
+//! The characterization passes of `docs/spec.md` on the GPU, producing only exact quantities (bounds, codes, their
 //! minimum, maximum and exact power sums, classes, the histogram and the exact chi-square numerator). The host-side
 //! meaning of those numbers (moments, `k`, p-values) lives in [`crate::characterize`].
 //!
 //! Three submissions per mesh or frame, because the host computes what the next pass needs: the quantization scale
-//! after the bounds (SPEC step 3 forbids device division), and `k` with its class thresholds after the moments.
+//! after the bounds (docs/spec.md step 3 forbids device division), and `k` with its class thresholds after the moments.
 
-use crate::gpu::{shaders, Buffer, Context, GpuError, Kernel, KernelDesc, MemoryKind, Result, Timer};
+use crate::gpu::{
+    shaders, Buffer, Context, GpuError, InputError, Kernel, KernelDesc, KeysPush, MemoryKind, MeshBuffers, Result,
+    RunError, Timer,
+};
 use crate::keys::{from_ordered_bits, quantization_scale, MortonBits};
 
 /// Items per invocation and tile in the per-triangle passes.
@@ -22,25 +25,6 @@ const OFF_MORTON: u64 = 64; // uint64[2 + NLIMBS]
 const OFF_CHI: u64 = OFF_MORTON + 8 * (2 + NLIMBS as u64); // uint64[5]
 const OFF_HIST: u64 = OFF_CHI + 64; // uint[k]
 const RESULT_BYTES: u64 = OFF_HIST + 4 * MAX_GPU_CLASSES as u64;
-
-/// Push constants of `glsl/keys_bounds.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct KeysPush {
-    /// Address of the vertex positions (f32 xyz).
-    pub positions: u64,
-    /// Address of the triangle indices (u32 triples).
-    pub indices: u64,
-    /// Address of the output keys (f32 xyz per sampled triangle).
-    pub keys: u64,
-    /// Address of the `uint[6]` bounds.
-    pub result: u64,
-    /// Sampled triangles.
-    pub count: u64,
-    /// Sample stride.
-    pub stride: u64,
-}
-crate::push_layout!(KeysPush { positions, indices, keys, result, count, stride });
 
 /// Push constants of `glsl/morton_moments.comp`.
 #[repr(C)]
@@ -109,45 +93,6 @@ pub struct ChiPush {
 }
 crate::push_layout!(ChiPush { hist, out_addr, n, k, pad });
 
-/// A mesh on the device: positions and indices, addressable by the kernels (and by a host engine).
-#[derive(Debug)]
-pub struct MeshBuffers {
-    /// Vertex positions, f32 xyz.
-    pub positions: Buffer,
-    /// Triangle indices, u32 triples.
-    pub indices: Buffer,
-    /// Number of vertices.
-    pub vertices: u64,
-    /// Number of triangles.
-    pub triangles: u64,
-}
-
-impl MeshBuffers {
-    /// Uploads positions and indices.
-    pub fn upload(ctx: &Context, positions: &[[f32; 3]], indices: &[[u32; 3]]) -> Result<Self> {
-        let p = if positions.is_empty() { &[[0.0f32; 3]][..] } else { positions };
-        let i = if indices.is_empty() { &[[0u32; 3]][..] } else { indices };
-        Ok(MeshBuffers {
-            positions: ctx.upload("positions", p)?,
-            indices: ctx.upload("indices", i)?,
-            vertices: positions.len() as u64,
-            triangles: indices.len() as u64,
-        })
-    }
-
-    /// Replaces the positions (same vertex count): the next frame of an animation.
-    pub fn update_positions(&self, ctx: &Context, positions: &[[f32; 3]]) -> Result<()> {
-        if positions.len() as u64 != self.vertices {
-            return Err(GpuError::Buffer(format!(
-                "frame has {} vertices, the mesh on the device {}",
-                positions.len(),
-                self.vertices
-            )));
-        }
-        ctx.write_buffer(&self.positions, 0, positions)
-    }
-}
-
 /// What the host decides between the moment pass and the class pass: the class count and its thresholds.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ClassPlan {
@@ -197,40 +142,6 @@ pub struct GpuCharacterization {
     pub per_triangle: Option<(Vec<u64>, Vec<u32>)>,
     /// GPU time of each pass (ms), from timestamps.
     pub timings: Vec<(String, f64)>,
-}
-
-/// Errors of the GPU characterization that are about the input, not the device.
-#[derive(Debug, thiserror::Error)]
-pub enum InputError {
-    /// Nothing to characterize.
-    #[error("no triangles to characterize")]
-    Empty,
-    /// Centroid keys overflow f32, or their range cannot be quantized in f32 (`hi - lo` or `2^b / (hi - lo)`
-    /// overflows).
-    #[error("bounds of the centroid keys {lo:?} .. {hi:?} cannot be quantized in f32 (coordinates too large, or an extent below about 1e-35)")]
-    Overflow {
-        /// Lower bound of the keys.
-        lo: [f32; 3],
-        /// Upper bound of the keys.
-        hi: [f32; 3],
-    },
-    /// Too many triangles for 32-bit class counts.
-    #[error("{0} sampled triangles: at most 2^32 - 1 are supported")]
-    TooMany(u64),
-    /// The class plan is unusable.
-    #[error("class plan: {0}")]
-    Plan(String),
-}
-
-/// Error of [`CharacterizeGpu::run`].
-#[derive(Debug, thiserror::Error)]
-pub enum RunError {
-    /// Device failure.
-    #[error(transparent)]
-    Gpu(#[from] GpuError),
-    /// Bad input.
-    #[error(transparent)]
-    Input(#[from] InputError),
 }
 
 struct Scratch {

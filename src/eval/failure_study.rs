@@ -2,18 +2,20 @@
 //! past their comfort zone, and the measurements the study reports on each.
 //!
 //! Everything here except the oracle's timings is deterministic: the scenes come from seeded generators, the
-//! statistics are exact (identical on every backend, see `SPEC.md`), and SAH costs, hit counts and traversal
+//! statistics are exact (identical on every backend, see `docs/spec.md`), and SAH costs, hit counts and traversal
 //! counters do not depend on timing or thread count. `examples/failure_study.rs` prints the tables of the study from
 //! these functions, and `tests/failure_study.rs` pins every claim of the study on them.
 
 use crate::accel::bvh::Bvh;
 use crate::accel::lbvh::Lbvh;
 use crate::accel::{AccelError, AccelStructure};
-use crate::characterize::{CharError, Characterization, Characterizer, Params, Policy, SceneSummary, ThesisPolicy};
-use crate::characterize::{SceneKind, Structure};
+use crate::characterize::{CharError, Characterization, Characterizer, Params};
+use crate::geom::WorkloadKind;
 use crate::mesh::{generate, Animation, Mesh, MeshError};
+use crate::select::{Policy, SceneSummary, ThesisPolicy};
+use crate::select::{SceneKind, Structure};
 use crate::trace::workload::{mesh_bounds, primary_rays};
-use crate::trace::{trace, Camera, RaySet, WorkloadKind};
+use crate::trace::{trace, Camera, RaySet};
 use std::time::Instant;
 
 /// One scene of the study: a name, what it stands for, and its frames (one for a static scene).

@@ -1,0 +1,73 @@
+//! Oracle results as calibration samples: a [`Sample`] is one scene under one workload, its [`Features`] and what
+//! the oracle measured for every structure ([`crate::eval::record::OracleRecord::sample`] makes one from a record).
+
+use super::Workload;
+use crate::accel::StructureName;
+use crate::characterize::features::FeatureChange;
+use crate::characterize::Features;
+
+/// What the oracle measured for one structure, normalized per build and per ray.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Measured {
+    /// The structure.
+    pub structure: StructureName,
+    /// Built, validated and agreed with the reference hits.
+    pub valid: bool,
+    /// Median total ms of the run.
+    pub total_ms: f64,
+    /// Median build ms over the run.
+    pub build_ms: f64,
+    /// Median trace ms over the run.
+    pub trace_ms: f64,
+    /// Build ms of one build.
+    pub build_ms_per_build: f64,
+    /// Trace ns per ray.
+    pub trace_ns_per_ray: f64,
+    /// Box tests per ray.
+    pub box_tests_per_ray: f64,
+    /// Triangle tests per ray.
+    pub prim_tests_per_ray: f64,
+    /// Within noise of the best total.
+    pub within_noise_of_best: bool,
+}
+
+/// One scene under one workload: features and measurements.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Sample {
+    /// Scene name (path).
+    pub scene: String,
+    /// The workload measured.
+    pub workload: Workload,
+    /// Features of the first frame.
+    pub features: Features,
+    /// Per structure.
+    pub measured: Vec<Measured>,
+    /// The selection of the policy compared against (the thesis policy), when known.
+    pub baseline: Option<StructureName>,
+}
+
+impl Sample {
+    /// The measurement of one structure.
+    pub fn get(&self, s: StructureName) -> Option<&Measured> {
+        self.measured.iter().find(|m| m.structure == s)
+    }
+
+    /// The valid structure with the smallest measured total.
+    pub fn best(&self) -> Option<&Measured> {
+        self.measured.iter().filter(|m| m.valid && m.total_ms > 0.0).min_by(|a, b| a.total_ms.total_cmp(&b.total_ms))
+    }
+
+    /// `total(s) / total(best) - 1`; `None` when `s` or the best was not validly measured.
+    pub fn regret(&self, s: StructureName) -> Option<f64> {
+        let best = self.best()?;
+        let m = self.get(s).filter(|m| m.valid)?;
+        Some(m.total_ms / best.total_ms - 1.0)
+    }
+}
+
+/// Drift of an animation frame from the frame a structure was built for: the largest of the feature changes
+/// ([`FeatureChange`]: occupancy in log units, relative bounds change, size exponent change / 4).
+pub fn drift(built: &Features, now: &Features) -> f64 {
+    let c = FeatureChange::between(built, now);
+    c.occupancy.max(c.bounds).max(c.size / 4.0)
+}

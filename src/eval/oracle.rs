@@ -1,0 +1,480 @@
+//! The measurement oracle: build and trace every structure on a scene and a workload, and from the timings the
+//! ground-truth best structure, each structure's total, and the regret of a selection.
+//!
+//! # Method
+//!
+//! For each frame of the scene, the rays of the workload are generated once (from a binned-SAH BVH built for that
+//! frame, not timed) together with the reference hits. Then, `repeats` times, every structure is built (timed),
+//! traced over the rays (timed, rayon over rays), and, in the first repeat, validated and compared with the
+//! reference hits (not timed). Repeats are interleaved across structures so that slow drift of the machine affects
+//! them alike. Reported times are **medians over repeats**.
+//!
+//! # Totals
+//!
+//! * A static scene (one mesh) rendered for `F` frames: `total = B + F * T` when the structure is built once,
+//!   `F * (B + T)` when rebuilt every frame, with `B`, `T` the build and trace time of one frame.
+//! * An animation (several meshes, one topology): frames `0 .. F` are used, each rebuilt and traced:
+//!   `total = sum_f (B_f + T_f)`. Building once is refused for an animation: no structure here can be refitted,
+//!   and tracing frame `f` through frame 0's structure would give wrong hits.
+//!
+//! The **oracle best** is the structure with the smallest median total among those that built, validated and
+//! agreed with the reference hits. The **regret** of a selection `s` is `total(s) / total(best) - 1`.
+//!
+//! # Noise
+//!
+//! Each structure's total has a spread, half the range of its totals over the repeats. Two structures are *within
+//! noise* of each other when their medians differ by no more than the sum of their spreads; a regret is within
+//! noise when the selection is within noise of the best. With one repeat the spread is zero and nothing is ever
+//! within noise: use at least three repeats to judge.
+//!
+//! # The cheapest structure within noise
+//!
+//! When several structures are within noise of the best, the measurement cannot tell them apart, and the one that
+//! costs least to have is the better answer: [`SceneEvaluation::oracle_within_noise`] lists them (the best
+//! included) and [`SceneEvaluation::oracle_cheapest_within_noise`] names the one with the least median build time,
+//! then the least memory. `oracle_best` stays the structure with the smallest median total, and `regret` is still
+//! measured against it; a policy (or a calibration) that wants the cheapest defensible answer targets
+//! `oracle_cheapest_within_noise` instead.
+
+use super::record::{OracleRecord, StructureRecord};
+use crate::accel::{build_structure, AccelStats, AccelStructure, StructureName};
+use crate::geom::WorkloadKind;
+use crate::mesh::{Animation, Mesh};
+use crate::trace::workload::{build_workload, mesh_bounds};
+use crate::trace::{count_disagreements, trace, Camera, RaySet, TraceOutcome};
+use std::time::Instant;
+
+/// When structures are (re)built.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Rebuild {
+    /// Built for every frame.
+    PerFrame,
+    /// Built once (static scenes only).
+    Once,
+}
+
+/// A workload for the oracle.
+#[derive(Clone, Debug)]
+pub struct OracleConfig {
+    /// Kind of rays.
+    pub workload: WorkloadKind,
+    /// Image side: `resolution x resolution` primary rays per frame (1024 in the thesis).
+    pub resolution: u32,
+    /// Frames: how many times a static scene is rendered, or how many frames of an animation are used
+    /// (`None`: 1 for a static scene, all for an animation).
+    pub frames: Option<usize>,
+    /// When structures are built.
+    pub rebuild: Rebuild,
+    /// Repeats of every measurement (medians are reported).
+    pub repeats: usize,
+    /// Structures to compare.
+    pub structures: Vec<StructureName>,
+    /// Camera; `None` frames the scene automatically ([`Camera::frame`] on the bounds of all frames).
+    pub camera: Option<Camera>,
+}
+
+impl Default for OracleConfig {
+    fn default() -> Self {
+        OracleConfig {
+            workload: WorkloadKind::Primary,
+            resolution: 1024,
+            frames: None,
+            rebuild: Rebuild::Once,
+            repeats: 3,
+            structures: StructureName::ALL.to_vec(),
+            camera: None,
+        }
+    }
+}
+
+/// Errors of the oracle.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    /// The scene has no frame.
+    #[error("{0}: the scene has no frame")]
+    NoFrames(String),
+    /// A configuration that cannot be measured.
+    #[error("{scene}: {reason}")]
+    Config {
+        /// The scene.
+        scene: String,
+        /// Why.
+        reason: String,
+    },
+    /// The reference structure could not be built.
+    #[error(transparent)]
+    Accel(#[from] crate::accel::AccelError),
+}
+
+/// Median and range of repeated measurements, in milliseconds.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Measurement {
+    /// Median.
+    pub median: f64,
+    /// Smallest sample.
+    pub min: f64,
+    /// Largest sample.
+    pub max: f64,
+    /// Half the range, the noise estimate.
+    pub spread: f64,
+}
+
+impl Measurement {
+    /// Summary of samples (all zero when there are none).
+    pub fn of(samples: &[f64]) -> Self {
+        if samples.is_empty() {
+            return Measurement::default();
+        }
+        let mut s = samples.to_vec();
+        s.sort_by(f64::total_cmp);
+        let k = s.len();
+        let median = if k % 2 == 1 { s[k / 2] } else { 0.5 * (s[k / 2 - 1] + s[k / 2]) };
+        Measurement { median, min: s[0], max: s[k - 1], spread: 0.5 * (s[k - 1] - s[0]) }
+    }
+
+    /// Whether two measurements are within noise of each other (see the module docs).
+    pub fn within_noise(&self, o: &Measurement) -> bool {
+        (self.median - o.median).abs() <= self.spread + o.spread
+    }
+}
+
+/// What the oracle measured for one structure.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct StructureResult {
+    /// Which structure.
+    pub name: Option<StructureName>,
+    /// Build time over the run (all builds of all frames), ms.
+    pub build_ms: Measurement,
+    /// Trace time over the run (all frames), ms.
+    pub trace_ms: Measurement,
+    /// Total (see the module docs), ms.
+    pub total_ms: Measurement,
+    /// Rays traced per repeat (over all measured frames).
+    pub rays: u64,
+    /// Millions of rays per second, from the median trace time.
+    pub mrays_per_s: f64,
+    /// Box tests (or node visits, cells) per ray.
+    pub box_tests_per_ray: f64,
+    /// Triangle tests per ray.
+    pub prim_tests_per_ray: f64,
+    /// Memory of the structure (largest frame), bytes.
+    pub memory_bytes: usize,
+    /// SAH cost (first frame), where it applies.
+    pub sah_cost: Option<f64>,
+    /// Statistics of `validate()` (first frame).
+    pub stats: Option<AccelStats>,
+    /// Whether `validate()` passed on every frame.
+    pub valid: bool,
+    /// Whether every hit agreed with the reference on every frame.
+    pub hits_agree: bool,
+    /// Rays that disagreed with the reference.
+    pub disagreements: usize,
+    /// Whether its total is within noise of the best total.
+    pub within_noise_of_best: bool,
+    /// The build or validation error, if any.
+    pub error: Option<String>,
+}
+
+/// The oracle's verdict on one scene and workload.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct SceneEvaluation {
+    /// Scene name (path).
+    pub mesh: String,
+    /// Triangles per frame.
+    pub triangles: usize,
+    /// Frames measured (distinct geometries).
+    pub frames_measured: usize,
+    /// Frames the totals stand for.
+    pub frames: usize,
+    /// Workload.
+    pub workload: WorkloadKind,
+    /// Image side.
+    pub resolution: u32,
+    /// Rebuild policy.
+    pub rebuild: Rebuild,
+    /// Repeats.
+    pub repeats: usize,
+    /// Rays per frame (first frame).
+    pub rays_per_frame: usize,
+    /// The selection passed in (from the characterization's policy), if any.
+    pub selected: Option<StructureName>,
+    /// The structure with the smallest median total.
+    pub oracle_best: Option<StructureName>,
+    /// The structures within noise of the best (see the module docs), the best included, in the order measured.
+    pub oracle_within_noise: Vec<StructureName>,
+    /// Among [`SceneEvaluation::oracle_within_noise`], the one with the least median build time, then the least
+    /// memory: the cheapest structure the measurement cannot tell from the best.
+    pub oracle_cheapest_within_noise: Option<StructureName>,
+    /// `total(selected) / total(best) - 1`, when a selection was given and both were measured.
+    pub regret: Option<f64>,
+    /// Whether the selection is within noise of the best.
+    pub regret_within_noise: Option<bool>,
+    /// Per structure.
+    pub structures: Vec<StructureResult>,
+}
+
+impl SceneEvaluation {
+    /// The result of one structure.
+    pub fn get(&self, name: StructureName) -> Option<&StructureResult> {
+        self.structures.iter().find(|s| s.name == Some(name))
+    }
+
+    /// The record of `evaluate --json` (one per scene; see [`OracleRecord`]): `mesh`, `triangles`, `selected`,
+    /// `oracle_best`, `regret`, `structures` (each with `name`, `build_ms`, `trace_ms`, `mrays_per_s`,
+    /// `box_tests_per_ray`, `prim_tests_per_ray`, `memory_bytes`, `sah_cost`, `valid`, `hits_agree`, and more), plus
+    /// the workload and the noise figures: `oracle_within_noise` (names) and `oracle_cheapest_within_noise`.
+    pub fn record(&self) -> OracleRecord {
+        OracleRecord {
+            frames: self.frames,
+            frames_measured: self.frames_measured,
+            mesh: self.mesh.clone(),
+            oracle_best: self.oracle_best,
+            oracle_cheapest_within_noise: self.oracle_cheapest_within_noise,
+            oracle_within_noise: self.oracle_within_noise.clone(),
+            policy: None,
+            predicted: None,
+            rays_per_frame: self.rays_per_frame,
+            rebuild: self.rebuild,
+            regret: self.regret,
+            regret_within_noise: self.regret_within_noise,
+            repeats: self.repeats,
+            resolution: self.resolution,
+            selected: self.selected,
+            structures: self
+                .structures
+                .iter()
+                .map(|s| StructureRecord {
+                    box_tests_per_ray: s.box_tests_per_ray,
+                    build_ms: s.build_ms.median,
+                    build_ms_range: [s.build_ms.min, s.build_ms.max],
+                    disagreements: s.disagreements,
+                    error: s.error.clone(),
+                    hits_agree: s.hits_agree,
+                    memory_bytes: s.memory_bytes,
+                    mrays_per_s: s.mrays_per_s,
+                    name: s.name,
+                    prim_tests_per_ray: s.prim_tests_per_ray,
+                    sah_cost: s.sah_cost,
+                    stats: s.stats,
+                    total_ms: s.total_ms.median,
+                    total_ms_spread: s.total_ms.spread,
+                    trace_ms: s.trace_ms.median,
+                    trace_ms_range: [s.trace_ms.min, s.trace_ms.max],
+                    valid: s.valid,
+                    within_noise_of_best: s.within_noise_of_best,
+                })
+                .collect(),
+            triangles: self.triangles,
+            workload: self.workload,
+        }
+    }
+
+    /// [`SceneEvaluation::record`] as a JSON value.
+    pub fn to_json(&self) -> serde_json::Value {
+        self.record().to_json()
+    }
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// Per structure, per repeat accumulators.
+#[derive(Clone, Default)]
+struct Acc {
+    build: Vec<f64>,
+    trace: Vec<f64>,
+    rays: u64,
+    box_tests: u64,
+    prim_tests: u64,
+    memory: usize,
+    sah: Option<f64>,
+    stats: Option<AccelStats>,
+    valid: bool,
+    disagreements: usize,
+    error: Option<String>,
+}
+
+/// Runs the oracle on one scene (see the module docs). `selected` is the characterization's choice, if any: it
+/// only feeds `regret`; the measurement is the same either way. `progress` receives one line per step.
+pub fn evaluate_scene(
+    scene: &Animation,
+    config: &OracleConfig,
+    selected: Option<StructureName>,
+    progress: &dyn Fn(&str),
+) -> Result<SceneEvaluation, EvalError> {
+    let first = scene.frames.first().ok_or_else(|| EvalError::NoFrames(scene.name.clone()))?;
+    let animated = scene.frames.len() > 1;
+    if animated && config.rebuild == Rebuild::Once {
+        return Err(EvalError::Config {
+            scene: scene.name.clone(),
+            reason: "building once is only meaningful for a static scene (no refitting here); use per-frame rebuilds"
+                .into(),
+        });
+    }
+    let (measured, frames): (&[Mesh], usize) = if animated {
+        let f = config.frames.unwrap_or(scene.frames.len()).clamp(1, scene.frames.len());
+        (&scene.frames[..f], f)
+    } else {
+        (&scene.frames[..1], config.frames.unwrap_or(1).max(1))
+    };
+    let repeats = config.repeats.max(1);
+    let camera = config.camera.unwrap_or_else(|| {
+        let b = measured.iter().fold(crate::geom::Aabb::EMPTY, |a, m| a.union(&mesh_bounds(m)));
+        Camera::frame(&b)
+    });
+    let names = &config.structures;
+    let mut acc: Vec<Acc> = vec![Acc { valid: true, ..Default::default() }; names.len()];
+    for a in acc.iter_mut() {
+        a.build = vec![0.0; repeats];
+        a.trace = vec![0.0; repeats];
+    }
+    let mut rays_per_frame = 0;
+    for (fi, mesh) in measured.iter().enumerate() {
+        progress(&format!("{}: frame {}/{}: rays and reference hits", scene.name, fi + 1, measured.len()));
+        let reference = crate::accel::bvh::Bvh::build(mesh)?;
+        let rays: RaySet = build_workload(config.workload, mesh, &camera, config.resolution, &reference);
+        if fi == 0 {
+            rays_per_frame = rays.rays.len();
+        }
+        let want: TraceOutcome = trace(&reference, &rays);
+        drop(reference);
+        for r in 0..repeats {
+            for (si, &name) in names.iter().enumerate() {
+                let a = &mut acc[si];
+                if a.error.is_some() {
+                    continue;
+                }
+                progress(&format!(
+                    "{}: frame {}/{} repeat {}/{}: {name}",
+                    scene.name,
+                    fi + 1,
+                    measured.len(),
+                    r + 1,
+                    repeats
+                ));
+                let t = Instant::now();
+                let built = build_structure(name, mesh);
+                let build_ms = ms(t);
+                let s: Box<dyn AccelStructure> = match built {
+                    Ok(s) => s,
+                    Err(e) => {
+                        a.error = Some(e.to_string());
+                        a.valid = false;
+                        continue;
+                    }
+                };
+                let out = trace(s.as_ref(), &rays);
+                a.build[r] += build_ms;
+                a.trace[r] += out.seconds * 1e3;
+                if r == 0 {
+                    a.rays += out.rays() as u64;
+                    a.box_tests += out.counters.box_tests;
+                    a.prim_tests += out.counters.prim_tests;
+                    a.memory = a.memory.max(s.memory_bytes());
+                    a.disagreements += count_disagreements(&out, &want);
+                    match s.validate() {
+                        Ok(st) => {
+                            if fi == 0 {
+                                a.stats = Some(st);
+                            }
+                        }
+                        Err(e) => {
+                            a.valid = false;
+                            a.error.get_or_insert(e.to_string());
+                        }
+                    }
+                    if fi == 0 {
+                        a.sah = s.sah_cost();
+                    }
+                }
+            }
+        }
+    }
+    // Totals per repeat.
+    let (build_factor, trace_factor) = if animated {
+        (1.0, 1.0)
+    } else {
+        let f = frames as f64;
+        (if config.rebuild == Rebuild::PerFrame { f } else { 1.0 }, f)
+    };
+    let mut results: Vec<StructureResult> = names
+        .iter()
+        .zip(&acc)
+        .map(|(&name, a)| {
+            let builds: Vec<f64> = a.build.iter().map(|b| b * build_factor).collect();
+            let traces: Vec<f64> = a.trace.iter().map(|t| t * trace_factor).collect();
+            let totals: Vec<f64> = builds.iter().zip(&traces).map(|(b, t)| b + t).collect();
+            let measured_ok = a.error.is_none() || a.rays > 0;
+            let trace_ms = Measurement::of(&a.trace);
+            let per_ray = |x: u64| {
+                if a.rays > 0 {
+                    x as f64 / a.rays as f64
+                } else {
+                    0.0
+                }
+            };
+            StructureResult {
+                name: Some(name),
+                build_ms: if measured_ok { Measurement::of(&builds) } else { Measurement::default() },
+                trace_ms: if measured_ok { Measurement::of(&traces) } else { Measurement::default() },
+                total_ms: if measured_ok { Measurement::of(&totals) } else { Measurement::default() },
+                rays: a.rays,
+                mrays_per_s: if trace_ms.median > 0.0 { a.rays as f64 / (trace_ms.median * 1e3) } else { 0.0 },
+                box_tests_per_ray: per_ray(a.box_tests),
+                prim_tests_per_ray: per_ray(a.prim_tests),
+                memory_bytes: a.memory,
+                sah_cost: a.sah,
+                stats: a.stats,
+                valid: a.valid && a.error.is_none(),
+                hits_agree: a.disagreements == 0 && a.rays > 0,
+                disagreements: a.disagreements,
+                within_noise_of_best: false,
+                error: a.error.clone(),
+            }
+        })
+        .collect();
+    let best = results
+        .iter()
+        .filter(|s| s.valid && s.hits_agree)
+        .min_by(|a, b| a.total_ms.median.total_cmp(&b.total_ms.median))
+        .map(|s| (s.name, s.total_ms.clone()));
+    if let Some((_, bt)) = &best {
+        for s in results.iter_mut() {
+            s.within_noise_of_best = s.valid && s.hits_agree && s.total_ms.within_noise(bt);
+        }
+    }
+    let oracle_best = best.as_ref().and_then(|b| b.0);
+    let near: Vec<&StructureResult> = results.iter().filter(|s| s.within_noise_of_best).collect();
+    let oracle_within_noise: Vec<StructureName> = near.iter().filter_map(|s| s.name).collect();
+    let oracle_cheapest_within_noise = near
+        .iter()
+        .min_by(|a, b| a.build_ms.median.total_cmp(&b.build_ms.median).then(a.memory_bytes.cmp(&b.memory_bytes)))
+        .and_then(|s| s.name);
+    let sel = selected.and_then(|n| results.iter().find(|s| s.name == Some(n)));
+    let (regret, regret_within_noise) = match (sel, &best) {
+        (Some(s), Some((_, bt))) if s.valid && bt.median > 0.0 => {
+            (Some(s.total_ms.median / bt.median - 1.0), Some(s.within_noise_of_best))
+        }
+        _ => (None, None),
+    };
+    Ok(SceneEvaluation {
+        mesh: scene.name.clone(),
+        triangles: first.triangle_count(),
+        frames_measured: measured.len(),
+        frames,
+        workload: config.workload,
+        resolution: config.resolution,
+        rebuild: config.rebuild,
+        repeats,
+        rays_per_frame,
+        selected,
+        oracle_best,
+        oracle_within_noise,
+        oracle_cheapest_within_noise,
+        regret,
+        regret_within_noise,
+        structures: results,
+    })
+}

@@ -1,0 +1,336 @@
+//! The oracle's record: one scene under one workload, as `evaluate --json` writes it (one JSON object per line) and
+//! as everything that reads oracle results reads it back: the cost-model fit ([`OracleRecord::sample`],
+//! [`load_samples`]), the policy comparison ([`super::compare`]) and the trade-off study ([`super::tradeoff`]).
+//!
+//! A record is written with its keys in alphabetical order at every level (through [`serde_json::Value`], whose
+//! maps are sorted), as the records in `docs/data` are. Fields that older records lack read as their defaults; a
+//! number written as `null` (a NaN) reads back as NaN.
+
+use super::oracle::{Measurement, Rebuild};
+use crate::accel::{AccelStats, StructureName};
+use crate::characterize::{features_cpu, Features, Params};
+use crate::cost::{Measured, Prediction, Sample, Workload};
+use crate::geom::WorkloadKind;
+use serde::{Deserialize, Deserializer, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Errors of reading oracle records.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    /// The file could not be read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A line is not a valid record.
+    #[error("{place}: {reason}")]
+    Parse {
+        /// `file:line`.
+        place: String,
+        /// Why.
+        reason: String,
+    },
+    /// The scene a record names could not be loaded or characterized.
+    #[error("{file}: {mesh}: {reason}")]
+    Scene {
+        /// The oracle file.
+        file: String,
+        /// The scene's path as recorded.
+        mesh: String,
+        /// Why.
+        reason: String,
+    },
+}
+
+fn nan_if_null<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
+fn nan_pair_if_null<'de, D: Deserializer<'de>>(d: D) -> Result<[f64; 2], D::Error> {
+    let v = Option::<[Option<f64>; 2]>::deserialize(d)?.unwrap_or([None, None]);
+    Ok([v[0].unwrap_or(f64::NAN), v[1].unwrap_or(f64::NAN)])
+}
+
+fn default_one() -> usize {
+    1
+}
+
+fn default_once() -> Rebuild {
+    Rebuild::Once
+}
+
+/// What the oracle measured for one structure on one scene and workload.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StructureRecord {
+    /// Box tests (or node visits, cells) per ray.
+    #[serde(default, deserialize_with = "nan_if_null")]
+    pub box_tests_per_ray: f64,
+    /// Median build time over the run (all builds of all frames), ms.
+    #[serde(default, deserialize_with = "nan_if_null")]
+    pub build_ms: f64,
+    /// Smallest and largest build time over the repeats, ms.
+    #[serde(default, deserialize_with = "nan_pair_if_null")]
+    pub build_ms_range: [f64; 2],
+    /// Rays that disagreed with the reference.
+    #[serde(default)]
+    pub disagreements: usize,
+    /// The build or validation error, if any.
+    #[serde(default)]
+    pub error: Option<String>,
+    /// Whether every hit agreed with the reference on every frame.
+    #[serde(default)]
+    pub hits_agree: bool,
+    /// Memory of the structure (largest frame), bytes.
+    #[serde(default)]
+    pub memory_bytes: usize,
+    /// Millions of rays per second, from the median trace time.
+    #[serde(default, deserialize_with = "nan_if_null")]
+    pub mrays_per_s: f64,
+    /// Which structure (`None` for a name this version does not know).
+    #[serde(default, deserialize_with = "known_structure")]
+    pub name: Option<StructureName>,
+    /// Triangle tests per ray.
+    #[serde(default, deserialize_with = "nan_if_null")]
+    pub prim_tests_per_ray: f64,
+    /// SAH cost (first frame), where it applies.
+    #[serde(default)]
+    pub sah_cost: Option<f64>,
+    /// Statistics of `validate()` (first frame).
+    #[serde(default)]
+    pub stats: Option<AccelStats>,
+    /// Median total (see [`super::oracle`]), ms.
+    #[serde(default, deserialize_with = "nan_if_null")]
+    pub total_ms: f64,
+    /// Half the range of the totals over the repeats (the noise estimate), ms.
+    #[serde(default, deserialize_with = "nan_if_null")]
+    pub total_ms_spread: f64,
+    /// Median trace time over the run (all frames), ms.
+    #[serde(default, deserialize_with = "nan_if_null")]
+    pub trace_ms: f64,
+    /// Smallest and largest trace time over the repeats, ms.
+    #[serde(default, deserialize_with = "nan_pair_if_null")]
+    pub trace_ms_range: [f64; 2],
+    /// Whether `validate()` passed on every frame.
+    #[serde(default)]
+    pub valid: bool,
+    /// Whether its total is within noise of the best total.
+    #[serde(default)]
+    pub within_noise_of_best: bool,
+}
+
+fn known_structure<'de, D: Deserializer<'de>>(d: D) -> Result<Option<StructureName>, D::Error> {
+    Ok(Option::<String>::deserialize(d)?.and_then(|s| s.parse().ok()))
+}
+
+impl StructureRecord {
+    /// Built, validated, agreed with the reference hits, and has a finite total.
+    pub fn ok(&self) -> bool {
+        self.name.is_some() && self.valid && self.hits_agree && self.total_ms.is_finite()
+    }
+
+    /// The total as a [`Measurement`]: the median with a symmetric range of the recorded spread.
+    pub fn total(&self) -> Measurement {
+        let spread = if self.total_ms_spread.is_finite() { self.total_ms_spread } else { 0.0 };
+        Measurement { median: self.total_ms, min: self.total_ms - spread, max: self.total_ms + spread, spread }
+    }
+}
+
+/// The oracle's verdict on one scene and workload: one line of `evaluate --json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OracleRecord {
+    /// Frames the totals stand for.
+    #[serde(default = "default_one")]
+    pub frames: usize,
+    /// Frames measured (distinct geometries).
+    #[serde(default = "default_one")]
+    pub frames_measured: usize,
+    /// Scene name (the path it was loaded from).
+    pub mesh: String,
+    /// The structure with the smallest median total.
+    #[serde(default, deserialize_with = "known_structure")]
+    pub oracle_best: Option<StructureName>,
+    /// Among the structures within noise of the best, the one with the least median build time, then the least
+    /// memory.
+    #[serde(default, deserialize_with = "known_structure")]
+    pub oracle_cheapest_within_noise: Option<StructureName>,
+    /// The structures within noise of the best, the best included, in the order measured.
+    #[serde(default)]
+    pub oracle_within_noise: Vec<StructureName>,
+    /// The policy that made `selected` (written by `evaluate`; absent in records from the library alone).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub policy: Option<String>,
+    /// The calibrated policy's predictions for every structure (written by `evaluate` when it has them).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub predicted: Option<Vec<Prediction>>,
+    /// Rays per frame (first frame; 0 when the record does not say).
+    #[serde(default)]
+    pub rays_per_frame: usize,
+    /// Whether structures were built once or per frame.
+    #[serde(default = "default_once")]
+    pub rebuild: Rebuild,
+    /// `total(selected) / total(best) - 1`, when a selection was given and both were measured.
+    #[serde(default)]
+    pub regret: Option<f64>,
+    /// Whether the selection is within noise of the best.
+    #[serde(default)]
+    pub regret_within_noise: Option<bool>,
+    /// Repeats of the measurement.
+    #[serde(default = "default_one")]
+    pub repeats: usize,
+    /// Image side of the workload.
+    #[serde(default)]
+    pub resolution: u32,
+    /// The selection passed to the oracle, if any.
+    #[serde(default, deserialize_with = "known_structure")]
+    pub selected: Option<StructureName>,
+    /// Per structure, in the order measured.
+    pub structures: Vec<StructureRecord>,
+    /// Triangles per frame.
+    #[serde(default)]
+    pub triangles: usize,
+    /// The workload.
+    pub workload: WorkloadKind,
+}
+
+impl OracleRecord {
+    /// The JSON line (no trailing newline).
+    pub fn to_json_line(&self) -> String {
+        self.to_json().to_string()
+    }
+
+    /// The record as a JSON value (maps sorted by key).
+    pub fn to_json(&self) -> serde_json::Value {
+        // A record holds only strings, numbers, booleans, lists and maps with string keys: this cannot fail.
+        serde_json::to_value(self).unwrap_or(serde_json::Value::Null)
+    }
+
+    /// Reads a record from a parsed JSON value.
+    pub fn from_json(v: &serde_json::Value) -> Result<OracleRecord, String> {
+        OracleRecord::deserialize(v).map_err(|e| e.to_string())
+    }
+
+    /// Parses one JSON line.
+    pub fn from_json_line(line: &str) -> Result<OracleRecord, String> {
+        serde_json::from_str(line).map_err(|e| e.to_string())
+    }
+
+    /// The record of a structure that was measured validly (see [`StructureRecord::ok`]).
+    pub fn get(&self, name: StructureName) -> Option<&StructureRecord> {
+        self.structures.iter().find(|s| s.name == Some(name) && s.ok())
+    }
+
+    /// The valid structure with the smallest median total.
+    pub fn best(&self) -> Option<&StructureRecord> {
+        self.structures.iter().filter(|s| s.ok()).min_by(|a, b| a.total_ms.total_cmp(&b.total_ms))
+    }
+
+    /// The valid structures within noise of the best, the best included (see [`Measurement::within_noise`]).
+    pub fn within_noise(&self) -> Vec<StructureName> {
+        let Some(best) = self.best() else { return Vec::new() };
+        let best = best.total();
+        self.structures.iter().filter(|s| s.ok() && s.total().within_noise(&best)).filter_map(|s| s.name).collect()
+    }
+
+    /// Among [`OracleRecord::within_noise`], the least median build time, then the least memory.
+    pub fn cheapest_within_noise(&self) -> Option<StructureName> {
+        let near = self.within_noise();
+        self.structures
+            .iter()
+            .filter(|s| s.name.is_some_and(|n| near.contains(&n)))
+            .min_by(|a, b| a.build_ms.total_cmp(&b.build_ms).then(a.memory_bytes.cmp(&b.memory_bytes)))
+            .and_then(|s| s.name)
+    }
+
+    /// `total(s) / total(best) - 1`, or `None` when `s` or the best was not validly measured.
+    pub fn regret(&self, s: StructureName) -> Option<f64> {
+        let (sel, best) = (self.get(s)?, self.best()?);
+        (best.total_ms > 0.0).then(|| sel.total_ms / best.total_ms - 1.0)
+    }
+
+    /// The workload as the cost model sees it: rays per frame, frames, and how many builds the run made (one per
+    /// frame for an animation or a per-frame rebuild, else one).
+    pub fn cost_workload(&self) -> Workload {
+        let frames = self.frames.max(1) as u64;
+        let animated = self.frames_measured > 1;
+        let builds = if animated || self.rebuild == Rebuild::PerFrame { frames } else { 1 };
+        Workload { kind: self.workload, rays_per_frame: self.rays_per_frame as u64, frames, builds }
+    }
+
+    /// A calibration sample: the record's measurements with the scene's `features`. `baseline` defaults to the
+    /// record's `selected` when its `policy` is `thesis` or absent (records written before policies had names).
+    pub fn sample(&self, features: Features, baseline: Option<StructureName>) -> Sample {
+        let workload = self.cost_workload();
+        let measured = self
+            .structures
+            .iter()
+            .filter_map(|s| {
+                let name = s.name?;
+                let finite = |x: f64| if x.is_finite() { x } else { 0.0 };
+                let mrays = finite(s.mrays_per_s);
+                let build_ms = finite(s.build_ms);
+                Some(Measured {
+                    structure: name,
+                    valid: s.valid && s.hits_agree && mrays > 0.0,
+                    total_ms: finite(s.total_ms),
+                    build_ms,
+                    trace_ms: finite(s.trace_ms),
+                    build_ms_per_build: build_ms / workload.builds as f64,
+                    trace_ns_per_ray: if mrays > 0.0 { 1e3 / mrays } else { 0.0 },
+                    box_tests_per_ray: finite(s.box_tests_per_ray),
+                    prim_tests_per_ray: finite(s.prim_tests_per_ray),
+                    within_noise_of_best: s.within_noise_of_best,
+                })
+            })
+            .collect();
+        let recorded = match self.policy.as_deref() {
+            None | Some("thesis") => self.selected,
+            Some(_) => None,
+        };
+        Sample { scene: self.mesh.clone(), workload, features, measured, baseline: baseline.or(recorded) }
+    }
+}
+
+/// Parses JSONL text (one record per line; blank lines skipped); `file` names the source in errors.
+pub fn parse_jsonl(text: &str, file: &str) -> Result<Vec<OracleRecord>, RecordError> {
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| {
+            OracleRecord::from_json_line(l)
+                .map_err(|reason| RecordError::Parse { place: format!("{file}:{}", i + 1), reason })
+        })
+        .collect()
+}
+
+/// Reads a JSONL file of records (`evaluate --json` output, `--oracle-cache`, `docs/data/oracle-*.jsonl`).
+pub fn read_jsonl(path: &Path) -> Result<Vec<OracleRecord>, RecordError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| RecordError::Io { path: file.clone(), source })?;
+    parse_jsonl(&text, &file)
+}
+
+/// Calibration samples from oracle files: every scene named in a record is loaded from its recorded path (relative
+/// to the working directory) once, and its first frame's features computed with `params`. `progress` receives the
+/// name of each scene loaded.
+pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str)) -> Result<Vec<Sample>, RecordError> {
+    let mut cache: std::collections::HashMap<String, Features> = std::collections::HashMap::new();
+    let mut out = Vec::new();
+    for file in files {
+        let name = file.display().to_string();
+        for rec in read_jsonl(file)? {
+            let scene_err = |reason: String| RecordError::Scene { file: name.clone(), mesh: rec.mesh.clone(), reason };
+            if !cache.contains_key(&rec.mesh) {
+                progress(&rec.mesh);
+                let scene = crate::mesh::load_path(Path::new(&rec.mesh)).map_err(|e| scene_err(e.to_string()))?;
+                let first = scene.frames.first().ok_or_else(|| scene_err("the scene has no frames".into()))?;
+                let f = features_cpu(first, params).map_err(|e| scene_err(format!("features: {e}")))?;
+                cache.insert(rec.mesh.clone(), f);
+            }
+            out.push(rec.sample(cache[&rec.mesh].clone(), None));
+        }
+    }
+    Ok(out)
+}

@@ -1,0 +1,97 @@
+//! Geometry on the device: a mesh's positions and indices ([`MeshBuffers`]), the centroid-key pass that the
+//! characterization and the LBVH/HLBVH builders share (`glsl/keys_bounds.comp`, [`KeysPush`]), and the errors of
+//! device operations that are about their input.
+
+use crate::gpu::{Buffer, Context, GpuError, Result};
+
+/// Push constants of `glsl/keys_bounds.comp`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct KeysPush {
+    /// Address of the vertex positions (f32 xyz).
+    pub positions: u64,
+    /// Address of the triangle indices (u32 triples).
+    pub indices: u64,
+    /// Address of the output keys (f32 xyz per sampled triangle).
+    pub keys: u64,
+    /// Address of the `uint[6]` bounds.
+    pub result: u64,
+    /// Sampled triangles.
+    pub count: u64,
+    /// Sample stride.
+    pub stride: u64,
+}
+crate::push_layout!(KeysPush { positions, indices, keys, result, count, stride });
+
+/// A mesh on the device: positions and indices, addressable by the kernels (and by a host engine).
+#[derive(Debug)]
+pub struct MeshBuffers {
+    /// Vertex positions, f32 xyz.
+    pub positions: Buffer,
+    /// Triangle indices, u32 triples.
+    pub indices: Buffer,
+    /// Number of vertices.
+    pub vertices: u64,
+    /// Number of triangles.
+    pub triangles: u64,
+}
+
+impl MeshBuffers {
+    /// Uploads positions and indices.
+    pub fn upload(ctx: &Context, positions: &[[f32; 3]], indices: &[[u32; 3]]) -> Result<Self> {
+        let p = if positions.is_empty() { &[[0.0f32; 3]][..] } else { positions };
+        let i = if indices.is_empty() { &[[0u32; 3]][..] } else { indices };
+        Ok(MeshBuffers {
+            positions: ctx.upload("positions", p)?,
+            indices: ctx.upload("indices", i)?,
+            vertices: positions.len() as u64,
+            triangles: indices.len() as u64,
+        })
+    }
+
+    /// Replaces the positions (same vertex count): the next frame of an animation.
+    pub fn update_positions(&self, ctx: &Context, positions: &[[f32; 3]]) -> Result<()> {
+        if positions.len() as u64 != self.vertices {
+            return Err(GpuError::Buffer(format!(
+                "frame has {} vertices, the mesh on the device {}",
+                positions.len(),
+                self.vertices
+            )));
+        }
+        ctx.write_buffer(&self.positions, 0, positions)
+    }
+}
+
+/// Errors of a device operation that are about its input, not the device.
+#[derive(Debug, thiserror::Error)]
+pub enum InputError {
+    /// Nothing to characterize.
+    #[error("no triangles to characterize")]
+    Empty,
+    /// Centroid keys overflow f32, or their range cannot be quantized in f32 (`hi - lo` or `2^b / (hi - lo)`
+    /// overflows).
+    #[error("bounds of the centroid keys {lo:?} .. {hi:?} cannot be quantized in f32 (coordinates too large, or an extent below about 1e-35)")]
+    Overflow {
+        /// Lower bound of the keys.
+        lo: [f32; 3],
+        /// Upper bound of the keys.
+        hi: [f32; 3],
+    },
+    /// Too many triangles for 32-bit class counts.
+    #[error("{0} sampled triangles: at most 2^32 - 1 are supported")]
+    TooMany(u64),
+    /// The class plan is unusable.
+    #[error("class plan: {0}")]
+    Plan(String),
+}
+
+/// Error of a device operation over a mesh (characterization, feature pass, BVH builds).
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// Device failure.
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    /// Bad input.
+    #[error(transparent)]
+    Input(#[from] InputError),
+}

@@ -1,0 +1,259 @@
+//! Selection: from the characterization of a scene (and, for the calibrated policy, its features and a cost model)
+//! to an acceleration structure, with reasons a person can check.
+//!
+//! A [`Policy`] sees a [`SceneSummary`] (the characterization of every frame, whether the scene moves, its size and
+//! bounds, how much it changes between frames) and returns a [`Selection`]. [`ThesisPolicy`] writes down the rules of
+//! the seed thesis (section 3.1.3 and the outcomes of chapter 5) with explicit thresholds; [`CalibratedPolicy`]
+//! predicts every structure's build and trace time with a fitted [`crate::cost::CostModel`] and takes the cheapest.
+//! [`Report`] is the JSON and text report of one characterized mesh or frame with its selection.
+
+mod calibrated;
+mod report;
+mod thesis;
+
+pub use calibrated::{choose, plan_frames, CalibratedPolicy, FrameDecision};
+pub use report::{Bounds, Report, Timings};
+pub use thesis::ThesisPolicy;
+
+use crate::characterize::{Characterization, Features};
+use crate::cost::{CostModel, Prediction};
+use crate::geom::WorkloadKind;
+
+/// An acceleration structure a policy can select: the oracle's [`crate::accel::StructureName`] (a policy never
+/// selects [`crate::accel::StructureName::Brute`]).
+pub use crate::accel::StructureName as Structure;
+
+/// Whether the scene's geometry changes between frames.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SceneKind {
+    /// One frame.
+    #[default]
+    Static,
+    /// Several frames (an animation).
+    Dynamic,
+}
+
+impl SceneKind {
+    /// `static` or `dynamic`.
+    pub fn name(self) -> &'static str {
+        match self {
+            SceneKind::Static => "static",
+            SceneKind::Dynamic => "dynamic",
+        }
+    }
+}
+
+/// How much an animation changes from one frame to the next (largest change over consecutive pairs).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct FrameChange {
+    /// Number of frames.
+    pub frames: usize,
+    /// Largest relative change of the bounds diagonal `|d_{i+1} - d_i| / max(d_i, d_{i+1})`.
+    pub max_diagonal_change: f64,
+    /// Largest absolute change of Cramér's V.
+    pub max_effect_size_change: f64,
+    /// Largest absolute change of the share of empty classes.
+    pub max_empty_share_change: f64,
+}
+
+/// What a policy may look at.
+#[derive(Clone, Debug)]
+pub struct SceneSummary<'a> {
+    /// The scene's name (file or directory).
+    pub name: String,
+    /// Static (one frame) or dynamic.
+    pub kind: SceneKind,
+    /// The characterization of every frame, in order (one for a static scene).
+    pub frames: &'a [Characterization],
+    /// Triangles per frame (of the mesh, before sampling).
+    pub triangles: u64,
+    /// Union over the frames of `lo` (step 2: three times the centroid).
+    pub lo: [f32; 3],
+    /// Union over the frames of `hi`.
+    pub hi: [f32; 3],
+    /// Frame-to-frame change, for more than one frame.
+    pub change: Option<FrameChange>,
+    /// Cost-model features of every frame ([`crate::characterize::features`]); empty unless set with
+    /// [`SceneSummary::with_features`]. [`ThesisPolicy`] ignores them; the calibrated policy needs them.
+    pub features: &'a [Features],
+}
+
+fn diagonal(lo: [f32; 3], hi: [f32; 3]) -> f64 {
+    (0..3).map(|a| (hi[a] as f64 - lo[a] as f64).powi(2)).sum::<f64>().sqrt()
+}
+
+/// Share of empty classes in a characterization.
+pub fn empty_share(c: &Characterization) -> f64 {
+    c.stats.empty_classes as f64 / c.classes.max(1) as f64
+}
+
+impl<'a> SceneSummary<'a> {
+    /// Summarizes the frames of a scene: dynamic when there is more than one frame.
+    pub fn new(name: impl Into<String>, frames: &'a [Characterization]) -> Self {
+        let mut lo = [0.0f32; 3];
+        let mut hi = [0.0f32; 3];
+        if let Some(f) = frames.first() {
+            lo = f.lo;
+            hi = f.hi;
+        }
+        for f in frames {
+            for a in 0..3 {
+                lo[a] = lo[a].min(f.lo[a]);
+                hi[a] = hi[a].max(f.hi[a]);
+            }
+        }
+        let change = (frames.len() > 1).then(|| {
+            let mut ch = FrameChange {
+                frames: frames.len(),
+                max_diagonal_change: 0.0,
+                max_effect_size_change: 0.0,
+                max_empty_share_change: 0.0,
+            };
+            for w in frames.windows(2) {
+                let (d0, d1) = (diagonal(w[0].lo, w[0].hi), diagonal(w[1].lo, w[1].hi));
+                let dd = if d0.max(d1) > 0.0 { (d1 - d0).abs() / d0.max(d1) } else { 0.0 };
+                ch.max_diagonal_change = ch.max_diagonal_change.max(dd);
+                ch.max_effect_size_change =
+                    ch.max_effect_size_change.max((w[1].stats.cramers_v - w[0].stats.cramers_v).abs());
+                ch.max_empty_share_change =
+                    ch.max_empty_share_change.max((empty_share(&w[1]) - empty_share(&w[0])).abs());
+            }
+            ch
+        });
+        SceneSummary {
+            name: name.into(),
+            kind: if frames.len() > 1 { SceneKind::Dynamic } else { SceneKind::Static },
+            frames,
+            triangles: frames.first().map_or(0, |f| f.total_triangles),
+            lo,
+            hi,
+            change,
+            features: &[],
+        }
+    }
+
+    /// The summary with the cost-model features of every frame.
+    pub fn with_features(mut self, features: &'a [Features]) -> Self {
+        self.features = features;
+        self
+    }
+
+    /// Ratio of the largest to the smallest extent of the union bounds (`f64::INFINITY` for a flat scene, 1 for an
+    /// empty summary).
+    pub fn aspect(&self) -> f64 {
+        let e: Vec<f64> = (0..3).map(|a| self.hi[a] as f64 - self.lo[a] as f64).collect();
+        let max = e.iter().cloned().fold(0.0, f64::max);
+        let min = e.iter().cloned().fold(f64::INFINITY, f64::min);
+        if max == 0.0 {
+            1.0
+        } else if min == 0.0 {
+            f64::INFINITY
+        } else {
+            max / min
+        }
+    }
+}
+
+/// A selected structure and why.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Selection {
+    /// The structure.
+    pub structure: Structure,
+    /// The rules that fired, each with the numbers that made it fire.
+    pub reasons: Vec<String>,
+}
+
+/// A rule set that picks a structure for a scene.
+pub trait Policy {
+    /// A short name for reports.
+    fn name(&self) -> &str;
+    /// Selects a structure for `scene`.
+    fn select(&self, scene: &SceneSummary<'_>) -> Selection;
+}
+
+/// Which policy [`select_for_scene`] runs.
+#[derive(Clone, Copy, Debug)]
+pub enum PolicyChoice<'a> {
+    /// The thesis's rules ([`ThesisPolicy`] with its default thresholds).
+    Thesis,
+    /// The calibrated policy over a cost model, with the relative margin within which the cheaper build wins.
+    Calibrated {
+        /// The cost model.
+        model: &'a CostModel,
+        /// See [`CalibratedPolicy::tie_margin`].
+        tie_margin: f64,
+    },
+}
+
+impl PolicyChoice<'_> {
+    /// `thesis` or `calibrated`, as reports name it.
+    pub fn name(&self) -> &'static str {
+        match self {
+            PolicyChoice::Thesis => "thesis",
+            PolicyChoice::Calibrated { .. } => "calibrated",
+        }
+    }
+}
+
+/// The workload a scene is selected for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TargetWorkload {
+    /// Kind of rays.
+    pub kind: WorkloadKind,
+    /// Rays per frame.
+    pub rays_per_frame: u64,
+    /// Frames of a static scene rendered with one build.
+    pub frames: u64,
+    /// For an animation, how many of its leading frames the run covers (`None`: all of them).
+    pub animation_frames: Option<usize>,
+}
+
+/// What [`select_for_scene`] decided.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneSelection {
+    /// The policy that decided (`thesis` or `calibrated`).
+    pub policy: &'static str,
+    /// Static (one frame) or dynamic.
+    pub kind: SceneKind,
+    /// The structure and the reasons.
+    pub selection: Selection,
+    /// The calibrated policy's predictions for every structure (`None` for the thesis policy, or without features).
+    pub predicted: Option<Vec<Prediction>>,
+}
+
+/// Selects a structure for a scene (the characterization of its frames and their features) under a workload: the
+/// one selection routine of the command-line tools and the studies.
+///
+/// The thesis policy reads every frame. The calibrated policy reads the frames the run covers: the first frame of a
+/// static scene, or the first `animation_frames` frames of an animation (all when `None`), at least one and no more
+/// than there are characterizations and features.
+pub fn select_for_scene(
+    name: &str,
+    frames: &[Characterization],
+    features: &[Features],
+    policy: PolicyChoice<'_>,
+    workload: &TargetWorkload,
+) -> SceneSelection {
+    let kind = if frames.len() > 1 { SceneKind::Dynamic } else { SceneKind::Static };
+    match policy {
+        PolicyChoice::Thesis => {
+            let summary = SceneSummary::new(name, frames).with_features(features);
+            SceneSelection {
+                policy: "thesis",
+                kind,
+                selection: ThesisPolicy::default().select(&summary),
+                predicted: None,
+            }
+        }
+        PolicyChoice::Calibrated { model, tie_margin } => {
+            let mut p = CalibratedPolicy::new(model.clone(), workload.kind, workload.rays_per_frame, workload.frames);
+            p.tie_margin = tie_margin;
+            let used = if frames.len() > 1 { workload.animation_frames.unwrap_or(frames.len()) } else { 1 };
+            let used = used.clamp(1, frames.len().min(features.len()).max(1)).min(frames.len()).min(features.len());
+            let summary = SceneSummary::new(name, &frames[..used]).with_features(&features[..used]);
+            let predicted = p.predictions(&summary);
+            SceneSelection { policy: "calibrated", kind, selection: p.select(&summary), predicted }
+        }
+    }
+}
