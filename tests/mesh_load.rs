@@ -194,12 +194,15 @@ fn obj_polygons_fan_relative_indices_polylines_and_objects() {
     assert_eq!(m.object_ids, Some(vec![0, 0, 1]));
 }
 
+/// A file without triangles used to load as an empty mesh; it is now refused by the loader, naming the file.
 #[test]
-fn empty_obj_is_a_valid_empty_mesh() {
+fn empty_obj_is_refused() {
     let p = temp_file("empty.obj", b"# nothing here\n");
-    let m = load_mesh(&p).unwrap();
-    assert_eq!(m.triangle_count(), 0);
-    assert!(m.validate().is_ok());
+    let (e, msg) = err_of(&p);
+    assert!(matches!(e, MeshError::NoTriangles { .. }), "{e:?}");
+    assert!(msg.contains("no triangles"), "{msg}");
+    // A mesh without triangles is still a valid value (the generators and tests build them); only loading refuses.
+    assert!(Mesh::new("empty", vec![[0.0; 3]], vec![]).is_ok());
 }
 
 #[test]
@@ -791,4 +794,752 @@ fn explode_starts_at_the_input_and_moves_along_normals() {
     assert_eq!(generate::explode(&bunny, 0, 1).unwrap().frames.len(), 1);
     let za = generate::explode(&generate::zero_area(30, 1), 3, 2).unwrap();
     assert!(za.frames[2].positions.iter().flatten().all(|c| c.is_finite()));
+}
+
+// ------------------------------------------------------------------------------------------------------------------
+// Hostile input: no panic, no hang, no success on nothing, bounded memory, bounded messages
+// ------------------------------------------------------------------------------------------------------------------
+
+/// Runs `f` on another thread and fails the test if it takes longer than `secs` (a hang fails instead of blocking
+/// the test run; the stuck thread is left behind).
+fn within<T: Send + 'static>(secs: u64, what: &str, f: impl FnOnce() -> T + Send + 'static) -> T {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = tx.send(f());
+    });
+    match rx.recv_timeout(std::time::Duration::from_secs(secs)) {
+        Ok(v) => v,
+        Err(_) => panic!("{what}: no answer within {secs} s"),
+    }
+}
+
+/// `err_of` under a time bound.
+fn err_within(p: &Path) -> (MeshError, String) {
+    let q = p.to_path_buf();
+    let r = within(20, &p.display().to_string(), move || load_mesh(&q));
+    match r {
+        Ok(m) => panic!("{} loaded ({} triangles) but should fail", p.display(), m.triangle_count()),
+        Err(e) => {
+            let msg = e.to_string();
+            assert!(msg.contains(&p.display().to_string()), "message does not name the file: {msg}");
+            assert!(!matches!(e, MeshError::ParserPanic { .. }), "a parser panicked: {msg}");
+            (e, msg)
+        }
+    }
+}
+
+const TRIANGLE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+
+#[test]
+fn obj_huge_and_out_of_range_indices_are_errors_not_panics() {
+    // tobj computes 3 * index without overflow checks: 3 * (6148914691236517206 - 1) + 2 wraps to 1 and the normal
+    // lookup then panicked (characterize, evaluate and build_bvh exited with 101).
+    let text = format!("{TRIANGLE}vn 0 0 1\nf 1//6148914691236517206 2//1 3//1\n");
+    let p = temp_file("huge-normal.obj", text.as_bytes());
+    let (e, msg) = err_within(&p);
+    assert!(matches!(e, MeshError::Parse { .. }), "{e:?}");
+    assert!(
+        msg.contains("line 5") && msg.contains("normal index 6148914691236517206 is out of range (1 defined)"),
+        "{msg}"
+    );
+
+    for (name, body, line, expect) in [
+        ("vt.obj", "vt 0 0\nf 1/1 2/2 3/1\n", 5, "texture coordinate index 2 is out of range (1 defined)"),
+        ("vt-big.obj", "vt 0 0\nf 1/9223372036854775807 2/1 3/1\n", 5, "texture coordinate index 9223372036854775807"),
+        ("vn-zero.obj", "vn 0 0 1\nf 1//0 2//1 3//1\n", 5, "normal index 0 (OBJ indices start at 1)"),
+        (
+            "vn-rel.obj",
+            "vn 0 0 1\nf 1//-2 2//-1 3//-1\n",
+            5,
+            "relative normal index -2 reaches before the first normal (1 so far)",
+        ),
+        ("vt-rel.obj", "f 1/-1 2 3\nvt 0 0\n", 4, "relative texture coordinate index -1 reaches before the first"),
+        ("v-rel.obj", "f -1 -2 -4\n", 4, "relative vertex index -4 reaches before the first vertex (3 so far)"),
+        ("v-zero.obj", "f 1 2 0\n", 4, "vertex index 0 (OBJ indices start at 1)"),
+        ("v-missing.obj", "f 1 2 /1\n", 4, "face corner 3 ('/1') has no vertex index"),
+        ("v-overflow.obj", "f 1 2 18446744073709551616\n", 4, "cannot read the face's vertex indices"),
+        ("four-slots.obj", "f 1 2 3/1/1/1\n", 4, "cannot read the face's vertex indices"),
+        ("no-corner.obj", "f\n", 4, "face without vertices"),
+    ] {
+        let p = temp_file(name, format!("{TRIANGLE}{body}").as_bytes());
+        let (e, msg) = err_within(&p);
+        assert!(matches!(e, MeshError::Parse { .. }), "{name}: {e:?}");
+        assert!(msg.contains(&format!("line {line}")) && msg.contains(expect), "{name}: {msg}");
+    }
+    // A positive vertex index past the vertices is IndexOutOfRange, naming the line and the triangle.
+    let p = temp_file("v-huge.obj", format!("{TRIANGLE}f 1 2 3\nf 3 2 9223372036854775807 1\n").as_bytes());
+    let (e, msg) = err_within(&p);
+    match e {
+        MeshError::IndexOutOfRange { triangle, index, vertices, .. } => {
+            assert_eq!((triangle, index, vertices), (1, 9_223_372_036_854_775_807, 3));
+        }
+        other => panic!("wrong error {other:?}"),
+    }
+    assert!(msg.contains(&format!("{}:5", p.display())), "{msg}");
+
+    // Still accepted: texture and normal indices when the file has none of their kind (tobj ignores them), a trailing
+    // empty slot, a face before its vertices in the same group, points and segments with any index.
+    let ok = "f 1/7/7 2/7 3//7/\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 9\nf 0 -7\nf -3 -2 -1\n";
+    let m = parse_mesh("ok.obj", ok.as_bytes(), MeshFormat::Obj).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(m.triangle_count(), 2);
+}
+
+#[test]
+fn obj_groups_of_points_and_segments_only_are_no_objects() {
+    // Points and segments are hidden from tobj (they give no triangle and cost it memory), so a group holding only
+    // those is no object, like an empty group.
+    let text = format!("{TRIANGLE}o a\nf 1\nf 2\nf 1 2\no b\nf 1 2 3\nf 1\no c\nf 3 2 1\n");
+    let m = parse_mesh("groups.obj", text.as_bytes(), MeshFormat::Obj).unwrap();
+    assert_eq!(m.object_ids, Some(vec![0, 1]));
+}
+
+/// A binary little-endian PLY file: a header from its lines, then `payload`.
+fn ply_with(header_lines: &[&str], payload: &[u8]) -> Vec<u8> {
+    let mut out = b"ply\nformat binary_little_endian 1.0\n".to_vec();
+    for l in header_lines {
+        out.extend_from_slice(l.as_bytes());
+        out.push(b'\n');
+    }
+    out.extend_from_slice(b"end_header\n");
+    out.extend_from_slice(payload);
+    out
+}
+
+/// Three float vertices and one uchar/int triangle, little endian.
+fn triangle_payload() -> Vec<u8> {
+    let mut b = Vec::new();
+    for v in [[0f32, 0., 0.], [1., 0., 0.], [0., 1., 0.]] {
+        for x in v {
+            b.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+    b.push(3);
+    for i in [0i32, 1, 2] {
+        b.extend_from_slice(&i.to_le_bytes());
+    }
+    b
+}
+
+const VERTEX3: [&str; 4] = ["element vertex 3", "property float x", "property float y", "property float z"];
+const FACE1: [&str; 2] = ["element face 1", "property list uchar int vertex_indices"];
+
+#[test]
+fn ply_element_without_properties_is_refused_before_any_item_is_read() {
+    // ply-rs-bw looped 2^64 - 1 times over an element of no bytes before reading any vertex.
+    let mut lines: Vec<&str> = vec!["element junk 18446744073709551615"];
+    lines.extend(VERTEX3);
+    lines.extend(FACE1);
+    let p = temp_file("no-props.ply", &ply_with(&lines, &triangle_payload()));
+    let (e, msg) = err_within(&p);
+    assert!(matches!(e, MeshError::Parse { .. }), "{e:?}");
+    assert!(msg.contains("header line 3"), "{msg}");
+    assert!(msg.contains("element 'junk' has 18446744073709551615 items but no properties"), "{msg}");
+    // Without items, an element without properties is harmless.
+    lines[0] = "element junk 0";
+    assert_eq!(
+        parse_mesh("ok.ply", &ply_with(&lines, &triangle_payload()), MeshFormat::Ply).unwrap().triangle_count(),
+        1
+    );
+}
+
+#[test]
+fn ply_duplicate_names_are_refused() {
+    let mut lines: Vec<&str> = VERTEX3.to_vec();
+    lines.extend(FACE1);
+    lines.extend(["element vertex 0", "property float x"]);
+    let (e, msg) = err_within(&temp_file("dup-element.ply", &ply_with(&lines, &triangle_payload())));
+    assert!(matches!(e, MeshError::Parse { .. }), "{e:?}");
+    assert!(
+        msg.contains("header line 9") && msg.contains("element 'vertex' is declared twice (first at header line 3)"),
+        "{msg}"
+    );
+
+    let mut lines: Vec<&str> = VERTEX3.to_vec();
+    lines.insert(2, "property double x");
+    lines.extend(FACE1);
+    let (_, msg) = err_within(&temp_file("dup-property.ply", &ply_with(&lines, &triangle_payload())));
+    assert!(
+        msg.contains("header line 5")
+            && msg.contains("element 'vertex' declares property 'x' twice (first at header line 4)"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn ply_payload_shorter_than_the_header_requires() {
+    // Binary: the first item that cannot fit is named.
+    let mut lines: Vec<&str> =
+        vec!["element vertex 1000000", "property float x", "property float y", "property float z"];
+    lines.extend(FACE1);
+    let (e, msg) = err_within(&temp_file("short.ply", &ply_with(&lines, &[0u8; 100])));
+    assert!(matches!(e, MeshError::Parse { .. }), "{e:?}");
+    assert!(msg.contains("element 'vertex' 8") && msg.contains("1000000 items of at least 12 bytes"), "{msg}");
+    // Counts whose byte size overflows 64 bits.
+    lines[0] = "element vertex 18446744073709551615";
+    let (_, msg) = err_within(&temp_file("huge-count.ply", &ply_with(&lines, &triangle_payload())));
+    assert!(msg.contains("element 'vertex' 4"), "49 bytes hold 4 vertices and a bit: {msg}");
+    // Faces after the vertices: 3 vertices fit, 1000 faces of at least 1 byte do not.
+    let mut lines: Vec<&str> = VERTEX3.to_vec();
+    lines.extend(["element face 1000", "property list uchar int vertex_indices"]);
+    let (_, msg) = err_within(&temp_file("short-faces.ply", &ply_with(&lines, &triangle_payload())));
+    assert!(msg.contains("element 'face' 13"), "36 bytes of vertices, 13 left: {msg}");
+    // Ascii: the element and its header line are named.
+    let text = "ply\nformat ascii 1.0\nelement vertex 1000000\nproperty float x\nproperty float y\nproperty float z\n\
+                end_header\n0 0 0\n1 0 0\n0 1 0\n";
+    let (e, msg) = err_within(&temp_file("short-ascii.ply", text.as_bytes()));
+    assert!(matches!(e, MeshError::Parse { .. }), "{e:?}");
+    assert!(msg.contains("element 'vertex' (header line 3)") && msg.contains("lines of at least 6 bytes"), "{msg}");
+}
+
+#[test]
+fn ply_list_counts_that_cannot_fit_are_refused() {
+    let mut lines: Vec<&str> = VERTEX3.to_vec();
+    lines.extend(["element face 1", "property list uint int vertex_indices"]);
+    let mut payload = triangle_payload();
+    payload.truncate(36);
+    payload.extend_from_slice(&u32::MAX.to_le_bytes());
+    payload.extend_from_slice(&[0u8; 12]);
+    let (e, msg) = err_within(&temp_file("list-count.ply", &ply_with(&lines, &payload)));
+    assert!(matches!(e, MeshError::Parse { .. }), "{e:?}");
+    assert!(msg.contains("element 'face' 0"), "{msg}");
+    assert!(
+        msg.contains("list 'vertex_indices' declares 4294967295 entries of 4 bytes, but only 12 bytes are left"),
+        "{msg}"
+    );
+
+    lines[5] = "property list int int vertex_indices";
+    payload.truncate(36);
+    payload.extend_from_slice(&(-5i32).to_le_bytes());
+    payload.extend_from_slice(&[0u8; 12]);
+    let (_, msg) = err_within(&temp_file("negative-count.ply", &ply_with(&lines, &payload)));
+    assert!(msg.contains("element 'face' 0") && msg.contains("negative count"), "{msg}");
+
+    // Ascii: a count beyond the line's numbers.
+    let text = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+                element face 1\nproperty list uint int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n\
+                4294967295 0 1 2\n";
+    let p = temp_file("list-count-ascii.ply", text.as_bytes());
+    let (_, msg) = err_within(&p);
+    assert!(msg.contains("element 'face' 0 (line 13)"), "{msg}");
+}
+
+#[test]
+fn ply_unknown_formats_are_refused() {
+    let body = ["element vertex 3", "property float x", "property float y", "property float z"].join("\n");
+    for (name, format, expect) in [
+        ("middle.ply", "format binary_middle_endian 1.0", "header line 2"),
+        ("v2.ply", "format binary_little_endian 2.0", "format version 2.0 is not 1.x"),
+        ("none.ply", "comment no format line", "header"),
+    ] {
+        let bytes =
+            format!("ply\n{format}\n{body}\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n");
+        let mut bytes = bytes.into_bytes();
+        bytes.extend_from_slice(&triangle_payload());
+        let (e, msg) = err_within(&temp_file(name, &bytes));
+        assert!(matches!(e, MeshError::Parse { .. }), "{name}: {e:?}");
+        assert!(msg.contains(expect), "{name}: {msg}");
+    }
+    let mut lines: Vec<&str> = VERTEX3.to_vec();
+    lines.extend(["element face 1", "property list float int vertex_indices"]);
+    let (_, msg) = err_within(&temp_file("float-count.ply", &ply_with(&lines, &triangle_payload())));
+    assert!(msg.contains("header line 7") && msg.contains("floating-point count type"), "{msg}");
+}
+
+#[test]
+fn files_without_triangles_are_refused() {
+    for (name, text) in [
+        ("text.obj", "Dear reader,\nthis is a letter, not a mesh.\n"),
+        ("vertices.obj", TRIANGLE),
+        ("points.obj", "v 0 0 0\nv 1 0 0\nf 1\nf 1 2\nl 1 2 1\n"),
+        ("nul.obj", "\0\0\0\0"),
+    ] {
+        let p = temp_file(name, text.as_bytes());
+        let (e, msg) = err_within(&p);
+        assert!(matches!(e, MeshError::NoTriangles { .. }), "{name}: {e:?}");
+        assert!(msg.starts_with(&format!("{}: no triangles", p.display())), "{msg}");
+    }
+    let (_, msg) = err_within(&temp_file("points2.obj", b"v 0 0 0\nv 1 0 0\nf 1\nf 1 2\nl 1 2 1\n"));
+    assert!(
+        msg.contains("no face of 3 or more corners (2 vertex statements, 2 faces of fewer corners, 1 polylines)"),
+        "{msg}"
+    );
+
+    // Triangle strips of restart markers and runs of two: no triangle.
+    for enc in [Enc::Ascii, Enc::Le, Enc::Be] {
+        let mut spec = PlySpec::new(enc);
+        spec.element = "tristrips";
+        spec.count = Ty::Int;
+        spec.index = Ty::Int;
+        spec.faces = vec![vec![-1, -1, -1], vec![0, 1, -1, 2, 3]];
+        let p = temp_file("restarts.ply", &ply_bytes(&spec));
+        let (e, msg) = err_within(&p);
+        assert!(matches!(e, MeshError::NoTriangles { .. }), "{enc:?}: {e:?}");
+        assert!(msg.contains("element 'tristrips' has 2 strips, none with 3 indices between restarts (-1)"), "{msg}");
+    }
+    // Faces of fewer than 3 corners only; no face element at all.
+    let mut spec = PlySpec::new(Enc::Le);
+    spec.faces = vec![vec![0, 1], vec![2]];
+    let (e, _) = err_within(&temp_file("segments.ply", &ply_bytes(&spec)));
+    assert!(matches!(e, MeshError::NoTriangles { .. }), "{e:?}");
+    let (e, msg) = err_within(&temp_file("cloud.ply", &ply_with(&VERTEX3, &triangle_payload()[..36])));
+    assert!(matches!(e, MeshError::NoTriangles { .. }), "{e:?}");
+    assert!(msg.contains("3 vertices and no 'face' or 'tristrips' element"), "{msg}");
+    let empty = b"ply\nformat ascii 1.0\nend_header\n";
+    assert!(matches!(parse_mesh("e.ply", empty, MeshFormat::Ply), Err(MeshError::NoTriangles { .. })));
+    assert!(matches!(parse_mesh("e.obj", b"", MeshFormat::Obj), Err(MeshError::NoTriangles { .. })));
+    // An animation of no frame file is refused too.
+    assert!(load_animation(&[]).is_err());
+}
+
+#[cfg(unix)]
+#[test]
+fn non_regular_files_are_refused_before_they_are_opened() {
+    let dir = temp_dir("special");
+    // A device that never ends: reading it would exhaust memory.
+    if Path::new("/dev/zero").exists() {
+        let (e, msg) = err_within(Path::new("/dev/zero"));
+        assert!(matches!(e, MeshError::Io { .. }), "{e:?}");
+        assert!(msg.contains("not a regular file: a character device"), "{msg}");
+        let link = dir.join("zero.obj");
+        std::os::unix::fs::symlink("/dev/zero", &link).unwrap();
+        let (_, msg) = err_within(&link);
+        assert!(msg.contains("character device"), "{msg}");
+        std::fs::remove_file(&link).unwrap();
+    }
+    // A FIFO without a writer: opening it would block forever.
+    let fifo = dir.join("pipe.obj");
+    let made = std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo runs");
+    assert!(made.success());
+    let (e, msg) = err_within(&fifo);
+    assert!(matches!(e, MeshError::Io { .. }), "{e:?}");
+    assert!(msg.contains("not a regular file: a FIFO"), "{msg}");
+    // The same FIFO as a frame of an animation directory, beside a good frame: the directory reader names it.
+    std::fs::write(dir.join("a.obj"), format!("{TRIANGLE}f 1 2 3\n")).unwrap();
+    let d = dir.clone();
+    let e = within(20, "animation with a FIFO", move || load_path(&d)).unwrap_err();
+    let msg = e.to_string();
+    assert!(matches!(e, MeshError::Io { .. }) && msg.contains(&fifo.display().to_string()), "{msg}");
+    assert!(msg.contains("FIFO"), "{msg}");
+    std::fs::remove_file(&fifo).unwrap();
+    // A directory named like a frame is refused too, naming it.
+    let sub = dir.join("b.ply");
+    std::fs::create_dir(&sub).unwrap();
+    let e = load_path(&dir).unwrap_err();
+    assert!(e.to_string().contains(&sub.display().to_string()) && e.to_string().contains("a directory"), "{e}");
+    std::fs::remove_dir(&sub).unwrap();
+    assert_eq!(load_path(&dir).unwrap().frames.len(), 1);
+}
+
+#[test]
+fn messages_stay_short_on_huge_lines_and_names() {
+    let long = "9".repeat(1 << 20);
+    let name_long = "n".repeat(1 << 20);
+    let cases: Vec<(&str, Vec<u8>)> = vec![
+        ("long-corner.obj", format!("{TRIANGLE}f 1 2 3x{long}\n").into_bytes()),
+        ("long-vertex.obj", format!("v 0 0 {long}x\n{TRIANGLE}f 1 2 3\n").into_bytes()),
+        ("long-header.ply", format!("ply\nformat ascii 1.0\nbogus {long}\nend_header\n").into_bytes()),
+        (
+            "long-name.ply",
+            format!("ply\nformat ascii 1.0\nelement {name_long} 5\nelement {name_long} 0\nend_header\n").into_bytes(),
+        ),
+        (
+            "long-line.ply",
+            format!(
+                "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+                 end_header\n0 0 0\n1 0 0 {long}x\n0 1 0\n"
+            )
+            .into_bytes(),
+        ),
+    ];
+    for (name, bytes) in cases {
+        let p = temp_file(name, &bytes);
+        let (_, msg) = err_within(&p);
+        let own = msg.len() - p.display().to_string().len();
+        assert!(own < 600, "{name}: a message of {own} bytes: {}", &msg[..msg.len().min(2000)]);
+        if name.contains("name") {
+            assert!(msg.contains("..."), "{name}: {msg}");
+        }
+    }
+}
+
+// ------------------------------------------------------------------------------------------------------------------
+// Memory: peak heap per input byte (counted per thread by the allocator of this test binary)
+// ------------------------------------------------------------------------------------------------------------------
+
+mod heap {
+    use std::alloc::{GlobalAlloc, Layout, System};
+    use std::cell::Cell;
+
+    /// The system allocator, counting the bytes live on each thread and their peak.
+    pub struct Counting;
+
+    thread_local! {
+        static LIVE: Cell<isize> = const { Cell::new(0) };
+        static PEAK: Cell<isize> = const { Cell::new(0) };
+    }
+
+    fn add(delta: isize) {
+        let _ = LIVE.try_with(|live| {
+            let v = live.get() + delta;
+            live.set(v);
+            let _ = PEAK.try_with(|p| {
+                if v > p.get() {
+                    p.set(v)
+                }
+            });
+        });
+    }
+
+    unsafe impl GlobalAlloc for Counting {
+        unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+            let p = unsafe { System.alloc(l) };
+            if !p.is_null() {
+                add(l.size() as isize);
+            }
+            p
+        }
+        unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
+            let p = unsafe { System.alloc_zeroed(l) };
+            if !p.is_null() {
+                add(l.size() as isize);
+            }
+            p
+        }
+        unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+            unsafe { System.dealloc(p, l) };
+            add(-(l.size() as isize));
+        }
+        unsafe fn realloc(&self, p: *mut u8, l: Layout, new: usize) -> *mut u8 {
+            let q = unsafe { System.realloc(p, l, new) };
+            if !q.is_null() {
+                // Counted as a move: the old and the new block are both live while the bytes are copied.
+                add(new as isize);
+                add(-(l.size() as isize));
+            }
+            q
+        }
+    }
+
+    /// Runs `f` and returns its result with the peak of heap bytes it had live at once on this thread.
+    pub fn peak<T>(f: impl FnOnce() -> T) -> (T, usize) {
+        let start = LIVE.with(Cell::get);
+        PEAK.with(|p| p.set(start));
+        let r = f();
+        let top = PEAK.with(Cell::get) - start;
+        (r, top.max(0) as usize)
+    }
+}
+
+#[global_allocator]
+static HEAP: heap::Counting = heap::Counting;
+
+/// Inputs built to cost the loaders the most memory per byte, each about `n` bytes, and the triangles they hold.
+fn memory_hungry_inputs(n: usize) -> Vec<(&'static str, Vec<u8>, usize)> {
+    let repeat = |unit: &str, head: &str| {
+        let mut s = head.to_string();
+        while s.len() < n {
+            s.push_str(unit);
+        }
+        s.into_bytes()
+    };
+    let count = |b: &[u8], pat: &[u8]| b.windows(pat.len()).filter(|w| *w == pat).count();
+    // Triangles of a file whose last face is a long polygon: its corners minus 2.
+    let polygon = |b: &[u8]| {
+        let last = b.split(|&c| c == b'\n').rfind(|l| l.starts_with(b"f ")).unwrap_or_default();
+        last.split(|&c| c == b' ').count() - 1 - 2
+    };
+    let mut out = Vec::new();
+    let b = repeat("v 0 0 0\n", "f 1 2 3\n");
+    let nt = 1;
+    out.push(("obj vertices", b, nt));
+    let b = repeat("f 1 2 3\n", TRIANGLE);
+    let nt = count(&b, b"f ");
+    out.push(("obj triangles", b, nt));
+    let b = repeat("f 1/1/1 2/1/1 3/1/1\n", "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\n");
+    let nt = count(&b, b"f ");
+    out.push(("obj triangles v/vt/vn", b, nt));
+    let b = repeat("g\nf 1 2 3\n", TRIANGLE);
+    let nt = count(&b, b"f ");
+    out.push(("obj one-triangle groups", b, nt));
+    let mut b = repeat(" 1", &format!("{TRIANGLE}f 1 2 3"));
+    b.push(b'\n');
+    let nt = polygon(&b);
+    out.push(("obj long polygon", b, nt));
+    let mut b = repeat(" 1", "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\nf 1/1/1 2/1/1 3/1/1");
+    b.push(b'\n');
+    let nt = polygon(&b);
+    out.push(("obj long polygon v/vt/vn", b, nt));
+    let b = repeat("f 1\n", &format!("{TRIANGLE}f 1 2 3\n"));
+    out.push(("obj points", b, 1));
+    let b = repeat("g\nf 1\n", &format!("{TRIANGLE}f 1 2 3\n"));
+    out.push(("obj groups of one point", b, 1));
+    let b = repeat("l 1 2\n", &format!("{TRIANGLE}f 1 2 3\n"));
+    out.push(("obj polylines", b, 1));
+
+    // Binary PLY, uchar coordinates and uchar lists: 3 bytes a vertex, 4 bytes a triangle, 1 byte an empty face.
+    let ply = |nv: usize, element: &str, items: usize, count: &str, index: &str, payload: &[u8]| {
+        let mut b = format!(
+            "ply\nformat binary_little_endian 1.0\nelement vertex {nv}\nproperty uchar x\nproperty uchar y\n\
+             property uchar z\nelement {element} {items}\nproperty list {count} {index} vertex_indices\nend_header\n"
+        )
+        .into_bytes();
+        b.extend_from_slice(payload);
+        b
+    };
+    let nv = n / 3;
+    let mut payload: Vec<u8> = (0..nv).flat_map(|i| [i as u8, (i >> 8) as u8, (i >> 16) as u8]).collect();
+    payload.extend_from_slice(&[3, 0, 1, 2]);
+    out.push(("ply vertices", ply(nv, "face", 1, "uchar", "uchar", &payload), 1));
+    let nf = n / 4;
+    let payload: Vec<u8> =
+        [[0u8; 3], [1, 0, 0], [0, 1, 0]].concat().into_iter().chain((0..nf).flat_map(|_| [3u8, 0, 1, 2])).collect();
+    out.push(("ply triangles", ply(3, "face", nf, "uchar", "uchar", &payload), nf));
+    let payload: Vec<u8> = [[0u8; 3], [1, 0, 0], [0, 1, 0]]
+        .concat()
+        .into_iter()
+        .chain([3u8, 0, 1, 2])
+        .chain(std::iter::repeat_n(0u8, n))
+        .collect();
+    out.push(("ply empty faces", ply(3, "face", n + 1, "uchar", "uchar", &payload), 1));
+    let strip: Vec<u8> = (0..n).map(|i| (i % 3) as u8).collect();
+    let mut payload: Vec<u8> = [[0u8; 3], [1, 0, 0], [0, 1, 0]].concat();
+    payload.extend_from_slice(&(n as u32).to_le_bytes());
+    payload.extend_from_slice(&strip);
+    out.push(("ply strip", ply(3, "tristrips", 1, "uint", "char", &payload), n - 2));
+    let mut payload: Vec<u8> = [[0u8; 3], [1, 0, 0], [0, 1, 0]].concat();
+    payload.extend_from_slice(&(n as u32).to_le_bytes());
+    payload.extend(std::iter::repeat_n(0u8, n));
+    out.push(("ply long polygon", ply(3, "face", 1, "uint", "uchar", &payload), n - 2));
+
+    // Ascii PLY.
+    let head = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n";
+    let b = {
+        let faces = n / 8;
+        let mut s = format!(
+            "{head}element face {faces}\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
+        );
+        for _ in 0..faces {
+            s.push_str("3 0 1 2\n");
+        }
+        (s.into_bytes(), faces)
+    };
+    out.push(("ply ascii triangles", b.0, b.1));
+    let k = n / 2;
+    let mut s = format!(
+        "{head}element tristrips 1\nproperty list int int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n{k}"
+    );
+    for i in 0..k {
+        s.push_str([" 0", " 1", " 2"][i % 3]);
+    }
+    s.push('\n');
+    out.push(("ply ascii strip", s.into_bytes(), k - 2));
+    out
+}
+
+#[test]
+fn loading_stays_within_the_stated_memory_bound() {
+    use meshchar::mesh::load::{LOAD_BYTES_FIXED, LOAD_BYTES_PER_INPUT_BYTE};
+    let mut worst = (0.0f64, "");
+    // Several sizes per shape, so that some land just past a power of two, where growing vectors are half empty
+    // (MESHCHAR_MEMORY_SWEEP=1 tries 24 sizes from 1 to 2.5 MiB).
+    let sizes: Vec<usize> = match std::env::var("MESHCHAR_MEMORY_SWEEP") {
+        Ok(_) => (0..24).map(|k| (1usize << 20) + k * (1 << 16)).collect(),
+        Err(_) => vec![1 << 20, 1_400_000, 1_900_000],
+    };
+    for (what, bytes, triangles) in sizes.iter().flat_map(|&n| memory_hungry_inputs(n)) {
+        let ext = if what.starts_with("obj") { "obj" } else { "ply" };
+        let p = temp_file(&format!("hungry.{ext}"), &bytes);
+        let (m, peak) = heap::peak(|| load_mesh(&p));
+        let m = m.unwrap_or_else(|e| panic!("{what}: {e}"));
+        assert_eq!(m.triangle_count(), triangles, "{what}");
+        drop(m);
+        let per_byte = peak as f64 / bytes.len() as f64;
+        eprintln!("{what:28} {:>9} bytes  peak {:>11} bytes  {per_byte:6.2} per byte", bytes.len(), peak);
+        if per_byte > worst.0 {
+            worst = (per_byte, what);
+        }
+        assert!(
+            peak <= LOAD_BYTES_PER_INPUT_BYTE * bytes.len() + LOAD_BYTES_FIXED,
+            "{what}: {peak} bytes at the peak for {} input bytes ({per_byte:.1} per byte)",
+            bytes.len()
+        );
+        std::fs::remove_file(&p).unwrap();
+    }
+    eprintln!("worst: {what} at {per:.2} bytes per input byte", what = worst.1, per = worst.0);
+    // Real meshes, for comparison.
+    for rel in
+        ["dabrovic-sponza/sponza.obj", "conference/conference.obj", "stanford-bunny/bun_zipper.ply", "scans/igea.ply"]
+    {
+        let p = shared_mesh(rel);
+        let len = std::fs::metadata(&p).unwrap().len() as usize;
+        let (m, peak) = heap::peak(|| load_mesh(&p));
+        assert!(m.is_ok(), "{rel}");
+        drop(m);
+        eprintln!("{rel:28} {len:>9} bytes  peak {peak:>11} bytes  {:6.2} per byte", peak as f64 / len as f64);
+        assert!(peak <= LOAD_BYTES_PER_INPUT_BYTE * len + LOAD_BYTES_FIXED, "{rel}: {peak}");
+    }
+    // Refused input costs no more: a header promising far more than the file holds allocates next to nothing.
+    let lie =
+        ply_with(&["element vertex 4000000000", "property float x", "property float y", "property float z"], &[0; 64]);
+    let (r, peak) = heap::peak(|| parse_mesh("lie.ply", &lie, MeshFormat::Ply));
+    assert!(r.is_err());
+    assert!(peak < LOAD_BYTES_FIXED, "{peak}");
+}
+
+// ------------------------------------------------------------------------------------------------------------------
+// Property test: random bytes and mutations of valid files give Ok or Err, never a panic, within a time bound
+// ------------------------------------------------------------------------------------------------------------------
+
+/// Loads `bytes` under a time bound and checks the outcome: a valid mesh with triangles, or an error naming the file
+/// that is not a caught panic and stays short.
+fn check_outcome(bytes: Vec<u8>, format: MeshFormat) -> Result<(), proptest::test_runner::TestCaseError> {
+    let started = std::time::Instant::now();
+    let r = within(10, "a proptest case", move || parse_mesh("case.mesh", &bytes, format));
+    let took = started.elapsed();
+    proptest::prop_assert!(took < std::time::Duration::from_secs(2), "a case took {took:?}");
+    match r {
+        Ok(m) => {
+            proptest::prop_assert!(m.validate().is_ok());
+            proptest::prop_assert!(m.triangle_count() > 0);
+        }
+        Err(e) => {
+            let msg = e.to_string();
+            proptest::prop_assert!(!matches!(e, MeshError::ParserPanic { .. }), "{msg}");
+            proptest::prop_assert!(msg.starts_with("case.mesh"), "{msg}");
+            proptest::prop_assert!(msg.len() < 800, "a message of {} bytes", msg.len());
+        }
+    }
+    Ok(())
+}
+
+/// Valid files to mutate.
+fn proptest_bases() -> Vec<(Vec<u8>, MeshFormat)> {
+    let mut strips = PlySpec::new(Enc::Le);
+    strips.element = "tristrips";
+    strips.count = Ty::UInt;
+    strips.faces = vec![vec![0, 1, 2, 3, -1, 4, 5, 0]];
+    let obj = "# c\nmtllib x.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0 1\nv 1 1 1\nvt 0 0\nvt 1 0\nvn 0 0 1\no a\nusemtl m\n\
+               f 1/1/1 2/2/1 3/1/1\nf 2//1 3//1 4//1\ng b\nf -1 -2 -3 1\nl 1 2\nf 1\n";
+    vec![
+        (ply_bytes(&PlySpec::new(Enc::Le)), MeshFormat::Ply),
+        (ply_bytes(&PlySpec::new(Enc::Be)), MeshFormat::Ply),
+        (ply_bytes(&PlySpec::new(Enc::Ascii)), MeshFormat::Ply),
+        (ply_bytes(&strips), MeshFormat::Ply),
+        (obj.as_bytes().to_vec(), MeshFormat::Obj),
+    ]
+}
+
+/// Tokens that mutations insert: numbers at the edges of the integer types, OBJ and PLY keywords, separators.
+const TOKENS: [&str; 30] = [
+    "-1",
+    "0",
+    "-2147483648",
+    "4294967295",
+    "18446744073709551615",
+    "6148914691236517206",
+    "9223372036854775807",
+    "-9223372036854775808",
+    "1e39",
+    "nan",
+    "\n",
+    "\r\n",
+    " ",
+    "/",
+    "//",
+    "f ",
+    "v ",
+    "vt ",
+    "vn ",
+    "o ",
+    "l ",
+    "element ",
+    "property ",
+    "list ",
+    "uint ",
+    "char ",
+    "double ",
+    "end_header\n",
+    "\0",
+    "\u{3000}",
+];
+
+#[derive(Clone, Debug)]
+enum Edit {
+    /// Set the byte at a position.
+    Byte(usize, u8),
+    /// Insert a token at a position.
+    Insert(usize, usize),
+    /// Delete a range.
+    Delete(usize, usize),
+    /// Duplicate a range in place.
+    Repeat(usize, usize, u8),
+    /// Cut the file.
+    Truncate(usize),
+}
+
+fn apply(edits: &[Edit], mut b: Vec<u8>) -> Vec<u8> {
+    for e in edits {
+        let n = b.len().max(1);
+        match *e {
+            Edit::Byte(at, v) => {
+                if let Some(x) = b.get_mut(at % n) {
+                    *x = v;
+                }
+            }
+            Edit::Insert(at, t) => {
+                let at = (at % n).min(b.len());
+                b.splice(at..at, TOKENS[t % TOKENS.len()].bytes());
+            }
+            Edit::Delete(at, len) => {
+                let at = (at % n).min(b.len());
+                let end = (at + len % 64).min(b.len());
+                b.drain(at..end);
+            }
+            Edit::Repeat(at, len, times) => {
+                let at = (at % n).min(b.len());
+                let end = (at + len % 256).min(b.len());
+                let piece = b[at..end].to_vec();
+                for _ in 0..times % 16 {
+                    b.splice(at..at, piece.iter().copied());
+                }
+            }
+            Edit::Truncate(at) => b.truncate(at % n),
+        }
+    }
+    b
+}
+
+fn edit_strategy() -> impl proptest::strategy::Strategy<Value = Edit> {
+    use proptest::prelude::*;
+    prop_oneof![
+        4 => (any::<usize>(), any::<u8>()).prop_map(|(a, v)| Edit::Byte(a, v)),
+        4 => (any::<usize>(), any::<usize>()).prop_map(|(a, t)| Edit::Insert(a, t)),
+        1 => (any::<usize>(), any::<usize>()).prop_map(|(a, l)| Edit::Delete(a, l)),
+        1 => (any::<usize>(), any::<usize>(), any::<u8>()).prop_map(|(a, l, t)| Edit::Repeat(a, l, t)),
+        1 => any::<usize>().prop_map(Edit::Truncate),
+    ]
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::test_runner::Config { cases: 300, ..proptest::test_runner::Config::default() })]
+
+    #[test]
+    fn random_bytes_load_or_fail_cleanly(
+        bytes in proptest::collection::vec(proptest::arbitrary::any::<u8>(), 0..3000),
+        ply in proptest::arbitrary::any::<bool>(),
+        magic in proptest::arbitrary::any::<bool>(),
+    ) {
+        let mut b = if magic && ply { b"ply\nformat binary_little_endian 1.0\n".to_vec() } else { Vec::new() };
+        b.extend_from_slice(&bytes);
+        check_outcome(b, if ply { MeshFormat::Ply } else { MeshFormat::Obj })?;
+    }
+
+    #[test]
+    fn mutated_valid_files_load_or_fail_cleanly(
+        base in 0..5usize,
+        edits in proptest::collection::vec(edit_strategy(), 1..8),
+    ) {
+        let (bytes, format) = proptest_bases().swap_remove(base);
+        check_outcome(apply(&edits, bytes), format)?;
+    }
 }

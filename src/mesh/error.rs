@@ -60,6 +60,27 @@ pub enum MeshError {
         /// What differs.
         detail: String,
     },
+    /// The file was read without error but holds no triangle: an empty or comment-only file, vertices only, faces
+    /// of fewer than 3 corners only, triangle strips of restart markers only. Loaders refuse such a file rather than
+    /// return an empty mesh.
+    #[error("{file}: no triangles: {detail}")]
+    NoTriangles {
+        /// The file or mesh name.
+        file: String,
+        /// What the file holds instead (vertex and face counts, the elements read).
+        detail: String,
+    },
+    /// A third-party parser (`tobj`, `ply-rs-bw`) panicked on the file. The loaders check their input so that this
+    /// should not happen; the panic is caught and reported as an error instead of unwinding into the caller.
+    #[error("{file}: the {parser} parser failed on this file (internal panic: {message})")]
+    ParserPanic {
+        /// The file or mesh name.
+        file: String,
+        /// Which parser (`OBJ` or `PLY`).
+        parser: &'static str,
+        /// The panic message, shortened.
+        message: String,
+    },
     /// Anything else that makes a mesh unusable.
     #[error("{file}: {reason}")]
     Invalid {

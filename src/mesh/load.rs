@@ -9,7 +9,42 @@
 //! * Faces with fewer than 3 corners (points and segments) describe no triangle and give none. This is not an error,
 //!   and it is what the fan rule gives for them (`max(n - 2, 0)` triangles).
 //! * Zero-area triangles are kept: they are real input (see [`Mesh::zero_area_count`]).
-//! * A file without triangles loads as a valid mesh with 0 triangles; characterization rejects it later.
+//! * At least one triangle: a file that describes none (empty, comments or vertices only, points and segments only,
+//!   triangle strips of restart markers only, text that merely has an `.obj` name) is refused with
+//!   [`MeshError::NoTriangles`].
+//!
+//! # What a load refuses
+//!
+//! Every error is a [`MeshError`] that names the file and, where there is one, the place in it (`file:line`, a
+//! `line N`, a PLY `element 'name' i` or `header line N`). No input makes a loader panic, hang or succeed on nothing:
+//!
+//! * Only regular files are read (symbolic links are followed). A directory, FIFO, socket or device (`/dev/zero`)
+//!   is refused from its metadata, before it is opened, as a [`MeshError::Io`] saying what it is; [`load_path`]
+//!   checks the `.obj` and `.ply` entries of a directory in the same way.
+//! * OBJ text is scanned before `tobj` sees it: every face corner's vertex, texture and normal index (1-based or
+//!   negative, relative) must parse and lie within the statements of its kind (texture and normal indices are only
+//!   checked when the file has `vt` or `vn` statements, since they are ignored otherwise).
+//! * A PLY header is checked in full before the payload is read: no element or property name twice, no element with
+//!   items but no properties, integer list counts, format version 1, and a payload at least as long as the header
+//!   requires (its minimum byte size is computed from the counts and types; counts that cannot fit in the file are
+//!   refused). Every binary list count is checked against the bytes left before the list is read.
+//! * `tobj` and `ply-rs-bw` run under [`std::panic::catch_unwind`]: should one of them panic on input the checks
+//!   above missed, the load returns [`MeshError::ParserPanic`] naming the file (the panic message still goes to the
+//!   panic hook, by default standard error). This backstop needs the default `panic = "unwind"`.
+//! * Messages stay short: text quoted from the file (names, tokens, parser messages) is cut to a few hundred
+//!   characters and ends with `...` when cut.
+//!
+//! # Memory
+//!
+//! Loading a file of `n` bytes has at most [`LOAD_BYTES_PER_INPUT_BYTE`]` * n + `[`LOAD_BYTES_FIXED`] heap bytes
+//! allocated at its peak, the file's own bytes and the returned mesh included (a reallocation counts as a new block
+//! while the old one is still live). The test suite checks this on inputs built to maximise memory per byte, at
+//! sizes where growing vectors are nearly half empty: the worst are OBJ files of one-triangle groups (about 76 bytes
+//! per byte: `tobj` keeps a model of some 250 bytes for every 10-byte `g`/`f` pair), long OBJ polygons with texture
+//! and normal indices (about 50) and PLY triangle strips of one-byte indices (about 36); real meshes need far less.
+//! No buffer is sized from a count in the file before the file is known to hold that many items (a PLY header that
+//! promises more than the file holds is refused before anything is reserved), and the file itself is read into one
+//! buffer of exactly its length.
 //!
 //! # OBJ
 //!
@@ -17,8 +52,9 @@
 //! `i` of the mesh is the `i`-th triangle of the file. When there is more than one model, [`Mesh::object_ids`] holds
 //! the model index of every triangle. Each model keeps the vertices its faces use, so the vertex count can differ from
 //! the number of `v` statements (unused vertices are dropped, a vertex used by two models appears twice). Polyline
-//! statements (`l`) are ignored. Errors name the line (`file:line`): `tobj` reports no position, so on error the
-//! text is scanned again to find the offending statement.
+//! statements (`l`) and faces of 1 or 2 corners are ignored, so a group holding only those is no object, like an
+//! empty group. Errors name the line (`file:line` or `line N`): the pre-scan knows it, and for the
+//! errors only `tobj` finds the text is scanned again to find the offending statement.
 //!
 //! # PLY
 //!
@@ -31,8 +67,9 @@
 
 use super::{Animation, Mesh, MeshError};
 use ply_rs_bw::parser::{ParseError, Parser, Reader};
-use ply_rs_bw::ply::{Encoding, Header, PropertyAccess, PropertyAccessResult, PropertyType, ScalarType};
+use ply_rs_bw::ply::{ElementDef, Encoding, Header, PropertyAccess, PropertyAccessResult, PropertyType, ScalarType};
 use rayon::prelude::*;
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 /// The file formats this crate reads.
@@ -44,26 +81,117 @@ pub enum MeshFormat {
     Ply,
 }
 
+/// Peak heap bytes a load may have allocated per byte of input file, on top of [`LOAD_BYTES_FIXED`] (see the module
+/// documentation, "Memory"). The worst input the tests build (an OBJ file of one-triangle groups) needs about 76.
+pub const LOAD_BYTES_PER_INPUT_BYTE: usize = 96;
+
+/// Fixed part of the memory bound of a load (parser state, small buffers), in bytes.
+pub const LOAD_BYTES_FIXED: usize = 1 << 20;
+
 /// Longest reason text kept from a parser message (ascii PLY messages quote the whole offending line, which can be
 /// megabytes long for a triangle strip).
 const MAX_REASON: usize = 300;
+
+/// Longest name or token quoted from a file in a message.
+const MAX_QUOTE: usize = 80;
 
 /// Loads one mesh from an `.obj` or `.ply` file.
 ///
 /// The format comes from the extension (case-insensitive); for any other extension the first bytes decide (see
 /// [`detect_format`]). The mesh is named after the path. Every error names the file and, where there is one, the
-/// place in it.
+/// place in it; anything but a regular file is refused before it is opened (see the module documentation).
 pub fn load_mesh(path: &Path) -> Result<Mesh, MeshError> {
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Io { path: path.to_path_buf(), source })?;
+    let bytes = read_regular_file(path)?;
     let format = detect_format(path, &bytes).ok_or_else(|| MeshError::UnknownFormat { path: path.to_path_buf() })?;
     parse_mesh(&path.display().to_string(), &bytes, format)
 }
 
-/// Parses a mesh held in memory. `name` names the mesh and is the file named in errors.
+/// What a file that is not a regular file is, for messages; `None` for a regular file.
+fn not_regular(meta: &std::fs::Metadata) -> Option<&'static str> {
+    let t = meta.file_type();
+    if t.is_file() {
+        return None;
+    }
+    if t.is_dir() {
+        return Some("a directory");
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_fifo() {
+            return Some("a FIFO (named pipe)");
+        }
+        if t.is_socket() {
+            return Some("a socket");
+        }
+        if t.is_char_device() {
+            return Some("a character device");
+        }
+        if t.is_block_device() {
+            return Some("a block device");
+        }
+    }
+    Some("not a regular file")
+}
+
+/// Fails unless `path` (links followed) is a regular file; the error names the path and what it is instead.
+fn check_regular_file(path: &Path) -> Result<std::fs::Metadata, MeshError> {
+    let io = |source| MeshError::Io { path: path.to_path_buf(), source };
+    let meta = std::fs::metadata(path).map_err(io)?;
+    match not_regular(&meta) {
+        None => Ok(meta),
+        Some(what) => {
+            Err(io(std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("not a regular file: {what}"))))
+        }
+    }
+}
+
+/// Reads a whole regular file: its metadata is checked before it is opened (a FIFO would block in `open`, a device
+/// such as `/dev/zero` never ends) and again on the open handle; at most the length the metadata gives is read, into a
+/// buffer reserved once (an allocation failure is an error, not an abort).
+fn read_regular_file(path: &Path) -> Result<Vec<u8>, MeshError> {
+    let io = |source| MeshError::Io { path: path.to_path_buf(), source };
+    check_regular_file(path)?;
+    let file = std::fs::File::open(path).map_err(io)?;
+    let meta = file.metadata().map_err(io)?;
+    if let Some(what) = not_regular(&meta) {
+        return Err(io(std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("not a regular file: {what}"))));
+    }
+    let len = meta.len();
+    let too_big =
+        || io(std::io::Error::new(std::io::ErrorKind::OutOfMemory, format!("{len} bytes do not fit in memory")));
+    let cap = usize::try_from(len).map_err(|_| too_big())?;
+    let mut bytes = Vec::new();
+    bytes.try_reserve_exact(cap).map_err(|_| too_big())?;
+    file.take(len).read_to_end(&mut bytes).map_err(io)?;
+    Ok(bytes)
+}
+
+/// Parses a mesh held in memory. `name` names the mesh and is the file named in errors. Like [`load_mesh`], it
+/// refuses input without triangles.
 pub fn parse_mesh(name: &str, bytes: &[u8], format: MeshFormat) -> Result<Mesh, MeshError> {
     match format {
         MeshFormat::Obj => parse_obj(name, bytes),
         MeshFormat::Ply => parse_ply(name, bytes),
+    }
+}
+
+/// Runs a parse that calls a third-party parser, turning a panic into [`MeshError::ParserPanic`] naming the file.
+fn catch_parser_panic<T>(
+    file: &str,
+    parser: &'static str,
+    f: impl FnOnce() -> Result<T, MeshError>,
+) -> Result<T, MeshError> {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)) {
+        Ok(r) => r,
+        Err(payload) => {
+            let message = payload
+                .downcast_ref::<&str>()
+                .map(|s| short_reason(s))
+                .or_else(|| payload.downcast_ref::<String>().map(|s| short_reason(s)))
+                .unwrap_or_else(|| "no message".to_string());
+            Err(MeshError::ParserPanic { file: file.to_string(), parser, message })
+        }
     }
 }
 
@@ -112,17 +240,24 @@ pub fn sniff_format(bytes: &[u8]) -> Option<MeshFormat> {
 /// Loads an animation from a list of frame files, in the order given. Frames are read in parallel.
 ///
 /// Every frame must have the topology of the first (same vertex count, same index triples); otherwise the error
-/// ([`MeshError::TopologyMismatch`]) names both files. The animation is named after the first file.
+/// ([`MeshError::TopologyMismatch`]) names both files. The animation is named after the first file. An empty list is
+/// an error: an animation has at least one frame.
 pub fn load_animation(paths: &[PathBuf]) -> Result<Animation, MeshError> {
+    let Some(first) = paths.first() else {
+        return Err(MeshError::Invalid {
+            file: "(no frame files)".into(),
+            reason: "an animation needs at least one frame file".into(),
+        });
+    };
     let frames = paths.par_iter().map(|p| load_mesh(p)).collect::<Result<Vec<_>, _>>()?;
-    Animation::new(paths.first().map(|p| p.display().to_string()).unwrap_or_default(), frames)
+    Animation::new(first.display().to_string(), frames)
 }
 
 /// Loads a file as a one-frame animation, or a directory of frame files as an animation.
 ///
-/// In a directory, the frames are the files whose extension is `.obj` or `.ply` (case-insensitive), sorted by file
-/// name; other files are ignored. A directory without such files is an error naming it. The animation is named after
-/// the path.
+/// In a directory, the frames are the entries whose extension is `.obj` or `.ply` (case-insensitive), sorted by file
+/// name; other entries are ignored. A directory without such entries is an error naming it, and so is a frame entry
+/// that is not a regular file (see [`frame_files`]). The animation is named after the path.
 pub fn load_path(path: &Path) -> Result<Animation, MeshError> {
     if path.is_dir() {
         let frames = frame_files(path)?;
@@ -140,6 +275,9 @@ pub fn load_path(path: &Path) -> Result<Animation, MeshError> {
 }
 
 /// The `.obj` and `.ply` files of a directory, sorted by file name.
+///
+/// An entry with one of these extensions that is not a regular file once links are followed (a FIFO, a device, a
+/// directory, a dangling link) is an error naming it ([`MeshError::Io`]), rather than a frame silently left out.
 pub fn frame_files(dir: &Path) -> Result<Vec<PathBuf>, MeshError> {
     let io = |source| MeshError::Io { path: dir.to_path_buf(), source };
     let mut files = Vec::new();
@@ -150,7 +288,8 @@ pub fn frame_files(dir: &Path) -> Result<Vec<PathBuf>, MeshError> {
             .extension()
             .and_then(|e| e.to_str())
             .is_some_and(|e| e.eq_ignore_ascii_case("obj") || e.eq_ignore_ascii_case("ply"));
-        if is_mesh && p.is_file() {
+        if is_mesh {
+            check_regular_file(&p)?;
             files.push(p);
         }
     }
@@ -162,28 +301,62 @@ fn too_many_vertices(name: &str, n: usize) -> MeshError {
     MeshError::Invalid { file: name.to_string(), reason: format!("{n} vertices: more than 32-bit indices address") }
 }
 
-/// Keeps a parser message to one short line.
+/// Keeps a parser message to one short line: whitespace runs become one space, and the text is cut after
+/// [`MAX_REASON`] characters with `...` (without first copying a long message whole).
 fn short_reason(s: &str) -> String {
-    let one_line: String = s.split_whitespace().collect::<Vec<_>>().join(" ");
-    if one_line.chars().count() > MAX_REASON {
-        let cut: String = one_line.chars().take(MAX_REASON).collect();
-        format!("{cut}...")
-    } else {
-        one_line
+    cut_words(s, MAX_REASON)
+}
+
+/// Text quoted from a file (a name, a token), cut after [`MAX_QUOTE`] characters with `...`.
+fn quote(s: &str) -> String {
+    cut_words(s, MAX_QUOTE)
+}
+
+fn cut_words(s: &str, max: usize) -> String {
+    let mut out = String::new();
+    let mut chars = 0usize;
+    for word in s.split_whitespace() {
+        if !out.is_empty() {
+            out.push(' ');
+            chars += 1;
+        }
+        for c in word.chars() {
+            if chars >= max {
+                out.push_str("...");
+                return out;
+            }
+            out.push(c);
+            chars += 1;
+        }
     }
+    out
 }
 
 // ---------------------------------------------------------------------------------------------------------------
 // OBJ
 // ---------------------------------------------------------------------------------------------------------------
 
-/// Parses OBJ text (see the module documentation for what is kept).
+/// Parses OBJ text (see the module documentation for what is kept and what is refused).
 pub fn parse_obj(name: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
-    // tobj reads `l` (polyline) statements as faces; blank them (keeping line numbers) so that a polyline of three
-    // points does not become a triangle.
+    catch_parser_panic(name, "OBJ", || parse_obj_checked(name, bytes))
+}
+
+fn parse_obj_checked(name: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
+    // Check every index before tobj sees it (tobj multiplies indices without overflow checks and can index out of
+    // bounds), and hide from it the statements that give no triangle: polylines (`l`, which tobj would read as faces)
+    // and faces of 1 or 2 corners (tobj keeps 104 bytes for each, and a group holding one becomes a model of about
+    // 250 bytes, so that a file of `g` and `f 1` lines would cost some 80 bytes per byte). Hidden lines become
+    // comments, so that line numbers are kept.
+    let scan = scan_obj(name, bytes, None)?;
     let filtered;
-    let text: &[u8] = if has_polyline(bytes) {
-        filtered = blank_polylines(bytes);
+    let text: &[u8] = if scan.hidden > 0 {
+        let mut out = Vec::new();
+        out.try_reserve_exact(bytes.len() + scan.hidden).map_err(|_| MeshError::Invalid {
+            file: name.to_string(),
+            reason: format!("no memory for a filtered copy of its {} bytes", bytes.len()),
+        })?;
+        scan_obj(name, bytes, Some(&mut out))?;
+        filtered = out;
         &filtered
     } else {
         bytes
@@ -206,6 +379,16 @@ pub fn parse_obj(name: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
     if u32::try_from(nv).is_err() {
         return Err(too_many_vertices(name, nv));
     }
+    if nt == 0 {
+        return Err(MeshError::NoTriangles {
+            file: name.to_string(),
+            detail: format!(
+                "no face of 3 or more corners ({} vertex statements, {} faces of fewer corners, {} polylines)",
+                scan.vertices, scan.short_faces, scan.polylines
+            ),
+        });
+    }
+    // Both sizes come from what tobj read, not from a count written in the file.
     let mut positions: Vec<[f32; 3]> = Vec::with_capacity(nv);
     let mut indices: Vec<[u32; 3]> = Vec::with_capacity(nt);
     let mut object_ids: Vec<u32> = Vec::new();
@@ -234,28 +417,169 @@ pub fn parse_obj(name: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
     Ok(mesh)
 }
 
-fn is_polyline_statement(line: &[u8]) -> bool {
-    let t = line.trim_ascii_start();
-    t.starts_with(b"l") && t.get(1).is_none_or(|c| c.is_ascii_whitespace())
+/// What [`scan_obj`] found in a file that passed it.
+struct ObjScan {
+    /// `v` statements.
+    vertices: usize,
+    /// Faces of 1 or 2 corners (points and segments).
+    short_faces: usize,
+    /// Polyline statements.
+    polylines: usize,
+    /// Lines to hide from tobj.
+    hidden: usize,
 }
 
-fn has_polyline(bytes: &[u8]) -> bool {
-    bytes.split(|&c| c == b'\n').any(is_polyline_statement)
-}
+/// One index of a face corner as written: `None` when the slot is empty or absent.
+type CornerIndices = [Option<i64>; 3];
 
-/// Turns every polyline statement into a comment of the same length.
-fn blank_polylines(bytes: &[u8]) -> Vec<u8> {
-    let mut out = Vec::with_capacity(bytes.len());
-    for (i, line) in bytes.split(|&c| c == b'\n').enumerate() {
-        if i > 0 {
-            out.push(b'\n');
+/// Parses a face corner `v`, `v/vt`, `v//vn` or `v/vt/vn` as tobj does (slots separated by `/`, each empty or an
+/// integer that fits `isize`, no non-empty slot after the third); `None` when tobj would reject it.
+fn parse_corner(corner: &str) -> Option<CornerIndices> {
+    let mut out = [None; 3];
+    for (k, part) in corner.split('/').enumerate() {
+        // Like tobj, empty slots are skipped before the slot count is checked: `1/2/3/` passes, `1/2/3/4` does not.
+        if !part.is_empty() {
+            *out.get_mut(k)? = Some(i64::try_from(part.parse::<isize>().ok()?).ok()?);
         }
-        if is_polyline_statement(line) {
-            out.push(b'#');
-        }
-        out.extend_from_slice(line);
     }
-    out
+    Some(out)
+}
+
+/// The OBJ pre-scan: checks every line, in order, for what would make tobj fail or panic on indices, and counts.
+///
+/// * A line must be UTF-8 (tobj reads lines as strings).
+/// * Every face corner must parse (see [`parse_corner`]); a face needs at least one corner.
+/// * In faces of 3 or more corners (the others give no triangle and tobj ignores them), the vertex index is required
+///   and, like the texture and normal indices when the file has statements of their kind, it must not be 0, a
+///   positive index must not exceed the number of statements of its kind in the file, and a negative (relative) one
+///   must not reach before the first statement read so far.
+///
+/// With `out`, the text is also copied into it with the lines tobj must not see (polylines, points and segments)
+/// turned into comments.
+fn scan_obj(name: &str, bytes: &[u8], mut out: Option<&mut Vec<u8>>) -> Result<ObjScan, MeshError> {
+    // Totals per kind (`v`, `vt`, `vn`), for the forward bound of positive indices.
+    let mut totals = [0usize; 3];
+    for raw in bytes.split(|&c| c == b'\n') {
+        // Tokens as tobj splits them; a line that is not UTF-8 is reported by the second loop.
+        match std::str::from_utf8(raw).ok().and_then(|t| t.split_whitespace().next()) {
+            Some("v") => totals[0] += 1,
+            Some("vt") => totals[1] += 1,
+            Some("vn") => totals[2] += 1,
+            _ => {}
+        }
+    }
+    let mut counts = [0usize; 3];
+    let mut scan = ObjScan { vertices: 0, short_faces: 0, polylines: 0, hidden: 0 };
+    let mut triangles = 0usize;
+    for (i, raw) in bytes.split(|&c| c == b'\n').enumerate() {
+        let number = i + 1;
+        let line = raw.strip_suffix(b"\r").unwrap_or(raw);
+        let Ok(text) = std::str::from_utf8(line) else {
+            return Err(obj_parse_error(name, Some(number), "not UTF-8 text"));
+        };
+        let mut words = text.split_whitespace();
+        let mut hide = false;
+        match words.next() {
+            Some("v") => counts[0] += 1,
+            Some("vt") => counts[1] += 1,
+            Some("vn") => counts[2] += 1,
+            Some("l") => {
+                scan.polylines += 1;
+                hide = true;
+            }
+            Some("f") => {
+                let mut corners = 0usize;
+                for corner in words.clone() {
+                    if parse_corner(corner).is_none() {
+                        return Err(obj_parse_error(
+                            name,
+                            Some(number),
+                            format!("cannot read the face's vertex indices: corner '{}'", quote(corner)),
+                        ));
+                    }
+                    corners += 1;
+                }
+                if corners == 0 {
+                    return Err(obj_parse_error(name, Some(number), "face without vertices"));
+                }
+                if corners < 3 {
+                    scan.short_faces += 1;
+                    hide = true;
+                } else {
+                    for (j, corner) in words.enumerate() {
+                        let indices = parse_corner(corner).unwrap_or_default();
+                        check_corner(name, number, j, corner, indices, &counts, &totals, triangles)?;
+                    }
+                    triangles += corners - 2;
+                }
+            }
+            _ => {}
+        }
+        if let Some(out) = out.as_deref_mut() {
+            if i > 0 {
+                out.push(b'\n');
+            }
+            if hide {
+                out.push(b'#');
+            }
+            out.extend_from_slice(raw);
+        }
+        scan.hidden += usize::from(hide);
+    }
+    scan.vertices = totals[0];
+    Ok(scan)
+}
+
+/// Checks the indices of corner `j` of a face of 3 or more corners on line `number` (see [`scan_obj`]).
+#[allow(clippy::too_many_arguments)]
+fn check_corner(
+    name: &str,
+    number: usize,
+    j: usize,
+    corner: &str,
+    indices: CornerIndices,
+    counts: &[usize; 3],
+    totals: &[usize; 3],
+    triangles: usize,
+) -> Result<(), MeshError> {
+    const WHAT: [&str; 3] = ["vertex", "texture coordinate", "normal"];
+    for (slot, written) in indices.into_iter().enumerate() {
+        let Some(written) = written else {
+            if slot == 0 {
+                let reason = format!("face corner {} ('{}') has no vertex index", j + 1, quote(corner));
+                return Err(obj_parse_error(name, Some(number), reason));
+            }
+            continue;
+        };
+        // tobj ignores texture and normal indices when the file has no statement of their kind.
+        if slot > 0 && totals[slot] == 0 {
+            continue;
+        }
+        let (what, count, total) = (WHAT[slot], counts[slot], totals[slot]);
+        let reason = if written == 0 {
+            format!("{what} index 0 (OBJ indices start at 1)")
+        } else if written < 0 {
+            if written.unsigned_abs() <= count as u64 {
+                continue;
+            }
+            format!("relative {what} index {written} reaches before the first {what} ({count} so far)")
+        } else {
+            if written as u64 <= total as u64 {
+                continue;
+            }
+            if slot == 0 {
+                return Err(MeshError::IndexOutOfRange {
+                    file: format!("{name}:{number}"),
+                    triangle: triangles + j.saturating_sub(2),
+                    index: written as u64,
+                    vertices: total,
+                });
+            }
+            format!("{what} index {written} is out of range ({total} defined)")
+        };
+        return Err(obj_parse_error(name, Some(number), reason));
+    }
+    Ok(())
 }
 
 /// One statement of an OBJ file as the error scan sees it.
@@ -640,7 +964,7 @@ impl PropertyAccess for PlySkip {
 struct PlyPlace<'a> {
     name: &'a str,
     ascii: bool,
-    /// Parser line number of the element's first item (for ascii files, the file line).
+    /// Ascii: the file line of the element's first item.
     start_line: usize,
 }
 
@@ -655,9 +979,9 @@ impl PlyPlace<'_> {
     }
     fn describe(&self, i: usize) -> String {
         if self.ascii {
-            format!("element '{}' {i} (line {})", self.name, self.start_line + i)
+            format!("element '{}' {i} (line {})", quote(self.name), self.start_line + i)
         } else {
-            format!("element '{}' {i}", self.name)
+            format!("element '{}' {i}", quote(self.name))
         }
     }
 }
@@ -670,14 +994,6 @@ fn ply_message(e: &ParseError) -> String {
         None => s,
     };
     short_reason(&s)
-}
-
-fn ply_payload_error(file: &str, place: &PlyPlace<'_>, e: &ParseError) -> MeshError {
-    let where_ = match e.line() {
-        Some(l) if l >= place.start_line => place.describe(l - place.start_line),
-        _ => format!("element '{}'", place.name),
-    };
-    MeshError::Parse { file: file.to_string(), place: where_, reason: ply_message(e) }
 }
 
 fn ply_header_error(file: &str, reason: impl Into<String>) -> MeshError {
@@ -731,42 +1047,328 @@ fn check_ply_header(file: &str, header: &Header) -> Result<(), MeshError> {
     Ok(())
 }
 
-/// Parses a PLY file held in memory (see the module documentation for what is kept).
+/// Byte size of a binary PLY scalar.
+fn scalar_size(t: &ScalarType) -> usize {
+    match t {
+        ScalarType::Char | ScalarType::UChar => 1,
+        ScalarType::Short | ScalarType::UShort => 2,
+        ScalarType::Int | ScalarType::UInt | ScalarType::Float => 4,
+        ScalarType::Double => 8,
+    }
+}
+
+/// The header line numbers of the elements, in header order, after the checks `ply-rs-bw` does not make: no element
+/// declared twice, no property declared twice in an element (the parser keeps the last one and would then read the
+/// payload out of step), format version 1, integer list counts, no element with items but no properties (a binary
+/// reader would loop over them without reading a byte).
+fn scan_ply_header(file: &str, header_text: &[u8], header: &Header) -> Result<Vec<usize>, MeshError> {
+    let at = |line: usize, reason: String| MeshError::Parse {
+        file: file.to_string(),
+        place: format!("header line {line}"),
+        reason,
+    };
+    let text = String::from_utf8_lossy(header_text);
+    let mut element_lines: Vec<usize> = Vec::new();
+    let mut elements: std::collections::HashMap<&str, usize> = std::collections::HashMap::new();
+    let mut properties: std::collections::HashMap<&str, usize> = std::collections::HashMap::new();
+    let mut current: Option<&str> = None;
+    let mut format_line = 1;
+    for (i, line) in text.split('\n').enumerate() {
+        let number = i + 1;
+        let words: Vec<&str> = line.split_whitespace().take(6).collect();
+        match words.first().copied() {
+            Some("format") => format_line = number,
+            Some("element") => {
+                let name = words.get(1).copied().unwrap_or_default();
+                if let Some(first) = elements.insert(name, number) {
+                    return Err(at(
+                        number,
+                        format!("element '{}' is declared twice (first at header line {first})", quote(name)),
+                    ));
+                }
+                element_lines.push(number);
+                current = Some(name);
+                properties.clear();
+            }
+            Some("property") => {
+                let name = line.split_whitespace().next_back().unwrap_or_default();
+                if let Some(first) = properties.insert(name, number) {
+                    return Err(at(
+                        number,
+                        format!(
+                            "element '{}' declares property '{}' twice (first at header line {first})",
+                            quote(current.unwrap_or_default()),
+                            quote(name)
+                        ),
+                    ));
+                }
+            }
+            _ => {}
+        }
+    }
+    if header.version.major != 1 {
+        return Err(at(
+            format_line,
+            format!(
+                "format version {}.{} is not 1.x, the only PLY version",
+                header.version.major, header.version.minor
+            ),
+        ));
+    }
+    if element_lines.len() != header.elements.len() {
+        // Cannot happen after the checks above; refuse rather than report places out of step.
+        return Err(ply_header_error(file, "the element declarations could not be matched to the header lines"));
+    }
+    for (el, &line) in header.elements.values().zip(&element_lines) {
+        if el.count > 0 && el.properties.is_empty() {
+            return Err(at(line, format!("element '{}' has {} items but no properties", quote(&el.name), el.count)));
+        }
+        for p in el.properties.values() {
+            if let PropertyType::List(ScalarType::Float | ScalarType::Double, _) = p.data_type {
+                return Err(at(
+                    line,
+                    format!(
+                        "element '{}': list property '{}' has a floating-point count type (counts are integers)",
+                        quote(&el.name),
+                        quote(&p.name)
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(element_lines)
+}
+
+/// The fewest bytes an item of `el` takes in the payload: binary, the sum of its scalar sizes and list count sizes
+/// (lists may be empty); ascii, one character and one separator or line end per property.
+fn min_item_bytes(el: &ElementDef, ascii: bool) -> u64 {
+    if ascii {
+        return 2 * el.properties.len() as u64;
+    }
+    el.properties
+        .values()
+        .map(|p| match &p.data_type {
+            PropertyType::Scalar(t) | PropertyType::List(t, _) => scalar_size(t) as u64,
+        })
+        .sum()
+}
+
+/// Refuses a payload shorter than the header requires: element by element, the declared count times the minimum item
+/// size must fit in what is left of the file. The error names the first item that cannot fit (binary) or the
+/// element and its header line (ascii, where items are lines of varying length).
+fn check_ply_sizes(
+    file: &str,
+    header: &Header,
+    element_lines: &[usize],
+    payload_bytes: usize,
+    ascii: bool,
+) -> Result<(), MeshError> {
+    // Ascii: the last line may lack its line end.
+    let mut left = payload_bytes as u128 + u128::from(ascii);
+    for (el, &line) in header.elements.values().zip(element_lines) {
+        let min = u128::from(min_item_bytes(el, ascii));
+        let need = el.count as u128 * min;
+        if need <= left {
+            left -= need;
+            continue;
+        }
+        let name = quote(&el.name);
+        let (place, reason) = if ascii {
+            (
+                format!("element '{name}' (header line {line})"),
+                format!(
+                    "the header declares {} items, lines of at least {min} bytes each, but only {} bytes of the file \
+                     are left for them",
+                    el.count,
+                    left.saturating_sub(1)
+                ),
+            )
+        } else {
+            (
+                format!("element '{name}' {}", left / min.max(1)),
+                format!(
+                    "the file ends within this item: the header declares {} items of at least {min} bytes each, and \
+                     only {left} bytes of the file are left for them",
+                    el.count
+                ),
+            )
+        };
+        return Err(MeshError::Parse { file: file.to_string(), place, reason });
+    }
+    Ok(())
+}
+
+/// Parses a PLY file held in memory (see the module documentation for what is kept and what is refused).
 pub fn parse_ply(name: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
+    catch_parser_panic(name, "PLY", || parse_ply_checked(name, bytes))
+}
+
+/// The payload of a PLY file, read one item at a time.
+struct PlyPayload<'a> {
+    file: &'a str,
+    bytes: &'a [u8],
+    /// Where the next item starts.
+    offset: usize,
+    encoding: Encoding,
+    /// Ascii: the line number of the next item.
+    line: usize,
+}
+
+impl<'a> PlyPayload<'a> {
+    fn error(&self, place: &PlyPlace<'_>, i: usize, reason: impl Into<String>) -> MeshError {
+        MeshError::Parse { file: self.file.to_string(), place: place.describe(i), reason: reason.into() }
+    }
+
+    /// The next ascii line, with its line end.
+    fn next_line(&mut self, place: &PlyPlace<'_>, i: usize) -> Result<&'a str, MeshError> {
+        let rest = self.bytes.get(self.offset..).unwrap_or_default();
+        if rest.is_empty() {
+            return Err(self.error(place, i, "the file ends before this item"));
+        }
+        let len = rest.iter().position(|&c| c == b'\n').map_or(rest.len(), |p| p + 1);
+        let raw = rest.get(..len).unwrap_or_default();
+        self.offset += len;
+        self.line += 1;
+        std::str::from_utf8(raw).map_err(|_| self.error(place, i, "not UTF-8 text"))
+    }
+
+    /// The bytes of the next binary item of `el`; its list counts are read and checked against the bytes left.
+    fn next_binary(&mut self, el: &ElementDef, place: &PlyPlace<'_>, i: usize) -> Result<&'a [u8], MeshError> {
+        let rest = self.bytes.get(self.offset..).unwrap_or_default();
+        let big = self.encoding == Encoding::BinaryBigEndian;
+        let mut at = 0usize;
+        for p in el.properties.values() {
+            match &p.data_type {
+                PropertyType::Scalar(t) => at += scalar_size(t),
+                PropertyType::List(count_type, item_type) => {
+                    let cs = scalar_size(count_type);
+                    let Some(raw) = rest.get(at..at + cs) else {
+                        return Err(self.error(
+                            place,
+                            i,
+                            format!("the file ends before the count of list '{}'", quote(&p.name)),
+                        ));
+                    };
+                    let count = binary_count(raw, count_type, big).ok_or_else(|| {
+                        self.error(place, i, format!("list '{}' has a negative count", quote(&p.name)))
+                    })?;
+                    at += cs;
+                    let left = rest.len().saturating_sub(at);
+                    let size = scalar_size(item_type);
+                    if count as u128 * size as u128 > left as u128 {
+                        return Err(self.error(
+                            place,
+                            i,
+                            format!(
+                                "list '{}' declares {count} entries of {size} bytes, but only {left} bytes are left in \
+                                 the file",
+                                quote(&p.name)
+                            ),
+                        ));
+                    }
+                    at += count as usize * size;
+                }
+            }
+        }
+        let Some(item) = rest.get(..at) else {
+            return Err(self.error(
+                place,
+                i,
+                format!("the file ends within this item ({at} bytes, {} left)", rest.len()),
+            ));
+        };
+        self.offset += at;
+        Ok(item)
+    }
+
+    /// Reads item `i` of `el` into an `E`.
+    fn read<E: PropertyAccess>(&mut self, el: &ElementDef, place: &PlyPlace<'_>, i: usize) -> Result<E, MeshError> {
+        let parser = Parser::<E>::new();
+        let r = match self.encoding {
+            Encoding::Ascii => {
+                let line = self.next_line(place, i)?;
+                parser.read_ascii_element(line, el)
+            }
+            Encoding::BinaryLittleEndian => parser.read_little_endian_element(&mut self.next_binary(el, place, i)?, el),
+            Encoding::BinaryBigEndian => parser.read_big_endian_element(&mut self.next_binary(el, place, i)?, el),
+        };
+        r.map_err(|e| self.error(place, i, ply_message(&e)))
+    }
+
+    /// Goes past item `i` of an element the loader does not use (ascii lines are still parsed, so that a malformed
+    /// line is an error wherever it is).
+    fn skip(&mut self, el: &ElementDef, place: &PlyPlace<'_>, i: usize) -> Result<(), MeshError> {
+        match self.encoding {
+            Encoding::Ascii => self.read::<PlySkip>(el, place, i).map(|_| ()),
+            _ => self.next_binary(el, place, i).map(|_| ()),
+        }
+    }
+}
+
+/// A binary list count; `None` when negative. Counts of floating-point type are refused with the header.
+fn binary_count(raw: &[u8], t: &ScalarType, big: bool) -> Option<u64> {
+    let word = |n: usize| -> u64 {
+        let b = raw.iter().take(n);
+        if big {
+            b.fold(0u64, |acc, &x| (acc << 8) | u64::from(x))
+        } else {
+            b.rev().fold(0u64, |acc, &x| (acc << 8) | u64::from(x))
+        }
+    };
+    match t {
+        ScalarType::UChar => Some(word(1)),
+        ScalarType::UShort => Some(word(2)),
+        ScalarType::UInt => Some(word(4)),
+        ScalarType::Char => u64::try_from(word(1) as u8 as i8).ok(),
+        ScalarType::Short => u64::try_from(word(2) as u16 as i16).ok(),
+        ScalarType::Int => u64::try_from(word(4) as u32 as i32).ok(),
+        ScalarType::Float | ScalarType::Double => None,
+    }
+}
+
+fn parse_ply_checked(name: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
     let mut reader = Reader::new(bytes);
     let header = Parser::<PlySkip>::new().read_header(&mut reader).map_err(|e| MeshError::Parse {
         file: name.to_string(),
         place: e.line().map_or_else(|| "header".to_string(), |l| format!("header line {l}")),
         reason: ply_message(&e),
     })?;
+    let payload_start = bytes.len() - reader.get_ref().len();
+    let header_text = bytes.get(..payload_start).unwrap_or_default();
+    let element_lines = scan_ply_header(name, header_text, &header)?;
     check_ply_header(name, &header)?;
     let ascii = header.encoding == Encoding::Ascii;
+    check_ply_sizes(name, &header, &element_lines, bytes.len() - payload_start, ascii)?;
     let nv = header.elements.get("vertex").map_or(0, |e| e.count);
     if u32::try_from(nv).is_err() {
         return Err(too_many_vertices(name, nv));
     }
 
+    let header_lines = header_text.iter().filter(|&&c| c == b'\n').count();
+    let mut payload =
+        PlyPayload { file: name, bytes, offset: payload_start, encoding: header.encoding, line: header_lines + 1 };
     let mut positions: Vec<[f32; 3]> = Vec::new();
     let mut indices: Vec<[u32; 3]> = Vec::new();
-    for (_, el) in &header.elements {
-        let place = PlyPlace { name: &el.name, ascii, start_line: reader.line() };
-        let payload_error = |e: ParseError| ply_payload_error(name, &place, &e);
+    // For the message when no triangle comes out: (element, items read).
+    let mut sources: Vec<(&str, usize)> = Vec::new();
+    for el in header.elements.values() {
+        let place = PlyPlace { name: &el.name, ascii, start_line: payload.line };
         match el.name.as_str() {
             "vertex" => {
-                let verts = Parser::<PlyVertex>::new()
-                    .read_payload_for_element(&mut reader, el, &header)
-                    .map_err(payload_error)?;
-                positions = verts.into_iter().map(|v| v.0).collect();
-                if let Some((i, p)) = positions.iter().enumerate().find(|(_, p)| !p.iter().all(|c| c.is_finite())) {
-                    return Err(MeshError::NonFinite { file: place.file(name, i), vertex: i, value: *p });
+                // The size check bounds the count by the file length (at least 3 bytes a vertex).
+                positions.reserve_exact(el.count);
+                for i in 0..el.count {
+                    let p = payload.read::<PlyVertex>(el, &place, i)?.0;
+                    if !p.iter().all(|c| c.is_finite()) {
+                        return Err(MeshError::NonFinite { file: place.file(name, i), vertex: i, value: p });
+                    }
+                    positions.push(p);
                 }
             }
             "face" => {
-                let faces = Parser::<PlyIndices>::new()
-                    .read_payload_for_element(&mut reader, el, &header)
-                    .map_err(payload_error)?;
-                indices.reserve(faces.len());
-                for (fi, face) in faces.iter().enumerate() {
+                sources.push(("face", el.count));
+                for fi in 0..el.count {
+                    let face = payload.read::<PlyIndices>(el, &place, fi)?;
                     let Some(list) = &face.0 else { continue };
                     let n = list.len();
                     if n < 3 {
@@ -787,18 +1389,34 @@ pub fn parse_ply(name: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
                 }
             }
             "tristrips" => {
-                let strips = Parser::<PlyIndices>::new()
-                    .read_payload_for_element(&mut reader, el, &header)
-                    .map_err(payload_error)?;
-                for (si, strip) in strips.iter().enumerate() {
+                sources.push(("tristrips", el.count));
+                for si in 0..el.count {
+                    let strip = payload.read::<PlyIndices>(el, &place, si)?;
                     let Some(list) = &strip.0 else { continue };
                     decode_strip(name, &place, si, list, nv, &mut indices)?;
                 }
             }
             _ => {
-                Parser::<PlySkip>::new().read_payload_for_element(&mut reader, el, &header).map_err(payload_error)?;
+                for i in 0..el.count {
+                    payload.skip(el, &place, i)?;
+                }
             }
         }
+    }
+    if indices.is_empty() {
+        let detail = if sources.is_empty() {
+            format!("{nv} vertices and no 'face' or 'tristrips' element")
+        } else {
+            let parts: Vec<String> = sources
+                .iter()
+                .map(|&(el, n)| match el {
+                    "face" => format!("element 'face' has {n} faces, none of 3 or more corners"),
+                    _ => format!("element 'tristrips' has {n} strips, none with 3 indices between restarts (-1)"),
+                })
+                .collect();
+            format!("{nv} vertices; {}", parts.join("; "))
+        };
+        return Err(MeshError::NoTriangles { file: name.to_string(), detail });
     }
     // Without a vertex element every index is already rejected, so positions and nv agree.
     let mesh = Mesh { name: name.to_string(), positions, indices, object_ids: None };
@@ -858,4 +1476,48 @@ fn decode_strip(
         run += 1;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_parser_panic_becomes_an_error_naming_the_file() {
+        let e =
+            catch_parser_panic::<()>("x.obj", "OBJ", || panic!("index out of bounds: the len is 3 but the index is 7"))
+                .unwrap_err();
+        assert!(matches!(e, MeshError::ParserPanic { parser: "OBJ", .. }), "{e:?}");
+        assert_eq!(
+            e.to_string(),
+            "x.obj: the OBJ parser failed on this file (internal panic: index out of bounds: the len is 3 but the index \
+             is 7)"
+        );
+        let long = "y".repeat(100_000);
+        let e = catch_parser_panic::<()>("big.ply", "PLY", || panic!("{long}")).unwrap_err();
+        let msg = e.to_string();
+        assert!(msg.len() < 400 && msg.ends_with("...)"), "{msg}");
+        assert_eq!(catch_parser_panic("ok", "PLY", || Ok(5)).unwrap(), 5);
+    }
+
+    #[test]
+    fn quoted_text_is_cut_with_an_ellipsis() {
+        assert_eq!(quote("a  b\n c"), "a b c");
+        let q = quote(&"z".repeat(1000));
+        assert_eq!(q.len(), MAX_QUOTE + 3);
+        assert!(q.ends_with("..."));
+        assert_eq!(short_reason(&"w ".repeat(10_000)).chars().count(), MAX_REASON + 3);
+        assert_eq!(quote(&"é".repeat(MAX_QUOTE)), "é".repeat(MAX_QUOTE));
+    }
+
+    #[test]
+    fn binary_counts_by_type_and_endianness() {
+        assert_eq!(binary_count(&[0xff], &ScalarType::UChar, false), Some(255));
+        assert_eq!(binary_count(&[0xff], &ScalarType::Char, false), None);
+        assert_eq!(binary_count(&[1, 2], &ScalarType::UShort, false), Some(0x0201));
+        assert_eq!(binary_count(&[1, 2], &ScalarType::UShort, true), Some(0x0102));
+        assert_eq!(binary_count(&[0xff, 0xff, 0xff, 0x7f], &ScalarType::Int, false), Some(0x7fff_ffff));
+        assert_eq!(binary_count(&[0xff, 0xff, 0xff, 0xff], &ScalarType::Int, true), None);
+        assert_eq!(binary_count(&[0xff, 0xff, 0xff, 0xff], &ScalarType::UInt, true), Some(u64::from(u32::MAX)));
+    }
 }
