@@ -8,9 +8,9 @@ layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint ITEMS = 8;
 
 layout(push_constant) uniform Push {
-    uint64_t points;
-    uint64_t result;
-    uint64_t count;
+    uint64_t points; // Device address of `count` tightly packed f32 xyz points.
+    uint64_t result; // Device address of the `uint[6]` result (ordered bits of min xyz, max xyz).
+    uint64_t count;  // Number of points.
 } pc;
 
 void main() {

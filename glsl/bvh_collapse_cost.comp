@@ -1,28 +1,30 @@
 #version 460
 // SAH leaf collapse, step 1 (src/accel/lbvh.rs, step 7 of the module docs): bottom-up over a tree whose leaves hold
-// one record each, with the arrival-counter scheme of bvh_fit.comp (nobody waits). For every node it writes
-// info[k] = (first, end, count, cost bits, size, collapse, 0, 0): the record range of its subtree (lowest first,
-// highest end, number of records), its best cost in half-area units (K_T = K_I = 1), the nodes its subtree keeps
-// after the collapse, and whether it becomes a leaf. A node collapses when its records are contiguious
-// (end - first == count), count <= MAX_LEAF and the leaf cost h * count is at most the split cost
-// (h + cost_left) + cost_right. The arithmetic is `precise` (no fused multiply-add) and flushes subnormal results to
-// zero, so the host reference computes the same floats. counters: one zeroed uint per node.
+// one record each, with the arrival-counter scheme of bvh_fit.comp (nobody waits). For every node it writes the
+// collapse record info[k] = (first, end, count, cost bits, size, collapse, 0, 0) (the COLLAPSE_* fields of
+// include/layout.glsl): the record range of its subtree (lowest first, highest end, number of records), its best
+// cost in half-area units (K_T = K_I = 1), the nodes its subtree keeps after the collapse, and whether it becomes a
+// leaf. A node collapses when its records are contiguious (end - first == count), count <= MAX_LEAF and the leaf
+// cost h * count is at most the split cost (h + cost_left) + cost_right. The arithmetic is `precise` (no fused
+// multiply-add) and flushes subnormal results to zero, so the host reference computes the same floats. counters:
+// one zeroed uint per node.
 #extension GL_KHR_shader_subgroup_vote : require
 #include "common.glsl"
 #include "bvh.glsl"
+#include "layout.glsl"
 
 layout(local_size_x_id = 0) in;
 // See bvh_fit.comp: 0 on CPU drivers.
 layout(constant_id = 1) const uint FENCES = 1u;
 
 layout(push_constant) uniform Push {
-    uint64_t nodes;
-    uint64_t parents;
-    uint64_t counters;
-    uint64_t info;
-    uint64_t count;
-    uint max_leaf;
-    uint pad;
+    uint64_t nodes;    // Address of the nodes.
+    uint64_t parents;  // Address of the parent links.
+    uint64_t counters; // Address of the zeroed arrival counters.
+    uint64_t info;     // Address of the per-node collapse records (`COLLAPSE_*` of include/layout.glsl).
+    uint64_t count;    // Number of nodes.
+    uint max_leaf;     // Largest leaf the collapse forms.
+    uint pad;          // Padding.
 } pc;
 
 layout(buffer_reference, std430, buffer_reference_align = 4) coherent buffer CoherentU32 { uint v; };
@@ -48,13 +50,13 @@ float half_area(uint k) {
 }
 
 void store_info(uint k, uint first, uint end, uint count, float cost, uint size, uint collapse) {
-    uint64_t a = pc.info + 32ul * uint64_t(k);
-    st_c(a, first);
-    st_c(a + 4ul, end);
-    st_c(a + 8ul, count);
-    st_c(a + 12ul, floatBitsToUint(cost));
-    st_c(a + 16ul, size);
-    st_c(a + 20ul, collapse);
+    uint64_t a = pc.info + 4ul * COLLAPSE_WORDS * uint64_t(k);
+    st_c(a, first); // COLLAPSE_FIRST is 0
+    st_c(a + 4ul * COLLAPSE_END, end);
+    st_c(a + 4ul * COLLAPSE_COUNT, count);
+    st_c(a + 4ul * COLLAPSE_COST, floatBitsToUint(cost));
+    st_c(a + 4ul * COLLAPSE_SIZE, size);
+    st_c(a + 4ul * COLLAPSE_LEAF, collapse);
 }
 
 void main() {
@@ -86,14 +88,14 @@ void main() {
                     walking = false;
                 } else {
                     BvhNodeRef r = bvh_node(pc.nodes, cur);
-                    uint64_t la = pc.info + 32ul * uint64_t(r.node.left_or_first);
-                    uint64_t ra = pc.info + 32ul * uint64_t(r.node.right_or_count);
-                    uint first = min(ld_c(la), ld_c(ra));
-                    uint end = max(ld_c(la + 4ul), ld_c(ra + 4ul));
-                    uint count = ld_c(la + 8ul) + ld_c(ra + 8ul);
-                    float cl = uintBitsToFloat(ld_c(la + 12ul));
-                    float cr = uintBitsToFloat(ld_c(ra + 12ul));
-                    uint size = 1u + ld_c(la + 16ul) + ld_c(ra + 16ul);
+                    uint64_t la = pc.info + 4ul * COLLAPSE_WORDS * uint64_t(r.node.left_or_first);
+                    uint64_t ra = pc.info + 4ul * COLLAPSE_WORDS * uint64_t(r.node.right_or_count);
+                    uint first = min(ld_c(la), ld_c(ra)); // COLLAPSE_FIRST is 0
+                    uint end = max(ld_c(la + 4ul * COLLAPSE_END), ld_c(ra + 4ul * COLLAPSE_END));
+                    uint count = ld_c(la + 4ul * COLLAPSE_COUNT) + ld_c(ra + 4ul * COLLAPSE_COUNT);
+                    float cl = uintBitsToFloat(ld_c(la + 4ul * COLLAPSE_COST));
+                    float cr = uintBitsToFloat(ld_c(ra + 4ul * COLLAPSE_COST));
+                    uint size = 1u + ld_c(la + 4ul * COLLAPSE_SIZE) + ld_c(ra + 4ul * COLLAPSE_SIZE);
                     precise float h = half_area(cur);
                     precise float split = (h + cl) + cr;
                     precise float leaf = h * float(count);

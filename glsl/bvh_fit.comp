@@ -15,10 +15,10 @@ layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint FENCES = 1u;
 
 layout(push_constant) uniform Push {
-    uint64_t nodes;
-    uint64_t parents;
-    uint64_t counters;
-    uint64_t count;
+    uint64_t nodes;    // Address of the nodes.
+    uint64_t parents;  // Address of the parent links.
+    uint64_t counters; // Address of the zeroed arrival counters.
+    uint64_t count;    // Number of nodes.
 } pc;
 
 layout(buffer_reference, std430, buffer_reference_align = 4) coherent buffer CoherentU32 { uint v; };
@@ -43,7 +43,8 @@ void main() {
     for (uint64_t b = first; b < pc.count; b += stride) {
         uint64_t k = b + uint64_t(gl_LocalInvocationIndex);
         uint cur = BVH_NONE;
-        if (k < pc.count && (CoherentU32(pc.nodes + 32ul * k + 28ul).v & BVH_LEAF_FLAG) != 0u) {
+        if (k < pc.count &&
+            (CoherentU32(pc.nodes + BVH_NODE_BYTES * k + BVH_NODE_RIGHT_OR_COUNT).v & BVH_LEAF_FLAG) != 0u) {
             cur = CoherentU32(pc.parents + 4ul * k).v;
         }
         bool walking = cur != BVH_NONE;
@@ -56,11 +57,11 @@ void main() {
                 if (before == 0u) {
                     walking = false;
                 } else {
-                    uint64_t pa = pc.nodes + 32ul * uint64_t(cur);
-                    uint64_t la = pc.nodes + 32ul * uint64_t(CoherentU32(pa + 12ul).v);
-                    uint64_t ra = pc.nodes + 32ul * uint64_t(CoherentU32(pa + 28ul).v);
-                    store_box3(pa, min(load_box3(la), load_box3(ra)));
-                    store_box3(pa + 16ul, max(load_box3(la + 16ul), load_box3(ra + 16ul)));
+                    uint64_t pa = pc.nodes + BVH_NODE_BYTES * uint64_t(cur);
+                    uint64_t la = pc.nodes + BVH_NODE_BYTES * uint64_t(CoherentU32(pa + BVH_NODE_LEFT_OR_FIRST).v);
+                    uint64_t ra = pc.nodes + BVH_NODE_BYTES * uint64_t(CoherentU32(pa + BVH_NODE_RIGHT_OR_COUNT).v);
+                    store_box3(pa, min(load_box3(la), load_box3(ra))); // BVH_NODE_MIN is 0
+                    store_box3(pa + BVH_NODE_MAX, max(load_box3(la + BVH_NODE_MAX), load_box3(ra + BVH_NODE_MAX)));
                     cur = CoherentU32(pc.parents + 4ul * uint64_t(cur)).v;
                     walking = cur != BVH_NONE;
                 }

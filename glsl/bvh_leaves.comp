@@ -8,11 +8,11 @@ layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint ITEMS = 8;
 
 layout(push_constant) uniform Push {
-    uint64_t positions;
-    uint64_t indices;
-    uint64_t ids;
-    uint64_t nodes;
-    uint64_t count;
+    uint64_t positions; // Address of the positions.
+    uint64_t indices;   // Address of the indices.
+    uint64_t ids;       // Address of the triangle ids of the records.
+    uint64_t nodes;     // Address of the nodes.
+    uint64_t count;     // Number of nodes.
 } pc;
 
 void main() {

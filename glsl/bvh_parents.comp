@@ -7,9 +7,9 @@
 layout(local_size_x_id = 0) in;
 
 layout(push_constant) uniform Push {
-    uint64_t nodes;
-    uint64_t parents;
-    uint64_t count;
+    uint64_t nodes;   // Address of the nodes.
+    uint64_t parents; // Address of the parent links.
+    uint64_t count;   // Nodes whose children get links.
 } pc;
 
 void main() {

@@ -3,15 +3,16 @@
 // the number of empty classes (O_i == 0), of concentrated classes (k O_i > n, i.e. O_i > E) and the triangles in
 // them. out: uint64[5] = T low, T high, empty, concentrated, triangles in concentrated classes.
 #include "common.glsl"
+#include "layout.glsl"
 
 layout(local_size_x_id = 0) in;
 
 layout(push_constant) uniform Push {
-    uint64_t hist;
-    uint64_t out_addr;
-    uint64_t n;
-    uint k;
-    uint pad;
+    uint64_t hist;     // Address of the histogram.
+    uint64_t out_addr; // Address of the `uint64[5]` output.
+    uint64_t n;        // Number of codes.
+    uint k;            // Class count.
+    uint pad;          // Padding.
 } pc;
 
 shared uint64_t s_lo[gl_WorkGroupSize.x];
@@ -54,10 +55,10 @@ void main() {
     if (lid == 0u) {
         uint64_t th = 0ul, tl = 0ul;
         for (uint i = 0u; i < gl_WorkGroupSize.x; ++i) add128(th, tl, s_hi[i], s_lo[i]);
-        st_u64(pc.out_addr, 0ul, tl);
-        st_u64(pc.out_addr, 1ul, th);
-        st_u64(pc.out_addr, 2ul, uint64_t(s_counts[0]));
-        st_u64(pc.out_addr, 3ul, uint64_t(s_counts[1]));
-        st_u64(pc.out_addr, 4ul, uint64_t(s_counts[2]));
+        st_u64(pc.out_addr, CHI_T_LO, tl);
+        st_u64(pc.out_addr, CHI_T_HI, th);
+        st_u64(pc.out_addr, CHI_EMPTY, uint64_t(s_counts[0]));
+        st_u64(pc.out_addr, CHI_CONCENTRATED, uint64_t(s_counts[1]));
+        st_u64(pc.out_addr, CHI_CONCENTRATED_TRIANGLES, uint64_t(s_counts[2]));
     }
 }

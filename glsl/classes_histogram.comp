@@ -12,14 +12,14 @@ layout(constant_id = 2) const uint BITS63 = 0u;
 layout(constant_id = 3) const uint MAX_K = 4096u;
 
 layout(push_constant) uniform Push {
-    uint64_t codes;
-    uint64_t classes;
-    uint64_t thresholds;
-    uint64_t hist;
-    uint64_t count;
-    uint64_t code_min;
-    uint k;
-    uint pad;
+    uint64_t codes;      // Address of the codes.
+    uint64_t classes;    // Address of the output classes (u32 per code).
+    uint64_t thresholds; // Address of the `k - 1` thresholds (u64).
+    uint64_t hist;       // Address of the `uint[k]` histogram.
+    uint64_t count;      // Number of codes.
+    uint64_t code_min;   // Smallest code.
+    uint k;              // Class count.
+    uint pad;            // Padding.
 } pc;
 
 shared uint s_hist[MAX_K];

@@ -8,6 +8,7 @@
 //   hist[SIZE_BINS]. Only exact operations: min/max on ordered bits, one correctly rounded subtraction per axis.
 // mask: uint[2^21 / 32] and hist: uint[SIZE_BINS + 1], zeroed by the host.
 #include "common.glsl"
+#include "layout.glsl"
 
 layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint ITEMS = 8;
@@ -15,16 +16,16 @@ layout(constant_id = 2) const uint BITS63 = 0u;
 layout(constant_id = 3) const uint SIZE_BINS = 24u;
 
 layout(push_constant) uniform Push {
-    uint64_t positions;
-    uint64_t indices;
-    uint64_t codes;
-    uint64_t mask;
-    uint64_t hist;
-    uint64_t bounds;
-    uint64_t count;
-    uint64_t stride;
-    uint shift;
-    uint pad;
+    uint64_t positions; // Address of the vertex positions.
+    uint64_t indices;   // Address of the triangle indices.
+    uint64_t codes;     // Address of the Morton codes of the sampled triangles (u32 or u64).
+    uint64_t mask;      // Address of the `uint[2^21 / 32]` occupancy mask.
+    uint64_t hist;      // Address of the `uint[size_bins + 1]` size histogram (last entry: zero or non-normal extents).
+    uint64_t bounds;    // Address of the `uint[6]` vertex bounds written by the first dispatch.
+    uint64_t count;     // Sampled triangles.
+    uint64_t stride;    // Sample stride.
+    uint shift;         // `bits - 21`: the shift that leaves a code's depth-7 prefix.
+    uint pad;           // Padding.
 } pc;
 
 shared uint s_hist[SIZE_BINS + 1u];
@@ -53,10 +54,12 @@ void main() {
     uint lid = gl_LocalInvocationIndex;
     for (uint c = lid; c <= SIZE_BINS; c += gl_WorkGroupSize.x) s_hist[c] = 0u;
     barrier();
-    vec3 slo = vec3(from_ordered_bits(ld_u32(pc.bounds, 0ul)), from_ordered_bits(ld_u32(pc.bounds, 1ul)),
-                    from_ordered_bits(ld_u32(pc.bounds, 2ul)));
-    vec3 shi = vec3(from_ordered_bits(ld_u32(pc.bounds, 3ul)), from_ordered_bits(ld_u32(pc.bounds, 4ul)),
-                    from_ordered_bits(ld_u32(pc.bounds, 5ul)));
+    vec3 slo = vec3(from_ordered_bits(ld_u32(pc.bounds, BOUNDS_LO)),
+                    from_ordered_bits(ld_u32(pc.bounds, BOUNDS_LO + 1u)),
+                    from_ordered_bits(ld_u32(pc.bounds, BOUNDS_LO + 2u)));
+    vec3 shi = vec3(from_ordered_bits(ld_u32(pc.bounds, BOUNDS_HI)),
+                    from_ordered_bits(ld_u32(pc.bounds, BOUNDS_HI + 1u)),
+                    from_ordered_bits(ld_u32(pc.bounds, BOUNDS_HI + 2u)));
     int se = exponent_of(largest_extent(slo, shi));
     uint tile = gl_WorkGroupSize.x * ITEMS;
     uint tiles = tile_count(pc.count, tile);

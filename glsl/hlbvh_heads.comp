@@ -7,11 +7,11 @@ layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint BITS63 = 0u;
 
 layout(push_constant) uniform Push {
-    uint64_t codes;
-    uint64_t table;
-    uint64_t count;
-    uint shift;
-    uint pad;
+    uint64_t codes; // Address of the sorted codes.
+    uint64_t table; // Address of the cluster table.
+    uint64_t count; // Number of codes.
+    uint shift;     // Code shift giving the cluster prefix.
+    uint pad;       // Padding.
 } pc;
 
 uint64_t code_at(uint64_t i) { return BITS63 != 0u ? ld_u64(pc.codes, i) : uint64_t(ld_u32(pc.codes, i)); }

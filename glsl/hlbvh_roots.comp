@@ -7,10 +7,10 @@
 layout(local_size_x_id = 0) in;
 
 layout(push_constant) uniform Push {
-    uint64_t starts;
-    uint64_t nodes;
-    uint64_t roots;
-    uint64_t limit;
+    uint64_t starts; // Address of the starts.
+    uint64_t nodes;  // Address of the nodes.
+    uint64_t roots;  // Address of the gathered roots.
+    uint64_t limit;  // Largest cluster count the roots buffer holds.
 } pc;
 
 void main() {

@@ -8,12 +8,12 @@
 layout(local_size_x_id = 0) in;
 
 layout(push_constant) uniform Push {
-    uint64_t table;
-    uint64_t starts;
-    uint64_t nodes;
-    uint64_t entries;
-    uint count;
-    uint pad;
+    uint64_t table;   // Address of the cluster table.
+    uint64_t starts;  // Address of the starts (`C`, the starts, `n`).
+    uint64_t nodes;   // Address of the nodes.
+    uint64_t entries; // Entries of the table.
+    uint count;       // Number of positions.
+    uint pad;         // Padding.
 } pc;
 
 shared uint s_count[1024];

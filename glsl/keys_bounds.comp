@@ -9,12 +9,12 @@ layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint ITEMS = 8;
 
 layout(push_constant) uniform Push {
-    uint64_t positions;
-    uint64_t indices;
-    uint64_t keys;
-    uint64_t result;
-    uint64_t count;
-    uint64_t stride;
+    uint64_t positions; // Address of the vertex positions (f32 xyz).
+    uint64_t indices;   // Address of the triangle indices (u32 triples).
+    uint64_t keys;      // Address of the output keys (f32 xyz per sampled triangle).
+    uint64_t result;    // Address of the `uint[6]` bounds.
+    uint64_t count;     // Sampled triangles.
+    uint64_t stride;    // Sample stride.
 } pc;
 
 void main() {

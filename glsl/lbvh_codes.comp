@@ -10,16 +10,16 @@ layout(constant_id = 1) const uint ITEMS = 8;
 layout(constant_id = 2) const uint BITS63 = 0u;
 
 layout(push_constant) uniform Push {
-    uint64_t keys;
-    uint64_t codes;
-    uint64_t ids;
-    uint64_t count;
-    float lo_x;
-    float lo_y;
-    float lo_z;
-    float scale_x;
-    float scale_y;
-    float scale_z;
+    uint64_t keys;  // Address of the keys (f32 xyz).
+    uint64_t codes; // Address of the output codes.
+    uint64_t ids;   // Address of the output ids.
+    uint64_t count; // Number of keys.
+    float lo_x;     // `lo.x`.
+    float lo_y;     // `lo.y`.
+    float lo_z;     // `lo.z`.
+    float scale_x;  // `scale.x`.
+    float scale_y;  // `scale.y`.
+    float scale_z;  // `scale.z`.
 } pc;
 
 void main() {

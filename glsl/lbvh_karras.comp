@@ -15,15 +15,15 @@ layout(constant_id = 2) const uint BITS63 = 0u;
 layout(constant_id = 3) const uint HLBVH = 0u;
 
 layout(push_constant) uniform Push {
-    uint64_t codes;
-    uint64_t ids;
-    uint64_t nodes;
-    uint64_t parents;
-    uint64_t table;
-    uint64_t starts;
-    uint64_t count;
-    uint shift;
-    uint pad;
+    uint64_t codes;   // Address of the sorted codes.
+    uint64_t ids;     // Address of the sorted ids.
+    uint64_t nodes;   // Address of the nodes.
+    uint64_t parents; // Address of the parent links.
+    uint64_t table;   // Address of the cluster table (HLBVH).
+    uint64_t starts;  // Address of the cluster starts (HLBVH).
+    uint64_t count;   // Number of positions.
+    uint shift;       // Code shift giving the cluster prefix (HLBVH).
+    uint pad;         // Padding.
 } pc;
 
 uint64_t code_at(int64_t i) {

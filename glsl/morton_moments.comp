@@ -5,22 +5,23 @@
 #include "common.glsl"
 #include "morton.glsl"
 #include "wide.glsl"
+#include "layout.glsl"
 
 layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint ITEMS = 8;
 layout(constant_id = 2) const uint BITS63 = 0u;
 
 layout(push_constant) uniform Push {
-    uint64_t keys;
-    uint64_t codes;
-    uint64_t result;
-    uint64_t count;
-    float lo_x;
-    float lo_y;
-    float lo_z;
-    float scale_x;
-    float scale_y;
-    float scale_z;
+    uint64_t keys;   // Address of the keys.
+    uint64_t codes;  // Address of the output codes (u32 for 30-bit, u64 for 63-bit codes).
+    uint64_t result; // Address of the `uint64[2 + 21]` result.
+    uint64_t count;  // Number of keys.
+    float lo_x;      // `lo.x`.
+    float lo_y;      // `lo.y`.
+    float lo_z;      // `lo.z`.
+    float scale_x;   // `scale.x`.
+    float scale_y;   // `scale.y`.
+    float scale_z;   // `scale.z`.
 } pc;
 
 // Room for 64 subgroups per workgroup (the host keeps workgroup size / smallest subgroup size <= 64).
@@ -82,7 +83,7 @@ void main() {
     if (lid < uint(NLIMBS)) {
         uint64_t total = 0ul;
         for (uint k = 0u; k < gl_NumSubgroups; ++k) total += uint64_t(s_limbs[lid][k]);
-        if (total != 0ul) atomicAdd(U64Ref(pc.result + 8ul * (2u + lid)).v, total);
+        if (total != 0ul) atomicAdd(U64Ref(pc.result + 8ul * (MOMENTS_LIMBS + lid)).v, total);
     } else if (lid == uint(NLIMBS)) {
         uint64_t a = 0xfffffffffffffffful;
         uint64_t b = 0ul;
@@ -91,8 +92,8 @@ void main() {
             b = max(b, s_max[k]);
         }
         if (a <= b) {
-            atomicMin(U64Ref(pc.result).v, a);
-            atomicMax(U64Ref(pc.result + 8ul).v, b);
+            atomicMin(U64Ref(pc.result).v, a); // MOMENTS_CODE_MIN is 0
+            atomicMax(U64Ref(pc.result + 8ul * MOMENTS_CODE_MAX).v, b);
         }
     }
 }

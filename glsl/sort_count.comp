@@ -9,13 +9,13 @@ layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint KEY64 = 0u;
 
 layout(push_constant) uniform Push {
-    uint64_t keys;
-    uint64_t counts;
-    uint64_t count;
-    uint blocks;
-    uint block_keys;
-    uint shift;
-    uint pad;
+    uint64_t keys;   // Address of the keys.
+    uint64_t counts; // Address of the `uint[256 * blocks]` counts.
+    uint64_t count;  // Number of keys.
+    uint blocks;     // Number of blocks.
+    uint block_keys; // Keys per block.
+    uint shift;      // Bit offset of the digit.
+    uint pad;        // Padding.
 } pc;
 
 shared uint s_hist[256];

@@ -10,9 +10,9 @@ layout(constant_id = 2) const uint MAX_SUBGROUPS = 32u;
 #include "sort.glsl"
 
 layout(push_constant) uniform Push {
-    uint64_t data;
-    uint64_t partials;
-    uint64_t n;
+    uint64_t data;     // Address of the `n` elements scanned in place.
+    uint64_t partials; // Address of the scanned tile sums (0 for a single tile).
+    uint64_t n;        // Number of elements.
 } pc;
 
 void main() {

@@ -10,9 +10,9 @@ layout(constant_id = 2) const uint MAX_SUBGROUPS = 32u;
 #include "sort.glsl"
 
 layout(push_constant) uniform Push {
-    uint64_t src;
-    uint64_t dst;
-    uint64_t n;
+    uint64_t src; // Address of the `n` input elements.
+    uint64_t dst; // Address of the tile sums.
+    uint64_t n;   // Number of input elements.
 } pc;
 
 void main() {

@@ -19,14 +19,14 @@ layout(constant_id = 3) const uint KEY64 = 0u;
 #include "sort.glsl"
 
 layout(push_constant) uniform Push {
-    uint64_t keys_in;
-    uint64_t keys_out;
-    uint64_t vals_in;
-    uint64_t vals_out;
-    uint64_t counts;
-    uint64_t count;
-    uint blocks;
-    uint shift;
+    uint64_t keys_in;  // Address of the input keys.
+    uint64_t keys_out; // Address of the output keys.
+    uint64_t vals_in;  // Address of the input payloads (0: none).
+    uint64_t vals_out; // Address of the output payloads.
+    uint64_t counts;   // Address of the scanned counts.
+    uint64_t count;    // Number of keys.
+    uint blocks;       // Number of blocks.
+    uint shift;        // Bit offset of the digit.
 } pc;
 
 shared uint s_off[MAX_SUBGROUPS * 256u];

@@ -98,10 +98,30 @@ fn every_push_constant_struct_matches_its_shader() {
     check_push_layout::<ChiPush>(&shaders::chi_square::INFO).expect("chi_square");
     check_push_layout::<meshchar::characterize::gpu::features::FeatureBoundsPush>(&shaders::features_bounds::INFO)
         .expect("features_bounds");
-    check_push_layout::<meshchar::characterize::gpu::features::FeaturesPush>(&shaders::features::INFO)
-        .expect("features");
-    // Every shader is reflected with an entry point and a local size.
+    check_push_layout::<meshchar::characterize::gpu::features::FeaturesPush>(&shaders::features::INFO).expect("features");
+    {
+        use meshchar::accel::gpu::*;
+        check_push_layout::<CodesPush>(&shaders::lbvh_codes::INFO).expect("lbvh_codes");
+        check_push_layout::<KarrasPush>(&shaders::lbvh_karras::INFO).expect("lbvh_karras");
+        check_push_layout::<LeavesPush>(&shaders::bvh_leaves::INFO).expect("bvh_leaves");
+        check_push_layout::<FitPush>(&shaders::bvh_fit::INFO).expect("bvh_fit");
+        check_push_layout::<ParentsPush>(&shaders::bvh_parents::INFO).expect("bvh_parents");
+        check_push_layout::<CollapseCostPush>(&shaders::bvh_collapse_cost::INFO).expect("bvh_collapse_cost");
+        check_push_layout::<CompactPush>(&shaders::bvh_compact::INFO).expect("bvh_compact");
+        check_push_layout::<HeadsPush>(&shaders::hlbvh_heads::INFO).expect("hlbvh_heads");
+        check_push_layout::<ScanPush>(&shaders::hlbvh_scan::INFO).expect("hlbvh_scan");
+        check_push_layout::<RootsPush>(&shaders::hlbvh_roots::INFO).expect("hlbvh_roots");
+    }
+    {
+        use meshchar::gpu::sort::*;
+        check_push_layout::<SortCountPush>(&shaders::sort_count::INFO).expect("sort_count");
+        check_push_layout::<SortScanReducePush>(&shaders::sort_scan_reduce::INFO).expect("sort_scan_reduce");
+        check_push_layout::<SortScanDownPush>(&shaders::sort_scan_down::INFO).expect("sort_scan_down");
+        check_push_layout::<SortScatterPush>(&shaders::sort_scatter::INFO).expect("sort_scatter");
+    }
+    // Every shader is reflected with an entry point and a local size, and ships a SPIR-V module.
     for s in shaders::ALL {
+        assert_eq!(s.spirv.first(), Some(&0x0723_0203), "{}: SPIR-V magic number", s.name);
         assert_eq!(s.entry, "main", "{}", s.name);
         assert!(s.local_size_spec_ids[0].is_some(), "{} must take its workgroup size from the device", s.name);
     }
@@ -124,4 +144,24 @@ fn layout_mismatches_are_caught() {
     assert!(err.contains("points"), "{err}");
     assert!(check_struct_layout::<Swapped>(&shaders::bounds::INFO, "Push").is_err());
     check_struct_layout::<meshchar::gpu::BoundsPush>(&shaders::bounds::INFO, "Push").expect("the real mirror matches");
+}
+
+/// The same names, offsets and sizes as the block of `bounds.comp`, but an `f64` where GLSL has a `uint64_t`: types
+/// are compared too.
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct FloatCount {
+    points: u64,
+    result: u64,
+    count: f64,
+}
+meshchar::push_layout!(FloatCount { points, result, count });
+
+#[test]
+fn type_mismatches_are_caught() {
+    use meshchar::gpu::{check_push_layout, check_struct_layout};
+    let err = check_push_layout::<FloatCount>(&shaders::bounds::INFO).expect_err("f64 must not match uint64_t");
+    // The member named `count` differs, and the message shows the types.
+    assert!(err.starts_with("member count differs") && err.contains("\"f64\""), "{err}");
+    assert!(check_struct_layout::<FloatCount>(&shaders::bounds::INFO, "Push").is_err());
 }

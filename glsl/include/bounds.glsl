@@ -1,6 +1,9 @@
-// Workgroup reduction of per-invocation bounds (in ordered-bit form) into a global uint[6] (min xyz, max xyz) with
-// one atomic per value per workgroup: subgroup min/max, then shared-memory atomics across subgroups. Correct for any
-// subgroup size and any number of subgroups per workgroup. Call from uniform control flow.
+// Workgroup reduction of per-invocation bounds (in ordered-bit form) into a global uint[BOUNDS_WORDS] (min xyz at
+// BOUNDS_LO, max xyz at BOUNDS_HI; include/layout.glsl) with one atomic per value per workgroup: subgroup min/max,
+// then shared-memory atomics across subgroups. Correct for any subgroup size and any number of subgroups per
+// workgroup. Call from uniform control flow.
+#include "layout.glsl"
+
 shared uint s_bounds[6];
 
 void reduce_bounds_to_global(uvec3 lo, uvec3 hi, uint64_t result) {
@@ -18,7 +21,7 @@ void reduce_bounds_to_global(uvec3 lo, uvec3 hi, uint64_t result) {
     barrier();
     if (gl_LocalInvocationIndex < 3u) {
         uint a = gl_LocalInvocationIndex;
-        if (s_bounds[a] != 0xffffffffu) atomicMin(U32Ref(result + 4ul * a).v, s_bounds[a]);
-        if (s_bounds[3u + a] != 0u) atomicMax(U32Ref(result + 4ul * (3u + a)).v, s_bounds[3u + a]);
+        if (s_bounds[a] != 0xffffffffu) atomicMin(U32Ref(result + 4ul * a).v, s_bounds[a]); // BOUNDS_LO is 0
+        if (s_bounds[3u + a] != 0u) atomicMax(U32Ref(result + 4ul * (BOUNDS_HI + a)).v, s_bounds[3u + a]);
     }
 }

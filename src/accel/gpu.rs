@@ -69,6 +69,7 @@ use crate::accel::hlbvh::HlbvhOptions;
 use crate::accel::lbvh::{LbvhOptions, MAX_COLLAPSE_LEAF};
 use crate::accel::MAX_TRIANGLES;
 use crate::geom::{Aabb, Triangle};
+use crate::gpu::shaders::layout::{BOUNDS_HI, BOUNDS_LO, BOUNDS_WORDS, COLLAPSE_SIZE, COLLAPSE_WORDS};
 use crate::gpu::sort::{KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
 use crate::gpu::{
     shaders, Buffer, Context, GpuError, InputError, Kernel, KernelDesc, KeysPush, MemoryKind, MeshBuffers, Recorder,
@@ -82,195 +83,16 @@ const ITEMS: u32 = 8;
 /// Largest cluster width the GPU HLBVH accepts: its cluster table has `2^cluster_bits` entries (64 MiB at 24).
 pub const MAX_GPU_CLUSTER_BITS: u32 = 24;
 
-crate::push_layout!(BvhNode { min, left_or_first, max, right_or_count });
-
-/// Push constants of `glsl/lbvh_codes.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct CodesPush {
-    /// Address of the keys (f32 xyz).
-    pub keys: u64,
-    /// Address of the output codes.
-    pub codes: u64,
-    /// Address of the output ids.
-    pub ids: u64,
-    /// Number of keys.
-    pub count: u64,
-    /// `lo.x`.
-    pub lo_x: f32,
-    /// `lo.y`.
-    pub lo_y: f32,
-    /// `lo.z`.
-    pub lo_z: f32,
-    /// `scale.x`.
-    pub scale_x: f32,
-    /// `scale.y`.
-    pub scale_y: f32,
-    /// `scale.z`.
-    pub scale_z: f32,
-}
-crate::push_layout!(CodesPush { keys, codes, ids, count, lo_x, lo_y, lo_z, scale_x, scale_y, scale_z });
-
-/// Push constants of `glsl/lbvh_karras.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct KarrasPush {
-    /// Address of the sorted codes.
-    pub codes: u64,
-    /// Address of the sorted ids.
-    pub ids: u64,
-    /// Address of the nodes.
-    pub nodes: u64,
-    /// Address of the parent links.
-    pub parents: u64,
-    /// Address of the cluster table (HLBVH).
-    pub table: u64,
-    /// Address of the cluster starts (HLBVH).
-    pub starts: u64,
-    /// Number of positions.
-    pub count: u64,
-    /// Code shift giving the cluster prefix (HLBVH).
-    pub shift: u32,
-    /// Padding.
-    pub pad: u32,
-}
-crate::push_layout!(KarrasPush { codes, ids, nodes, parents, table, starts, count, shift, pad });
-
-/// Push constants of `glsl/bvh_leaves.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct LeavesPush {
-    /// Address of the positions.
-    pub positions: u64,
-    /// Address of the indices.
-    pub indices: u64,
-    /// Address of the triangle ids of the records.
-    pub ids: u64,
-    /// Address of the nodes.
-    pub nodes: u64,
-    /// Number of nodes.
-    pub count: u64,
-}
-crate::push_layout!(LeavesPush { positions, indices, ids, nodes, count });
-
-/// Push constants of `glsl/bvh_fit.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct FitPush {
-    /// Address of the nodes.
-    pub nodes: u64,
-    /// Address of the parent links.
-    pub parents: u64,
-    /// Address of the zeroed arrival counters.
-    pub counters: u64,
-    /// Number of nodes.
-    pub count: u64,
-}
-crate::push_layout!(FitPush { nodes, parents, counters, count });
-
-/// Push constants of `glsl/bvh_parents.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct ParentsPush {
-    /// Address of the nodes.
-    pub nodes: u64,
-    /// Address of the parent links.
-    pub parents: u64,
-    /// Nodes whose children get links.
-    pub count: u64,
-}
-crate::push_layout!(ParentsPush { nodes, parents, count });
-
-/// Push constants of `glsl/bvh_collapse_cost.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct CollapseCostPush {
-    /// Address of the nodes.
-    pub nodes: u64,
-    /// Address of the parent links.
-    pub parents: u64,
-    /// Address of the zeroed arrival counters.
-    pub counters: u64,
-    /// Address of the per-node results (8 `u32` each).
-    pub info: u64,
-    /// Number of nodes.
-    pub count: u64,
-    /// Largest leaf the collapse forms.
-    pub max_leaf: u32,
-    /// Padding.
-    pub pad: u32,
-}
-crate::push_layout!(CollapseCostPush { nodes, parents, counters, info, count, max_leaf, pad });
-
-/// Push constants of `glsl/bvh_compact.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct CompactPush {
-    /// Address of the nodes before the collapse.
-    pub nodes: u64,
-    /// Address of their parent links.
-    pub parents: u64,
-    /// Address of the per-node results of the cost pass.
-    pub info: u64,
-    /// Address of the output nodes.
-    pub out_nodes: u64,
-    /// Address of the output parent links.
-    pub out_parents: u64,
-    /// Number of nodes before the collapse.
-    pub count: u64,
-}
-crate::push_layout!(CompactPush { nodes, parents, info, out_nodes, out_parents, count });
-
-/// Push constants of `glsl/hlbvh_heads.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct HeadsPush {
-    /// Address of the sorted codes.
-    pub codes: u64,
-    /// Address of the cluster table.
-    pub table: u64,
-    /// Number of codes.
-    pub count: u64,
-    /// Code shift giving the cluster prefix.
-    pub shift: u32,
-    /// Padding.
-    pub pad: u32,
-}
-crate::push_layout!(HeadsPush { codes, table, count, shift, pad });
-
-/// Push constants of `glsl/hlbvh_scan.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct ScanPush {
-    /// Address of the cluster table.
-    pub table: u64,
-    /// Address of the starts (`C`, the starts, `n`).
-    pub starts: u64,
-    /// Address of the nodes.
-    pub nodes: u64,
-    /// Entries of the table.
-    pub entries: u64,
-    /// Number of positions.
-    pub count: u32,
-    /// Padding.
-    pub pad: u32,
-}
-crate::push_layout!(ScanPush { table, starts, nodes, entries, count, pad });
-
-/// Push constants of `glsl/hlbvh_roots.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct RootsPush {
-    /// Address of the starts.
-    pub starts: u64,
-    /// Address of the nodes.
-    pub nodes: u64,
-    /// Address of the gathered roots.
-    pub roots: u64,
-    /// Largest cluster count the roots buffer holds.
-    pub limit: u64,
-}
-crate::push_layout!(RootsPush { starts, nodes, roots, limit });
+pub use crate::gpu::shaders::bvh_collapse_cost::Push as CollapseCostPush;
+pub use crate::gpu::shaders::bvh_compact::Push as CompactPush;
+pub use crate::gpu::shaders::bvh_fit::Push as FitPush;
+pub use crate::gpu::shaders::bvh_leaves::Push as LeavesPush;
+pub use crate::gpu::shaders::bvh_parents::Push as ParentsPush;
+pub use crate::gpu::shaders::hlbvh_heads::Push as HeadsPush;
+pub use crate::gpu::shaders::hlbvh_roots::Push as RootsPush;
+pub use crate::gpu::shaders::hlbvh_scan::Push as ScanPush;
+pub use crate::gpu::shaders::lbvh_codes::Push as CodesPush;
+pub use crate::gpu::shaders::lbvh_karras::Push as KarrasPush;
 
 /// Which tree a [`GpuBvh`] holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -494,7 +316,7 @@ impl BvhBuilder {
             Some((
                 ctx.create_buffer("bvh collapsed nodes", 32 * total, dl)?,
                 ctx.create_buffer("bvh collapsed parents", 4 * total, dl)?,
-                ctx.create_buffer("bvh collapse info", 32 * total, dl)?,
+                ctx.create_buffer("bvh collapse info", 4 * COLLAPSE_WORDS as u64 * total, dl)?,
                 ctx.create_buffer("bvh collapse readback", 32, MemoryKind::Readback)?,
             ))
         } else {
@@ -504,8 +326,8 @@ impl BvhBuilder {
         // Submission 1: keys and their bounds.
         ctx.submit_and_wait(|rec| {
             rec.reset_timer(timer);
-            rec.fill(&scratch.bounds, 0, Some(12), u32::MAX);
-            rec.fill(&scratch.bounds, 12, Some(12), 0);
+            rec.fill(&scratch.bounds, 4 * BOUNDS_LO as u64, Some(12), u32::MAX);
+            rec.fill(&scratch.bounds, 4 * BOUNDS_HI as u64, Some(12), 0);
             rec.barrier();
             rec.timestamp(timer, "-");
             let push = KeysPush {
@@ -519,13 +341,13 @@ impl BvhBuilder {
             rec.dispatch(&self.keys, &push, rec.groups_for(n, per_group));
             rec.timestamp(timer, "keys_bounds");
             rec.barrier();
-            rec.copy(&scratch.bounds, 0, &scratch.bounds_readback, 0, 24);
+            rec.copy(&scratch.bounds, 0, &scratch.bounds_readback, 0, 4 * BOUNDS_WORDS as u64);
             rec.host_read_barrier();
             Ok(())
         })?;
-        let u: Vec<u32> = scratch.bounds_readback.read(0, 6)?;
-        let lo = [from_ordered_bits(u[0]), from_ordered_bits(u[1]), from_ordered_bits(u[2])];
-        let hi = [from_ordered_bits(u[3]), from_ordered_bits(u[4]), from_ordered_bits(u[5])];
+        let u: Vec<u32> = scratch.bounds_readback.read(0, BOUNDS_WORDS as usize)?;
+        let corner = |at: u32| [0, 1, 2].map(|a| from_ordered_bits(u[at as usize + a]));
+        let (lo, hi) = (corner(BOUNDS_LO), corner(BOUNDS_HI));
         let finite = lo.iter().chain(hi.iter()).all(|x| x.is_finite());
         let scale = quantization_scale(lo, hi, bits).filter(|_| finite).ok_or(InputError::Overflow { lo, hi })?;
 
@@ -746,7 +568,7 @@ impl BvhBuilder {
         rec.dispatch(&self.compact, &push, rec.groups_for(count, self.compact.workgroup_size() as u64));
         rec.timestamp(timer, "compact");
         rec.barrier();
-        rec.copy(info, 16, readback, 0, 4);
+        rec.copy(info, 4 * COLLAPSE_SIZE as u64, readback, 0, 4);
         rec.host_read_barrier();
     }
 

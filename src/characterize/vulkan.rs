@@ -1,4 +1,4 @@
-//! The Vulkan backend: [`crate::ops::characterize`]'s exact GPU passes, finished by this module's host math.
+//! The Vulkan backend: [`super::gpu::passes`]'s exact GPU passes, finished by this module's host math.
 
 use super::features::{features_from_gpu, SIZE_BINS};
 use super::gpu::features::FeaturesGpu;

@@ -1,21 +1,11 @@
+use crate::gpu::shaders::layout::{BOUNDS_HI, BOUNDS_LO, BOUNDS_WORDS};
 use crate::gpu::{shaders, Buffer, Context, GpuError, Kernel, KernelDesc, MemoryKind, Recorder, Result};
 use crate::keys::from_ordered_bits;
 
 /// Items each invocation handles per tile by default.
 const ITEMS: u32 = 8;
 
-/// Push constants of `glsl/bounds.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct BoundsPush {
-    /// Device address of `count` tightly packed f32 xyz points.
-    pub points: u64,
-    /// Device address of the `uint[6]` result (ordered bits of min xyz, max xyz).
-    pub result: u64,
-    /// Number of points.
-    pub count: u64,
-}
-crate::push_layout!(BoundsPush { points, result, count });
+pub use crate::gpu::shaders::bounds::Push as BoundsPush;
 
 /// Per-axis bounds of a point set on the GPU: subgroup min/max, shared-memory atomics across subgroups, one global
 /// atomic per value per workgroup. Exact (min and max in IEEE total order), for any subgroup size and any count.
@@ -53,8 +43,8 @@ impl PointBounds {
         if points.size() < count * 12 || result.size() < result_offset + 24 {
             return Err(GpuError::Buffer(format!("bounds: {count} points need {} bytes, result 24", count * 12)));
         }
-        rec.fill(result, result_offset, Some(12), u32::MAX);
-        rec.fill(result, result_offset + 12, Some(12), 0);
+        rec.fill(result, result_offset + 4 * BOUNDS_LO as u64, Some(12), u32::MAX);
+        rec.fill(result, result_offset + 4 * BOUNDS_HI as u64, Some(12), 0);
         rec.barrier();
         let wg = self.kernel.workgroup_size() as u64;
         let groups = rec.groups_for(count, wg * self.items as u64);
@@ -77,10 +67,8 @@ impl PointBounds {
             rec.host_read_barrier();
             Ok(())
         })?;
-        let u: Vec<u32> = readback.read(0, 6)?;
-        Ok(Some((
-            [from_ordered_bits(u[0]), from_ordered_bits(u[1]), from_ordered_bits(u[2])],
-            [from_ordered_bits(u[3]), from_ordered_bits(u[4]), from_ordered_bits(u[5])],
-        )))
+        let u: Vec<u32> = readback.read(0, BOUNDS_WORDS as usize)?;
+        let corner = |at: u32| [0, 1, 2].map(|a| from_ordered_bits(u[at as usize + a]));
+        Ok(Some((corner(BOUNDS_LO), corner(BOUNDS_HI))))
     }
 }

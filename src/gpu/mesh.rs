@@ -4,24 +4,7 @@
 
 use crate::gpu::{Buffer, Context, GpuError, Result};
 
-/// Push constants of `glsl/keys_bounds.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct KeysPush {
-    /// Address of the vertex positions (f32 xyz).
-    pub positions: u64,
-    /// Address of the triangle indices (u32 triples).
-    pub indices: u64,
-    /// Address of the output keys (f32 xyz per sampled triangle).
-    pub keys: u64,
-    /// Address of the `uint[6]` bounds.
-    pub result: u64,
-    /// Sampled triangles.
-    pub count: u64,
-    /// Sample stride.
-    pub stride: u64,
-}
-crate::push_layout!(KeysPush { positions, indices, keys, result, count, stride });
+pub use crate::gpu::shaders::keys_bounds::Push as KeysPush;
 
 /// A mesh on the device: positions and indices, addressable by the kernels (and by a host engine).
 #[derive(Debug)]

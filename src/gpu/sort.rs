@@ -277,75 +277,10 @@ impl SortStorage {
     }
 }
 
-/// Push constants of `glsl/sort_count.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct SortCountPush {
-    /// Address of the keys.
-    pub keys: u64,
-    /// Address of the `uint[256 * blocks]` counts.
-    pub counts: u64,
-    /// Number of keys.
-    pub count: u64,
-    /// Number of blocks.
-    pub blocks: u32,
-    /// Keys per block.
-    pub block_keys: u32,
-    /// Bit offset of the digit.
-    pub shift: u32,
-    /// Padding.
-    pub pad: u32,
-}
-crate::push_layout!(SortCountPush { keys, counts, count, blocks, block_keys, shift, pad });
-
-/// Push constants of `glsl/sort_scan_reduce.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct SortScanReducePush {
-    /// Address of the `n` input elements.
-    pub src: u64,
-    /// Address of the tile sums.
-    pub dst: u64,
-    /// Number of input elements.
-    pub n: u64,
-}
-crate::push_layout!(SortScanReducePush { src, dst, n });
-
-/// Push constants of `glsl/sort_scan_down.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct SortScanDownPush {
-    /// Address of the `n` elements scanned in place.
-    pub data: u64,
-    /// Address of the scanned tile sums (0 for a single tile).
-    pub partials: u64,
-    /// Number of elements.
-    pub n: u64,
-}
-crate::push_layout!(SortScanDownPush { data, partials, n });
-
-/// Push constants of `glsl/sort_scatter.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct SortScatterPush {
-    /// Address of the input keys.
-    pub keys_in: u64,
-    /// Address of the output keys.
-    pub keys_out: u64,
-    /// Address of the input payloads (0: none).
-    pub vals_in: u64,
-    /// Address of the output payloads.
-    pub vals_out: u64,
-    /// Address of the scanned counts.
-    pub counts: u64,
-    /// Number of keys.
-    pub count: u64,
-    /// Number of blocks.
-    pub blocks: u32,
-    /// Bit offset of the digit.
-    pub shift: u32,
-}
-crate::push_layout!(SortScatterPush { keys_in, keys_out, vals_in, vals_out, counts, count, blocks, shift });
+pub use crate::gpu::shaders::sort_count::Push as SortCountPush;
+pub use crate::gpu::shaders::sort_scan_down::Push as SortScanDownPush;
+pub use crate::gpu::shaders::sort_scan_reduce::Push as SortScanReducePush;
+pub use crate::gpu::shaders::sort_scatter::Push as SortScatterPush;
 
 /// What a device needs for the sort, beyond what every [`Context`] already requires.
 #[derive(Clone, Debug, PartialEq, Eq)]

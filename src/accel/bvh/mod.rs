@@ -47,22 +47,12 @@ macro_rules! bvh_tree_traversal {
 }
 pub(crate) use bvh_tree_traversal;
 
-/// Bit 31 of [`BvhNode::right_or_count`] marks a leaf.
-pub const LEAF_FLAG: u32 = 1 << 31;
+/// Bit 31 of [`BvhNode::right_or_count`] marks a leaf (`BVH_LEAF_FLAG` of `glsl/include/bvh.glsl`).
+pub const LEAF_FLAG: u32 = crate::gpu::shaders::layout::BVH_LEAF_FLAG;
 
-/// One BVH node, shared by the BVH, LBVH and HLBVH and by GPU builders (see the module docs for the layout).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct BvhNode {
-    /// Lower corner of the box.
-    pub min: [f32; 3],
-    /// Left child (internal) or first triangle record (leaf).
-    pub left_or_first: u32,
-    /// Upper corner of the box.
-    pub max: [f32; 3],
-    /// Right child (internal) or `LEAF_FLAG | count` (leaf).
-    pub right_or_count: u32,
-}
+// One BVH node, shared by the BVH, LBVH and HLBVH and by GPU builders (see the module docs for the layout): the
+// struct is generated from `glsl/include/bvh.glsl`, its one definition; the methods are here.
+pub use crate::gpu::shaders::BvhNode;
 
 const _: () = assert!(std::mem::size_of::<BvhNode>() == 32);
 const _: () = assert!(std::mem::align_of::<BvhNode>() == 4);

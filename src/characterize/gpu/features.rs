@@ -7,6 +7,7 @@
 //! bits by atomic OR, size histogram privatized in shared memory), which reads the bounds from device memory, so
 //! no host round trip separates them.
 
+use crate::gpu::shaders::layout::{BOUNDS_HI, BOUNDS_LO, BOUNDS_WORDS};
 use crate::gpu::{shaders, Buffer, Context, GpuError, Kernel, KernelDesc, MemoryKind, MeshBuffers, Result, Timer};
 use crate::keys::{from_ordered_bits, MortonBits};
 
@@ -15,49 +16,8 @@ const ITEMS: u32 = 8;
 pub const MASK_LOG2: u32 = 21;
 const MASK_WORDS: u64 = 1 << (MASK_LOG2 - 5);
 
-/// Push constants of `glsl/features_bounds.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct FeatureBoundsPush {
-    /// Address of the vertex positions.
-    pub positions: u64,
-    /// Address of the triangle indices.
-    pub indices: u64,
-    /// Address of the `uint[6]` bounds (ordered bits).
-    pub result: u64,
-    /// Sampled triangles.
-    pub count: u64,
-    /// Sample stride.
-    pub stride: u64,
-}
-crate::push_layout!(FeatureBoundsPush { positions, indices, result, count, stride });
-
-/// Push constants of `glsl/features.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct FeaturesPush {
-    /// Address of the vertex positions.
-    pub positions: u64,
-    /// Address of the triangle indices.
-    pub indices: u64,
-    /// Address of the Morton codes of the sampled triangles (u32 or u64).
-    pub codes: u64,
-    /// Address of the `uint[2^21 / 32]` occupancy mask.
-    pub mask: u64,
-    /// Address of the `uint[size_bins + 1]` size histogram (last entry: zero or non-normal extents).
-    pub hist: u64,
-    /// Address of the `uint[6]` vertex bounds written by the first dispatch.
-    pub bounds: u64,
-    /// Sampled triangles.
-    pub count: u64,
-    /// Sample stride.
-    pub stride: u64,
-    /// `bits - 21`: the shift that leaves a code's depth-7 prefix.
-    pub shift: u32,
-    /// Padding.
-    pub pad: u32,
-}
-crate::push_layout!(FeaturesPush { positions, indices, codes, mask, hist, bounds, count, stride, shift, pad });
+pub use crate::gpu::shaders::features::Push as FeaturesPush;
+pub use crate::gpu::shaders::features_bounds::Push as FeatureBoundsPush;
 
 /// What the feature pass read back.
 #[derive(Clone, Debug, PartialEq)]
@@ -154,8 +114,8 @@ impl FeaturesGpu {
         ctx.submit_and_wait(|rec| {
             rec.reset_timer(timer);
             rec.fill(result, 0, Some(4 * MASK_WORDS), 0);
-            rec.fill(result, Self::off_bounds(), Some(12), u32::MAX);
-            rec.fill(result, Self::off_bounds() + 12, Some(12), 0);
+            rec.fill(result, Self::off_bounds() + 4 * BOUNDS_LO as u64, Some(12), u32::MAX);
+            rec.fill(result, Self::off_bounds() + 4 * BOUNDS_HI as u64, Some(12), 0);
             rec.fill(result, Self::off_hist(), Some(4 * (self.size_bins as u64 + 1)), 0);
             rec.barrier();
             rec.timestamp(timer, "-");
@@ -189,15 +149,16 @@ impl FeaturesGpu {
         })?;
         let words: Vec<u32> = readback.read(0, MASK_WORDS as usize)?;
         let mask = words.chunks(2).map(|w| w[0] as u64 | (w[1] as u64) << 32).collect();
-        let b: Vec<u32> = readback.read(Self::off_bounds(), 6)?;
+        let b: Vec<u32> = readback.read(Self::off_bounds(), BOUNDS_WORDS as usize)?;
+        let corner = |at: u32| [0, 1, 2].map(|a| from_ordered_bits(b[at as usize + a]));
         let h: Vec<u32> = readback.read(Self::off_hist(), self.size_bins as usize + 1)?;
         let timings = self.timer.read()?.into_iter().filter(|(name, _)| name != "-").collect();
         Ok(GpuFeatures {
             mask,
             size_histogram: h[..self.size_bins as usize].iter().map(|&x| x as u64).collect(),
             zero_extent: h[self.size_bins as usize] as u64,
-            lo: [from_ordered_bits(b[0]), from_ordered_bits(b[1]), from_ordered_bits(b[2])],
-            hi: [from_ordered_bits(b[3]), from_ordered_bits(b[4]), from_ordered_bits(b[5])],
+            lo: corner(BOUNDS_LO),
+            hi: corner(BOUNDS_HI),
             timings,
         })
     }

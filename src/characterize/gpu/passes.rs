@@ -5,6 +5,10 @@
 //! Three submissions per mesh or frame, because the host computes what the next pass needs: the quantization scale
 //! after the bounds (docs/spec.md step 3 forbids device division), and `k` with its class thresholds after the moments.
 
+use crate::gpu::shaders::layout::{
+    BOUNDS_HI, BOUNDS_LO, BOUNDS_WORDS, CHI_CONCENTRATED, CHI_CONCENTRATED_TRIANGLES, CHI_EMPTY, CHI_T_HI, CHI_T_LO,
+    CHI_WORDS, MOMENTS_CODE_MAX, MOMENTS_CODE_MIN, MOMENTS_LIMBS,
+};
 use crate::gpu::{
     shaders, Buffer, Context, GpuError, InputError, Kernel, KernelDesc, KeysPush, MemoryKind, MeshBuffers, Result,
     RunError, Timer,
@@ -19,79 +23,17 @@ const NLIMBS: usize = 21;
 /// Largest class count the histogram kernel privatizes in shared memory.
 pub const MAX_GPU_CLASSES: u32 = 4096;
 
-// Byte offsets inside the small result buffer.
-const OFF_BOUNDS: u64 = 0; // uint[6]
-const OFF_MORTON: u64 = 64; // uint64[2 + NLIMBS]
-const OFF_CHI: u64 = OFF_MORTON + 8 * (2 + NLIMBS as u64); // uint64[5]
+// Byte offsets inside the small result buffer (the layouts of its parts are in `glsl/include/layout.glsl`).
+const OFF_BOUNDS: u64 = 0; // uint[BOUNDS_WORDS]
+const OFF_MORTON: u64 = 64; // uint64[MOMENTS_WORDS]
+const MOMENTS_WORDS: usize = MOMENTS_LIMBS as usize + NLIMBS;
+const OFF_CHI: u64 = OFF_MORTON + 8 * MOMENTS_WORDS as u64; // uint64[CHI_WORDS]
 const OFF_HIST: u64 = OFF_CHI + 64; // uint[k]
 const RESULT_BYTES: u64 = OFF_HIST + 4 * MAX_GPU_CLASSES as u64;
 
-/// Push constants of `glsl/morton_moments.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct MortonPush {
-    /// Address of the keys.
-    pub keys: u64,
-    /// Address of the output codes (u32 for 30-bit, u64 for 63-bit codes).
-    pub codes: u64,
-    /// Address of the `uint64[2 + 21]` result.
-    pub result: u64,
-    /// Number of keys.
-    pub count: u64,
-    /// `lo.x`.
-    pub lo_x: f32,
-    /// `lo.y`.
-    pub lo_y: f32,
-    /// `lo.z`.
-    pub lo_z: f32,
-    /// `scale.x`.
-    pub scale_x: f32,
-    /// `scale.y`.
-    pub scale_y: f32,
-    /// `scale.z`.
-    pub scale_z: f32,
-}
-crate::push_layout!(MortonPush { keys, codes, result, count, lo_x, lo_y, lo_z, scale_x, scale_y, scale_z });
-
-/// Push constants of `glsl/classes_histogram.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct ClassesPush {
-    /// Address of the codes.
-    pub codes: u64,
-    /// Address of the output classes (u32 per code).
-    pub classes: u64,
-    /// Address of the `k - 1` thresholds (u64).
-    pub thresholds: u64,
-    /// Address of the `uint[k]` histogram.
-    pub hist: u64,
-    /// Number of codes.
-    pub count: u64,
-    /// Smallest code.
-    pub code_min: u64,
-    /// Class count.
-    pub k: u32,
-    /// Padding.
-    pub pad: u32,
-}
-crate::push_layout!(ClassesPush { codes, classes, thresholds, hist, count, code_min, k, pad });
-
-/// Push constants of `glsl/chi_square.comp`.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct ChiPush {
-    /// Address of the histogram.
-    pub hist: u64,
-    /// Address of the `uint64[5]` output.
-    pub out_addr: u64,
-    /// Number of codes.
-    pub n: u64,
-    /// Class count.
-    pub k: u32,
-    /// Padding.
-    pub pad: u32,
-}
-crate::push_layout!(ChiPush { hist, out_addr, n, k, pad });
+pub use crate::gpu::shaders::chi_square::Push as ChiPush;
+pub use crate::gpu::shaders::classes_histogram::Push as ClassesPush;
+pub use crate::gpu::shaders::morton_moments::Push as MortonPush;
 
 /// What the host decides between the moment pass and the class pass: the class count and its thresholds.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -264,8 +206,8 @@ impl CharacterizeGpu {
         // Pass 1: keys and bounds.
         ctx.submit_and_wait(|rec| {
             rec.reset_timer(timer);
-            rec.fill(result, OFF_BOUNDS, Some(12), u32::MAX);
-            rec.fill(result, OFF_BOUNDS + 12, Some(12), 0);
+            rec.fill(result, OFF_BOUNDS + 4 * BOUNDS_LO as u64, Some(12), u32::MAX);
+            rec.fill(result, OFF_BOUNDS + 4 * BOUNDS_HI as u64, Some(12), 0);
             rec.barrier();
             rec.timestamp(timer, "-");
             let push = KeysPush {
@@ -280,20 +222,21 @@ impl CharacterizeGpu {
             rec.dispatch(&self.keys, &push, groups);
             rec.timestamp(timer, "keys_bounds");
             rec.barrier();
-            rec.copy(result, OFF_BOUNDS, readback, OFF_BOUNDS, 24);
+            rec.copy(result, OFF_BOUNDS, readback, OFF_BOUNDS, 4 * BOUNDS_WORDS as u64);
             rec.host_read_barrier();
             Ok(())
         })?;
-        let u: Vec<u32> = readback.read(OFF_BOUNDS, 6)?;
-        let lo = [from_ordered_bits(u[0]), from_ordered_bits(u[1]), from_ordered_bits(u[2])];
-        let hi = [from_ordered_bits(u[3]), from_ordered_bits(u[4]), from_ordered_bits(u[5])];
+        let u: Vec<u32> = readback.read(OFF_BOUNDS, BOUNDS_WORDS as usize)?;
+        let corner = |at: u32| [0, 1, 2].map(|a| from_ordered_bits(u[at as usize + a]));
+        let (lo, hi) = (corner(BOUNDS_LO), corner(BOUNDS_HI));
         let finite = lo.iter().chain(hi.iter()).all(|x| x.is_finite());
         let scale = quantization_scale(lo, hi, bits).filter(|_| finite).ok_or(InputError::Overflow { lo, hi })?;
 
         // Pass 2: codes, their range and exact power sums.
         ctx.submit_and_wait(|rec| {
-            rec.fill(result, OFF_MORTON, Some(8), u32::MAX);
-            rec.fill(result, OFF_MORTON + 8, Some(8 * (1 + NLIMBS as u64)), 0);
+            rec.fill(result, OFF_MORTON + 8 * MOMENTS_CODE_MIN as u64, Some(8), u32::MAX);
+            rec.fill(result, OFF_MORTON + 8 * MOMENTS_CODE_MAX as u64, Some(8), 0);
+            rec.fill(result, OFF_MORTON + 8 * MOMENTS_LIMBS as u64, Some(8 * NLIMBS as u64), 0);
             rec.barrier();
             rec.timestamp(timer, "-");
             let push = MortonPush {
@@ -312,17 +255,19 @@ impl CharacterizeGpu {
             rec.dispatch(&self.morton[b63], &push, groups);
             rec.timestamp(timer, "morton_moments");
             rec.barrier();
-            rec.copy(result, OFF_MORTON, readback, OFF_MORTON, 8 * (2 + NLIMBS as u64));
+            rec.copy(result, OFF_MORTON, readback, OFF_MORTON, 8 * MOMENTS_WORDS as u64);
             rec.host_read_barrier();
             Ok(())
         })?;
-        let m: Vec<u64> = readback.read(OFF_MORTON, 2 + NLIMBS)?;
+        let m: Vec<u64> = readback.read(OFF_MORTON, MOMENTS_WORDS)?;
+        let l = MOMENTS_LIMBS as usize;
         let limbs = [
-            m[2..2 + LIMBS[0]].to_vec(),
-            m[2 + LIMBS[0]..2 + LIMBS[0] + LIMBS[1]].to_vec(),
-            m[2 + LIMBS[0] + LIMBS[1]..2 + NLIMBS].to_vec(),
+            m[l..l + LIMBS[0]].to_vec(),
+            m[l + LIMBS[0]..l + LIMBS[0] + LIMBS[1]].to_vec(),
+            m[l + LIMBS[0] + LIMBS[1]..l + NLIMBS].to_vec(),
         ];
-        let sums = CodeSums { n, code_min: m[0], code_max: m[1], limbs };
+        let (code_min, code_max) = (m[MOMENTS_CODE_MIN as usize], m[MOMENTS_CODE_MAX as usize]);
+        let sums = CodeSums { n, code_min, code_max, limbs };
         let class_plan = plan(&sums).map_err(InputError::Plan)?;
         let k = class_plan.k;
         if k == 0 || k > self.max_k || class_plan.thresholds.len() != k as usize - 1 {
@@ -360,12 +305,12 @@ impl CharacterizeGpu {
             rec.dispatch(&self.chi, &push, 1);
             rec.timestamp(timer, "chi_square");
             rec.barrier();
-            rec.copy(result, OFF_CHI, readback, OFF_CHI, 40);
+            rec.copy(result, OFF_CHI, readback, OFF_CHI, 8 * CHI_WORDS);
             rec.copy(result, OFF_HIST, readback, OFF_HIST, 4 * k as u64);
             rec.host_read_barrier();
             Ok(())
         })?;
-        let chi: Vec<u64> = readback.read(OFF_CHI, 5)?;
+        let chi: Vec<u64> = readback.read(OFF_CHI, CHI_WORDS as usize)?;
         let hist: Vec<u32> = readback.read(OFF_HIST, k as usize)?;
         let timings = timer.read()?.into_iter().filter(|(name, _)| name != "-").collect();
         let per_triangle = if read_back {
@@ -385,10 +330,10 @@ impl CharacterizeGpu {
             sums,
             plan: class_plan,
             histogram: hist.into_iter().map(u64::from).collect(),
-            chi_numerator: (chi[1] as u128) << 64 | chi[0] as u128,
-            empty_classes: chi[2] as u32,
-            concentrated_classes: chi[3] as u32,
-            concentrated_triangles: chi[4],
+            chi_numerator: (chi[CHI_T_HI as usize] as u128) << 64 | chi[CHI_T_LO as usize] as u128,
+            empty_classes: chi[CHI_EMPTY as usize] as u32,
+            concentrated_classes: chi[CHI_CONCENTRATED as usize] as u32,
+            concentrated_triangles: chi[CHI_CONCENTRATED_TRIANGLES as usize],
             per_triangle,
             timings,
         })
