@@ -1,5 +1,5 @@
 #version 460
-// SPEC steps 9-10 as exact integers, one workgroup: T = sum (k O_i - n)^2 (128 bits; chi2 = T / (n k) on the host),
+// docs/spec.md steps 9-10 as exact integers, one workgroup: T = sum (k O_i - n)^2 (128 bits; chi2 = T / (n k) on the host),
 // the number of empty classes (O_i == 0), of concentrated classes (k O_i > n, i.e. O_i > E) and the triangles in
 // them. out: uint64[5] = T low, T high, empty, concentrated, triangles in concentrated classes.
 #include "common.glsl"

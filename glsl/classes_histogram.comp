@@ -1,5 +1,5 @@
 #version 460
-// SPEC steps 7-8: the class of every code and the histogram of classes.
+// docs/spec.md steps 7-8: the class of every code and the histogram of classes.
 // class(m) = number of thresholds t_j <= m - m_min, where t_j = ceil(j (m_max - m_min) / k), j = 1..k-1 (computed
 // exactly on the host), which equals min(((m - m_min) k) div (m_max - m_min), k - 1) without 128-bit division.
 // The histogram is privatized in shared memory and merged once per workgroup with one atomic per non-empty class.

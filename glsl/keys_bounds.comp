@@ -1,5 +1,5 @@
 #version 460
-// SPEC steps 1-2: centroid key s = (v0 + v1) + v2 of every sampled triangle (no FMA, left to right), and the
+// docs/spec.md steps 1-2: centroid key s = (v0 + v1) + v2 of every sampled triangle (no FMA, left to right), and the
 // per-axis min and max of the keys in IEEE total order.
 // keys: vec3 per sampled triangle (tightly packed f32). result: uint[6], filled by the host with ~0 x3, 0 x3.
 #include "common.glsl"

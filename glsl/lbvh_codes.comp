@@ -1,5 +1,5 @@
 #version 460
-// LBVH step 1 on the device: the Morton code of every centroid key (SPEC steps 3-4, the same quantization as
+// LBVH step 1 on the device: the Morton code of every centroid key (docs/spec.md steps 3-4, the same quantization as
 // morton_moments.comp) and the identity payload, ready for the stable radix sort (which yields the (code, index)
 // order). codes: u32 (30-bit) or u64 (63-bit); ids: u32.
 #include "common.glsl"

@@ -1,5 +1,5 @@
 #version 460
-// SPEC steps 3-5 on the device: quantize each key (f32, no division, no FMA), its Morton code (30 or 63 bits), the
+// docs/spec.md steps 3-5 on the device: quantize each key (f32, no division, no FMA), its Morton code (30 or 63 bits), the
 // smallest and largest code, and the exact sums of m, m^2, m^3 in 24-bit limbs (see wide.glsl).
 // result: uint64[2 + NLIMBS] = min code, max code, limbs of S1, S2, S3; the host fills it with ~0, 0, 0 ... first.
 #include "common.glsl"

@@ -1,4 +1,4 @@
-//! The chi-square distribution: upper-tail probability and critical values (SPEC step 9), on the `statrs` crate.
+//! The chi-square distribution: upper-tail probability and critical values (docs/spec.md step 9), on the `statrs` crate.
 //!
 //! `P(X >= x)` for `X ~ chi-square(dof)` is the regularized upper incomplete gamma function `Q(dof / 2, x / 2)`,
 //! which [`chi2_sf`] takes from [`statrs::function::gamma::checked_gamma_ur`] (Cephes' `igamc`: the power series

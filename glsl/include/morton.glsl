@@ -1,4 +1,4 @@
-// Morton codes of SPEC.md step 4: bit i of x to bit 3i+2, of y to 3i+1, of z to 3i (same as keys::morton).
+// Morton codes of docs/spec.md step 4: bit i of x to bit 3i+2, of y to 3i+1, of z to 3i (same as keys::morton).
 uint spread10(uint v) {
     uint x = v & 0x3ffu;
     x = (x | (x << 16)) & 0x030000ffu;
