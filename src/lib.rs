@@ -10,6 +10,7 @@
 pub mod accel;
 pub mod characterize;
 pub mod cost;
+#[cfg(feature = "eval")]
 pub mod eval;
 pub mod geom;
 pub mod gpu;
@@ -18,4 +19,5 @@ pub mod mesh;
 pub mod rng;
 pub mod select;
 pub mod stats;
+#[cfg(feature = "eval")]
 pub mod trace;

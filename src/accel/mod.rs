@@ -32,12 +32,16 @@
 //! * **Counters**: `box_tests` counts ray-box slab tests for BVH-like structures, node visits (one split-plane test
 //!   each) for the kd-tree and BIH, and cells visited for the grid; `prim_tests` counts ray-triangle tests.
 
+#[cfg(feature = "eval")]
 pub mod bih;
+#[cfg(feature = "eval")]
 pub mod brute;
 pub mod bvh;
 pub mod gpu;
+#[cfg(feature = "eval")]
 pub mod grid;
 pub mod hlbvh;
+#[cfg(feature = "eval")]
 pub mod kdtree;
 pub mod lbvh;
 
@@ -88,6 +92,13 @@ pub enum AccelError {
         structure: &'static str,
         /// The broken invariant.
         reason: String,
+    },
+    /// The structure is not compiled into this build (the kd-tree, grid, BIH and brute force need the `eval`
+    /// feature).
+    #[error("{structure}: not built into this library (enable the `eval` feature)")]
+    Unavailable {
+        /// Which structure.
+        structure: &'static str,
     },
 }
 
@@ -218,12 +229,20 @@ pub trait AccelStructure: Send + Sync {
 pub fn build_structure(name: StructureName, mesh: &Mesh) -> Result<Box<dyn AccelStructure>, AccelError> {
     Ok(match name {
         StructureName::Bvh => Box::new(bvh::Bvh::build(mesh)?),
+        #[cfg(feature = "eval")]
         StructureName::KdTree => Box::new(kdtree::KdTree::build(mesh)?),
+        #[cfg(feature = "eval")]
         StructureName::Grid => Box::new(grid::Grid::build(mesh)?),
+        #[cfg(feature = "eval")]
         StructureName::Bih => Box::new(bih::Bih::build(mesh)?),
+        #[cfg(feature = "eval")]
+        StructureName::Brute => Box::new(brute::BruteForce::build(mesh)?),
+        #[cfg(not(feature = "eval"))]
+        StructureName::KdTree | StructureName::Grid | StructureName::Bih | StructureName::Brute => {
+            return Err(AccelError::Unavailable { structure: name.as_str() })
+        }
         StructureName::Lbvh => Box::new(lbvh::Lbvh::build(mesh)?),
         StructureName::Hlbvh => Box::new(hlbvh::Hlbvh::build(mesh)?),
-        StructureName::Brute => Box::new(brute::BruteForce::build(mesh)?),
     })
 }
 
@@ -249,6 +268,7 @@ pub fn prepare(mesh: &Mesh, structure: &'static str) -> Result<(Vec<Triangle>, V
 /// Renumbers triangle records in the order in which `lists` (concatenated reference lists, each a range of `refs`)
 /// first use them, so that the triangles of one leaf or cell lie together in memory. Permutes `tris` and `boxes`,
 /// rewrites `refs` and sorts every list again; returns the mesh index of every record.
+#[cfg(feature = "eval")]
 pub(crate) fn renumber_by_first_use(
     refs: &mut [u32],
     lists: &[(usize, usize)],

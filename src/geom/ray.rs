@@ -60,6 +60,7 @@ pub(crate) const SLAB_ROBUST: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.
 pub(crate) struct RayInv {
     pub(crate) o: Vec3,
     pub(crate) d: Vec3,
+    #[cfg_attr(not(feature = "eval"), allow(dead_code))]
     pub(crate) inv: Vec3,
     oa: Vec3A,
     inva: Vec3A,
@@ -90,6 +91,7 @@ impl RayInv {
 
     /// Slab test returning the clipped interval `(entry, exit)`.
     #[inline]
+    #[cfg(feature = "eval")]
     pub(crate) fn slab_interval(&self, min: Vec3, max: Vec3, tmin: f32, tmax: f32) -> Option<(f32, f32)> {
         let t0 = (min - self.o) * self.inv;
         let t1 = (max - self.o) * self.inv;

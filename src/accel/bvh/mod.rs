@@ -21,6 +21,7 @@
 
 mod sah;
 
+#[cfg(feature = "eval")]
 pub(crate) use sah::partition;
 pub use sah::{Bvh, BvhOptions};
 

@@ -224,6 +224,7 @@ fn find_split(refs: &[Ref], cb: &B4, nb: usize) -> Option<(usize, usize, f32, Bi
 }
 
 /// In-place partition; returns the number of elements for which `left` holds (they come first).
+#[cfg(feature = "eval")]
 pub(crate) fn partition<T>(v: &mut [T], mut left: impl FnMut(&T) -> bool) -> usize {
     let mut i = 0;
     let mut j = v.len();
