@@ -26,7 +26,7 @@
 //! `box_tests` counts cells visited (plus the test against the grid box).
 
 use super::{bytes_of, invalid, prepare, AccelError, AccelStats, AccelStructure, StructureName};
-use crate::geom::{intersect_triangle, Hit, Ray, RayInv, TraceCounters};
+use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCounters};
 use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
 use glam::Vec3;
@@ -258,6 +258,7 @@ impl Grid {
         let mut tnext = [next_t(&cell, 0), next_t(&cell, 1), next_t(&cell, 2)];
         let mut mailbox = [u32::MAX; 16];
         let mut best_t = ray.tmax;
+        let margin = tie_margin(ray.origin, ray.dir, &self.bounds);
         let mut best = None;
         loop {
             c.box_tests += 1;
@@ -270,9 +271,9 @@ impl Grid {
                 }
                 mailbox[slot] = id;
                 c.prim_tests += 1;
-                if let Some((t, u, v)) = intersect_triangle(&self.tris[id as usize], r.o, r.d, ray.tmin, best_t) {
-                    best_t = t;
-                    best = Some(Hit { t, triangle: id, u, v });
+                if let Some(h) = closer_hit(&self.tris[id as usize], id, r.o, r.d, ray.tmin, best_t, &best) {
+                    best_t = h.t;
+                    best = Some(h);
                     if any {
                         return best;
                     }
@@ -286,7 +287,11 @@ impl Grid {
                 2
             };
             let exit = tnext[a];
-            if best_t < exit - exit.abs() * 1e-5 || exit > t1 || !exit.is_finite() {
+            // A later cell begins at `exit`: it may hold a tied or closer hit while `exit` is within the cull bound.
+            if (best.is_some() && cull_bound(best_t, margin) < exit - exit.abs() * 1e-5)
+                || exit > t1
+                || !exit.is_finite()
+            {
                 return best;
             }
             cell[a] += step[a];

@@ -31,7 +31,7 @@
 use super::{
     bytes_of, invalid, prepare, sah_cost, AccelError, AccelStats, AccelStructure, StructureName, TraversalStack,
 };
-use crate::geom::{intersect_triangle, Hit, Ray, RayInv, TraceCounters};
+use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCounters};
 use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
 use glam::{Vec3, Vec3A};
@@ -317,20 +317,30 @@ impl KdTree {
         c.box_tests += 1;
         let (mut tn, mut tf) = r.slab_interval(self.bounds.min, self.bounds.max, ray.tmin, ray.tmax)?;
         let mut best_t = ray.tmax;
+        let mut bound = ray.tmax;
+        let margin = tie_margin(ray.origin, ray.dir, &self.bounds);
         let mut best = None;
         let mut stack: TraversalStack<(u32, f32, f32)> = TraversalStack::new();
         let mut node = 0usize;
         loop {
-            if tn <= best_t {
+            if tn <= bound {
                 let nd = self.nodes[node];
                 if nd.is_leaf() {
                     let first = (nd.flags >> 2) as usize;
                     for &id in &self.refs[first..first + nd.split_or_count as usize] {
                         c.prim_tests += 1;
-                        if let Some((t, u, v)) = intersect_triangle(&self.tris[id as usize], r.o, r.d, ray.tmin, best_t)
-                        {
-                            best_t = t;
-                            best = Some(Hit { t, triangle: self.ids[id as usize], u, v });
+                        if let Some(h) = closer_hit(
+                            &self.tris[id as usize],
+                            self.ids[id as usize],
+                            r.o,
+                            r.d,
+                            ray.tmin,
+                            best_t,
+                            &best,
+                        ) {
+                            best_t = h.t;
+                            bound = cull_bound(h.t, margin);
+                            best = Some(h);
                             if any {
                                 return best;
                             }

@@ -18,4 +18,4 @@ mod triangle;
 pub use aabb::Aabb;
 pub(crate) use ray::RayInv;
 pub use ray::{Hit, Ray, TraceCounters, WorkloadKind};
-pub use triangle::{hits_agree, intersect_triangle, Triangle, HIT_T_EPSILON};
+pub use triangle::{closer_hit, cull_bound, hits_agree, intersect_triangle, tie_margin, Triangle};

@@ -26,7 +26,7 @@ pub(crate) use sah::partition;
 pub use sah::{Bvh, BvhOptions};
 
 use super::{bytes_of, invalid, sah_cost, AccelError, AccelStats, TraversalStack};
-use crate::geom::{intersect_triangle, Hit, Ray, RayInv, TraceCounters};
+use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCounters};
 use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
 use glam::Vec3;
@@ -123,9 +123,11 @@ impl BvhTree {
         let root = nodes.first()?;
         let r = RayInv::new(ray);
         let mut best_t = ray.tmax;
+        let mut bound = ray.tmax;
         let mut best: Option<Hit> = None;
         c.box_tests += 1;
         r.slab(&root.min, &root.max, ray.tmin, best_t)?;
+        let margin = tie_margin(ray.origin, ray.dir, &Aabb::new(Vec3::from(root.min), Vec3::from(root.max)));
         let mut stack: TraversalStack<(u32, f32)> = TraversalStack::new();
         let mut node = 0usize;
         loop {
@@ -135,9 +137,10 @@ impl BvhTree {
                 let end = first + n.count() as usize;
                 for i in first..end {
                     c.prim_tests += 1;
-                    if let Some((t, u, v)) = intersect_triangle(&self.tris[i], r.o, r.d, ray.tmin, best_t) {
-                        best_t = t;
-                        best = Some(Hit { t, triangle: self.ids[i], u, v });
+                    if let Some(h) = closer_hit(&self.tris[i], self.ids[i], r.o, r.d, ray.tmin, best_t, &best) {
+                        best_t = h.t;
+                        bound = cull_bound(h.t, margin);
+                        best = Some(h);
                         if any {
                             return best;
                         }
@@ -147,8 +150,8 @@ impl BvhTree {
                 let (l, rr) = (n.left_or_first as usize, n.right_or_count as usize);
                 let (nl, nr) = (&nodes[l], &nodes[rr]);
                 c.box_tests += 2;
-                let tl = r.slab(&nl.min, &nl.max, ray.tmin, best_t);
-                let tr = r.slab(&nr.min, &nr.max, ray.tmin, best_t);
+                let tl = r.slab(&nl.min, &nl.max, ray.tmin, bound);
+                let tr = r.slab(&nr.min, &nr.max, ray.tmin, bound);
                 match (tl, tr) {
                     (Some(a), Some(b)) => {
                         if a <= b {
@@ -175,7 +178,7 @@ impl BvhTree {
                 match stack.pop() {
                     None => return best,
                     Some((nd, t)) => {
-                        if t <= best_t {
+                        if t <= bound {
                             node = nd as usize;
                             break;
                         }
