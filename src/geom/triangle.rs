@@ -108,7 +108,7 @@ pub fn closer_hit(
 #[inline]
 pub fn tie_margin(origin: Vec3, dir: Vec3, scene: &crate::geom::Aabb) -> f32 {
     let d = dir.abs().max_element();
-    if scene.is_empty() || !(d > 0.0) {
+    if scene.is_empty() || d.is_nan() || d <= 0.0 {
         return 0.0;
     }
     let coords = origin.abs().max_element() + scene.min.abs().max(scene.max.abs()).max_element();
