@@ -199,8 +199,13 @@ fn json_equals_false_never_turns_json_on() {
 
 #[test]
 fn one_positional_means_one() {
-    assert_usage_error("build_bvh", &["a.obj", "b.obj"]);
-    assert_usage_error("render_classes", &["a.obj", "b.obj", "--out", "x.png"]);
+    let (dir, mesh) = tetrahedron("positionals");
+    let m = mesh.to_str().expect("utf-8 path");
+    let png = dir.join("x.png");
+    assert_usage_error("build_bvh", &["--backend", "cpu", m, m]);
+    assert_usage_error("render_classes", &["--backend", "cpu", m, m, "--out", png.to_str().expect("utf-8 path")]);
+    assert!(!png.exists(), "render_classes wrote a picture");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
