@@ -7,6 +7,10 @@
 //!     [--resolution N] [--repeats R] [--refit DIR ...] [--device NAME] [--help]
 //! ```
 
+use anyhow::Context as _;
+use clap::Parser;
+use cli::args;
+use cli::Progress;
 use meshchar::accel::lbvh::Lbvh;
 use meshchar::accel::AccelStructure;
 use meshchar::characterize::{features_cpu, Features, Params};
@@ -23,90 +27,57 @@ use std::time::Instant;
 #[path = "support/cli.rs"]
 mod cli;
 
-const USAGE: &str = "\
-usage: calibrate [options]
-
-Fits the cost model's constants on this machine and writes a calibration file (JSON, versioned) that
-characterize and evaluate load with --cost-model FILE.
-
-Without --from-oracle, the oracle runs here on three synthetic scenes (random soup, clusters, teapot in a
-stadium) and the --scene paths (default: four small shared meshes when ../shared/meshes exists), for the primary,
-shadow and diffuse workloads at --resolution, about a minute in release.
-
-options:
-  --out FILE              write the calibration file (default: print the constants only)
-  --from-oracle FILE      fit on cached `evaluate --json` lines instead of measuring (repeatable); the meshes are
-                          loaded from the recorded paths to compute their features
-  --scene PATH            a real scene to measure (repeatable)
-  --resolution N          image side of the measurements (default 128)
-  --repeats R             repeats per measurement (default 1)
-  --refit DIR             an animation (directory of frames) for the refit model (repeatable; default: the BART
-                          animations under ../shared/meshes/bart when present)
-  --no-refit              do not fit the refit model
-  --device NAME           device name stored in the file (default: the CPU)
-  -h, --help              this text
-";
-
+/// Fits the cost model's constants on this machine and writes a calibration file (JSON, versioned) that
+/// characterize and evaluate load with --cost-model FILE.
+///
+/// Without --from-oracle, the oracle runs here on three synthetic scenes (random soup, clusters, teapot in a
+/// stadium) and the --scene paths (default: four small shared meshes when ../shared/meshes exists), for the
+/// primary, shadow and diffuse workloads at --resolution, about a minute in release.
+#[derive(Parser, Debug)]
+#[command(name = "calibrate", args_override_self = true)]
 struct Args {
+    /// Write the calibration file [default: print the constants only]
+    #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
+    /// Fit on cached `evaluate --json` lines instead of measuring (repeatable); the meshes are loaded from the
+    /// recorded paths to compute their features
+    #[arg(long = "from-oracle", value_name = "FILE")]
     oracle: Vec<PathBuf>,
+    /// A real scene to measure (repeatable)
+    #[arg(long = "scene", value_name = "PATH")]
     scenes: Vec<PathBuf>,
+    /// Image side of the measurements
+    #[arg(long, value_name = "N", default_value_t = 128, value_parser = args::resolution(1, 4096))]
     resolution: u32,
+    /// Repeats per measurement
+    #[arg(long, value_name = "R", default_value_t = 1, value_parser = args::positive())]
     repeats: usize,
+    /// An animation (directory of frames) for the refit model (repeatable) [default: the BART animations under
+    /// ../shared/meshes/bart when present]
+    #[arg(long, value_name = "DIR")]
     refit: Vec<PathBuf>,
+    /// Do not fit the refit model
+    #[arg(long)]
     no_refit: bool,
+    /// Device name stored in the file [default: the CPU]
+    #[arg(long, value_name = "NAME")]
     device: Option<String>,
-}
-
-fn parse_args() -> Result<Option<Args>, String> {
-    let mut a = Args {
-        out: None,
-        oracle: Vec::new(),
-        scenes: Vec::new(),
-        resolution: 128,
-        repeats: 1,
-        refit: Vec::new(),
-        no_refit: false,
-        device: None,
-    };
-    let mut it = std::env::args().skip(1);
-    while let Some(arg) = it.next() {
-        let mut value = |n: &str| it.next().ok_or_else(|| format!("{n} needs a value"));
-        match arg.as_str() {
-            "-h" | "--help" => return Ok(None),
-            "--out" => a.out = Some(PathBuf::from(value("--out")?)),
-            "--from-oracle" => a.oracle.push(PathBuf::from(value("--from-oracle")?)),
-            "--scene" => a.scenes.push(PathBuf::from(value("--scene")?)),
-            "--resolution" => {
-                a.resolution = value("--resolution")?
-                    .parse()
-                    .ok()
-                    .filter(|n: &u32| (1..=4096).contains(n))
-                    .ok_or("--resolution needs an integer in 1..=4096")?
-            }
-            "--repeats" => {
-                a.repeats =
-                    value("--repeats")?.parse().ok().filter(|&n: &usize| n >= 1).ok_or("--repeats needs >= 1")?
-            }
-            "--refit" => a.refit.push(PathBuf::from(value("--refit")?)),
-            "--no-refit" => a.no_refit = true,
-            "--device" => a.device = Some(value("--device")?),
-            s => return Err(format!("unknown argument {s} (see --help)")),
-        }
-    }
-    Ok(Some(a))
 }
 
 fn shared() -> PathBuf {
     PathBuf::from("..").join("shared").join("meshes")
 }
 
-fn samples_from_oracle(files: &[PathBuf]) -> Result<Vec<Sample>, String> {
-    load_oracle_samples(files, &Params::default(), &|m| eprintln!("calibrate: features of {m}"))
-        .map_err(|e| e.to_string())
+fn samples_from_oracle(files: &[PathBuf]) -> anyhow::Result<Vec<Sample>> {
+    let bar = Progress::new("features", None, false);
+    let samples = load_oracle_samples(files, &Params::default(), &|m| {
+        bar.step(m);
+        bar.eprintln(&format!("calibrate: features of {m}"));
+    })?;
+    Ok(samples)
 }
 
-fn measure(args: &Args) -> Result<Vec<Sample>, String> {
+fn measure(args: &Args) -> anyhow::Result<Vec<Sample>> {
     let mut scenes: Vec<Animation> = vec![
         Animation { name: "synthetic:random-soup-20k".into(), frames: vec![generate::random_soup(20_000, 1)] },
         Animation { name: "synthetic:clustered-20k".into(), frames: vec![generate::clustered(20_000, 8, 2)] },
@@ -119,13 +90,16 @@ fn measure(args: &Args) -> Result<Vec<Sample>, String> {
         }
     }
     for p in &paths {
-        scenes.push(meshchar::mesh::load_path(p).map_err(|e| e.to_string())?);
+        scenes.push(meshchar::mesh::load_path(p)?);
     }
     let mut out = Vec::new();
-    for scene in &scenes {
-        let first = scene.frames.first().ok_or(format!("{}: no frames", scene.name))?;
-        let f = features_cpu(first, &Params::default()).map_err(|e| format!("{}: {e}", scene.name))?;
-        for kind in [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse] {
+    let kinds = [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse];
+    let bar = Progress::new("oracle", Some(scenes.len() * kinds.len()), false);
+    for (i, scene) in scenes.iter().enumerate() {
+        let first = scene.frames.first().with_context(|| format!("{}: no frames", scene.name))?;
+        bar.item(i * kinds.len(), 1, &format!("{}: features", scene.name));
+        let f = features_cpu(first, &Params::default()).with_context(|| scene.name.clone())?;
+        for (j, kind) in kinds.into_iter().enumerate() {
             let config = OracleConfig {
                 workload: kind,
                 resolution: args.resolution,
@@ -133,9 +107,11 @@ fn measure(args: &Args) -> Result<Vec<Sample>, String> {
                 rebuild: if scene.is_dynamic() { Rebuild::PerFrame } else { Rebuild::Once },
                 ..OracleConfig::default()
             };
+            // Steps: per frame the reference and every structure at every repeat.
+            bar.item(i * kinds.len() + j, scene.frames.len() * (1 + config.repeats * config.structures.len()), "");
             let t = Instant::now();
-            let e = evaluate_scene(scene, &config, None, &|_| {}).map_err(|e| e.to_string())?;
-            eprintln!("calibrate: {} {}: {:.1} s", scene.name, kind.as_str(), t.elapsed().as_secs_f64());
+            let e = evaluate_scene(scene, &config, None, &|m| bar.step(&format!("{} {m}", kind.as_str())))?;
+            bar.eprintln(&format!("calibrate: {} {}: {:.1} s", scene.name, kind.as_str(), t.elapsed().as_secs_f64()));
             out.push(e.record().sample(f.clone(), None));
         }
     }
@@ -143,28 +119,35 @@ fn measure(args: &Args) -> Result<Vec<Sample>, String> {
 }
 
 /// SAH of a refitted frame-0 LBVH against a fresh LBVH per frame, and refit time per triangle.
-fn fit_refit(dirs: &[PathBuf]) -> Result<Option<RefitModel>, String> {
+fn fit_refit(dirs: &[PathBuf]) -> anyhow::Result<Option<RefitModel>> {
     let (mut xs, mut ys, mut ns_per_tri) = (Vec::new(), Vec::new(), Vec::new());
-    for dir in dirs {
-        let anim = meshchar::mesh::load_path(dir).map_err(|e| e.to_string())?;
+    let bar = Progress::new("refit", Some(dirs.len()), false);
+    for (k, dir) in dirs.iter().enumerate() {
+        bar.item(k, 1, &format!("loading {}", dir.display()));
+        let anim = meshchar::mesh::load_path(dir)?;
         if anim.frames.len() < 2 {
             continue;
         }
+        // Steps: the features of every frame, then every frame after the first.
+        bar.item(k, 2 * anim.frames.len() - 1, &anim.name);
         let feats: Vec<Features> = anim
             .frames
             .iter()
-            .map(|m| features_cpu(m, &Params::default()))
-            .collect::<Result<_, _>>()
-            .map_err(|e| e.to_string())?;
-        let mut tree = Lbvh::build(&anim.frames[0]).map_err(|e| e.to_string())?.into_tree();
+            .map(|m| {
+                bar.step(&format!("{}: features of {}", anim.name, m.name));
+                features_cpu(m, &Params::default())
+            })
+            .collect::<Result<_, _>>()?;
+        let mut tree = Lbvh::build(&anim.frames[0])?.into_tree();
         for (i, m) in anim.frames.iter().enumerate().skip(1) {
+            bar.step(&format!("{}: frame {i}/{}", anim.name, anim.frames.len() - 1));
             let t = Instant::now();
-            tree.refit(m).map_err(|e| e.to_string())?;
+            tree.refit(m)?;
             ns_per_tri.push(t.elapsed().as_secs_f64() * 1e9 / m.triangle_count().max(1) as f64);
-            let fresh = Lbvh::build(m).map_err(|e| e.to_string())?.tree().sah_cost();
+            let fresh = Lbvh::build(m)?.tree().sah_cost();
             let ratio = tree.sah_cost() / fresh.max(f64::MIN_POSITIVE);
             let d = drift(&feats[0], &feats[i]);
-            eprintln!("calibrate: {} frame {i}: drift {d:.4}, SAH refit / fresh {ratio:.3}", anim.name);
+            bar.eprintln(&format!("calibrate: {} frame {i}: drift {d:.4}, SAH refit / fresh {ratio:.3}", anim.name));
             xs.push(d);
             ys.push(ratio - 1.0);
         }
@@ -186,7 +169,8 @@ fn fit_refit(dirs: &[PathBuf]) -> Result<Option<RefitModel>, String> {
     }))
 }
 
-fn run(args: &Args) -> Result<(), String> {
+fn run(args: Args) -> anyhow::Result<()> {
+    let args = &args;
     let t = Instant::now();
     let samples = if args.oracle.is_empty() { measure(args)? } else { samples_from_oracle(&args.oracle)? };
     let device = args
@@ -207,7 +191,7 @@ fn run(args: &Args) -> Result<(), String> {
             args.oracle.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" ")
         )
     };
-    let mut model = CostModel::fit(&samples, &device, &source).map_err(|e| e.to_string())?;
+    let mut model = CostModel::fit(&samples, &device, &source)?;
     if !args.no_refit {
         let mut dirs = args.refit.clone();
         if dirs.is_empty() && shared().join("bart").is_dir() {
@@ -256,7 +240,7 @@ fn run(args: &Args) -> Result<(), String> {
         );
     }
     if let Some(out) = &args.out {
-        model.save(out).map_err(|e| e.to_string())?;
+        model.save(out)?;
         println!("wrote {}", out.display());
     }
     eprintln!("calibrate: {:.1} s", t.elapsed().as_secs_f64());
@@ -264,6 +248,5 @@ fn run(args: &Args) -> Result<(), String> {
 }
 
 fn main() -> ExitCode {
-    cli::exit_quietly_on_broken_pipe();
-    cli::main_with("calibrate", USAGE, parse_args(), run)
+    cli::main_with(run)
 }

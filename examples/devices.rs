@@ -2,48 +2,36 @@
 //!
 //! `cargo run --release --example devices -- [--json]`
 
+use clap::Parser;
+use cli::args::JsonArg;
 use meshchar::gpu::enumerate_devices;
 use std::process::ExitCode;
 
 #[path = "support/cli.rs"]
 mod cli;
 
-const HELP: &str = "devices: list Vulkan devices and the one meshchar would use
-
-USAGE: devices [--json]
-
-  --json     one JSON object: {\"devices\": [...], \"selected\": index or null}
-  -h, --help this text
-
-MESHCHAR_DEVICE=<index or name substring> overrides the choice; VK_DRIVER_FILES selects drivers.";
+/// Lists Vulkan devices and the one meshchar would use.
+///
+/// MESHCHAR_DEVICE=<index or name substring> overrides the choice; VK_DRIVER_FILES selects drivers.
+#[derive(Parser, Debug)]
+#[command(name = "devices", args_override_self = true)]
+#[command(mut_arg("json", |a| a.help("One JSON object: {\"devices\": [...], \"selected\": index or null}")))]
+struct Args {
+    #[command(flatten)]
+    json: JsonArg,
+}
 
 fn main() -> ExitCode {
-    cli::exit_quietly_on_broken_pipe();
-    let mut json = false;
-    for a in std::env::args().skip(1) {
-        match a.as_str() {
-            "--json" => json = true,
-            "-h" | "--help" => {
-                println!("{HELP}");
-                return ExitCode::SUCCESS;
-            }
-            other => {
-                eprintln!("devices: unknown argument {other:?}\n\n{HELP}");
-                return ExitCode::from(2);
-            }
-        }
-    }
-    let (list, selected) = match enumerate_devices() {
-        Ok(x) => x,
-        Err(e) => {
-            eprintln!("devices: {e}");
-            return ExitCode::FAILURE;
-        }
-    };
+    cli::main_with(run)
+}
+
+fn run(args: Args) -> anyhow::Result<()> {
+    let json = args.json.json;
+    let (list, selected) = enumerate_devices()?;
     if json {
         let v = serde_json::json!({ "devices": list, "selected": selected });
         println!("{v}");
-        return ExitCode::SUCCESS;
+        return Ok(());
     }
     if list.is_empty() {
         println!("no Vulkan device found");
@@ -85,5 +73,5 @@ fn main() -> ExitCode {
         Some(i) => println!("selected: [{i}] {}", list[i].caps.name),
         None => println!("selected: none (the CPU path will be used)"),
     }
-    ExitCode::SUCCESS
+    Ok(())
 }

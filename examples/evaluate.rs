@@ -14,6 +14,11 @@
 //! recorded selections and the calibrated policy (fitted on all scenes, and leave-one-scene-out) are scored side by
 //! side.
 
+use anyhow::Context as _;
+use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
+use clap::Parser;
+use cli::args::{self, JsonArg, Policy, PolicyArgs, TieMarginArg, WorkloadArgs};
+use cli::Progress;
 use meshchar::accel::{AccelStructure, StructureName};
 use meshchar::characterize::{Characterizer, Params};
 use meshchar::cost::{CostModel, Prediction};
@@ -26,149 +31,106 @@ use meshchar::mesh::Animation;
 use meshchar::select::{select_for_scene, PolicyChoice, TargetWorkload};
 use meshchar::trace::workload::{build_workload, mesh_bounds};
 use meshchar::trace::Camera;
-use std::io::{IsTerminal, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::process::ExitCode;
 
 #[path = "support/cli.rs"]
 mod cli;
 
-const USAGE: &str = "\
-usage: evaluate [FILE|DIR ...] [options]
-
-For each scene (a mesh file, or a directory of frame files forming an animation), build and trace every
-acceleration structure, and print the oracle's best structure, the regret of the selection, and per structure:
-build ms, trace ms, total ms (with its noise), Mrays/s, box and triangle tests per ray, memory, SAH cost.
-
-options:
-  --json                     one JSON object per scene per line instead of tables
-  --workload KIND            primary (default), shadow or diffuse rays
-  --resolution N             N x N primary rays per frame (default 1024, as in the thesis)
-  --frames F                 frames rendered (static scene) or frames used (animation)
-  --repeats R                repeats of every measurement; medians are reported (default 3)
-  --rebuild once|frame       build once (static scenes, default) or every frame (default for animations)
-  --structures LIST          comma-separated subset of bvh,kdtree,grid,bih,lbvh,hlbvh
-  --camera EX,EY,EZ,TX,TY,TZ[,FOV]
-                             eye, target (and vertical field of view in degrees, default 45); +y is up;
-                             default: a camera framing the scene
-  --charts DIR               write SVG bar charts (build time, frame rate, tests per ray) into DIR; with
-                             --compare-policies, the per-scene regret charts policy-regret-<workload>.svg
-  --policy thesis|calibrated the selection policy whose choice is `selected` and `regret` (default calibrated)
-  --cost-model FILE          calibration file of the calibrated policy (default: the shipped one; a missing or
-                             stale file falls back to it with a warning)
-  --tie-margin X             calibrated policy: relative margin within which the cheaper build wins (default 0.05)
-  --oracle-cache FILE        append every scene's JSON line to FILE (to compare policies later without measuring)
-  --compare-policies FILE    read cached oracle JSON lines (repeatable) and compare the thesis policy's recorded
-                             selections with the calibrated policy, in sample and leave-one-scene-out; measures
-                             nothing (meshes are loaded from the recorded paths for their features)
-  --help                     this text
-";
-
+/// The measurement oracle: for each scene (a mesh file, or a directory of frame files forming an animation), build
+/// and trace every acceleration structure, and print the oracle's best structure, the regret of the selection, and
+/// per structure: build ms, trace ms, total ms (with its noise), Mrays/s, box and triangle tests per ray, memory,
+/// SAH cost.
+///
+/// With --compare-policies, nothing is measured: the cached oracle results are read back, and the thesis policy's
+/// recorded selections and the calibrated policy (fitted on all scenes, and leave-one-scene-out) are scored side by
+/// side.
+#[derive(Parser, Debug)]
+#[command(name = "evaluate", args_override_self = true)]
+#[command(mut_arg("json", |a| a.help("One JSON object per scene per line instead of tables")))]
+#[command(mut_arg("resolution", |a| a.help("N x N primary rays per frame (1024: as in the thesis)")))]
+#[command(mut_arg("policy", |a| a.help("The selection policy whose choice is `selected` and `regret`")))]
 struct Args {
+    /// Mesh files, or directories of frame files (animations)
+    #[arg(value_name = "FILE|DIR", required_unless_present = "compare_policies")]
     inputs: Vec<PathBuf>,
-    json: bool,
-    config: OracleConfig,
+    #[command(flatten)]
+    json: JsonArg,
+    #[command(flatten)]
+    workload: WorkloadArgs,
+    /// Frames rendered (static scene) or frames used (animation) [default: 1 for a static scene, all of an
+    /// animation]
+    #[arg(long, value_name = "F", value_parser = args::positive())]
+    frames: Option<usize>,
+    /// Repeats of every measurement; medians are reported
+    #[arg(long, value_name = "R", default_value_t = 3, value_parser = args::positive())]
+    repeats: usize,
+    /// Build once (static scenes, the default) or every frame (the default for animations)
+    #[arg(long, value_name = "once|frame", value_parser = rebuild())]
     rebuild: Option<Rebuild>,
+    /// Comma-separated subset of bvh,kdtree,grid,bih,lbvh,hlbvh [default: all]
+    #[arg(long, value_name = "LIST", value_delimiter = ',', value_parser = args::structure)]
+    structures: Vec<StructureName>,
+    /// Eye, target (and vertical field of view in degrees, default 45); +y is up [default: a camera framing the
+    /// scene]
+    #[arg(long, value_name = "EX,EY,EZ,TX,TY,TZ[,FOV]", allow_hyphen_values = true, value_parser = camera)]
+    camera: Option<Camera>,
+    /// Write SVG bar charts (build time, frame rate, tests per ray) into DIR; with --compare-policies, the
+    /// per-scene regret charts policy-regret-<workload>.svg
+    #[arg(long, value_name = "DIR")]
     charts: Option<PathBuf>,
-    policy: String,
-    cost_model: Option<PathBuf>,
-    tie_margin: f64,
+    #[command(flatten)]
+    policy: PolicyArgs,
+    #[command(flatten)]
+    tie_margin: TieMarginArg,
+    /// Append every scene's JSON line to FILE (to compare policies later without measuring)
+    #[arg(long, value_name = "FILE")]
     oracle_cache: Option<PathBuf>,
-    compare: Vec<PathBuf>,
+    /// Read cached oracle JSON lines (repeatable) and compare the thesis policy's recorded selections with the
+    /// calibrated policy, in sample and leave-one-scene-out; measures nothing (meshes are loaded from the recorded
+    /// paths for their features)
+    #[arg(long, value_name = "FILE")]
+    compare_policies: Vec<PathBuf>,
 }
 
-fn parse_args() -> Result<Args, String> {
-    let mut a = Args {
-        inputs: Vec::new(),
-        json: false,
-        config: OracleConfig::default(),
-        rebuild: None,
-        charts: None,
-        policy: "calibrated".into(),
-        cost_model: None,
-        tie_margin: 0.05,
-        oracle_cache: None,
-        compare: Vec::new(),
-    };
-    let mut it = std::env::args().skip(1);
-    while let Some(arg) = it.next() {
-        let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value"));
-        match arg.as_str() {
-            "--help" | "-h" => {
-                print!("{USAGE}");
-                std::process::exit(0);
-            }
-            "--json" => a.json = true,
-            "--workload" => a.config.workload = value("--workload")?.parse::<WorkloadKind>()?,
-            "--resolution" => {
-                a.config.resolution = value("--resolution")?
-                    .parse()
-                    .ok()
-                    .filter(|&n: &u32| (1..=16384).contains(&n))
-                    .ok_or("--resolution needs an integer in 1..=16384")?
-            }
-            "--frames" => {
-                a.config.frames =
-                    Some(value("--frames")?.parse().ok().filter(|&n: &usize| n >= 1).ok_or("--frames needs >= 1")?)
-            }
-            "--repeats" => {
-                a.config.repeats =
-                    value("--repeats")?.parse().ok().filter(|&n: &usize| n >= 1).ok_or("--repeats needs >= 1")?
-            }
-            "--rebuild" => {
-                a.rebuild = Some(match value("--rebuild")?.as_str() {
-                    "once" => Rebuild::Once,
-                    "frame" | "per-frame" | "every" => Rebuild::PerFrame,
-                    other => return Err(format!("--rebuild: {other:?} is not once or frame")),
-                })
-            }
-            "--structures" => {
-                a.config.structures = value("--structures")?
-                    .split(',')
-                    .filter(|s| !s.is_empty())
-                    .map(|s| s.parse::<StructureName>())
-                    .collect::<Result<Vec<_>, _>>()?;
-                if a.config.structures.is_empty() {
-                    return Err("--structures needs at least one name".into());
-                }
-            }
-            "--camera" => {
-                let v: Vec<f32> = value("--camera")?
-                    .split(',')
-                    .map(|s| s.trim().parse::<f32>())
-                    .collect::<Result<_, _>>()
-                    .map_err(|_| "--camera needs numbers")?;
-                if v.len() != 6 && v.len() != 7 {
-                    return Err("--camera needs EX,EY,EZ,TX,TY,TZ[,FOV]".into());
-                }
-                let fov = v.get(6).copied().unwrap_or(45.0);
-                let cam = Camera::look_at(
-                    glam::Vec3::new(v[0], v[1], v[2]),
-                    glam::Vec3::new(v[3], v[4], v[5]),
-                    glam::Vec3::Y,
-                    fov,
-                )
-                .ok_or("--camera: eye equals target, view along +y, or bad field of view")?;
-                a.config.camera = Some(cam);
-            }
-            "--charts" => a.charts = Some(PathBuf::from(value("--charts")?)),
-            "--policy" => a.policy = cli::policy_arg(value("--policy")?)?,
-            "--cost-model" => a.cost_model = Some(PathBuf::from(value("--cost-model")?)),
-            "--tie-margin" => a.tie_margin = cli::tie_margin_arg(&value("--tie-margin")?)?,
-            "--oracle-cache" => a.oracle_cache = Some(PathBuf::from(value("--oracle-cache")?)),
-            "--compare-policies" => a.compare.push(PathBuf::from(value("--compare-policies")?)),
-            s if s.starts_with("--") => return Err(format!("unknown option {s} (see --help)")),
-            _ => a.inputs.push(PathBuf::from(arg)),
+impl Args {
+    /// The oracle's configuration (its `rebuild` set per scene).
+    fn config(&self) -> OracleConfig {
+        let default = OracleConfig::default();
+        OracleConfig {
+            workload: self.workload.workload,
+            resolution: self.workload.resolution,
+            frames: self.frames,
+            repeats: self.repeats,
+            structures: if self.structures.is_empty() { default.structures.clone() } else { self.structures.clone() },
+            camera: self.camera,
+            ..default
         }
     }
-    if a.inputs.is_empty() && a.compare.is_empty() {
-        return Err("no input: give mesh files or directories of frames (see --help)".into());
+}
+
+/// `--rebuild`: `once`, or `frame` (also `per-frame`, `every`).
+fn rebuild() -> impl TypedValueParser<Value = Rebuild> {
+    PossibleValuesParser::new([PossibleValue::new("once"), PossibleValue::new("frame").aliases(["per-frame", "every"])])
+        .map(|s| if s == "once" { Rebuild::Once } else { Rebuild::PerFrame })
+}
+
+/// `--camera EX,EY,EZ,TX,TY,TZ[,FOV]`.
+fn camera(s: &str) -> Result<Camera, String> {
+    let v: Vec<f32> =
+        s.split(',').map(|s| s.trim().parse::<f32>()).collect::<Result<_, _>>().map_err(|_| "needs numbers")?;
+    if v.len() != 6 && v.len() != 7 {
+        return Err("needs EX,EY,EZ,TX,TY,TZ[,FOV]".into());
     }
-    Ok(a)
+    let fov = v.get(6).copied().unwrap_or(45.0);
+    Camera::look_at(glam::Vec3::new(v[0], v[1], v[2]), glam::Vec3::new(v[3], v[4], v[5]), glam::Vec3::Y, fov)
+        .ok_or_else(|| "eye equals target, view along +y, or bad field of view".into())
 }
 
 /// Loads a mesh file as a one-frame scene, or a directory of `.obj`/`.ply` frames (sorted by name) as an animation.
-fn load_scene(path: &Path) -> Result<Animation, String> {
-    meshchar::mesh::load_path(path).map_err(|e| e.to_string())
+fn load_scene(path: &Path) -> anyhow::Result<Animation> {
+    Ok(meshchar::mesh::load_path(path)?)
 }
 
 /// A selection, its reasons, and the calibrated policy's predictions.
@@ -181,19 +143,18 @@ fn select(
     engine: &mut Characterizer,
     scene: &Animation,
     config: &OracleConfig,
-    policy: &str,
+    policy: Policy,
     model: &CostModel,
     tie_margin: f64,
-) -> Result<Selected, String> {
-    let (chars, features) =
-        engine.characterize_animation_with_features(scene, &Params::default()).map_err(|e| e.to_string())?;
+) -> anyhow::Result<Selected> {
+    let (chars, features) = engine.characterize_animation_with_features(scene, &Params::default())?;
     let choice = match policy {
-        "thesis" => PolicyChoice::Thesis,
-        _ => PolicyChoice::Calibrated { model, tie_margin },
+        Policy::Thesis => PolicyChoice::Thesis,
+        Policy::Calibrated => PolicyChoice::Calibrated { model, tie_margin },
     };
     let workload = TargetWorkload {
         kind: config.workload,
-        rays_per_frame: if policy == "thesis" { 0 } else { rays_per_frame(scene, config)? },
+        rays_per_frame: if policy == Policy::Thesis { 0 } else { rays_per_frame(scene, config)? },
         frames: config.frames.unwrap_or(1) as u64,
         animation_frames: config.frames,
     };
@@ -205,19 +166,19 @@ fn select(
 
 /// Rays per frame of the oracle's workload on the first frame: `resolution^2` primary rays, or the secondary rays
 /// generated from their hits (same camera and reference structure as the oracle, untimed).
-fn rays_per_frame(scene: &Animation, config: &OracleConfig) -> Result<u64, String> {
+fn rays_per_frame(scene: &Animation, config: &OracleConfig) -> anyhow::Result<u64> {
     let n = config.resolution as u64 * config.resolution as u64;
     if config.workload == WorkloadKind::Primary {
         return Ok(n);
     }
-    let first = scene.frames.first().ok_or("no frames")?;
+    let first = scene.frames.first().context("no frames")?;
     let f =
         if scene.is_dynamic() { config.frames.unwrap_or(scene.frames.len()).clamp(1, scene.frames.len()) } else { 1 };
     let camera = config.camera.unwrap_or_else(|| {
         let b = scene.frames[..f].iter().fold(meshchar::geom::Aabb::EMPTY, |a, m| a.union(&mesh_bounds(m)));
         Camera::frame(&b)
     });
-    let reference = meshchar::accel::bvh::Bvh::build(first).map_err(|e| e.to_string())?;
+    let reference = meshchar::accel::bvh::Bvh::build(first)?;
     Ok(build_workload(config.workload, first, &camera, config.resolution, &reference).rays.len() as u64)
 }
 
@@ -315,31 +276,15 @@ fn pct(x: Option<f64>) -> String {
 }
 
 /// `--compare-policies`: thesis (recorded) against calibrated (in sample and leave-one-scene-out) on cached
-/// oracle results. Returns the exit code.
-fn compare_policies(args: &Args) -> i32 {
-    let samples = match load_oracle_samples(&args.compare, &Params::default(), &|m| {
-        if std::io::stderr().is_terminal() {
-            eprint!("\r\x1b[Kfeatures of {m}");
-        }
-    }) {
-        Ok(s) => s,
-        Err(e) => {
-            eprintln!("\nevaluate: {e}");
-            return 1;
-        }
-    };
-    if std::io::stderr().is_terminal() {
-        eprint!("\r\x1b[K");
-    }
+/// oracle results.
+fn compare_policies(args: &Args) -> anyhow::Result<()> {
+    let bar = Progress::new("compare-policies", None, args.json.json);
+    let samples =
+        load_oracle_samples(&args.compare_policies, &Params::default(), &|m| bar.step(&format!("features of {m}")))?;
+    bar.finish();
     let device = meshchar::characterize::cpu::cpu_device_name(rayon::current_num_threads());
-    let c = match compare(&samples, args.tie_margin, &device) {
-        Ok(c) => c,
-        Err(e) => {
-            eprintln!("evaluate: {e}");
-            return 1;
-        }
-    };
-    if args.json {
+    let c = compare(&samples, args.tie_margin.tie_margin, &device)?;
+    if args.json.json {
         println!("{}", serde_json::json!(c));
     } else {
         println!(
@@ -408,118 +353,111 @@ fn compare_policies(args: &Args) -> i32 {
                 ],
             };
             let path = dir.join(format!("policy-regret-{wl}.svg"));
-            if let Err(e) = std::fs::create_dir_all(dir).and_then(|_| std::fs::write(&path, chart.to_svg())) {
-                eprintln!("evaluate: {}: {e}", path.display());
-                return 1;
-            }
-            if !args.json {
+            std::fs::create_dir_all(dir)
+                .and_then(|_| std::fs::write(&path, chart.to_svg()))
+                .with_context(|| path.display().to_string())?;
+            if !args.json.json {
                 println!("chart: {}", path.display());
             }
         }
     }
-    0
+    Ok(())
 }
 
-fn main() {
-    cli::exit_quietly_on_broken_pipe();
-    let args = match parse_args() {
-        Ok(a) => a,
+/// One scene: loaded, selected by the policy, measured by the oracle, printed (and appended to the oracle cache).
+/// `None` after a failure of this scene, printed.
+fn scene(
+    args: &Args,
+    i: usize,
+    input: &Path,
+    engine: &mut Characterizer,
+    model: &CostModel,
+    bar: &Progress,
+    failed: &mut bool,
+) -> Option<SceneEvaluation> {
+    let mut fail = |msg: String| {
+        bar.eprintln(&format!("evaluate: {msg}"));
+        *failed = true;
+    };
+    bar.item(i, 1, &format!("loading {}", input.display()));
+    let scene = match load_scene(input) {
+        Ok(s) => s,
         Err(e) => {
-            eprintln!("evaluate: {e}");
-            std::process::exit(2);
+            fail(cli::message(&e));
+            return None;
         }
     };
-    let tty = std::io::stderr().is_terminal();
-    let progress = |msg: &str| {
-        if tty {
-            let mut err = std::io::stderr();
-            let _ = write!(err, "\r\x1b[K{msg}");
-            let _ = err.flush();
-        }
-    };
-    if !args.compare.is_empty() {
-        std::process::exit(compare_policies(&args));
-    }
-    let model = cli::cost_model("evaluate", args.cost_model.as_deref()).unwrap_or_else(|e| {
-        eprintln!("evaluate: {e}");
-        std::process::exit(1);
-    });
-    let mut evals = Vec::new();
-    let mut failed = false;
-    let mut engine = match Characterizer::new(None) {
-        Ok(e) => e,
-        Err(e) => {
-            eprintln!("evaluate: {e}");
-            std::process::exit(1);
-        }
-    };
-    for input in &args.inputs {
-        let scene = match load_scene(input) {
-            Ok(s) => s,
-            Err(e) => {
-                eprintln!("evaluate: {e}");
-                failed = true;
-                continue;
-            }
-        };
-        let mut config = args.config.clone();
-        config.rebuild = args.rebuild.unwrap_or(if scene.is_dynamic() { Rebuild::PerFrame } else { Rebuild::Once });
-
-        let predictions;
-        let selected = match select(&mut engine, &scene, &config, &args.policy, &model, args.tie_margin) {
-            Ok((s, reasons, preds)) => {
-                if !args.json {
-                    println!("\n{}: the {} policy selects {}", scene.name, args.policy, s.as_str());
+    let mut config = args.config();
+    config.rebuild = args.rebuild.unwrap_or(if scene.is_dynamic() { Rebuild::PerFrame } else { Rebuild::Once });
+    // Steps: the selection, then per measured frame the reference and every structure at every repeat.
+    let frames =
+        if scene.is_dynamic() { config.frames.unwrap_or(scene.frames.len()).clamp(1, scene.frames.len()) } else { 1 };
+    bar.item(i, 1 + frames * (1 + config.repeats * config.structures.len()), &scene.name);
+    bar.step(&format!("{}: characterization and selection", scene.name));
+    let policy = args.policy.policy;
+    let (selected, predictions) = match select(engine, &scene, &config, policy, model, args.tie_margin.tie_margin) {
+        Ok((s, reasons, preds)) => {
+            if !args.json.json {
+                bar.suspend(|| {
+                    println!("\n{}: the {} policy selects {}", scene.name, policy.as_str(), s.as_str());
                     for r in &reasons {
                         println!("  - {r}");
                     }
-                }
-                predictions = preds;
-                Some(s)
+                });
             }
-            Err(e) => {
-                eprintln!("evaluate: {}: characterization failed: {e}", scene.name);
-                failed = true;
-                continue;
-            }
-        };
-
-        match evaluate_scene(&scene, &config, selected, &progress) {
-            Ok(e) => {
-                if tty {
-                    eprint!("\r\x1b[K");
-                }
-                let mut json = e.to_json();
-                json["policy"] = serde_json::json!(args.policy);
-                if let Some(p) = &predictions {
-                    json["predicted"] = serde_json::json!(p);
-                }
-                if args.json {
-                    println!("{json}");
-                } else {
-                    print_table(&e);
-                    if let Some(p) = &predictions {
-                        print_predictions(&e, p);
-                    }
-                }
-                if let Some(path) = &args.oracle_cache {
-                    if let Err(err) = append_line(path, &json.to_string()) {
-                        eprintln!("evaluate: {}: {err}", path.display());
-                        failed = true;
-                    }
-                }
-                evals.push(e);
-            }
-            Err(e) => {
-                if tty {
-                    eprint!("\r\x1b[K");
-                }
-                eprintln!("evaluate: {e}");
-                failed = true;
+            (s, preds)
+        }
+        Err(e) => {
+            fail(format!("{}: characterization failed: {}", scene.name, cli::message(&e)));
+            return None;
+        }
+    };
+    let e = match evaluate_scene(&scene, &config, Some(selected), &|m| bar.step(m)) {
+        Ok(e) => e,
+        Err(e) => {
+            fail(e.to_string());
+            return None;
+        }
+    };
+    let mut json = e.to_json();
+    json["policy"] = serde_json::json!(policy.as_str());
+    if let Some(p) = &predictions {
+        json["predicted"] = serde_json::json!(p);
+    }
+    bar.suspend(|| {
+        if args.json.json {
+            println!("{json}");
+        } else {
+            print_table(&e);
+            if let Some(p) = &predictions {
+                print_predictions(&e, p);
             }
         }
+    });
+    if let Some(path) = &args.oracle_cache {
+        if let Err(err) = append_line(path, &json.to_string()) {
+            fail(format!("{}: {err}", path.display()));
+        }
     }
-    if !args.json && evals.len() > 1 {
+    Some(e)
+}
+
+fn run(args: Args) -> anyhow::Result<()> {
+    if !args.compare_policies.is_empty() {
+        return compare_policies(&args);
+    }
+    let model = args.policy.cost_model("evaluate")?;
+    let mut engine = Characterizer::new(None)?;
+    let mut evals = Vec::new();
+    let mut failed = false;
+    let bar = Progress::new("evaluate", Some(args.inputs.len()), args.json.json);
+    for (i, input) in args.inputs.iter().enumerate() {
+        if let Some(e) = scene(&args, i, input, &mut engine, &model, &bar, &mut failed) {
+            evals.push(e);
+        }
+    }
+    bar.finish();
+    if !args.json.json && evals.len() > 1 {
         println!("\n{:<48} {:>10} {:>9} {:>12} {:>8}", "scene", "triangles", "selected", "oracle best", "regret");
         for e in &evals {
             println!(
@@ -535,7 +473,7 @@ fn main() {
     if let Some(dir) = &args.charts {
         match meshchar::eval::chart::write_charts(dir, &evals) {
             Ok(paths) => {
-                if !args.json {
+                if !args.json.json {
                     println!(
                         "\ncharts: {}",
                         paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" ")
@@ -549,6 +487,12 @@ fn main() {
         }
     }
     if failed {
-        std::process::exit(1);
+        Err(cli::Reported.into())
+    } else {
+        Ok(())
     }
+}
+
+fn main() -> ExitCode {
+    cli::main_with(run)
 }

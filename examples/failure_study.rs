@@ -6,7 +6,11 @@
 //!     [--repeats R] [--large-n-max N] [--no-oracle] [--conference FILE]
 //! ```
 
-use meshchar::characterize::{Backend, Characterizer, Params};
+use anyhow::Context as _;
+use clap::Parser;
+use cli::args::{self, BackendArg};
+use cli::Progress;
+use meshchar::characterize::{Characterizer, Params};
 use meshchar::eval::failure_study::{self, Case, CaseStats};
 use meshchar::eval::{evaluate_scene, OracleConfig, Rebuild, SceneEvaluation};
 use meshchar::mesh::load_mesh;
@@ -16,85 +20,48 @@ use std::process::ExitCode;
 #[path = "support/cli.rs"]
 mod cli;
 
-const USAGE: &str = "\
-usage: failure_study [options]
-
-Characterizes every case of docs/failure-study.md, lets the thesis policy select, runs the oracle, and prints the
-study's tables in markdown.
-
-options:
-  --out DIR           also write DIR/failure-study.json (DIR is created)
-  --backend B         vulkan, cpu or naive (default: vulkan when a device is found, else cpu)
-  --resolution N      oracle image side (default 128)
-  --repeats R         oracle repeats (default 3)
-  --large-n-max N     largest size of the large-n case (default 1000000)
-  --no-oracle         statistics and selection only
-  --conference FILE   also characterize this mesh (the conference room: real zero-area triangles)
-  -h, --help          this text";
-
+/// Characterizes every case of docs/failure-study.md, lets the thesis policy select, runs the oracle, and prints
+/// the study's tables in markdown.
+#[derive(Parser, Debug)]
+#[command(name = "failure_study", args_override_self = true)]
 struct Args {
+    /// Also write DIR/failure-study.json (DIR is created)
+    #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
-    backend: Option<Backend>,
+    #[command(flatten)]
+    backend: BackendArg,
+    /// Oracle image side
+    #[arg(long, value_name = "N", default_value_t = 128, value_parser = args::resolution(1, 4096))]
     resolution: u32,
+    /// Oracle repeats, 1..=100
+    #[arg(long, value_name = "R", default_value_t = 3, value_parser = args::positive_max(100))]
     repeats: usize,
+    /// Largest size of the large-n case
+    #[arg(long, value_name = "N", default_value_t = 1_000_000)]
     large_n_max: usize,
-    oracle: bool,
+    /// Statistics and selection only
+    #[arg(long)]
+    no_oracle: bool,
+    /// Also characterize this mesh (the conference room: real zero-area triangles)
+    #[arg(long, value_name = "FILE")]
     conference: Option<PathBuf>,
 }
 
-fn parse_args(argv: Vec<String>) -> Result<Option<Args>, String> {
-    let mut a = Args {
-        out: None,
-        backend: None,
-        resolution: 128,
-        repeats: 3,
-        large_n_max: 1_000_000,
-        oracle: true,
-        conference: None,
-    };
-    let mut it = argv.into_iter();
-    while let Some(arg) = it.next() {
-        let mut value = |name: &str| it.next().ok_or_else(|| format!("{name} needs a value"));
-        match arg.as_str() {
-            "-h" | "--help" => return Ok(None),
-            "--out" => a.out = Some(PathBuf::from(value("--out")?)),
-            "--backend" => a.backend = Some(value("--backend")?.parse().map_err(|e| format!("{e}"))?),
-            "--resolution" => {
-                a.resolution = value("--resolution")?
-                    .parse()
-                    .ok()
-                    .filter(|&r| (1..=4096).contains(&r))
-                    .ok_or("--resolution must be an integer in 1..=4096")?
-            }
-            "--repeats" => {
-                a.repeats = value("--repeats")?
-                    .parse()
-                    .ok()
-                    .filter(|&r| (1..=100).contains(&r))
-                    .ok_or("--repeats must be an integer in 1..=100")?
-            }
-            "--large-n-max" => {
-                a.large_n_max = value("--large-n-max")?.parse().map_err(|_| "--large-n-max must be an integer")?
-            }
-            "--no-oracle" => a.oracle = false,
-            "--conference" => a.conference = Some(PathBuf::from(value("--conference")?)),
-            other => return Err(format!("unknown argument {other:?}")),
-        }
-    }
-    Ok(Some(a))
-}
-
-fn oracle(case: &Case, stats: &CaseStats, a: &Args) -> Result<SceneEvaluation, String> {
-    let anim = case.animation().map_err(|e| e.to_string())?;
-    let dynamic = anim.frames.len() > 1;
-    let config = OracleConfig {
+/// The oracle's configuration for a case of `frames` frames.
+fn oracle_config(a: &Args, frames: usize) -> OracleConfig {
+    OracleConfig {
         resolution: a.resolution,
         repeats: a.repeats,
-        rebuild: if dynamic { Rebuild::PerFrame } else { Rebuild::Once },
+        rebuild: if frames > 1 { Rebuild::PerFrame } else { Rebuild::Once },
         ..OracleConfig::default()
-    };
+    }
+}
+
+fn oracle(case: &Case, stats: &CaseStats, a: &Args, bar: &Progress) -> anyhow::Result<SceneEvaluation> {
+    let anim = case.animation()?;
+    let config = oracle_config(a, anim.frames.len());
     let selected = Some(stats.selected);
-    evaluate_scene(&anim, &config, selected, &|_| {}).map_err(|e| format!("{}: oracle: {e}", case.name))
+    evaluate_scene(&anim, &config, selected, &|m| bar.step(m)).with_context(|| format!("{}: oracle", case.name))
 }
 
 fn fmt_p(p: f64) -> String {
@@ -107,12 +74,13 @@ fn fmt_p(p: f64) -> String {
     }
 }
 
-fn run(a: &Args) -> Result<(), String> {
-    let mut engine = Characterizer::new(a.backend).map_err(|e| e.to_string())?;
+fn run(args: Args) -> anyhow::Result<()> {
+    let a = &args;
+    let mut engine = Characterizer::new(a.backend.backend)?;
     let params = Params::default();
-    let mut cases = failure_study::generated_cases(a.large_n_max).map_err(|e| e.to_string())?;
+    let mut cases = failure_study::generated_cases(a.large_n_max)?;
     if let Some(path) = &a.conference {
-        let mesh = load_mesh(path).map_err(|e| e.to_string())?;
+        let mesh = load_mesh(path)?;
         cases.push(Case::fixed("conference", "the conference room (real zero-area triangles)", mesh));
     }
     let backend = engine.backend().name();
@@ -127,10 +95,16 @@ fn run(a: &Args) -> Result<(), String> {
     );
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|---:|");
     let mut json_cases = Vec::new();
-    for case in &cases {
-        let stats =
-            failure_study::characterize_case(case, &mut engine, &params).map_err(|e| format!("{}: {e}", case.name))?;
-        let eval = if a.oracle && case.name != "conference" { Some(oracle(case, &stats, a)?) } else { None };
+    // One item per case (its characterization, then the oracle's steps), then the hit counts and the refit study.
+    let bar = Progress::new("failure study", Some(cases.len() + 2), false);
+    for (i, case) in cases.iter().enumerate() {
+        let measured = !a.no_oracle && case.name != "conference";
+        let config = oracle_config(a, case.frames.len());
+        let oracle_steps = case.frames.len() * (1 + config.repeats * config.structures.len());
+        bar.item(i, 1 + if measured { oracle_steps } else { 0 }, "");
+        bar.step(&format!("{}: characterization", case.name));
+        let stats = failure_study::characterize_case(case, &mut engine, &params).with_context(|| case.name.clone())?;
+        let eval = if measured { Some(oracle(case, &stats, a, &bar)?) } else { None };
         let f = &stats.frames[0];
         let (vmin, vmax) = stats
             .frames
@@ -142,21 +116,23 @@ fn run(a: &Args) -> Result<(), String> {
             .as_ref()
             .and_then(|e| e.regret.map(|r| (r, e.regret_within_noise == Some(true))))
             .map_or("-".into(), |(r, noise)| format!("{:.0}%{}", 100.0 * r, if noise { " (noise)" } else { "" }));
-        println!(
-            "| {} | {} | {} | {:.1} | {} | {} | {} | {:.0}% | {} | {} | {} | {} |",
-            case.name,
-            f.triangles,
-            f.classes,
-            f.chi_square,
-            fmt_p(f.p_value),
-            v,
-            f.empty_classes,
-            100.0 * f.concentrated_share,
-            f.zero_area,
-            stats.selected.name(),
-            best,
-            regret
-        );
+        bar.suspend(|| {
+            println!(
+                "| {} | {} | {} | {:.1} | {} | {} | {} | {:.0}% | {} | {} | {} | {} |",
+                case.name,
+                f.triangles,
+                f.classes,
+                f.chi_square,
+                fmt_p(f.p_value),
+                v,
+                f.empty_classes,
+                100.0 * f.concentrated_share,
+                f.zero_area,
+                stats.selected.name(),
+                best,
+                regret
+            )
+        });
         json_cases.push(serde_json::json!({
             "case": case.name,
             "description": case.description,
@@ -165,20 +141,28 @@ fn run(a: &Args) -> Result<(), String> {
         }));
     }
 
-    println!("\nPrimary rays hitting a triangle (automatic camera, {r}x{r}):\n", r = a.resolution);
-    println!("| case | rays | BVH hits | brute-force hits |");
-    println!("|---|---:|---:|---:|");
+    let hit_cases: Vec<&Case> =
+        cases.iter().filter(|c| ["soup_5000", "huge_1e30", "tiny_1e-30"].contains(&c.name.as_str())).collect();
+    bar.item(cases.len(), hit_cases.len(), "hit counts");
+    bar.suspend(|| {
+        println!("\nPrimary rays hitting a triangle (automatic camera, {r}x{r}):\n", r = a.resolution);
+        println!("| case | rays | BVH hits | brute-force hits |");
+        println!("|---|---:|---:|---:|");
+    });
     let mut json_hits = Vec::new();
-    for case in cases.iter().filter(|c| ["soup_5000", "huge_1e30", "tiny_1e-30"].contains(&c.name.as_str())) {
-        let h = failure_study::primary_hits(&case.frames[0], a.resolution).map_err(|e| e.to_string())?;
-        println!("| {} | {} | {} | {} |", case.name, h.rays, h.bvh_hits, h.brute_hits);
+    for case in hit_cases {
+        bar.step(&format!("{}: hit counts", case.name));
+        let h = failure_study::primary_hits(&case.frames[0], a.resolution)?;
+        bar.suspend(|| println!("| {} | {} | {} | {} |", case.name, h.rays, h.bvh_hits, h.brute_hits));
         json_hits.push(serde_json::json!({"case": case.name, "hits": h}));
     }
 
     let mut json_refit = serde_json::Value::Null;
+    bar.item(cases.len() + 1, 1, "explosion: refit study");
     if let Some(case) = cases.iter().find(|c| c.name == "explosion") {
-        let anim = case.animation().map_err(|e| e.to_string())?;
-        let rows = failure_study::refit_study(&anim, a.resolution).map_err(|e| e.to_string())?;
+        let anim = case.animation()?;
+        let rows = failure_study::refit_study(&anim, a.resolution)?;
+        bar.finish();
         println!(
             "\nExplosion: frame-0 trees refitted against trees rebuilt per frame ({r}x{r} primary rays):\n",
             r = a.resolution
@@ -204,11 +188,12 @@ fn run(a: &Args) -> Result<(), String> {
                 r.bvh_refit_trace_ms
             );
         }
-        json_refit = serde_json::to_value(&rows).map_err(|e| e.to_string())?;
+        json_refit = serde_json::to_value(&rows)?;
     }
+    bar.finish();
 
     if let Some(dir) = &a.out {
-        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        std::fs::create_dir_all(dir).with_context(|| dir.display().to_string())?;
         let path = dir.join("failure-study.json");
         let doc = serde_json::json!({
             "backend": backend,
@@ -218,14 +203,13 @@ fn run(a: &Args) -> Result<(), String> {
             "hits": json_hits,
             "explosion_refit": json_refit,
         });
-        let text = serde_json::to_string_pretty(&doc).map_err(|e| e.to_string())?;
-        std::fs::write(&path, text).map_err(|e| format!("{}: {e}", path.display()))?;
+        let text = serde_json::to_string_pretty(&doc)?;
+        std::fs::write(&path, text).with_context(|| path.display().to_string())?;
         eprintln!("wrote {}", path.display());
     }
     Ok(())
 }
 
 fn main() -> ExitCode {
-    cli::exit_quietly_on_broken_pipe();
-    cli::main_with("failure_study", USAGE, parse_args(std::env::args().skip(1).collect()), run)
+    cli::main_with(run)
 }

@@ -1,47 +1,67 @@
-//! What the example binaries share: the parse-then-run main with its exit codes, and loading the cost model with
-//! its fallback warning. Included by `#[path = "support/cli.rs"] mod cli;` (Cargo does not build this folder as an
-//! example of its own).
+//! What the example binaries share: the parse-then-run main with its exit codes, the options and value parsers
+//! several examples take ([`args`]), and the progress bar ([`progress`]). Included by
+//! `#[path = "support/cli.rs"] mod cli;` (Cargo does not build this folder as an example of its own).
 #![allow(dead_code)]
 
-use meshchar::cost::CostModel;
-use std::path::Path;
+#[path = "args.rs"]
+pub mod args;
+#[path = "progress.rs"]
+pub mod progress;
+
+#[allow(unused_imports)] // not every example draws a bar
+pub use progress::Progress;
+
+use clap::{CommandFactory, Parser};
 use std::process::ExitCode;
 
-/// Exit code 0 after `--help` (`Ok(None)`: `usage` printed) or a successful `run`; 2 with the usage for bad
-/// arguments; 1 when `run` fails. Every message is prefixed with the binary's `name`.
-pub fn main_with<A>(
-    name: &str,
-    usage: &str,
-    parsed: Result<Option<A>, String>,
-    run: impl FnOnce(&A) -> Result<(), String>,
-) -> ExitCode {
-    let args = match parsed {
-        Ok(Some(a)) => a,
-        Ok(None) => {
-            println!("{}", usage.trim_end());
-            return ExitCode::SUCCESS;
-        }
-        Err(e) => {
-            eprintln!("{name}: {e}\n\n{}", usage.trim_end());
-            return ExitCode::from(2);
-        }
-    };
-    match run(&args) {
+/// Parses the command line with clap and runs. Exit codes: 0 after `--help` or a successful `run`; 2 with a message
+/// for a bad command line (clap's); 1 when `run` fails, with the error (and its causes, `: `-separated) prefixed by
+/// the command's name, unless it is [`Reported`]; 141, quietly, on a closed standard output.
+pub fn main_with<A: Parser>(run: impl FnOnce(A) -> anyhow::Result<()>) -> ExitCode {
+    exit_quietly_on_broken_pipe();
+    let args = A::parse();
+    match run(args) {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e) if e.is::<Reported>() => ExitCode::FAILURE,
         Err(e) => {
-            eprintln!("{name}: {e}");
+            eprintln!("{}: {}", A::command().get_name(), message(&e));
             ExitCode::FAILURE
         }
     }
 }
 
-/// The calibration file at `path` (the shipped defaults without one), with the fallback note printed as a warning.
-pub fn cost_model(name: &str, path: Option<&Path>) -> Result<CostModel, String> {
-    let (model, note) = CostModel::load(path).map_err(|e| format!("cost model: {e}"))?;
-    if let Some(n) = note {
-        eprintln!("{name}: warning: {n}");
+/// An error and its causes, `: `-separated, leaving out a cause that the message before it already quotes (the
+/// library's errors name their source in their own message).
+pub fn message(e: &anyhow::Error) -> String {
+    let mut out = e.to_string();
+    let mut last = out.clone();
+    for cause in e.chain().skip(1) {
+        let text = cause.to_string();
+        if !last.contains(&text) {
+            out.push_str(": ");
+            out.push_str(&text);
+        }
+        last = text;
     }
-    Ok(model)
+    out
+}
+
+/// The error of a run whose failures were printed as they happened: [`main_with`] exits 1 without a message.
+#[derive(Debug)]
+pub struct Reported;
+
+impl std::fmt::Display for Reported {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("failed (reported above)")
+    }
+}
+
+impl std::error::Error for Reported {}
+
+/// Ends the program as clap does for a bad command line (the message, the usage, exit code 2): for the checks that
+/// involve several options.
+pub fn usage_error<A: CommandFactory>(kind: clap::error::ErrorKind, msg: impl std::fmt::Display) -> ! {
+    A::command().error(kind, msg).exit()
 }
 
 /// Makes a closed standard output (`example | head`) end the program quietly with status 141, as a shell tool
@@ -60,21 +80,4 @@ pub fn exit_quietly_on_broken_pipe() {
         }
         default(info);
     }));
-}
-
-/// The value of `--policy`: `thesis` or `calibrated`.
-pub fn policy_arg(v: String) -> Result<String, String> {
-    if v == "thesis" || v == "calibrated" {
-        Ok(v)
-    } else {
-        Err(format!("--policy: {v:?} is not thesis or calibrated"))
-    }
-}
-
-/// The value of `--tie-margin`: a share of the best predicted total in `0..=1`.
-pub fn tie_margin_arg(v: &str) -> Result<f64, String> {
-    v.parse()
-        .ok()
-        .filter(|x: &f64| (0.0..=1.0).contains(x))
-        .ok_or_else(|| "--tie-margin needs a number in 0..=1".into())
 }

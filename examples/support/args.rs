@@ -1,0 +1,197 @@
+//! The options and value parsers that several examples share, defined once (clap derive): an example flattens the
+//! `#[derive(clap::Args)]` structs it needs (`#[command(flatten)]`) and names the value parsers in its own fields
+//! (`#[arg(value_parser = args::backend())]`), so that a flag parses, checks and documents its values the same way
+//! in every example.
+
+use anyhow::Context as _;
+use clap::builder::{PossibleValuesParser, RangedU64ValueParser, TypedValueParser};
+use meshchar::accel::StructureName;
+use meshchar::characterize::{Backend, ClassRule, MortonBits};
+use meshchar::cost::CostModel;
+use meshchar::geom::WorkloadKind;
+use std::path::PathBuf;
+
+/// `--json`. Each example says what it prints in its own words with
+/// `#[command(mut_arg("json", |a| a.help("...")))]`.
+#[derive(clap::Args, Clone, Copy, Debug)]
+pub struct JsonArg {
+    /// Print JSON instead of text
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// The selection policy.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Policy {
+    /// The thesis's rules on the characterization's statistics.
+    Thesis,
+    /// Predicted build and trace times from the cost model.
+    Calibrated,
+}
+
+impl Policy {
+    /// `thesis` or `calibrated`, as the reports name it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Policy::Thesis => "thesis",
+            Policy::Calibrated => "calibrated",
+        }
+    }
+}
+
+/// `--policy` and `--cost-model` (characterize, evaluate, tradeoff).
+#[derive(clap::Args, Clone, Debug)]
+pub struct PolicyArgs {
+    /// The selection policy
+    #[arg(long, value_enum, value_name = "P", default_value_t = Policy::Calibrated)]
+    pub policy: Policy,
+    /// Calibration file of the calibrated policy [default: the shipped one; a missing or stale file falls back to
+    /// it with a warning]
+    #[arg(long, value_name = "FILE")]
+    pub cost_model: Option<PathBuf>,
+}
+
+impl PolicyArgs {
+    /// The cost model of `--cost-model` (the shipped one without it), its fallback note printed as a warning
+    /// prefixed with the example's `name`.
+    pub fn cost_model(&self, name: &str) -> anyhow::Result<CostModel> {
+        let (model, note) = CostModel::load(self.cost_model.as_deref()).context("cost model")?;
+        if let Some(n) = note {
+            eprintln!("{name}: warning: {n}");
+        }
+        Ok(model)
+    }
+}
+
+/// `--tie-margin` (evaluate, tradeoff).
+#[derive(clap::Args, Clone, Copy, Debug)]
+pub struct TieMarginArg {
+    /// Calibrated policy: relative margin within which the cheaper build wins, in 0..=1
+    #[arg(long, value_name = "X", default_value_t = 0.05, value_parser = tie_margin)]
+    pub tie_margin: f64,
+}
+
+/// `--backend` of the characterization (characterize, failure_study, render_classes).
+#[derive(clap::Args, Clone, Copy, Debug)]
+pub struct BackendArg {
+    /// The characterization backend [default: vulkan when a device is found, else cpu]
+    #[arg(long, value_name = "B", value_parser = backend())]
+    pub backend: Option<Backend>,
+}
+
+/// `--morton-bits` (characterize, render_classes).
+#[derive(clap::Args, Clone, Copy, Debug)]
+pub struct MortonBitsArg {
+    /// Bits of the Morton codes
+    #[arg(long, value_name = "B", default_value = "30", value_parser = morton_bits())]
+    pub morton_bits: MortonBits,
+}
+
+/// `--workload` and `--resolution` of a ray-tracing workload (characterize, evaluate).
+#[derive(clap::Args, Clone, Copy, Debug)]
+pub struct WorkloadArgs {
+    /// Kind of rays
+    #[arg(long, value_name = "KIND", default_value = "primary", value_parser = workload())]
+    pub workload: WorkloadKind,
+    /// N x N primary rays per frame (for shadow and diffuse rays an upper bound, as only rays that hit spawn them)
+    #[arg(long, value_name = "N", default_value_t = 1024, value_parser = resolution(1, 16384))]
+    pub resolution: u32,
+}
+
+/// `vulkan`, `cpu` or `naive`.
+pub fn backend() -> impl TypedValueParser<Value = Backend> {
+    PossibleValuesParser::new(["vulkan", "cpu", "naive"]).map(|s| s.parse().expect("a possible value"))
+}
+
+/// `30` or `63`.
+pub fn morton_bits() -> impl TypedValueParser<Value = MortonBits> {
+    PossibleValuesParser::new(["30", "63"])
+        .map(|s| s.parse().ok().and_then(MortonBits::from_total).expect("a possible value"))
+}
+
+/// `primary`, `shadow` or `diffuse`.
+pub fn workload() -> impl TypedValueParser<Value = WorkloadKind> {
+    PossibleValuesParser::new(["primary", "shadow", "diffuse"]).map(|s| s.parse().expect("a possible value"))
+}
+
+/// An image side in `lo..=hi`.
+pub fn resolution(lo: u32, hi: u32) -> impl TypedValueParser<Value = u32> {
+    clap::value_parser!(u32).range(lo as i64..=hi as i64)
+}
+
+/// A count `>= 1` (repeats, frames).
+pub fn positive() -> impl TypedValueParser<Value = usize> {
+    RangedU64ValueParser::<usize>::new().range(1..)
+}
+
+/// A count in `1..=max`.
+pub fn positive_max(max: u64) -> impl TypedValueParser<Value = usize> {
+    RangedU64ValueParser::<usize>::new().range(1..=max)
+}
+
+/// `doane`, `sturges`, `sqrt` or a fixed number of classes `>= 1`.
+pub fn class_rule(s: &str) -> Result<ClassRule, String> {
+    s.parse().map_err(|_| "must be doane, sturges, sqrt or a number of classes >= 1".to_string())
+}
+
+/// A structure name (`bvh`, `kdtree`, `grid`, `bih`, `lbvh`, `hlbvh`, `brute`).
+pub fn structure(s: &str) -> Result<StructureName, String> {
+    s.parse()
+}
+
+/// A share of the best predicted total in `0..=1`.
+pub fn tie_margin(s: &str) -> Result<f64, String> {
+    s.parse().ok().filter(|x: &f64| (0.0..=1.0).contains(x)).ok_or_else(|| "needs a number in 0..=1".into())
+}
+
+/// The significance of a test, in `(0, 1)`.
+pub fn alpha(s: &str) -> Result<f64, String> {
+    s.parse().ok().filter(|x: &f64| *x > 0.0 && *x < 1.0).ok_or_else(|| "needs a number in (0, 1)".into())
+}
+
+/// The value of a comma-separated list option (`--strides 1,2,4`): items trimmed, empty ones skipped, at least one.
+/// A later occurrence of the option replaces an earlier one.
+#[derive(Clone, Debug, PartialEq)]
+pub struct List<T>(pub Vec<T>);
+
+/// The value parser of a [`List`] whose items `item` parses (and whose possible values `--help` lists).
+pub fn list<P: TypedValueParser>(item: P) -> ListParser<P> {
+    ListParser(item)
+}
+
+/// See [`list`].
+#[derive(Clone)]
+pub struct ListParser<P>(P);
+
+impl<P> TypedValueParser for ListParser<P>
+where
+    P: TypedValueParser,
+    P::Value: Clone + Send + Sync + 'static,
+{
+    type Value = List<P::Value>;
+
+    fn parse_ref(
+        &self,
+        cmd: &clap::Command,
+        arg: Option<&clap::Arg>,
+        value: &std::ffi::OsStr,
+    ) -> Result<Self::Value, clap::Error> {
+        let text = value.to_str().ok_or_else(|| clap::Error::new(clap::error::ErrorKind::InvalidUtf8).with_cmd(cmd))?;
+        let items = text
+            .split(',')
+            .map(str::trim)
+            .filter(|s| !s.is_empty())
+            .map(|s| self.0.parse_ref(cmd, arg, std::ffi::OsStr::new(s)))
+            .collect::<Result<Vec<_>, _>>()?;
+        if items.is_empty() {
+            let name = arg.and_then(|a| a.get_long()).map_or_else(|| "the list".to_string(), |l| format!("--{l}"));
+            let msg = format!("{name} needs at least one value\n");
+            return Err(clap::Error::raw(clap::error::ErrorKind::InvalidValue, msg).with_cmd(cmd));
+        }
+        Ok(List(items))
+    }
+
+    fn possible_values(&self) -> Option<Box<dyn Iterator<Item = clap::builder::PossibleValue> + '_>> {
+        self.0.possible_values()
+    }
+}

@@ -1,0 +1,299 @@
+//! The example binaries' command lines (clap): `--help` exits 0 with the usage, an unknown flag and a bad value exit
+//! 2 with a message, `--json=false` never turns JSON on, a second positional where one is allowed exits 2,
+//! `--flag=value` works, a runtime failure exits 1 naming the file, and nothing but the output appears when standard
+//! error is not a terminal (no progress lines).
+//!
+//! The binaries are the built examples beside this test's directory (`target/<profile>/examples/<name>`): build
+//! them first with `cargo build --release --examples` (as `scripts/test` does; `cargo test --examples` builds
+//! test harnesses instead). A missing binary, or one older than the sources, fails the test.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+const EXAMPLES: [&str; 8] =
+    ["build_bvh", "calibrate", "characterize", "devices", "evaluate", "failure_study", "render_classes", "tradeoff"];
+
+/// The example binary `name`: `current_exe()` is `target/<profile>/deps/examples_cli-<hash>`.
+fn binary(name: &str) -> PathBuf {
+    let exe = std::env::current_exe().expect("the test's own path");
+    let dir = exe.parent().and_then(Path::parent).expect("target/<profile>");
+    let path = dir.join("examples").join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
+    assert!(
+        path.is_file(),
+        "example binary {} not found: build the examples first (`cargo build --release --examples`; \
+         `cargo test --examples` builds test harnesses, not these binaries)",
+        path.display()
+    );
+    let built = std::fs::metadata(&path).and_then(|m| m.modified()).expect("the binary's time");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    if let Some(newer) = newest_source(&[root.join("examples"), root.join("src"), root.join("Cargo.toml")], built) {
+        panic!(
+            "example binary {} is older than {}: rebuild the examples (`cargo build --release --examples`)",
+            path.display(),
+            newer.display()
+        );
+    }
+    path
+}
+
+/// A file under `paths` modified after `time`, if any.
+fn newest_source(paths: &[PathBuf], time: std::time::SystemTime) -> Option<PathBuf> {
+    for p in paths {
+        let Ok(meta) = std::fs::metadata(p) else { continue };
+        if meta.is_dir() {
+            let entries: Vec<PathBuf> =
+                std::fs::read_dir(p).into_iter().flatten().flatten().map(|e| e.path()).collect();
+            if let Some(f) = newest_source(&entries, time) {
+                return Some(f);
+            }
+        } else if meta.modified().is_ok_and(|m| m > time) {
+            return Some(p.clone());
+        }
+    }
+    None
+}
+
+/// Runs example `name` with `args`, no standard input, its outputs captured (so not terminals).
+fn run(name: &str, args: &[&str]) -> Output {
+    Command::new(binary(name))
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {name}: {e}"))
+}
+
+fn text(out: &Output) -> (String, String) {
+    (String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr).into_owned())
+}
+
+/// `name args` exits 2 with an error message on standard error and nothing on standard output.
+fn assert_usage_error(name: &str, args: &[&str]) {
+    let out = run(name, args);
+    let (stdout, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(2), "{name} {args:?}: exit code\nstdout: {stdout}\nstderr: {stderr}");
+    assert!(stderr.contains("error:"), "{name} {args:?}: no message on stderr: {stderr:?}");
+    assert!(stdout.is_empty(), "{name} {args:?}: printed on stdout: {stdout:?}");
+}
+
+/// A small mesh (a tetrahedron) in a fresh directory.
+fn tetrahedron(dir_name: &str) -> (PathBuf, PathBuf) {
+    let dir = std::env::temp_dir().join(format!("meshchar-examples-cli-{}-{dir_name}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temporary directory");
+    let path = dir.join("tetrahedron.obj");
+    std::fs::write(&path, "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n").expect("mesh");
+    (dir, path)
+}
+
+#[test]
+fn help_exits_0_with_the_usage() {
+    for name in EXAMPLES {
+        for flag in ["--help", "-h"] {
+            let out = run(name, &[flag]);
+            let (stdout, stderr) = text(&out);
+            assert_eq!(out.status.code(), Some(0), "{name} {flag}: {stderr}");
+            assert!(stdout.contains(&format!("Usage: {name}")), "{name} {flag}: no usage in {stdout:?}");
+            assert!(stdout.contains("--help"), "{name} {flag}: {stdout:?}");
+        }
+    }
+}
+
+#[test]
+fn long_help_keeps_the_explanations() {
+    let cases: &[(&str, &[&str])] = &[
+        ("characterize", &["--class-rule <doane|sturges|sqrt|N>", "[possible values: 30, 63]", "embedded default"]),
+        ("evaluate", &["--compare-policies <FILE>", "--oracle-cache", "policy-regret-<workload>.svg"]),
+        ("tradeoff", &["tradeoff-statistics.svg", "[default: cpu,vulkan,naive]", "--oracle-resolution"]),
+        ("build_bvh", &["lbvh", "hlbvh", "sah", "--cluster-bits"]),
+        ("calibrate", &["--from-oracle", "--no-refit", "../shared/meshes/bart"]),
+        ("failure_study", &["--large-n-max", "--conference", "zero-area"]),
+        ("render_classes", &["--inside", "FILE.json", "16..=4096"]),
+        ("devices", &["MESHCHAR_DEVICE", "\"selected\""]),
+    ];
+    for (name, wanted) in cases {
+        let (stdout, _) = text(&run(name, &["--help"]));
+        for w in *wanted {
+            assert!(stdout.contains(w), "{name} --help lacks {w:?}:\n{stdout}");
+        }
+    }
+}
+
+#[test]
+fn unknown_flags_exit_2() {
+    for name in EXAMPLES {
+        assert_usage_error(name, &["--no-such-flag"]);
+        assert_usage_error(name, &["-x"]);
+    }
+}
+
+#[test]
+fn bad_values_exit_2() {
+    let cases: &[(&str, &[&str])] = &[
+        ("characterize", &["--resolution", "abc"]),
+        ("characterize", &["--resolution", "0"]),
+        ("characterize", &["--backend", "nope"]),
+        ("characterize", &["--morton-bits", "7"]),
+        ("characterize", &["--class-rule", "0"]),
+        ("characterize", &["--class-rule", "many"]),
+        ("characterize", &["--alpha", "1.5"]),
+        ("characterize", &["--sample-stride", "0"]),
+        ("characterize", &["--policy", "nope"]),
+        ("characterize", &["--workload", "nope"]),
+        ("characterize", &["--frames", "0"]),
+        ("characterize", &["--resolution"]),
+        ("evaluate", &["x.obj", "--resolution", "abc"]),
+        ("evaluate", &["x.obj", "--resolution", "16385"]),
+        ("evaluate", &["x.obj", "--workload", "nope"]),
+        ("evaluate", &["x.obj", "--tie-margin", "1.5"]),
+        ("evaluate", &["x.obj", "--repeats", "0"]),
+        ("evaluate", &["x.obj", "--rebuild", "sometimes"]),
+        ("evaluate", &["x.obj", "--structures", "bvh,octree"]),
+        ("evaluate", &["x.obj", "--camera", "1,2,3"]),
+        ("evaluate", &["x.obj", "--camera", "0,0,0,0,0,0"]),
+        ("evaluate", &[]),
+        ("build_bvh", &["x.obj", "--backend", "nope"]),
+        ("build_bvh", &["x.obj", "--backend", "naive"]),
+        ("build_bvh", &["x.obj", "--builder", "nope"]),
+        ("build_bvh", &["x.obj", "--max-leaf", "0"]),
+        ("build_bvh", &["x.obj", "--cluster-bits", "99"]),
+        ("build_bvh", &["x.obj", "--builder", "sah", "--backend", "vulkan"]),
+        ("build_bvh", &[]),
+        ("calibrate", &["--resolution", "4097"]),
+        ("calibrate", &["--repeats", "0"]),
+        ("calibrate", &["stray"]),
+        ("failure_study", &["--repeats", "101"]),
+        ("failure_study", &["--backend", "nope"]),
+        ("failure_study", &["--large-n-max", "-1"]),
+        ("render_classes", &["x.obj", "--out", "x.png", "--resolution", "15"]),
+        ("render_classes", &["x.obj", "--out", "x.png", "--morton-bits", "7"]),
+        ("render_classes", &["x.obj", "--out", "x.png", "--frame", "abc"]),
+        ("render_classes", &["x.obj"]),
+        ("tradeoff", &["x.obj", "--out", "d", "--backends", "cpu,nope"]),
+        ("tradeoff", &["x.obj", "--out", "d", "--bits", "30,7"]),
+        ("tradeoff", &["x.obj", "--out", "d", "--strides", "1,0"]),
+        ("tradeoff", &["x.obj", "--out", "d", "--rules", "doane,0"]),
+        ("tradeoff", &["x.obj", "--out", "d", "--strides", ","]),
+        ("tradeoff", &["x.obj", "--out", "d", "--tie-margin", "-0.1"]),
+        ("tradeoff", &["x.obj", "--out", "d", "--oracle-resolution", "abc"]),
+        ("tradeoff", &["x.obj"]),
+        ("tradeoff", &["--out", "d"]),
+        ("devices", &["stray"]),
+    ];
+    for (name, args) in cases {
+        assert_usage_error(name, args);
+    }
+}
+
+#[test]
+fn json_equals_false_never_turns_json_on() {
+    for (name, args) in [
+        ("characterize", &["--backend", "cpu"][..]),
+        ("evaluate", &["x.obj"][..]),
+        ("build_bvh", &["x.obj"][..]),
+        ("devices", &[][..]),
+    ] {
+        let mut all = args.to_vec();
+        all.push("--json=false");
+        assert_usage_error(name, &all);
+    }
+}
+
+#[test]
+fn one_positional_means_one() {
+    let (dir, mesh) = tetrahedron("positionals");
+    let m = mesh.to_str().expect("utf-8 path");
+    let png = dir.join("x.png");
+    assert_usage_error("build_bvh", &["--backend", "cpu", m, m]);
+    assert_usage_error("render_classes", &["--backend", "cpu", m, m, "--out", png.to_str().expect("utf-8 path")]);
+    assert!(!png.exists(), "render_classes wrote a picture");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn flag_equals_value_and_plain_flags_work() {
+    let out = run("characterize", &["--json", "--backend=cpu", "--morton-bits=63", "--class-rule=sturges"]);
+    let (stdout, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    let report: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
+    assert_eq!(report["morton_bits"], 63);
+    assert_eq!(report["class_rule"], "sturges");
+    assert_eq!(report["backend"], "cpu");
+    // The last of a repeated option wins, as before clap.
+    let out = run("characterize", &["--json", "--backend", "naive", "--backend", "cpu"]);
+    let (stdout, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    let report: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
+    assert_eq!(report["backend"], "cpu");
+}
+
+#[test]
+fn runtime_failures_exit_1_naming_the_file() {
+    let missing = std::env::temp_dir().join("meshchar-examples-cli-no-such-mesh.obj");
+    let m = missing.to_str().expect("utf-8 path");
+    for (name, args) in [
+        ("characterize", vec!["--backend", "cpu", m]),
+        ("evaluate", vec![m]),
+        ("build_bvh", vec!["--backend", "cpu", m]),
+        ("render_classes", vec![m, "--out", "x.png"]),
+    ] {
+        let out = run(name, &args);
+        let (_, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(1), "{name}: {stderr}");
+        assert!(stderr.starts_with(&format!("{name}: ")), "{name}: {stderr:?}");
+        assert!(stderr.contains("no-such-mesh.obj"), "{name}: the message does not name the file: {stderr:?}");
+        assert_eq!(stderr.matches("No such file").count(), 1, "{name}: cause repeated: {stderr:?}");
+    }
+}
+
+#[test]
+fn no_progress_output_without_a_terminal() {
+    let (dir, mesh) = tetrahedron("progress");
+    let m = mesh.to_str().expect("utf-8 path");
+    // evaluate: the tables on stdout, nothing on stderr.
+    let out = run("evaluate", &[m, "--resolution", "16", "--repeats", "1", "--structures", "bvh,grid"]);
+    let (stdout, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(0), "evaluate: {stderr}");
+    assert!(stdout.contains("oracle best"), "evaluate: {stdout}");
+    assert!(stderr.is_empty(), "evaluate wrote on stderr: {stderr:?}");
+    // With --json: one JSON line per scene, nothing else.
+    let out = run("evaluate", &[m, "--json", "--resolution", "16", "--repeats", "1", "--structures", "bvh"]);
+    let (stdout, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(0), "evaluate --json: {stderr}");
+    assert_eq!(stdout.lines().count(), 1, "{stdout}");
+    let line: serde_json::Value = serde_json::from_str(stdout.trim()).expect("a JSON line");
+    assert_eq!(line["policy"], "calibrated");
+    assert!(stderr.is_empty(), "evaluate --json wrote on stderr: {stderr:?}");
+    // tradeoff measures its oracle and sweeps: no progress lines either.
+    let out_dir = dir.join("tradeoff");
+    let o = out_dir.to_str().expect("utf-8 path");
+    let args = [
+        m,
+        "--out",
+        o,
+        "--policy",
+        "thesis",
+        "--backends",
+        "cpu",
+        "--strides",
+        "1, 2,",
+        "--bits",
+        "30",
+        "--rules",
+        "doane",
+        "--repeats",
+        "1",
+        "--oracle-resolution",
+        "16",
+        "--oracle-repeats",
+        "1",
+    ];
+    let out = run("tradeoff", &args);
+    let (stdout, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(0), "tradeoff: {stderr}");
+    assert!(stdout.contains("wrote:"), "tradeoff: {stdout}");
+    assert!(stderr.is_empty(), "tradeoff wrote on stderr: {stderr:?}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("tradeoff.json")).expect("tradeoff.json"))
+            .expect("JSON");
+    assert_eq!(json["settings"].as_array().map(Vec::len), Some(2), "strides 1 and 2 on the CPU");
+    let _ = std::fs::remove_dir_all(&dir);
+}
