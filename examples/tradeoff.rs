@@ -249,12 +249,7 @@ fn main() {
     let thesis = ThesisPolicy::default();
     let model = if args.policy == "calibrated" {
         match CostModel::load(args.cost_model.as_deref()) {
-            Ok((m, note)) => {
-                if let Some(n) = note {
-                    eprintln!("tradeoff: warning: {n}");
-                }
-                Some(m)
-            }
+            Ok(m) => Some(m),
             Err(e) => fail(format!("cost model: {e}")),
         }
     } else {

@@ -1,5 +1,5 @@
-//! What the example binaries share: the parse-then-run main with its exit codes, and loading the cost model with
-//! its fallback warning. Included by `#[path = "support/cli.rs"] mod cli;` (Cargo does not build this folder as an
+//! What the example binaries share: the parse-then-run main with its exit codes, and loading the cost model.
+//! Included by `#[path = "support/cli.rs"] mod cli;` (Cargo does not build this folder as an
 //! example of its own).
 #![allow(dead_code)]
 
@@ -35,13 +35,10 @@ pub fn main_with<A>(
     }
 }
 
-/// The calibration file at `path` (the shipped defaults without one), with the fallback note printed as a warning.
-pub fn cost_model(name: &str, path: Option<&Path>) -> Result<CostModel, String> {
-    let (model, note) = CostModel::load(path).map_err(|e| format!("cost model: {e}"))?;
-    if let Some(n) = note {
-        eprintln!("{name}: warning: {n}");
-    }
-    Ok(model)
+/// The calibration file at `path` (an error when it is missing or invalid), the shipped defaults without one.
+/// `_name` is unused since loading has no fallback warning left to print.
+pub fn cost_model(_name: &str, path: Option<&Path>) -> Result<CostModel, String> {
+    CostModel::load(path).map_err(|e| format!("cost model: {e}"))
 }
 
 /// Makes a closed standard output (`example | head`) end the program quietly with status 141, as a shell tool
