@@ -59,8 +59,8 @@ fn the_shipped_file_is_valid_canonical_and_round_trips() {
     assert_eq!(CostModel::from_json(&text).unwrap(), m);
     assert_eq!(text + "\n", SHIPPED_CPU);
     // The file on disk is the one compiled in.
-    let disk = std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/cost-model-cpu.json"))
-        .unwrap();
+    let disk =
+        std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/cost-model-cpu.json")).unwrap();
     assert_eq!(disk, SHIPPED_CPU);
 }
 
@@ -85,8 +85,11 @@ fn an_explicit_file_is_loaded_as_written() {
 fn a_missing_explicit_file_is_an_error_not_the_shipped_model() {
     let path = common::temp_dir("cost-file").join("missing.json");
     let e = CostModel::load(Some(&path)).unwrap_err();
-    assert!(matches!(&e, CostError::Io { path: p, source } if *p == path.display().to_string()
-        && source.kind() == std::io::ErrorKind::NotFound), "{e:?}");
+    assert!(
+        matches!(&e, CostError::Io { path: p, source } if *p == path.display().to_string()
+        && source.kind() == std::io::ErrorKind::NotFound),
+        "{e:?}"
+    );
     assert!(e.to_string().contains("missing.json"), "{e}");
     // A directory is not readable as a file either.
     let dir = common::temp_dir("cost-file");
@@ -179,10 +182,18 @@ fn non_finite_coefficients_are_errors_naming_them() {
         let e = CostModel::from_json(&m.to_json()).unwrap_err();
         assert_invalid(&e, "structures[3] (bih).box_coef[5] (fill_at_n)", Some(StructureName::Bih));
         // validate() on the model itself says the same.
-        assert_invalid(&m.validate().unwrap_err(), "structures[3] (bih).box_coef[5] (fill_at_n)", Some(StructureName::Bih));
+        assert_invalid(
+            &m.validate().unwrap_err(),
+            "structures[3] (bih).box_coef[5] (fill_at_n)",
+            Some(StructureName::Bih),
+        );
         let mut m = shipped();
         m.structures[4].prim_coef[0] = x;
-        assert_invalid(&m.validate().unwrap_err(), "structures[4] (lbvh).prim_coef[0] (intercept)", Some(StructureName::Lbvh));
+        assert_invalid(
+            &m.validate().unwrap_err(),
+            "structures[4] (lbvh).prim_coef[0] (intercept)",
+            Some(StructureName::Lbvh),
+        );
         let mut m = shipped();
         m.structures[5].build_exponent = x;
         let e = CostModel::from_json(&m.to_json()).unwrap_err();
@@ -209,8 +220,11 @@ fn non_finite_coefficients_are_errors_naming_them() {
 #[test]
 fn another_version_is_an_error() {
     let e = refused(|v| v["version"] = json!(COST_MODEL_VERSION + 1));
-    assert!(matches!(e, CostError::Version { found, expected } if found == u64::from(COST_MODEL_VERSION) + 1
-        && expected == COST_MODEL_VERSION), "{e:?}");
+    assert!(
+        matches!(e, CostError::Version { found, expected } if found == u64::from(COST_MODEL_VERSION) + 1
+        && expected == COST_MODEL_VERSION),
+        "{e:?}"
+    );
     assert!(e.to_string().starts_with("version: "), "{e}");
     let e = refused(|v| v["version"] = json!(1u64 << 40));
     assert!(matches!(e, CostError::Version { found, .. } if found == 1 << 40), "{e:?}");

@@ -98,7 +98,8 @@ fn every_push_constant_struct_matches_its_shader() {
     check_push_layout::<ChiPush>(&shaders::chi_square::INFO).expect("chi_square");
     check_push_layout::<meshchar::characterize::gpu::features::FeatureBoundsPush>(&shaders::features_bounds::INFO)
         .expect("features_bounds");
-    check_push_layout::<meshchar::characterize::gpu::features::FeaturesPush>(&shaders::features::INFO).expect("features");
+    check_push_layout::<meshchar::characterize::gpu::features::FeaturesPush>(&shaders::features::INFO)
+        .expect("features");
     {
         use meshchar::accel::gpu::*;
         check_push_layout::<CodesPush>(&shaders::lbvh_codes::INFO).expect("lbvh_codes");
