@@ -296,7 +296,7 @@ fn real_meshes_match_the_exact_reference() {
                 let d = (s.code_max - s.code_min) as u128;
                 let mut hist = vec![0u64; c.classes as usize];
                 for &m in codes {
-                    let i = if d == 0 { 0 } else { (((m - s.code_min) as u128 * k) / d).min(k - 1) };
+                    let i = ((m - s.code_min) as u128 * k).checked_div(d).map_or(0, |c| c.min(k - 1));
                     hist[i as usize] += 1;
                 }
                 assert_eq!(hist, c.histogram, "{what}: histogram");
