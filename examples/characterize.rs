@@ -136,7 +136,7 @@ fn run(args: Args) -> anyhow::Result<()> {
     if let Some(note) = engine.note() {
         eprintln!("characterize: {note}");
     }
-    let model = args.policy.cost_model("characterize")?;
+    let model = args.policy.cost_model()?;
     let bar = Progress::new("characterize", Some(args.paths.len().max(1)), args.json.json);
     if args.paths.is_empty() {
         bar.item(0, 1, "the default scene");

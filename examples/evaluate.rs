@@ -446,7 +446,7 @@ fn run(args: Args) -> anyhow::Result<()> {
     if !args.compare_policies.is_empty() {
         return compare_policies(&args);
     }
-    let model = args.policy.cost_model("evaluate")?;
+    let model = args.policy.cost_model()?;
     let mut engine = Characterizer::new(None)?;
     let mut evals = Vec::new();
     let mut failed = false;

@@ -169,7 +169,7 @@ fn run(mut args: Args) -> anyhow::Result<()> {
     let settings = grid.settings();
     let thesis = ThesisPolicy::default();
     let model = match args.policy.policy {
-        Policy::Calibrated => Some(args.policy.cost_model("tradeoff")?),
+        Policy::Calibrated => Some(args.policy.cost_model()?),
         Policy::Thesis => None,
     };
     let tie_margin = args.tie_margin.tie_margin;

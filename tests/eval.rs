@@ -31,15 +31,31 @@ fn oracle_measures_every_structure_and_picks_the_least_total() {
         assert!(e.rays_per_frame > 0, "{w:?}");
         for s in &e.structures {
             assert!(s.valid && s.hits_agree, "{w:?} {:?}: {:?}", s.name, s.error);
-            assert!(s.total_ms.median > 0.0 && s.build_ms.median >= 0.0);
-            assert!(s.total_ms.min >= s.trace_ms.min && s.total_ms.max >= s.build_ms.min);
+            // A build and a trace take time, and a repeat's total is its build plus its trace (one frame): the
+            // totals lie between the sums of the smallest and of the largest builds and traces. A total that left
+            // out the build or the trace falls below the lower sum.
+            assert!(s.build_ms.min > 0.0 && s.trace_ms.min > 0.0, "{w:?} {:?}", s.name);
+            let (lo, hi) = (s.build_ms.min + s.trace_ms.min, s.build_ms.max + s.trace_ms.max);
+            for t in [s.total_ms.min, s.total_ms.median, s.total_ms.max] {
+                assert!(lo <= t && t <= hi, "{w:?} {:?}: total {t} outside [{lo}, {hi}]", s.name);
+            }
+            assert_eq!(s.rays, e.rays_per_frame as u64, "{w:?} {:?}: one frame traced", s.name);
             assert!(s.box_tests_per_ray > 0.0);
             assert!(s.memory_bytes > 0);
         }
-        let best = e.oracle_best.unwrap();
-        let best_total = e.get(best).unwrap().total_ms.median;
-        assert!(e.structures.iter().all(|s| s.total_ms.median >= best_total));
-        assert!(e.get(best).unwrap().within_noise_of_best);
+        // The best, by hand: the smallest median total (all six are valid and agree with the reference hits).
+        let by_hand = e.structures.iter().min_by(|a, b| a.total_ms.median.total_cmp(&b.total_ms.median)).unwrap();
+        assert_eq!(e.oracle_best, by_hand.name, "{w:?}");
+        let bt = &by_hand.total_ms;
+        // Within noise of the best: the two medians at most the sum of the two half-ranges apart.
+        for s in &e.structures {
+            let near = (s.total_ms.median - bt.median).abs() <= s.total_ms.spread + bt.spread;
+            assert_eq!(s.within_noise_of_best, near, "{w:?} {:?}", s.name);
+        }
+        let near: Vec<StructureName> =
+            e.structures.iter().filter(|s| s.within_noise_of_best).filter_map(|s| s.name).collect();
+        assert_eq!(e.oracle_within_noise, near, "{w:?}");
+        assert!(near.contains(&by_hand.name.unwrap()));
         // No selection given: no regret.
         assert_eq!((e.selected, e.regret), (None, None));
         let j = e.to_json();
@@ -77,27 +93,69 @@ fn regret_of_a_selection_is_its_total_over_the_best() {
     let grid = e.get(StructureName::Grid).unwrap().total_ms.median;
     let r = e.regret.unwrap();
     assert!((r - (grid / best - 1.0)).abs() < 1e-12);
-    assert!(r >= 0.0);
+    // The best is the smallest median total, found here by hand; the regret is 0 exactly when the grid is it.
+    let by_hand = e.structures.iter().min_by(|a, b| a.total_ms.median.total_cmp(&b.total_ms.median)).unwrap();
+    assert_eq!(e.oracle_best, by_hand.name);
+    assert_eq!(r == 0.0, grid == by_hand.total_ms.median, "regret {r}");
     assert_eq!(e.regret_within_noise, Some(e.get(StructureName::Grid).unwrap().within_noise_of_best));
     assert_eq!(e.to_json()["selected"], "grid");
 }
 
+/// The trace ms of one frame from a result's throughput (`mrays_per_s` = rays / median per-frame trace time):
+/// independent of how the oracle scales the trace time to the run.
+fn trace_ms_of_one_frame(s: &meshchar::eval::StructureResult) -> f64 {
+    s.rays as f64 / (s.mrays_per_s * 1e3)
+}
+
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-9 * b.abs()
+}
+
 #[test]
-fn static_totals_add_build_and_trace_for_both_policies() {
-    let anim = Animation::new("static", vec![scene(200, 0.0)]).unwrap();
+fn static_totals_are_builds_plus_frames_times_the_trace() {
+    // A static scene rendered F frames: traced once and counted F times; built once (B + F T) or every frame
+    // (F B + F T).
+    const F: usize = 10_000;
+    let anim = Animation::new("static", vec![scene(2000, 0.0)]).unwrap();
     let mut c = config(WorkloadKind::Primary);
     c.structures = vec![StructureName::Bvh];
-    c.frames = Some(10);
+    c.frames = Some(F);
+    let run = |c: &OracleConfig| {
+        let e = evaluate_scene(&anim, c, None, &|_| {}).unwrap();
+        assert_eq!((e.frames, e.frames_measured, e.rebuild), (F, 1, c.rebuild));
+        assert_eq!(e.structures[0].rays, e.rays_per_frame as u64, "one frame traced");
+        e.structures[0].clone()
+    };
+    // One repeat: the medians are the single samples, so the formulas hold exactly (up to rounding).
     c.repeats = 1;
-    let once = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
-    let s = &once.structures[0];
-    assert_eq!(once.frames, 10);
-    assert!((s.total_ms.median - (s.build_ms.median + s.trace_ms.median)).abs() < 1e-9);
+    let once = run(&c);
+    let t = trace_ms_of_one_frame(&once);
+    assert!(close(once.trace_ms.median, F as f64 * t), "trace {} vs {F} x {t}", once.trace_ms.median);
+    assert!(close(once.total_ms.median, once.build_ms.median + F as f64 * t), "{once:?}");
     c.rebuild = Rebuild::PerFrame;
-    let every = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
-    let s = &every.structures[0];
-    assert!((s.total_ms.median - (s.build_ms.median + s.trace_ms.median)).abs() < 1e-9);
-    assert_eq!(every.rebuild, Rebuild::PerFrame);
+    let every = run(&c);
+    let t = trace_ms_of_one_frame(&every);
+    assert!(close(every.trace_ms.median, F as f64 * t), "trace {} vs {F} x {t}", every.trace_ms.median);
+    assert!(close(every.total_ms.median, every.build_ms.median + F as f64 * t), "{every:?}");
+    // Five repeats: the medians of the scaled samples are the scaled medians, and the per-frame build is F builds
+    // where building once is one: the ratio of the two runs' median builds is F, within timing noise (a factor of
+    // 100 either way; building once counted F times, or per frame counted once, gives about 1).
+    c.repeats = 5;
+    c.rebuild = Rebuild::Once;
+    let once = run(&c);
+    assert!(close(once.trace_ms.median, F as f64 * trace_ms_of_one_frame(&once)));
+    c.rebuild = Rebuild::PerFrame;
+    let every = run(&c);
+    assert!(close(every.trace_ms.median, F as f64 * trace_ms_of_one_frame(&every)));
+    let ratio = every.build_ms.median / once.build_ms.median;
+    assert!(
+        ratio > F as f64 / 100.0 && ratio < F as f64 * 100.0,
+        "per-frame / once build ratio {ratio}, expected ~{F}"
+    );
+    for s in [&once, &every] {
+        let (lo, hi) = (s.build_ms.min + s.trace_ms.min, s.build_ms.max + s.trace_ms.max);
+        assert!(lo <= s.total_ms.min && s.total_ms.max <= hi, "{s:?}");
+    }
 }
 
 #[test]

@@ -4,6 +4,7 @@
 //! references), never through timings.
 
 mod common;
+mod exact;
 mod gpu_support;
 
 use meshchar::accel::bvh::Bvh;
@@ -33,9 +34,29 @@ fn case(name: &str) -> &'static Case {
 fn stats(name: &str) -> CaseStats {
     let mut cpu = Characterizer::new(Some(Backend::Cpu)).expect("cpu");
     let s = failure_study::characterize_case(case(name), &mut cpu, &Params::default()).expect("characterize");
+    let alpha = Params::default().alpha;
     for f in &s.frames {
-        for x in [f.chi_square, f.p_value, f.effect_size, f.concentrated_share] {
-            assert!(x.is_finite(), "{name}: non-finite figure in {f:?}");
+        // Every figure against the frame's own histogram in exact arithmetic (tests/exact), which a NaN fails as
+        // well as a wrong number does: chi-square and the concentrated share correctly rounded, V within 1 ulp.
+        let x = exact::histogram_exact(&f.histogram, f.triangles);
+        assert_eq!(f.histogram.len(), f.classes as usize, "{name}");
+        assert_eq!(f.histogram.iter().sum::<u64>(), f.triangles, "{name}");
+        assert_eq!(f.dof, f.classes.saturating_sub(1), "{name}");
+        assert!(exact::correctly_rounded(f.chi_square, &x.chi_square), "{name}: chi-square {f:?}");
+        if x.v_squared >= num_rational::BigRational::from_integer(1.into()) {
+            assert_eq!(f.effect_size, 1.0, "{name}");
+        } else {
+            assert!(exact::sqrt_within(f.effect_size, false, &x.v_squared, 1.0), "{name}: V {f:?}");
+        }
+        assert!(exact::correctly_rounded(f.concentrated_share, &x.concentrated_share), "{name}: share {f:?}");
+        assert_eq!(
+            (f.empty_classes as usize, f.concentrated_classes as usize),
+            (x.empty_classes, x.concentrated_classes)
+        );
+        // The decision and the p-value agree (chi-square <= critical value iff p >= alpha) away from the boundary.
+        assert!((0.0..=1.0).contains(&f.p_value), "{name}: p {f:?}");
+        if (f.p_value - alpha).abs() > 1e-9 {
+            assert_eq!(f.uniform, f.p_value >= alpha, "{name}: {f:?}");
         }
     }
     s

@@ -144,7 +144,11 @@ fn sweep_with_a_pluggable_policy_and_the_least_work_table() {
             assert_eq!((a.agree_best, a.agree_within_noise), (0.0, 0.0), "{}", r.label);
             assert!((a.mean_regret - 0.5).abs() < 1e-12 && (a.worst_regret - 0.5).abs() < 1e-12, "{}", r.label);
         }
-        assert!(r.time_ms >= 0.0 && r.scenes[0].time_ms.median >= 0.0);
+        // One timed run per setting and scene (repeats: 1, the untimed warm-up apart): a single sample, which took
+        // time; the setting's time is the sum over its one scene.
+        let t = &r.scenes[0].time_ms;
+        assert!(t.median > 0.0 && (t.min, t.max, t.spread) == (t.median, t.median, 0.0), "{}: {t:?}", r.label);
+        assert_eq!(r.time_ms, t.median, "{}", r.label);
         // Sampled settings are also read with the full computation's k.
         match (&s.same_k, r.sample_stride, r.class_rule.as_str()) {
             (Some(x), stride, "doane") if stride > 1 => assert_eq!(x.drift.k_delta, 0, "{}", r.label),
@@ -302,29 +306,54 @@ fn sampled_settings_characterize_identically_on_cpu_and_vulkan() {
     gpu_support::assert_no_validation_messages(&ctx);
 }
 
+/// A cost model small enough to predict on paper: every test-count coefficient 0 (one box and one triangle test per
+/// ray, both free), a linear build `exp(a) n` and one price per ray, the same for every kind of ray.
+fn paper_model() -> meshchar::cost::CostModel {
+    use meshchar::cost::{CostModel, FitError, StructureModel, COST_MODEL_VERSION, FEATURE_NAMES, PRICE_NAMES};
+    let structure = |s: StructureName, build_ms_per_triangle: f64, ns_per_ray: f64| StructureModel {
+        structure: s,
+        build_ln_a: f64::ln(build_ms_per_triangle),
+        build_exponent: 1.0,
+        box_coef: vec![0.0; FEATURE_NAMES.len()],
+        prim_coef: vec![0.0; FEATURE_NAMES.len()],
+        trace_price: vec![ns_per_ray, ns_per_ray, ns_per_ray, 0.0, 0.0, 0.0, 0.0],
+        fit: FitError::default(),
+    };
+    let m = CostModel {
+        version: COST_MODEL_VERSION,
+        device: "paper".into(),
+        source: "tests/tradeoff.rs".into(),
+        scenes: Vec::new(),
+        feature_names: FEATURE_NAMES.iter().map(|s| s.to_string()).collect(),
+        price_names: PRICE_NAMES.iter().map(|s| s.to_string()).collect(),
+        structures: vec![
+            structure(StructureName::Grid, 1e-4, 1000.0),
+            structure(StructureName::Bvh, 1e-3, 10.0),
+            structure(StructureName::Lbvh, 5e-4, 115.0),
+        ],
+        total_rms_log: 0.0,
+        refit: None,
+    };
+    m.validate().unwrap();
+    m
+}
+
 #[test]
 fn calibrated_policy_selects_per_workload_and_its_regret_is_its_own() {
     use meshchar::characterize::features_cpu;
-    use meshchar::cost::CostModel;
-    use meshchar::select::CalibratedPolicy;
-    let model = CostModel::shipped().unwrap();
+    let model = paper_model();
     let mesh = generate::random_soup(2000, 3);
     let scenes = [Animation::new("soup", vec![mesh.clone()]).unwrap()];
-    // The calibrated policy alone, on features computed with `params`.
-    let alone = |params: &Params, kind: WorkloadKind, rays: u64| -> StructureName {
-        let features = [features_cpu(&mesh, params).unwrap()];
-        let chars = [cpu::fast(&mesh, params).unwrap()];
-        let summary = SceneSummary::new("soup", &chars).with_features(&features);
-        CalibratedPolicy::new(model.clone(), kind, rays, 1).select(&summary).structure
-    };
-    // One primary ray per frame: the build dominates. Shadow rays: enough that the trace dominates and the model
-    // picks another structure (the model trades build against trace, so some count does).
-    let full = Params::default();
-    let few = alone(&full, WorkloadKind::Primary, 1);
-    let many = (1..=12)
-        .map(|k| 10u64.pow(k))
-        .find(|&r| alone(&full, WorkloadKind::Shadow, r) != few)
-        .expect("some ray count makes the calibrated policy change its selection");
+    // On paper, n = 2000 for both settings (a sample keeps the scene's triangle count), one frame, one build:
+    // primary, 1 ray: grid 0.2 + 0.001 ms, bvh 2.0 + 0.00001, lbvh 1.0 + 0.000115: the grid.
+    // shadow, 10^4 rays: grid 0.2 + 10 = 10.2 ms, bvh 2.0 + 0.1 = 2.1, lbvh 1.0 + 1.15 = 2.15: the BVH is the
+    // smallest, the LBVH is within 5% of it (2.15 <= 2.205) and builds in half the time, so the 5% margin takes the
+    // LBVH and no margin the BVH.
+    let many = 10_000u64;
+    for params in [Params::default(), Params { sample_stride: 4, ..Params::default() }] {
+        let f = features_cpu(&mesh, &params).unwrap();
+        assert_eq!(f.total_triangles.max(f.triangles), 2000, "stride {}", params.sample_stride);
+    }
     let line = |workload: &str, rays: u64, totals: [f64; 6]| {
         let names = ["bvh", "kdtree", "grid", "bih", "lbvh", "hlbvh"];
         let structures: Vec<serde_json::Value> = names
@@ -339,6 +368,7 @@ fn calibrated_policy_selects_per_workload_and_its_regret_is_its_own() {
             "rays_per_frame": rays, "structures": structures});
         OracleRecord::from_json(&v).unwrap()
     };
+    // Measured: the BVH is the best on both workloads.
     let oracle = vec![
         line("primary", 1, [10.0, 17.0, 12.0, 11.0, 13.0, 15.0]),
         line("shadow", many, [20.0, 21.0, 29.0, 27.0, 23.0, 25.0]),
@@ -350,40 +380,37 @@ fn calibrated_policy_selects_per_workload_and_its_regret_is_its_own() {
         Setting { backend: Backend::Cpu, params: Params { sample_stride: 4, ..Params::default() } },
     ];
     let mut engine_for = |b: Backend| Characterizer::new(Some(b));
-    let study = tradeoff::Study {
-        scenes: &scenes,
-        settings: &settings,
-        policy: tradeoff::Selector::Calibrated { model: &model, tie_margin: 0.05 },
-        oracle: &oracle,
-        workloads: &workloads,
-        repeats: 1,
-    };
-    let results = tradeoff::sweep(&study, &mut engine_for, &|_| {}).unwrap();
-    assert_eq!(results.len(), 2);
-    for (r, setting) in results.iter().zip(&settings) {
-        let run = &r.scenes[0];
-        let expect =
-            [alone(&setting.params, WorkloadKind::Primary, 1), alone(&setting.params, WorkloadKind::Shadow, many)];
-        let got: Vec<Option<StructureName>> = run.per_workload.iter().map(|w| w.selected).collect();
-        assert_eq!(got, [Some(expect[0]), Some(expect[1])], "{}", r.label);
-        for ((w, o), sel) in workloads.iter().zip(&oracle).zip(expect) {
-            let a = r.accuracy(w).unwrap();
-            assert_eq!(a.scenes, 1, "{} {w}", r.label);
-            assert_eq!(a.mean_regret, o.regret(sel).unwrap(), "{} {w}", r.label);
-            assert_eq!(a.agree_best, if o.best().unwrap().name == Some(sel) { 1.0 } else { 0.0 }, "{} {w}", r.label);
+    for (margin, shadow, shadow_regret) in
+        [(0.05, StructureName::Lbvh, 23.0 / 20.0 - 1.0), (0.0, StructureName::Bvh, 0.0)]
+    {
+        let study = tradeoff::Study {
+            scenes: &scenes,
+            settings: &settings,
+            policy: tradeoff::Selector::Calibrated { model: &model, tie_margin: margin },
+            oracle: &oracle,
+            workloads: &workloads,
+            repeats: 1,
+        };
+        let results = tradeoff::sweep(&study, &mut engine_for, &|_| {}).unwrap();
+        assert_eq!(results.len(), 2);
+        for r in &results {
+            let run = &r.scenes[0];
+            let got: Vec<Option<StructureName>> = run.per_workload.iter().map(|w| w.selected).collect();
+            assert_eq!(got, [Some(StructureName::Grid), Some(shadow)], "{} margin {margin}", r.label);
+            assert_eq!(run.selected, format!("primary=grid,shadow={shadow}"), "{}", r.label);
+            assert!(run.same_selection, "{}", r.label);
+            // The regret of the policy's own selection, against the measured best (the BVH, 10 and 20 ms).
+            let primary = r.accuracy("primary").unwrap();
+            assert_eq!((primary.scenes, primary.mean_regret, primary.agree_best), (1, 12.0 / 10.0 - 1.0, 0.0));
+            let s = r.accuracy("shadow").unwrap();
+            let agree = if shadow == StructureName::Bvh { 1.0 } else { 0.0 };
+            assert_eq!((s.scenes, s.mean_regret, s.agree_best), (1, shadow_regret, agree), "{}", r.label);
         }
+        // A line without rays per frame is an error for the calibrated policy, named.
+        let mut bare = oracle.clone();
+        bare[0].rays_per_frame = 0;
+        let study = tradeoff::Study { oracle: &bare, ..study };
+        let err = tradeoff::sweep(&study, &mut engine_for, &|_| {}).unwrap_err().to_string();
+        assert!(err.contains("rays_per_frame"), "{err}");
     }
-    // The full setting: the two workloads select differently, and the label names both.
-    let run = &results[0].scenes[0];
-    assert_eq!(run.per_workload[0].selected, Some(few));
-    assert_ne!(run.per_workload[0].selected, run.per_workload[1].selected);
-    let m = alone(&full, WorkloadKind::Shadow, many);
-    assert_eq!(run.selected, format!("primary={few},shadow={m}"));
-    assert!(run.same_selection);
-    // A line without rays per frame is an error for the calibrated policy, named.
-    let mut bare = oracle.clone();
-    bare[0].rays_per_frame = 0;
-    let study = tradeoff::Study { oracle: &bare, ..study };
-    let err = tradeoff::sweep(&study, &mut engine_for, &|_| {}).unwrap_err().to_string();
-    assert!(err.contains("rays_per_frame"), "{err}");
 }

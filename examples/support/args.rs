@@ -45,21 +45,16 @@ pub struct PolicyArgs {
     /// The selection policy
     #[arg(long, value_enum, value_name = "P", default_value_t = Policy::Calibrated)]
     pub policy: Policy,
-    /// Calibration file of the calibrated policy [default: the shipped one; a missing or stale file falls back to
-    /// it with a warning]
+    /// Calibration file of the calibrated policy [default: the shipped one; a missing, unreadable or invalid file
+    /// is an error]
     #[arg(long, value_name = "FILE")]
     pub cost_model: Option<PathBuf>,
 }
 
 impl PolicyArgs {
-    /// The cost model of `--cost-model` (the shipped one without it), its fallback note printed as a warning
-    /// prefixed with the example's `name`.
-    pub fn cost_model(&self, name: &str) -> anyhow::Result<CostModel> {
-        let (model, note) = CostModel::load(self.cost_model.as_deref()).context("cost model")?;
-        if let Some(n) = note {
-            eprintln!("{name}: warning: {n}");
-        }
-        Ok(model)
+    /// The cost model of `--cost-model` (the shipped one without it); a file that cannot be loaded is an error.
+    pub fn cost_model(&self) -> anyhow::Result<CostModel> {
+        CostModel::load(self.cost_model.as_deref()).context("cost model")
     }
 }
 

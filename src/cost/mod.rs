@@ -34,10 +34,50 @@
 //!
 //! # Files
 //!
-//! A calibration file is the JSON of [`CostModel`] with `version` ([`COST_MODEL_VERSION`]) and `device`.
-//! [`CostModel::load`] falls back to the shipped default (`assets/cost-model-cpu.json`, fitted on this project's
-//! oracle data: the CPU structures of the oracle on the build machine; lavapipe runs on the same CPU, so it serves
-//! for lavapipe hosts too) with a warning when the file is missing, unreadable, unparsable or of another version.
+//! A calibration file is the JSON of [`CostModel`]: `version` ([`COST_MODEL_VERSION`]), `device`, `source`,
+//! `scenes`, `feature_names` ([`FEATURE_NAMES`]), `price_names` ([`PRICE_NAMES`]), `structures` (one
+//! [`StructureModel`] each), `total_rms_log` and an optional `refit` ([`RefitModel`]); no other key.
+//! [`CostModel::load`] with a path reads that file and fails when it is missing, unreadable or invalid; without a
+//! path it returns the shipped default (`assets/cost-model-cpu.json`, fitted on this project's oracle data: the CPU
+//! structures of the oracle on the build machine; lavapipe runs on the same CPU, so it serves for lavapipe hosts
+//! too). A file that was asked for is never silently replaced by another.
+//!
+//! # Validation
+//!
+//! [`CostModel::from_json`] (and so [`CostModel::load`]) accepts a file only when [`CostModel::validate`] does, and
+//! [`CostModel::fit`] refuses to return a model it would not accept. The error ([`CostError::Invalid`]) names the
+//! field as a path into the file (`structures[2] (grid).trace_price[3] (box)`) and the structure it belongs to. The
+//! rules, and where each range comes from:
+//!
+//! * `version` is [`COST_MODEL_VERSION`]; `device` is a non-empty string.
+//! * `feature_names` equals [`FEATURE_NAMES`] and `price_names` equals [`PRICE_NAMES`], name for name and in
+//!   order: the coefficients are read by position, so a reordered or renamed column would silently multiply the
+//!   wrong feature or count. The error names the first position that differs.
+//! * `structures` is not empty; each names one of [`StructureName::ALL`] (brute force is the reference, never
+//!   calibrated) and none appears twice.
+//! * Every number is finite (a NaN or an infinity is written as `null` in JSON, and read back as not finite).
+//! * `build_exponent` `b` lies in [`BUILD_EXPONENT_RANGE`], `[0, 2]`: a build reads every triangle, so a larger
+//!   scene never builds faster (`b < 0`); `b ~ 1` is `O(n)`, slightly above 1 is `n log n` over the sizes of real
+//!   scenes, fixed per-build overhead (a GPU dispatch) pulls a fit on small scenes below 1 toward 0, and no
+//!   builder here is worse than quadratic (`b <= 2`). The shipped fits are 0.76 to 0.95.
+//! * `build_ln_a` `a`, the `ln` of the build ms the law gives for one triangle, lies in [`BUILD_LN_A_RANGE`],
+//!   `[-23, 9]`, that is `exp(a)` between 0.1 ps and 8 s: `e^9` ms for a single triangle is beyond any device, and
+//!   the floor, far below one clock cycle, leaves room for the small `a` of fits with `b` up to 2 (a quadratic
+//!   build of a million triangles at 1 ns per pair has `a = -13.8`). The shipped fits are -8.1 to -4.5.
+//! * Each of `box_coef` and `prim_coef` has one coefficient per [`FEATURE_NAMES`], each of magnitude at most
+//!   [`COEF_LIMIT`] (1000): a coefficient is the change of `ln` tests per ray per unit of a feature, and
+//!   [`StructureModel::predict`] clamps `theta . phi` to `±30`; with every `|phi_j| <= 45` (`ln n <= ln 2^64`, the
+//!   shares in `[0, 1]`, the size exponents below 24), a slope above 1000 would cross the whole clamp range within
+//!   0.06 units of a feature, which is no count model. The shipped coefficients are below 8 in magnitude.
+//! * `trace_price` has one price per [`PRICE_NAMES`], each `>= 0` (ns per ray or per test: the fit is
+//!   non-negative least squares, and a negative price would make more work cheaper) and at most
+//!   [`PRICE_LIMIT_NS`] (1 ms: the devices in scope pay 1 to 40 ns per test, so a larger price is a unit error),
+//!   and not all zero (tracing is never free).
+//! * The fit errors (`fit.*`, `total_rms_log`) are root-mean-square values: `>= 0`.
+//! * `refit`, when present: `sah_growth_per_drift` in [`SAH_GROWTH_RANGE`], `[0, 1000]` (a refitted tree is not
+//!   better than a fresh one on average, and above 1000 a drift of 0.001 would already double the trace cost; the
+//!   shipped fit is 1.08); `refit_ns_per_triangle` in `(0, PRICE_LIMIT_NS]` (a refit visits every node); `fit_rms`
+//!   `>= 0`; `samples >= 1`.
 
 pub mod linalg;
 mod sample;
@@ -46,6 +86,8 @@ use crate::accel::StructureName;
 use crate::characterize::features::Derived;
 use crate::characterize::Features;
 use crate::geom::WorkloadKind;
+use serde::{Deserialize, Deserializer};
+use std::ops::RangeInclusive;
 use std::path::Path;
 
 pub use sample::{drift, Measured, Sample};
@@ -89,6 +131,22 @@ pub fn price_row(kind: WorkloadKind, box_tests: f64, prim_tests: f64) -> Vec<f64
     ]
 }
 
+/// Accepted range of [`StructureModel::build_exponent`] (see the module docs, Validation).
+pub const BUILD_EXPONENT_RANGE: RangeInclusive<f64> = 0.0..=2.0;
+
+/// Accepted range of [`StructureModel::build_ln_a`]: `exp(a)` from 1e-10 ms to 8 s (see the module docs,
+/// Validation).
+pub const BUILD_LN_A_RANGE: RangeInclusive<f64> = -23.0..=9.0;
+
+/// Largest accepted magnitude of a test-count coefficient (see the module docs, Validation).
+pub const COEF_LIMIT: f64 = 1000.0;
+
+/// Largest accepted trace price and refit time per triangle, ns (see the module docs, Validation).
+pub const PRICE_LIMIT_NS: f64 = 1e6;
+
+/// Accepted range of [`RefitModel::sah_growth_per_drift`] (see the module docs, Validation).
+pub const SAH_GROWTH_RANGE: RangeInclusive<f64> = 0.0..=1000.0;
+
 /// Ridge penalty of the test-count regressions (on every coefficient but the intercept).
 pub const RIDGE: f64 = 0.05;
 
@@ -103,20 +161,55 @@ pub enum CostError {
         /// The I/O error.
         source: std::io::Error,
     },
-    /// A file or record could not be parsed.
+    /// A file or record could not be parsed (not JSON).
     #[error("{0}")]
     Parse(String),
     /// A calibration file of another format version.
-    #[error("calibration file version {found}, this build reads version {expected}")]
+    #[error("version: calibration file version {found}, this build reads version {expected}")]
     Version {
         /// Version in the file.
-        found: u32,
+        found: u64,
         /// [`COST_MODEL_VERSION`].
         expected: u32,
+    },
+    /// A calibration file or model with a field that is missing, malformed or out of range (see the module docs,
+    /// Validation).
+    #[error("{field}: {reason}")]
+    Invalid {
+        /// The field, as a path into the file: `device`, `feature_names[3]`,
+        /// `structures[2] (grid).trace_price[3] (box)`.
+        field: String,
+        /// The structure the field belongs to, when it belongs to one.
+        structure: Option<StructureName>,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A calibration file that [`CostModel::load`] was asked for and cannot use: its path and why.
+    #[error("calibration file {path}: {source}")]
+    File {
+        /// The file.
+        path: String,
+        /// What is wrong with it.
+        source: Box<CostError>,
     },
     /// Too little or degenerate data to fit.
     #[error("cannot fit the cost model: {0}")]
     Fit(String),
+}
+
+fn invalid(structure: Option<StructureName>, field: impl Into<String>, reason: impl Into<String>) -> CostError {
+    CostError::Invalid { field: field.into(), structure, reason: reason.into() }
+}
+
+/// serde: a number, or `null`, which serde_json writes for NaN and the infinities, read back as NaN so that
+/// [`CostModel::validate`] names the field instead of the parser failing on it.
+fn f64_or_null<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
+/// [`f64_or_null`] for every element of an array.
+fn vec_f64_or_null<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+    Ok(Vec::<Option<f64>>::deserialize(d)?.into_iter().map(|x| x.unwrap_or(f64::NAN)).collect())
 }
 
 /// What a structure is used for: rays per frame, frames and builds.
@@ -154,37 +247,64 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 
 /// Fit errors of one structure or of the whole model: RMS of `ln(predicted / measured)` over the samples.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct FitError {
     /// Samples used.
     pub samples: usize,
     /// Build time per build.
+    #[serde(deserialize_with = "f64_or_null")]
     pub build: f64,
     /// Box tests per ray.
+    #[serde(deserialize_with = "f64_or_null")]
     pub box_tests: f64,
     /// Triangle tests per ray.
+    #[serde(deserialize_with = "f64_or_null")]
     pub prim_tests: f64,
     /// Trace ns per ray from the measured test counts (the price model alone).
+    #[serde(deserialize_with = "f64_or_null")]
     pub trace_given_counts: f64,
     /// Trace ns per ray from predicted counts.
+    #[serde(deserialize_with = "f64_or_null")]
     pub trace: f64,
     /// Total ms of the workload.
+    #[serde(deserialize_with = "f64_or_null")]
     pub total: f64,
+}
+
+impl FitError {
+    /// The error figures with their names, in field order.
+    fn figures(&self) -> [(&'static str, f64); 6] {
+        [
+            ("build", self.build),
+            ("box_tests", self.box_tests),
+            ("prim_tests", self.prim_tests),
+            ("trace_given_counts", self.trace_given_counts),
+            ("trace", self.trace),
+            ("total", self.total),
+        ]
+    }
 }
 
 /// The fitted constants of one structure (see the module docs for the formulas).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct StructureModel {
     /// The structure.
     pub structure: StructureName,
-    /// `a_s`: `ln` of the build ms of a one-triangle scene.
+    /// `a_s`: `ln` of the build ms of a one-triangle scene, in [`BUILD_LN_A_RANGE`].
+    #[serde(deserialize_with = "f64_or_null")]
     pub build_ln_a: f64,
-    /// `b_s`: exponent of `n` in the build time.
+    /// `b_s`: exponent of `n` in the build time, in [`BUILD_EXPONENT_RANGE`].
+    #[serde(deserialize_with = "f64_or_null")]
     pub build_exponent: f64,
-    /// `theta_box_s`, one per [`FEATURE_NAMES`].
+    /// `theta_box_s`, one per [`FEATURE_NAMES`], each of magnitude at most [`COEF_LIMIT`].
+    #[serde(deserialize_with = "vec_f64_or_null")]
     pub box_coef: Vec<f64>,
-    /// `theta_prim_s`, one per [`FEATURE_NAMES`].
+    /// `theta_prim_s`, one per [`FEATURE_NAMES`], each of magnitude at most [`COEF_LIMIT`].
+    #[serde(deserialize_with = "vec_f64_or_null")]
     pub prim_coef: Vec<f64>,
-    /// Trace prices, ns, one per [`PRICE_NAMES`] (all `>= 0`).
+    /// Trace prices, ns, one per [`PRICE_NAMES`] (all in `0..=PRICE_LIMIT_NS`, not all 0).
+    #[serde(deserialize_with = "vec_f64_or_null")]
     pub trace_price: Vec<f64>,
     /// Fit errors on the calibration samples.
     pub fit: FitError,
@@ -238,23 +358,28 @@ impl StructureModel {
 /// geometry since its build, `sah_refit / sah_fresh = 1 + sah_growth_per_drift * drift`, and a refit costs
 /// `refit_ns_per_triangle * n`.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct RefitModel {
-    /// Slope of the SAH ratio in the drift ([`drift`]).
+    /// Slope of the SAH ratio in the drift ([`drift`]), in [`SAH_GROWTH_RANGE`].
+    #[serde(deserialize_with = "f64_or_null")]
     pub sah_growth_per_drift: f64,
-    /// Refit time per triangle, ns.
+    /// Refit time per triangle, ns, in `(0, PRICE_LIMIT_NS]`.
+    #[serde(deserialize_with = "f64_or_null")]
     pub refit_ns_per_triangle: f64,
     /// RMS error of the SAH ratio fit (absolute, in ratio units).
+    #[serde(deserialize_with = "f64_or_null")]
     pub fit_rms: f64,
-    /// Frame pairs measured.
+    /// Frame pairs measured (at least 1).
     pub samples: usize,
 }
 
 /// A calibrated cost model: per structure constants, fit errors and provenance.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct CostModel {
     /// File format version, [`COST_MODEL_VERSION`].
     pub version: u32,
-    /// The device the constants were measured on.
+    /// The device the constants were measured on (not empty).
     pub device: String,
     /// Where the measurements came from (command, files).
     pub source: String,
@@ -262,33 +387,97 @@ pub struct CostModel {
     pub scenes: Vec<String>,
     /// Names of the `phi` columns, [`FEATURE_NAMES`].
     pub feature_names: Vec<String>,
-    /// One model per structure.
+    /// Names of the trace price columns, [`PRICE_NAMES`].
+    pub price_names: Vec<String>,
+    /// One model per structure (at least one, each structure once).
     pub structures: Vec<StructureModel>,
     /// RMS log error of the totals over all samples and structures.
+    #[serde(deserialize_with = "f64_or_null")]
     pub total_rms_log: f64,
     /// Refit model for animations, when calibrated.
     pub refit: Option<RefitModel>,
 }
 
 impl CostModel {
-    /// Parses a calibration file's text; refuses other versions.
+    /// Parses and validates a calibration file's text (see the module docs, Validation): refuses another version,
+    /// a missing, malformed or unknown field, and any value [`CostModel::validate`] refuses, naming the field.
     pub fn from_json(text: &str) -> Result<CostModel, CostError> {
-        let v: serde_json::Value = serde_json::from_str(text).map_err(|e| CostError::Parse(e.to_string()))?;
-        let found = v.get("version").and_then(|x| x.as_u64()).ok_or_else(|| CostError::Parse("no version".into()))?;
-        if found != COST_MODEL_VERSION as u64 {
-            return Err(CostError::Version { found: found.min(u32::MAX as u64) as u32, expected: COST_MODEL_VERSION });
+        use serde_json::Value;
+        let mut v: Value = serde_json::from_str(text).map_err(|e| CostError::Parse(e.to_string()))?;
+        let Some(obj) = v.as_object_mut() else {
+            return Err(invalid(None, "top level", format!("{}, not a JSON object", json_kind(&v))));
+        };
+        // The version first: a file of another version may have another layout.
+        let found = match obj.get("version") {
+            None => return Err(invalid(None, "version", "missing")),
+            Some(x) => x.as_u64().ok_or_else(|| invalid(None, "version", format!("{x} is not a whole number")))?,
+        };
+        if found != u64::from(COST_MODEL_VERSION) {
+            return Err(CostError::Version { found, expected: COST_MODEL_VERSION });
         }
-        let m: CostModel = serde_json::from_value(v).map_err(|e| CostError::Parse(e.to_string()))?;
-        if m.feature_names.len() != FEATURE_NAMES.len()
-            || m.structures.iter().any(|s| {
-                s.box_coef.len() != FEATURE_NAMES.len()
-                    || s.prim_coef.len() != FEATURE_NAMES.len()
-                    || s.trace_price.len() != PRICE_NAMES.len()
-            })
-        {
-            return Err(CostError::Parse(format!("expected {} feature coefficients", FEATURE_NAMES.len())));
+        match obj.get("device") {
+            None => return Err(invalid(None, "device", "missing")),
+            Some(Value::String(_)) => {}
+            Some(x) => return Err(invalid(None, "device", format!("{}, not a string", json_kind(x)))),
         }
+        // The structures one by one, so that an error names the structure.
+        let structures = match obj.remove("structures") {
+            None => return Err(invalid(None, "structures", "missing")),
+            Some(Value::Array(a)) => a,
+            Some(x) => return Err(invalid(None, "structures", format!("{}, not an array", json_kind(&x)))),
+        };
+        let structures =
+            structures.into_iter().enumerate().map(|(i, s)| structure_from_json(i, s)).collect::<Result<_, _>>()?;
+        obj.insert("structures".into(), Value::Array(Vec::new()));
+        let mut m: CostModel = serde_json::from_value(v).map_err(|e| invalid(None, "top level", e.to_string()))?;
+        m.structures = structures;
+        m.validate()?;
         Ok(m)
+    }
+
+    /// Checks every rule of the module docs (Validation); the error names the first field that breaks one.
+    pub fn validate(&self) -> Result<(), CostError> {
+        if self.version != COST_MODEL_VERSION {
+            return Err(CostError::Version { found: u64::from(self.version), expected: COST_MODEL_VERSION });
+        }
+        if self.device.trim().is_empty() {
+            return Err(invalid(None, "device", "empty: name the device the constants were measured on"));
+        }
+        check_names("feature_names", &self.feature_names, &FEATURE_NAMES)?;
+        check_names("price_names", &self.price_names, &PRICE_NAMES)?;
+        if self.structures.is_empty() {
+            return Err(invalid(None, "structures", "empty: no structure is calibrated"));
+        }
+        for (i, s) in self.structures.iter().enumerate() {
+            if let Some(j) = self.structures[..i].iter().position(|t| t.structure == s.structure) {
+                return Err(invalid(
+                    Some(s.structure),
+                    format!("structures[{i}].structure"),
+                    format!("{} appears twice (also structures[{j}])", s.structure.as_str()),
+                ));
+            }
+            check_structure(i, s)?;
+        }
+        check_number(None, "total_rms_log".into(), self.total_rms_log, 0.0..=f64::MAX, "a root-mean-square error")?;
+        if let Some(r) = &self.refit {
+            let f = |name: &str| format!("refit.{name}");
+            check_number(
+                None,
+                f("sah_growth_per_drift"),
+                r.sah_growth_per_drift,
+                SAH_GROWTH_RANGE,
+                "the growth of the SAH ratio per unit of drift",
+            )?;
+            check_number(None, f("refit_ns_per_triangle"), r.refit_ns_per_triangle, 0.0..=PRICE_LIMIT_NS, "ns")?;
+            if r.refit_ns_per_triangle == 0.0 {
+                return Err(invalid(None, f("refit_ns_per_triangle"), "0: a refit visits every node, it is not free"));
+            }
+            check_number(None, f("fit_rms"), r.fit_rms, 0.0..=f64::MAX, "a root-mean-square error")?;
+            if r.samples == 0 {
+                return Err(invalid(None, f("samples"), "0: a refit model needs at least one measured frame pair"));
+            }
+        }
+        Ok(())
     }
 
     /// The JSON text of a calibration file.
@@ -307,22 +496,18 @@ impl CostModel {
         CostModel::from_json(SHIPPED_CPU)
     }
 
-    /// Loads a calibration file; without a path, or when the file is missing, unreadable, unparsable or of another
-    /// version, the shipped default with a warning (logged with `log::warn` and returned as the note).
-    pub fn load(path: Option<&Path>) -> Result<(CostModel, Option<String>), CostError> {
+    /// Loads a calibration file. With a path, that file: one that is missing or unreadable is an error
+    /// ([`CostError::Io`]), and so is one that [`CostModel::from_json`] refuses ([`CostError::File`], with the path
+    /// and the field). Without a path, the shipped default ([`CostModel::shipped`]). A file that was asked for is
+    /// never replaced by the shipped default.
+    pub fn load(path: Option<&Path>) -> Result<CostModel, CostError> {
         let Some(path) = path else {
-            return Ok((CostModel::shipped()?, None));
+            return CostModel::shipped();
         };
-        let why = match std::fs::read_to_string(path) {
-            Err(e) => format!("cannot read {}: {e}", path.display()),
-            Ok(text) => match CostModel::from_json(&text) {
-                Ok(m) => return Ok((m, None)),
-                Err(e) => format!("{}: {e}", path.display()),
-            },
-        };
-        let note = format!("{why}; using the shipped default calibration");
-        log::warn!("{note}");
-        Ok((CostModel::shipped()?, Some(note)))
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| CostError::Io { path: path.display().to_string(), source })?;
+        CostModel::from_json(&text)
+            .map_err(|e| CostError::File { path: path.display().to_string(), source: Box::new(e) })
     }
 
     /// The model of one structure.
@@ -360,6 +545,7 @@ impl CostModel {
             source: source.to_string(),
             scenes,
             feature_names: FEATURE_NAMES.iter().map(|s| s.to_string()).collect(),
+            price_names: PRICE_NAMES.iter().map(|s| s.to_string()).collect(),
             structures,
             total_rms_log: 0.0,
             refit: None,
@@ -374,8 +560,142 @@ impl CostModel {
             }
         }
         m.total_rms_log = rms(&se);
+        // A model that a calibration file could not hold is no calibration: say which constant the data pushed out
+        // of range rather than write a file that `load` refuses.
+        m.validate().map_err(|e| CostError::Fit(format!("the fitted model is out of range: {e}")))?;
         Ok(m)
     }
+}
+
+/// What a JSON value is, for error messages.
+fn json_kind(v: &serde_json::Value) -> &'static str {
+    match v {
+        serde_json::Value::Null => "null",
+        serde_json::Value::Bool(_) => "a boolean",
+        serde_json::Value::Number(_) => "a number",
+        serde_json::Value::String(_) => "a string",
+        serde_json::Value::Array(_) => "an array",
+        serde_json::Value::Object(_) => "an object",
+    }
+}
+
+/// Entry `i` of a file's `structures`: its name first (known, calibrated), then the typed model.
+fn structure_from_json(i: usize, v: serde_json::Value) -> Result<StructureModel, CostError> {
+    let field = format!("structures[{i}].structure");
+    let structure = match v.get("structure") {
+        None => return Err(invalid(None, field, "missing")),
+        Some(serde_json::Value::String(name)) => {
+            StructureName::from_name(name).filter(|s| StructureName::ALL.contains(s)).ok_or_else(|| {
+                invalid(None, field, format!("{name:?} is not a calibrated structure ({})", known_names()))
+            })?
+        }
+        Some(x) => return Err(invalid(None, field, format!("{}, not a string", json_kind(x)))),
+    };
+    serde_json::from_value(v)
+        .map_err(|e| invalid(Some(structure), format!("structures[{i}] ({})", structure.as_str()), e.to_string()))
+}
+
+/// The names of [`StructureName::ALL`], comma-separated.
+fn known_names() -> String {
+    StructureName::ALL.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", ")
+}
+
+/// `got` equals `want`, name for name and in order; the error names the first position that differs.
+fn check_names(field: &str, got: &[String], want: &[&str]) -> Result<(), CostError> {
+    let order = want.join(", ");
+    for (i, w) in want.iter().enumerate() {
+        match got.get(i) {
+            None => {
+                return Err(invalid(
+                    None,
+                    format!("{field}[{i}]"),
+                    format!("missing: expected {w:?} ({} names, in order: {order}; found {})", want.len(), got.len()),
+                ))
+            }
+            Some(g) if g != w => {
+                return Err(invalid(
+                    None,
+                    format!("{field}[{i}]"),
+                    format!("{g:?}, expected {w:?} (the columns are read by position, in order: {order})"),
+                ))
+            }
+            Some(_) => {}
+        }
+    }
+    match got.get(want.len()) {
+        Some(extra) => Err(invalid(
+            None,
+            format!("{field}[{}]", want.len()),
+            format!("{extra:?}: unexpected, {} names expected ({order})", want.len()),
+        )),
+        None => Ok(()),
+    }
+}
+
+/// `x` is finite and in `range`; `what` says what the number is.
+fn check_number(
+    structure: Option<StructureName>,
+    field: String,
+    x: f64,
+    range: RangeInclusive<f64>,
+    what: &str,
+) -> Result<(), CostError> {
+    if !x.is_finite() {
+        return Err(invalid(structure, field, format!("{x} is not a finite number ({what})")));
+    }
+    if !range.contains(&x) {
+        let bounds = if *range.end() == f64::MAX {
+            format!(">= {}", range.start())
+        } else {
+            format!("in [{}, {}]", range.start(), range.end())
+        };
+        return Err(invalid(structure, field, format!("{x} is out of range: {what}, must be {bounds}")));
+    }
+    Ok(())
+}
+
+/// The rules of one structure's model (entry `i` of `structures`).
+fn check_structure(i: usize, s: &StructureModel) -> Result<(), CostError> {
+    let st = Some(s.structure);
+    let at = |f: &str| format!("structures[{i}] ({}).{f}", s.structure.as_str());
+    if !StructureName::ALL.contains(&s.structure) {
+        return Err(invalid(
+            st,
+            format!("structures[{i}].structure"),
+            format!("{:?} is not a calibrated structure ({})", s.structure.as_str(), known_names()),
+        ));
+    }
+    check_number(st, at("build_ln_a"), s.build_ln_a, BUILD_LN_A_RANGE, "ln of the build ms of one triangle")?;
+    check_number(st, at("build_exponent"), s.build_exponent, BUILD_EXPONENT_RANGE, "the exponent of n in the build")?;
+    for (name, coef) in [("box_coef", &s.box_coef), ("prim_coef", &s.prim_coef)] {
+        if coef.len() != FEATURE_NAMES.len() {
+            return Err(invalid(
+                st,
+                at(name),
+                format!("{} coefficients, expected one per feature ({})", coef.len(), FEATURE_NAMES.len()),
+            ));
+        }
+        for (j, (&c, f)) in coef.iter().zip(FEATURE_NAMES).enumerate() {
+            check_number(st, at(&format!("{name}[{j}] ({f})")), c, -COEF_LIMIT..=COEF_LIMIT, "a coefficient")?;
+        }
+    }
+    if s.trace_price.len() != PRICE_NAMES.len() {
+        return Err(invalid(
+            st,
+            at("trace_price"),
+            format!("{} prices, expected one per price name ({})", s.trace_price.len(), PRICE_NAMES.len()),
+        ));
+    }
+    for (j, (&p, name)) in s.trace_price.iter().zip(PRICE_NAMES).enumerate() {
+        check_number(st, at(&format!("trace_price[{j}] ({name})")), p, 0.0..=PRICE_LIMIT_NS, "a price in ns")?;
+    }
+    if s.trace_price.iter().all(|&p| p == 0.0) {
+        return Err(invalid(st, at("trace_price"), "every price is 0: tracing would be free"));
+    }
+    for (name, x) in s.fit.figures() {
+        check_number(st, at(&format!("fit.{name}")), x, 0.0..=f64::MAX, "a root-mean-square error")?;
+    }
+    Ok(())
 }
 
 fn rms(v: &[f64]) -> f64 {

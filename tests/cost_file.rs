@@ -1,0 +1,333 @@
+//! Calibration files: the shipped one is valid and canonical, an explicit path that cannot be used is an error
+//! (never the shipped model in its place), and every rule of `CostModel::validate` refuses what it should, naming
+//! the field and the structure.
+
+mod common;
+
+use meshchar::accel::StructureName;
+use meshchar::cost::{CostError, CostModel, COST_MODEL_VERSION, FEATURE_NAMES, PRICE_NAMES, SHIPPED_CPU};
+use serde_json::{json, Value};
+use std::path::PathBuf;
+
+fn shipped() -> CostModel {
+    CostModel::shipped().expect("the shipped calibration is valid")
+}
+
+/// The shipped file as a JSON value, to edit.
+fn shipped_json() -> Value {
+    serde_json::from_str(SHIPPED_CPU).unwrap()
+}
+
+/// The error of the shipped file with one edit.
+fn refused(edit: impl FnOnce(&mut Value)) -> CostError {
+    let mut v = shipped_json();
+    edit(&mut v);
+    match CostModel::from_json(&v.to_string()) {
+        Ok(_) => panic!("accepted after the edit: {v}"),
+        Err(e) => e,
+    }
+}
+
+/// `e` is `Invalid` for exactly `field` (and `structure`), and its message names the field.
+fn assert_invalid(e: &CostError, want_field: &str, want_structure: Option<StructureName>) {
+    match e {
+        CostError::Invalid { field, structure, .. } => {
+            assert_eq!(field, want_field, "{e}");
+            assert_eq!(*structure, want_structure, "{e}");
+        }
+        other => panic!("expected Invalid({want_field}), got {other:?}"),
+    }
+    assert!(e.to_string().starts_with(&format!("{want_field}: ")), "{e}");
+}
+
+fn write(name: &str, text: &str) -> PathBuf {
+    common::temp_file(name, text.as_bytes())
+}
+
+#[test]
+fn the_shipped_file_is_valid_canonical_and_round_trips() {
+    let m = shipped();
+    m.validate().unwrap();
+    assert_eq!(m.version, COST_MODEL_VERSION);
+    assert_eq!(m.feature_names, FEATURE_NAMES);
+    assert_eq!(m.price_names, PRICE_NAMES);
+    let names: Vec<StructureName> = m.structures.iter().map(|s| s.structure).collect();
+    assert_eq!(names, StructureName::ALL, "the shipped default covers every structure once");
+    // to_json then from_json gives the same model, and the shipped text is exactly what to_json writes (as `save`
+    // writes it: with a final newline), so the file has no field the model drops.
+    let text = m.to_json();
+    assert_eq!(CostModel::from_json(&text).unwrap(), m);
+    assert_eq!(text + "\n", SHIPPED_CPU);
+    // The file on disk is the one compiled in.
+    let disk =
+        std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/cost-model-cpu.json")).unwrap();
+    assert_eq!(disk, SHIPPED_CPU);
+}
+
+#[test]
+fn the_implicit_default_is_the_shipped_model() {
+    assert_eq!(CostModel::load(None).unwrap(), shipped());
+}
+
+#[test]
+fn an_explicit_file_is_loaded_as_written() {
+    let mut m = shipped();
+    m.device = "another device".into();
+    m.structures[0].build_ln_a = -7.25;
+    let path = common::temp_dir("cost-file").join("cal.json");
+    m.save(&path).unwrap();
+    let back = CostModel::load(Some(&path)).unwrap();
+    assert_eq!(back, m);
+    assert_ne!(back, shipped());
+}
+
+#[test]
+fn a_missing_explicit_file_is_an_error_not_the_shipped_model() {
+    let path = common::temp_dir("cost-file").join("missing.json");
+    let e = CostModel::load(Some(&path)).unwrap_err();
+    assert!(
+        matches!(&e, CostError::Io { path: p, source } if *p == path.display().to_string()
+        && source.kind() == std::io::ErrorKind::NotFound),
+        "{e:?}"
+    );
+    assert!(e.to_string().contains("missing.json"), "{e}");
+    // A directory is not readable as a file either.
+    let dir = common::temp_dir("cost-file");
+    assert!(matches!(CostModel::load(Some(&dir)), Err(CostError::Io { .. })));
+}
+
+#[test]
+fn broken_json_is_an_error_with_the_path() {
+    for (name, text) in [("garbage.json", "{ not json"), ("empty.json", ""), ("truncated.json", &SHIPPED_CPU[..500])] {
+        let path = write(name, text);
+        let e = CostModel::load(Some(&path)).unwrap_err();
+        match &e {
+            CostError::File { path: p, source } => {
+                assert_eq!(*p, path.display().to_string());
+                assert!(matches!(**source, CostError::Parse(_)), "{name}: {source:?}");
+            }
+            other => panic!("{name}: {other:?}"),
+        }
+        assert!(e.to_string().contains(&path.display().to_string()), "{e}");
+    }
+    // JSON, but not an object.
+    assert_invalid(&CostModel::from_json("[1, 2]").unwrap_err(), "top level", None);
+}
+
+#[test]
+fn a_negative_price_is_an_error_naming_it() {
+    let mut v = shipped_json();
+    v["structures"][2]["trace_price"][3] = json!(-1.5);
+    let path = write("negative.json", &v.to_string());
+    let e = CostModel::load(Some(&path)).unwrap_err();
+    let CostError::File { source, .. } = &e else { panic!("{e:?}") };
+    assert_invalid(source, "structures[2] (grid).trace_price[3] (box)", Some(StructureName::Grid));
+    let msg = e.to_string();
+    assert!(msg.contains(&path.display().to_string()) && msg.contains("-1.5"), "{msg}");
+    // Every price column, on every structure.
+    for (i, s) in StructureName::ALL.iter().enumerate() {
+        for (j, p) in PRICE_NAMES.iter().enumerate() {
+            let e = refused(|v| v["structures"][i]["trace_price"][j] = json!(-1e-9));
+            assert_invalid(&e, &format!("structures[{i}] ({s}).trace_price[{j}] ({p})"), Some(*s));
+        }
+    }
+    // Zero is a price (the shipped file has zeros), but not every price zero, and not a millisecond per test.
+    let e = refused(|v| v["structures"][1]["trace_price"] = json!([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]));
+    assert_invalid(&e, "structures[1] (kdtree).trace_price", Some(StructureName::KdTree));
+    let e = refused(|v| v["structures"][1]["trace_price"][4] = json!(2e6));
+    assert_invalid(&e, "structures[1] (kdtree).trace_price[4] (prim)", Some(StructureName::KdTree));
+    // One price too few or too many.
+    let e = refused(|v| {
+        v["structures"][0]["trace_price"].as_array_mut().unwrap().pop();
+    });
+    assert_invalid(&e, "structures[0] (bvh).trace_price", Some(StructureName::Bvh));
+}
+
+#[test]
+fn reordered_or_renamed_feature_names_are_errors_naming_the_first_mismatch() {
+    // ln_n and ln_tris_per_cell swapped: position 3 is the first that differs.
+    let e = refused(|v| v["feature_names"].as_array_mut().unwrap().swap(3, 4));
+    assert_invalid(&e, "feature_names[3]", None);
+    assert!(e.to_string().contains("\"ln_tris_per_cell\", expected \"ln_n\""), "{e}");
+    let e = refused(|v| v["feature_names"][9] = json!("aspect"));
+    assert_invalid(&e, "feature_names[9]", None);
+    let e = refused(|v| {
+        v["feature_names"].as_array_mut().unwrap().pop();
+    });
+    assert_invalid(&e, "feature_names[9]", None);
+    let e = refused(|v| v["feature_names"].as_array_mut().unwrap().push(json!("extra")));
+    assert_invalid(&e, "feature_names[10]", None);
+    let e = refused(|v| {
+        v.as_object_mut().unwrap().remove("feature_names");
+    });
+    assert_invalid(&e, "top level", None);
+    assert!(e.to_string().contains("feature_names"), "{e}");
+    // The price names likewise.
+    let e = refused(|v| v["price_names"].as_array_mut().unwrap().swap(3, 5));
+    assert_invalid(&e, "price_names[3]", None);
+    let e = refused(|v| v["price_names"][0] = json!("ray"));
+    assert_invalid(&e, "price_names[0]", None);
+    let e = refused(|v| {
+        v.as_object_mut().unwrap().remove("price_names");
+    });
+    assert!(e.to_string().contains("price_names"), "{e}");
+}
+
+#[test]
+fn non_finite_coefficients_are_errors_naming_them() {
+    // serde_json writes NaN and the infinities as null; reading the file back names the coefficient.
+    for x in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+        let mut m = shipped();
+        m.structures[3].box_coef[5] = x;
+        let e = CostModel::from_json(&m.to_json()).unwrap_err();
+        assert_invalid(&e, "structures[3] (bih).box_coef[5] (fill_at_n)", Some(StructureName::Bih));
+        // validate() on the model itself says the same.
+        assert_invalid(
+            &m.validate().unwrap_err(),
+            "structures[3] (bih).box_coef[5] (fill_at_n)",
+            Some(StructureName::Bih),
+        );
+        let mut m = shipped();
+        m.structures[4].prim_coef[0] = x;
+        assert_invalid(
+            &m.validate().unwrap_err(),
+            "structures[4] (lbvh).prim_coef[0] (intercept)",
+            Some(StructureName::Lbvh),
+        );
+        let mut m = shipped();
+        m.structures[5].build_exponent = x;
+        let e = CostModel::from_json(&m.to_json()).unwrap_err();
+        assert_invalid(&e, "structures[5] (hlbvh).build_exponent", Some(StructureName::Hlbvh));
+        let mut m = shipped();
+        m.total_rms_log = x;
+        assert_invalid(&CostModel::from_json(&m.to_json()).unwrap_err(), "total_rms_log", None);
+    }
+    // A number beyond f64 in the text is not JSON serde_json reads.
+    let text = SHIPPED_CPU.replacen("-6.550126804344984", "-1e400", 1);
+    assert_ne!(text, SHIPPED_CPU);
+    assert!(CostModel::from_json(&text).is_err());
+    // Huge but finite coefficients would overflow theta . phi.
+    let e = refused(|v| v["structures"][0]["prim_coef"][3] = json!(1e300));
+    assert_invalid(&e, "structures[0] (bvh).prim_coef[3] (ln_n)", Some(StructureName::Bvh));
+    let e = refused(|v| v["structures"][0]["prim_coef"][3] = json!(-1000.5));
+    assert_invalid(&e, "structures[0] (bvh).prim_coef[3] (ln_n)", Some(StructureName::Bvh));
+    let e = refused(|v| {
+        v["structures"][1]["box_coef"].as_array_mut().unwrap().push(json!(0.0));
+    });
+    assert_invalid(&e, "structures[1] (kdtree).box_coef", Some(StructureName::KdTree));
+}
+
+#[test]
+fn another_version_is_an_error() {
+    let e = refused(|v| v["version"] = json!(COST_MODEL_VERSION + 1));
+    assert!(
+        matches!(e, CostError::Version { found, expected } if found == u64::from(COST_MODEL_VERSION) + 1
+        && expected == COST_MODEL_VERSION),
+        "{e:?}"
+    );
+    assert!(e.to_string().starts_with("version: "), "{e}");
+    let e = refused(|v| v["version"] = json!(1u64 << 40));
+    assert!(matches!(e, CostError::Version { found, .. } if found == 1 << 40), "{e:?}");
+    assert_invalid(&refused(|v| v["version"] = json!("1")), "version", None);
+    assert_invalid(&refused(|v| v["version"] = json!(1.5)), "version", None);
+    assert_invalid(
+        &refused(|v| {
+            v.as_object_mut().unwrap().remove("version");
+        }),
+        "version",
+        None,
+    );
+    // Through load: the path, then the version.
+    let mut v = shipped_json();
+    v["version"] = json!(0);
+    let path = write("stale.json", &v.to_string());
+    let e = CostModel::load(Some(&path)).unwrap_err();
+    assert!(matches!(&e, CostError::File { source, .. } if matches!(**source, CostError::Version { found: 0, .. })));
+}
+
+#[test]
+fn the_device_is_required() {
+    assert_invalid(&refused(|v| v["device"] = json!("  ")), "device", None);
+    assert_invalid(&refused(|v| v["device"] = json!(3)), "device", None);
+    assert_invalid(
+        &refused(|v| {
+            v.as_object_mut().unwrap().remove("device");
+        }),
+        "device",
+        None,
+    );
+}
+
+#[test]
+fn structure_names_are_known_and_not_duplicated() {
+    let e = refused(|v| v["structures"][2]["structure"] = json!("octree"));
+    assert_invalid(&e, "structures[2].structure", None);
+    assert!(e.to_string().contains("\"octree\""), "{e}");
+    // Brute force is the reference, never a calibrated structure.
+    assert_invalid(&refused(|v| v["structures"][0]["structure"] = json!("brute")), "structures[0].structure", None);
+    assert_invalid(&refused(|v| v["structures"][0]["structure"] = json!(1)), "structures[0].structure", None);
+    // lbvh twice: the second one is named.
+    let e = refused(|v| v["structures"][5]["structure"] = json!("lbvh"));
+    assert_invalid(&e, "structures[5].structure", Some(StructureName::Lbvh));
+    assert!(e.to_string().contains("structures[4]"), "{e}");
+    let e = refused(|v| v["structures"] = json!([]));
+    assert_invalid(&e, "structures", None);
+    assert_invalid(&refused(|v| v["structures"] = json!({})), "structures", None);
+    // A field of a structure missing, or one it does not have.
+    let e = refused(|v| {
+        v["structures"][1].as_object_mut().unwrap().remove("build_exponent");
+    });
+    assert_invalid(&e, "structures[1] (kdtree)", Some(StructureName::KdTree));
+    assert!(e.to_string().contains("build_exponent"), "{e}");
+    let e = refused(|v| v["structures"][1]["build_exp"] = json!(1.0));
+    assert_invalid(&e, "structures[1] (kdtree)", Some(StructureName::KdTree));
+    // An unknown top-level key (a misspelled `refit` would otherwise read as no refit model).
+    let e = refused(|v| v["refit_model"] = v["refit"].clone());
+    assert_invalid(&e, "top level", None);
+    assert!(e.to_string().contains("refit_model"), "{e}");
+}
+
+#[test]
+fn build_law_constants_are_in_range() {
+    let bvh = Some(StructureName::Bvh);
+    for b in [-0.01, 2.01, 10.0] {
+        let e = refused(|v| v["structures"][0]["build_exponent"] = json!(b));
+        assert_invalid(&e, "structures[0] (bvh).build_exponent", bvh);
+    }
+    for a in [-23.5, 9.5] {
+        let e = refused(|v| v["structures"][0]["build_ln_a"] = json!(a));
+        assert_invalid(&e, "structures[0] (bvh).build_ln_a", bvh);
+    }
+    // The ends of the ranges are accepted.
+    for (a, b) in [(-23.0, 0.0), (9.0, 2.0)] {
+        let mut v = shipped_json();
+        v["structures"][0]["build_ln_a"] = json!(a);
+        v["structures"][0]["build_exponent"] = json!(b);
+        CostModel::from_json(&v.to_string()).unwrap();
+    }
+    let e = refused(|v| v["structures"][3]["fit"]["total"] = json!(-0.1));
+    assert_invalid(&e, "structures[3] (bih).fit.total", Some(StructureName::Bih));
+    assert_invalid(&refused(|v| v["total_rms_log"] = json!(-1.0)), "total_rms_log", None);
+}
+
+#[test]
+fn refit_model_fields_are_in_range() {
+    for (field, bad) in [
+        ("sah_growth_per_drift", json!(-0.5)),
+        ("sah_growth_per_drift", json!(1000.5)),
+        ("refit_ns_per_triangle", json!(0.0)),
+        ("refit_ns_per_triangle", json!(-3.0)),
+        ("refit_ns_per_triangle", json!(2e6)),
+        ("fit_rms", json!(-0.01)),
+        ("samples", json!(0)),
+    ] {
+        let e = refused(|v| v["refit"][field] = bad.clone());
+        assert_invalid(&e, &format!("refit.{field}"), None);
+    }
+    // No refit model is fine.
+    let mut v = shipped_json();
+    v.as_object_mut().unwrap().remove("refit");
+    assert_eq!(CostModel::from_json(&v.to_string()).unwrap().refit, None);
+    v["refit"] = Value::Null;
+    assert_eq!(CostModel::from_json(&v.to_string()).unwrap().refit, None);
+}
