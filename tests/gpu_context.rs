@@ -27,12 +27,21 @@ fn device_choice_by_name_index_and_unknown() {
     assert_eq!(list[selected].caps.name, name);
     // By a name substring (case-insensitive) and by index.
     let word = name.split_whitespace().next().unwrap_or(&name).to_uppercase();
-    let by_name = Context::new(&ContextDesc { validation: true, device: Some(word) }).expect("by name");
+    let by_name =
+        Context::new(&ContextDesc { validation: true, device: Some(word), ..Default::default() }).expect("by name");
     assert_eq!(by_name.caps().name, name);
-    let by_index =
-        Context::new(&ContextDesc { validation: true, device: Some(list[selected].index.to_string()) }).expect("index");
+    let by_index = Context::new(&ContextDesc {
+        validation: true,
+        device: Some(list[selected].index.to_string()),
+        ..Default::default()
+    })
+    .expect("index");
     assert_eq!(by_index.caps().name, name);
-    match Context::new(&ContextDesc { validation: true, device: Some("no such device 42".into()) }) {
+    match Context::new(&ContextDesc {
+        validation: true,
+        device: Some("no such device 42".into()),
+        ..Default::default()
+    }) {
         Err(GpuError::DeviceNotFound(w, available)) => {
             assert_eq!(w, "no such device 42");
             assert!(available.contains(&name), "{available}");

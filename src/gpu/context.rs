@@ -16,6 +16,10 @@ pub struct ContextDesc {
     /// Device to use: an index into [`enumerate_devices`]'s list or a case-insensitive substring of its name. `None`
     /// reads `MESHCHAR_DEVICE`, and without it picks discrete, then integrated, then virtual, then CPU devices.
     pub device: Option<String>,
+    /// Caps the workgroups per dispatch dimension below the device's `maxComputeWorkGroupCount` (`None`: the
+    /// device's limit). Every kernel splits its work into dispatches of at most this many workgroups, so a small cap
+    /// exercises the tiling loops with little data on devices whose limit is 2^31 - 1 (tests use it).
+    pub max_dispatch_groups: Option<u32>,
 }
 
 /// The properties and limits of a device that the engine relies on, all queried, none assumed.
@@ -572,7 +576,12 @@ impl Context {
             }
         };
         let pdev = pdevs[list[chosen].index];
-        let caps = list[chosen].caps.clone();
+        let mut caps = list[chosen].caps.clone();
+        if let Some(cap) = desc.max_dispatch_groups {
+            for c in &mut caps.max_workgroup_count {
+                *c = (*c).min(cap.max(1));
+            }
+        }
         let Some(family) = caps.queue_family else {
             cleanup(&instance, &debug);
             return Err(GpuError::Unsupported { name: caps.name.clone(), missing: vec!["a compute queue".into()] });

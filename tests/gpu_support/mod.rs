@@ -7,7 +7,25 @@ use meshchar::gpu::{Context, ContextDesc};
 /// A context with the Khronos validation layer on, or `None` (with a note on stderr) when no usable device exists
 /// and `REQUIRE_GPU` is not `1`.
 pub fn context() -> Option<Context> {
-    match Context::new(&ContextDesc { validation: true, device: None }) {
+    context_with(ContextDesc { validation: true, ..Default::default() })
+}
+
+/// Most workgroups per dispatch dimension that tests of the tiling loops use: far below the 65,535 of lavapipe and
+/// the 2^31 - 1 of discrete GPUs, so that "more workgroups than one dispatch allows" needs little host memory on any
+/// device.
+pub const TEST_DISPATCH_GROUPS: u32 = 4096;
+
+/// [`context`] with the dispatch size capped at [`TEST_DISPATCH_GROUPS`] (see `ContextDesc::max_dispatch_groups`).
+pub fn capped_context() -> Option<Context> {
+    context_with(ContextDesc {
+        validation: true,
+        max_dispatch_groups: Some(TEST_DISPATCH_GROUPS),
+        ..Default::default()
+    })
+}
+
+fn context_with(desc: ContextDesc) -> Option<Context> {
+    match Context::new(&desc) {
         Ok(ctx) => Some(ctx),
         Err(e) => {
             if std::env::var("REQUIRE_GPU").is_ok_and(|v| v == "1") {
