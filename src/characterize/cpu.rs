@@ -3,7 +3,7 @@
 //! accumulators. Both produce the same [`Characterization`] bit for bit (timings, backend and device aside).
 
 use super::finalize::{self, class_from_thresholds, class_thresholds};
-use super::{CharError, Characterization, CodeStats, Params, PassTime, PerTriangle};
+use super::{Backend, CharError, Characterization, CodeStats, Exact, Params, PassTime, PerTriangle};
 use crate::keys::{self, MortonBits};
 use crate::mesh::Mesh;
 use num_bigint::BigUint;
@@ -66,13 +66,6 @@ fn scale_for(mesh: &Mesh, lo: [f32; 3], hi: [f32; 3], bits: MortonBits) -> Resul
 
 fn pass(name: &str, t: Instant) -> PassTime {
     PassTime { name: name.to_string(), ms: t.elapsed().as_secs_f64() * 1e3 }
-}
-
-/// Steps 5 to 10 on the host from the exact statistics: moments, `k`.
-fn moments_and_k(stats: &CodeStats, params: &Params) -> (super::Moments, u32) {
-    let m = finalize::moments(stats);
-    let k = finalize::class_count(params.class_rule, stats.n, &m, stats.code_min == stats.code_max);
-    (m, k)
 }
 
 /// The single-threaded reference: docs/spec.md steps 1 to 10 written out one element at a time, power sums in `BigUint`.
@@ -140,7 +133,7 @@ pub fn naive(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError
         s2,
         s3,
     };
-    let (moments, k) = moments_and_k(&stats, params);
+    let k = finalize::class_count_of(params.class_rule, &stats);
     timings.push(pass("morton_moments", t));
 
     // Steps 7 and 8: classes by the u128 formula, histogram by counting.
@@ -158,22 +151,9 @@ pub fn naive(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError
     timings.push(pass("chi_square", t));
     timings.push(pass("total", start));
 
-    Ok(Characterization {
-        total_triangles: mesh.triangle_count() as u64,
-        triangles: stats.n,
-        params: params.clone(),
-        lo,
-        hi,
-        code_stats: stats,
-        moments,
-        classes: k,
-        histogram,
-        stats: hstats,
-        per_triangle: params.keep_per_triangle.then_some(PerTriangle { codes, classes }),
-        timings,
-        backend: "naive".into(),
-        device: cpu_device_name(1),
-    })
+    let per_triangle = params.keep_per_triangle.then_some(PerTriangle { codes, classes });
+    let exact = Exact { lo, hi, code_stats: stats, classes: k, histogram, stats: hstats, per_triangle };
+    Ok(Characterization::from_exact(mesh, params, exact, timings, Backend::Naive, cpu_device_name(1)))
 }
 
 /// A 256-bit unsigned accumulator (`hi * 2^128 + lo`).
@@ -332,7 +312,7 @@ pub fn fast(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError>
         stats.s2 += s.s2.to_big();
         stats.s3 += s.s3.to_big();
     }
-    let (moments, k) = moments_and_k(&stats, params);
+    let k = finalize::class_count_of(params.class_rule, &stats);
     timings.push(pass("morton_moments", t));
 
     // Steps 7 and 8.
@@ -387,22 +367,10 @@ pub fn fast(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError>
     timings.push(pass("chi_square", t));
     timings.push(pass("total", start));
 
-    Ok(Characterization {
-        total_triangles: mesh.triangle_count() as u64,
-        triangles: stats.n,
-        params: params.clone(),
-        lo,
-        hi,
-        code_stats: stats,
-        moments,
-        classes: k,
-        histogram,
-        stats: hstats,
-        per_triangle: params.keep_per_triangle.then_some(PerTriangle { codes, classes: classes_out }),
-        timings,
-        backend: "cpu".into(),
-        device: cpu_device_name(rayon::current_num_threads()),
-    })
+    let per_triangle = params.keep_per_triangle.then_some(PerTriangle { codes, classes: classes_out });
+    let exact = Exact { lo, hi, code_stats: stats, classes: k, histogram, stats: hstats, per_triangle };
+    let device = cpu_device_name(rayon::current_num_threads());
+    Ok(Characterization::from_exact(mesh, params, exact, timings, Backend::Cpu, device))
 }
 
 fn merge_hist(mut a: Vec<u64>, b: Vec<u64>) -> Vec<u64> {

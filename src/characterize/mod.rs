@@ -379,6 +379,56 @@ pub struct PerTriangle {
     pub classes: Vec<u32>,
 }
 
+/// What a backend measures on the data: only exact quantities (see the module docs). [`Characterization::from_exact`]
+/// turns them into the result; every backend goes through it, so no backend computes a reported float itself.
+pub(crate) struct Exact {
+    /// `lo` of step 2.
+    pub(crate) lo: [f32; 3],
+    /// `hi` of step 2.
+    pub(crate) hi: [f32; 3],
+    /// Exact code statistics of step 5 (`n` is the number of sampled triangles).
+    pub(crate) code_stats: CodeStats,
+    /// `k`.
+    pub(crate) classes: u32,
+    /// `O_0 .. O_{k-1}`.
+    pub(crate) histogram: Vec<u64>,
+    /// Steps 9 and 10, by [`histogram_stats`] or [`histogram_stats_exact`].
+    pub(crate) stats: HistogramStats,
+    /// Per-triangle codes and classes, when kept.
+    pub(crate) per_triangle: Option<PerTriangle>,
+}
+
+impl Characterization {
+    /// The result of `backend` on `device` for `mesh` with `params`: the exact quantities, the moments computed from
+    /// them by [`moments`], and the pass timings.
+    pub(crate) fn from_exact(
+        mesh: &Mesh,
+        params: &Params,
+        exact: Exact,
+        timings: Vec<PassTime>,
+        backend: Backend,
+        device: String,
+    ) -> Characterization {
+        let Exact { lo, hi, code_stats, classes, histogram, stats, per_triangle } = exact;
+        Characterization {
+            total_triangles: mesh.triangle_count() as u64,
+            triangles: code_stats.n,
+            params: params.clone(),
+            lo,
+            hi,
+            moments: moments(&code_stats),
+            code_stats,
+            classes,
+            histogram,
+            stats,
+            per_triangle,
+            timings,
+            backend: backend.name().into(),
+            device,
+        }
+    }
+}
+
 /// The result of characterizing one mesh (or one frame) on one backend.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Characterization {
