@@ -71,10 +71,10 @@ use crate::accel::MAX_TRIANGLES;
 use crate::geom::{Aabb, Triangle};
 use crate::gpu::sort::{KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
 use crate::gpu::{
-    shaders, Buffer, Context, GpuError, InputError, Kernel, KernelDesc, KeysPush, MemoryKind, MeshBuffers, Recorder,
-    Result, RunError, Timer,
+    bounds_read_back, shaders, Buffer, Context, GpuError, InputError, Kernel, KernelDesc, KeysPush, MemoryKind,
+    MeshBuffers, Recorder, Result, RunError, Timer,
 };
-use crate::keys::{from_ordered_bits, quantization_scale, MortonBits};
+use crate::keys::{MortonBits, Quantizer};
 use glam::Vec3;
 
 /// Items per invocation of the per-element kernels.
@@ -523,11 +523,8 @@ impl BvhBuilder {
             rec.host_read_barrier();
             Ok(())
         })?;
-        let u: Vec<u32> = scratch.bounds_readback.read(0, 6)?;
-        let lo = [from_ordered_bits(u[0]), from_ordered_bits(u[1]), from_ordered_bits(u[2])];
-        let hi = [from_ordered_bits(u[3]), from_ordered_bits(u[4]), from_ordered_bits(u[5])];
-        let finite = lo.iter().chain(hi.iter()).all(|x| x.is_finite());
-        let scale = quantization_scale(lo, hi, bits).filter(|_| finite).ok_or(InputError::Overflow { lo, hi })?;
+        let q = Quantizer::new(&bounds_read_back(&scratch.bounds_readback, 0)?, bits).map_err(InputError::from)?;
+        let (lo, scale) = (q.lo(), q.scale());
 
         let table_entries = hl.map_or(1, |(cb, _)| 1u64 << cb);
         let max_clusters = table_entries.min(n);

@@ -47,7 +47,7 @@
 use super::bvh::{bvh_tree_traversal, BvhNode, BvhTree};
 use super::{prepare, AccelError, AccelStats, AccelStructure, StructureName};
 use crate::geom::{Aabb, Triangle};
-use crate::keys::{centroid_key, max_total, min_total, morton, quantization_scale, quantize, MortonBits};
+use crate::keys::{centroid_key, MortonBits};
 use crate::mesh::Mesh;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -72,9 +72,13 @@ impl Default for LbvhOptions {
 /// Largest leaf the SAH collapse forms.
 pub const MAX_COLLAPSE_LEAF: u32 = 64;
 
-/// Morton codes of docs/spec.md for every triangle, in mesh order.
+/// Morton codes of docs/spec.md for every triangle, in mesh order ([`crate::keys::morton_codes`] over the keys of
+/// the mesh, computed once). The mesh must be valid (see [`prepare`]).
 pub fn morton_codes(mesh: &Mesh, bits: MortonBits, structure: &'static str) -> Result<Vec<u64>, AccelError> {
     let n = mesh.triangle_count();
+    if n == 0 {
+        return Ok(Vec::new());
+    }
     let keys: Vec<[f32; 3]> = (0..n)
         .into_par_iter()
         .map(|i| {
@@ -83,28 +87,8 @@ pub fn morton_codes(mesh: &Mesh, bits: MortonBits, structure: &'static str) -> R
             centroid_key(p(a), p(b), p(c))
         })
         .collect();
-    let init = || ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-    let (lo, hi) = keys
-        .par_iter()
-        .fold(init, |(mut lo, mut hi), s| {
-            for a in 0..3 {
-                lo[a] = min_total(lo[a], s[a]);
-                hi[a] = max_total(hi[a], s[a]);
-            }
-            (lo, hi)
-        })
-        .reduce(init, |(mut lo, mut hi), (l2, h2)| {
-            for a in 0..3 {
-                lo[a] = min_total(lo[a], l2[a]);
-                hi[a] = max_total(hi[a], h2[a]);
-            }
-            (lo, hi)
-        });
-    if n == 0 {
-        return Ok(Vec::new());
-    }
-    let scale = quantization_scale(lo, hi, bits).ok_or(AccelError::CoordinateRange { structure, lo, hi })?;
-    Ok(keys.par_iter().map(|s| morton(quantize(*s, lo, scale, bits), bits)).collect())
+    let (_, codes) = crate::keys::morton_codes(n, |i| keys[i], bits).map_err(|e| AccelError::of_keys(structure, e))?;
+    Ok(codes)
 }
 
 /// Sorted `(code, triangle)` pairs.

@@ -21,6 +21,7 @@ pub use crate::keys::MortonBits;
 pub use features::{features_cpu, Features};
 pub use finalize::{class_count, class_of, class_thresholds, histogram_stats, histogram_stats_exact, moments};
 
+use crate::keys::KeyError;
 use crate::mesh::{Animation, Mesh, MeshError};
 use num_bigint::BigUint;
 
@@ -76,6 +77,19 @@ pub enum CharError {
     /// The GPU path failed or is not available.
     #[error("Vulkan backend: {0}")]
     Gpu(String),
+}
+
+impl CharError {
+    /// The characterization's error for a [`KeyError`] over the sample of `mesh` (key `j` is triangle
+    /// `j * sample_stride`).
+    pub(crate) fn of_keys(mesh: &str, sample_stride: usize, e: KeyError) -> CharError {
+        let mesh = mesh.to_string();
+        match e {
+            KeyError::Empty => CharError::Empty { mesh },
+            KeyError::Overflow { index, key } => CharError::KeyOverflow { mesh, triangle: index * sample_stride, key },
+            KeyError::Extent { lo, hi, reason } => CharError::Extent { mesh, lo, hi, reason: reason.to_string() },
+        }
+    }
 }
 
 impl Params {

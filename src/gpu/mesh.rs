@@ -3,6 +3,7 @@
 //! device operations that are about their input.
 
 use crate::gpu::{Buffer, Context, GpuError, Result};
+use crate::keys::{KeyBounds, KeyError};
 
 /// Push constants of `glsl/keys_bounds.comp`.
 #[repr(C)]
@@ -83,6 +84,27 @@ pub enum InputError {
     /// The class plan is unusable.
     #[error("class plan: {0}")]
     Plan(String),
+}
+
+impl From<KeyError> for InputError {
+    /// The device passes see only the bounds of the keys (an overflowing key makes them infinite), so every key
+    /// error is [`InputError::Overflow`] of those bounds (of the key itself for [`KeyError::Overflow`]), or
+    /// [`InputError::Empty`].
+    fn from(e: KeyError) -> Self {
+        match e {
+            KeyError::Empty => InputError::Empty,
+            KeyError::Overflow { key, .. } => InputError::Overflow { lo: key, hi: key },
+            KeyError::Extent { lo, hi, .. } => InputError::Overflow { lo, hi },
+        }
+    }
+}
+
+/// The key bounds `glsl/keys_bounds.comp` reduced (six `u32` in [`crate::keys::ordered_bits`] form), read from byte
+/// `offset` of a host-visible buffer.
+pub(crate) fn bounds_read_back(buffer: &Buffer, offset: u64) -> Result<KeyBounds> {
+    let u: Vec<u32> = buffer.read(offset, 6)?;
+    let u: [u32; 6] = u.try_into().map_err(|_| GpuError::Buffer("key bounds: short read".into()))?;
+    Ok(KeyBounds::from_ordered_bits(u))
 }
 
 /// Error of a device operation over a mesh (characterization, feature pass, BVH builds).

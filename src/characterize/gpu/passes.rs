@@ -6,10 +6,10 @@
 //! after the bounds (docs/spec.md step 3 forbids device division), and `k` with its class thresholds after the moments.
 
 use crate::gpu::{
-    shaders, Buffer, Context, GpuError, InputError, Kernel, KernelDesc, KeysPush, MemoryKind, MeshBuffers, Result,
-    RunError, Timer,
+    bounds_read_back, shaders, Buffer, Context, GpuError, InputError, Kernel, KernelDesc, KeysPush, MemoryKind,
+    MeshBuffers, Result, RunError, Timer,
 };
-use crate::keys::{from_ordered_bits, quantization_scale, MortonBits};
+use crate::keys::{MortonBits, Quantizer};
 
 /// Items per invocation and tile in the per-triangle passes.
 const ITEMS: u32 = 8;
@@ -284,11 +284,8 @@ impl CharacterizeGpu {
             rec.host_read_barrier();
             Ok(())
         })?;
-        let u: Vec<u32> = readback.read(OFF_BOUNDS, 6)?;
-        let lo = [from_ordered_bits(u[0]), from_ordered_bits(u[1]), from_ordered_bits(u[2])];
-        let hi = [from_ordered_bits(u[3]), from_ordered_bits(u[4]), from_ordered_bits(u[5])];
-        let finite = lo.iter().chain(hi.iter()).all(|x| x.is_finite());
-        let scale = quantization_scale(lo, hi, bits).filter(|_| finite).ok_or(InputError::Overflow { lo, hi })?;
+        let q = Quantizer::new(&bounds_read_back(readback, OFF_BOUNDS)?, bits).map_err(InputError::from)?;
+        let (lo, hi, scale) = (q.lo(), q.hi(), q.scale());
 
         // Pass 2: codes, their range and exact power sums.
         ctx.submit_and_wait(|rec| {
