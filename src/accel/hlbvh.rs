@@ -30,8 +30,8 @@
 
 use super::bvh::{bvh_tree_traversal, BvhNode, BvhTree};
 use super::lbvh::{
-    check_depth_first_shape, check_karras_shape, collapse_leaves, fit_boxes_bottom_up, morton_codes,
-    radix_tree_children, sorted_keys, MAX_COLLAPSE_LEAF,
+    check_depth_first_shape, check_karras_shape, collapse_leaves, karras_nodes, morton_codes, sorted_keys,
+    MAX_COLLAPSE_LEAF,
 };
 use super::{invalid, prepare, AccelError, AccelStats, AccelStructure, StructureName};
 use crate::geom::Aabb;
@@ -318,14 +318,8 @@ impl Hlbvh {
             .par_iter()
             .zip(offsets.par_iter())
             .map(|(&(s, e), &offset)| {
-                let sub = &keys[s..e];
                 let m = e - s;
-                let children = radix_tree_children(sub, o.bits.total());
-                let mut nodes = vec![BvhNode::default(); 2 * m - 1];
-                for (p, nd) in nodes[m - 1..].iter_mut().enumerate() {
-                    *nd = BvhNode::leaf(&boxes[sub[p].1 as usize], (s + p) as u32, 1);
-                }
-                fit_boxes_bottom_up(&mut nodes, &children);
+                let mut nodes = karras_nodes(&keys[s..e], o.bits, &boxes, s);
                 for nd in nodes[..m - 1].iter_mut() {
                     nd.left_or_first += offset as u32;
                     nd.right_or_count += offset as u32;
