@@ -21,7 +21,7 @@
 
 mod sah;
 
-pub(crate) use sah::partition;
+pub(crate) use sah::{partition, sweep_bins};
 pub use sah::{Bvh, BvhOptions};
 
 use super::{bytes_of, invalid, sah_cost, AccelError, AccelStats, TraversalStack};
