@@ -1,9 +1,12 @@
 //! Centroid keys, quantization and Morton codes exactly as `docs/spec.md` steps 1 to 4 pin them.
 //!
-//! These are the scalar definitions shared by the CPU paths, the tests that check the GPU, and the BVH builders
-//! (LBVH and HLBVH sort triangles by the same codes). Every function is exact IEEE f32 or integer arithmetic, so a
-//! GPU kernel that performs the same operations (marked `precise`, no fused multiply-add, no division) produces the
-//! same bits.
+//! These are the definitions shared by the CPU characterization paths, the scene features, the BVH builders (LBVH
+//! and HLBVH sort triangles by the same codes), the host side of the device passes and the tests that check the GPU:
+//! the scalar steps ([`centroid_key`], [`quantization_scale`], [`quantize`], [`morton`]), the step-2 reduction
+//! ([`KeyBounds`]), the quantizer of a set of keys with the one error of steps 1 to 3 ([`Quantizer`],
+//! [`KeyError`], which every caller maps to its own error type) and the whole pipeline ([`morton_codes`]). Every
+//! function is exact IEEE f32 or integer arithmetic, so a GPU kernel that performs the same operations (marked
+//! `precise`, no fused multiply-add, no division) produces the same bits.
 
 /// Bits per axis of the Morton code: 10 (30-bit codes, the default) or 21 (63-bit codes).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize)]
@@ -89,22 +92,241 @@ pub fn max_total(a: f32, b: f32) -> f32 {
 
 /// Step 3, host part: `scale = 2^b / (hi - lo)` per axis in f32, `0` where `hi == lo`.
 ///
-/// Returns `None` when `hi - lo` overflows f32 (coordinates too far apart for f32 keys) or the scale does (a
-/// non-zero extent below about `2^b / f32::MAX`, 1e-35 for 63-bit codes): such bounds cannot be quantized in f32.
+/// Returns `None` when `hi - lo` overflows f32 (coordinates too far apart for f32 keys, or a bound that is not
+/// finite) or the scale does (a non-zero extent below about `2^b / f32::MAX`, 1e-35 for 63-bit codes): such bounds
+/// cannot be quantized in f32. [`Quantizer::new`] says which.
 pub fn quantization_scale(lo: [f32; 3], hi: [f32; 3], bits: MortonBits) -> Option<[f32; 3]> {
+    checked_scale(lo, hi, bits).ok()
+}
+
+fn checked_scale(lo: [f32; 3], hi: [f32; 3], bits: MortonBits) -> Result<[f32; 3], ExtentError> {
     let cells = (1u32 << bits.per_axis()) as f32;
+    if let Some(axis) = (0..3).find(|&a| !(hi[a] - lo[a]).is_finite()) {
+        return Err(ExtentError::Wide { axis });
+    }
     let mut scale = [0.0f32; 3];
     for a in 0..3 {
         let extent = hi[a] - lo[a];
-        if !extent.is_finite() {
-            return None;
-        }
         scale[a] = if extent == 0.0 { 0.0 } else { cells / extent };
         if !scale[a].is_finite() {
-            return None;
+            return Err(ExtentError::Narrow { per_axis: bits.per_axis() });
         }
     }
-    Some(scale)
+    Ok(scale)
+}
+
+/// Why bounds cannot be quantized in f32 (step 3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ExtentError {
+    /// `hi - lo` is not finite on this axis (the first such axis): the keys lie too far apart for f32, or a bound
+    /// is infinite.
+    #[error("axis {axis}: hi - lo overflows f32")]
+    Wide {
+        /// The axis.
+        axis: usize,
+    },
+    /// A non-zero extent so small that `2^b / extent` overflows f32.
+    #[error("an extent is so small that 2^{per_axis} / extent overflows f32")]
+    Narrow {
+        /// `b`, the bits per axis.
+        per_axis: u32,
+    },
+}
+
+/// Why a set of centroid keys has no Morton codes: the one error of steps 1 to 3, which the characterization, the
+/// BVH builders and the device passes each report in their own error type.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+pub enum KeyError {
+    /// There are no keys (no bounds).
+    #[error("no centroid keys")]
+    Empty,
+    /// Key `index` (the first, in the order of the keys) is not finite: `(v0 + v1) + v2` overflows f32.
+    #[error("key {index}: centroid key (v0 + v1) + v2 = {key:?} overflows f32 (coordinates too large)")]
+    Overflow {
+        /// Position of the key among the keys (for the characterization, of the triangle in the sample).
+        index: usize,
+        /// The key as computed.
+        key: [f32; 3],
+    },
+    /// The bounds of finite keys cannot be quantized in f32.
+    #[error("bounds lo {lo:?} hi {hi:?} cannot be quantized in f32: {reason}")]
+    Extent {
+        /// `lo` of step 2.
+        lo: [f32; 3],
+        /// `hi` of step 2.
+        hi: [f32; 3],
+        /// What overflowed.
+        reason: ExtentError,
+    },
+}
+
+/// Step 2: per-axis bounds of keys, reduced in the total order of [`ordered_bits`] (the representation every
+/// backend reduces in, so that the minimum of `{-0.0, +0.0}` is the same bit pattern everywhere).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct KeyBounds {
+    lo: [u32; 3],
+    hi: [u32; 3],
+}
+
+impl Default for KeyBounds {
+    fn default() -> Self {
+        KeyBounds::EMPTY
+    }
+}
+
+impl KeyBounds {
+    /// No key yet.
+    pub const EMPTY: KeyBounds = KeyBounds { lo: [u32::MAX; 3], hi: [0; 3] };
+
+    /// Bounds as the device reduces them: `[lo_x, lo_y, lo_z, hi_x, hi_y, hi_z]` in [`ordered_bits`] form.
+    pub fn from_ordered_bits(u: [u32; 6]) -> KeyBounds {
+        KeyBounds { lo: [u[0], u[1], u[2]], hi: [u[3], u[4], u[5]] }
+    }
+
+    /// Adds one key.
+    #[inline]
+    pub fn add(&mut self, key: [f32; 3]) {
+        for ((lo, hi), &k) in self.lo.iter_mut().zip(&mut self.hi).zip(&key) {
+            let o = ordered_bits(k);
+            *lo = (*lo).min(o);
+            *hi = (*hi).max(o);
+        }
+    }
+
+    /// The bounds of both sets of keys.
+    #[inline]
+    pub fn merge(self, o: KeyBounds) -> KeyBounds {
+        KeyBounds {
+            lo: std::array::from_fn(|a| self.lo[a].min(o.lo[a])),
+            hi: std::array::from_fn(|a| self.hi[a].max(o.hi[a])),
+        }
+    }
+
+    /// Whether no key was added.
+    pub fn is_empty(&self) -> bool {
+        (0..3).any(|a| self.lo[a] > self.hi[a])
+    }
+
+    /// `lo`: the per-axis minimum in the total order.
+    pub fn lo(&self) -> [f32; 3] {
+        self.lo.map(from_ordered_bits)
+    }
+
+    /// `hi`: the per-axis maximum in the total order.
+    pub fn hi(&self) -> [f32; 3] {
+        self.hi.map(from_ordered_bits)
+    }
+}
+
+/// Steps 3 and 4 for one set of keys: their bounds and the scale that map a key to its Morton code.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Quantizer {
+    lo: [f32; 3],
+    hi: [f32; 3],
+    scale: [f32; 3],
+    bits: MortonBits,
+}
+
+impl Quantizer {
+    /// The quantizer of keys with these bounds ([`quantization_scale`]).
+    ///
+    /// Errors: [`KeyError::Empty`] for empty bounds, [`KeyError::Extent`] when the bounds cannot be quantized in
+    /// f32 (which includes bounds that are not finite: a caller that can name the overflowing key reports
+    /// [`KeyError::Overflow`] instead, as [`Quantizer::of_keys`] does).
+    pub fn new(bounds: &KeyBounds, bits: MortonBits) -> Result<Quantizer, KeyError> {
+        if bounds.is_empty() {
+            return Err(KeyError::Empty);
+        }
+        let (lo, hi) = (bounds.lo(), bounds.hi());
+        let scale = checked_scale(lo, hi, bits).map_err(|reason| KeyError::Extent { lo, hi, reason })?;
+        Ok(Quantizer { lo, hi, scale, bits })
+    }
+
+    /// Steps 1 to 3 over `key(j)` for `j` in `0 .. n`, in parallel: the bounds and the quantizer. When a key is
+    /// not finite the error is [`KeyError::Overflow`] naming the first such `j`; a set of finite keys whose bounds
+    /// cannot be quantized gives [`KeyError::Extent`].
+    pub fn of_keys(n: usize, key: impl Fn(usize) -> [f32; 3] + Sync, bits: MortonBits) -> Result<Quantizer, KeyError> {
+        use rayon::prelude::*;
+        let bounds = (0..n)
+            .into_par_iter()
+            .with_min_len(4096)
+            .fold(KeyBounds::default, |mut b, j| {
+                b.add(key(j));
+                b
+            })
+            .reduce(KeyBounds::default, KeyBounds::merge);
+        Quantizer::finish(&bounds, bits, || {
+            (0..n).into_par_iter().map(|j| (j, key(j))).find_first(|(_, k)| !k.iter().all(|c| c.is_finite()))
+        })
+    }
+
+    /// [`Quantizer::of_keys`] over a slice of keys, one key at a time on the calling thread.
+    pub fn of_slice(keys: &[[f32; 3]], bits: MortonBits) -> Result<Quantizer, KeyError> {
+        let mut bounds = KeyBounds::EMPTY;
+        for &k in keys {
+            bounds.add(k);
+        }
+        Quantizer::finish(&bounds, bits, || {
+            keys.iter().copied().enumerate().find(|(_, k)| !k.iter().all(|c| c.is_finite()))
+        })
+    }
+
+    /// The quantizer of `bounds`, or the first overflowing key (found by `first_overflow`) when a bound is not
+    /// finite.
+    fn finish(
+        bounds: &KeyBounds,
+        bits: MortonBits,
+        first_overflow: impl FnOnce() -> Option<(usize, [f32; 3])>,
+    ) -> Result<Quantizer, KeyError> {
+        let q = Quantizer::new(bounds, bits);
+        let finite = bounds.lo().iter().chain(&bounds.hi()).all(|c| c.is_finite());
+        match q {
+            Err(KeyError::Extent { .. }) if !finite => match first_overflow() {
+                Some((index, key)) => Err(KeyError::Overflow { index, key }),
+                None => q,
+            },
+            _ => q,
+        }
+    }
+
+    /// `lo` of step 2.
+    pub fn lo(&self) -> [f32; 3] {
+        self.lo
+    }
+
+    /// `hi` of step 2.
+    pub fn hi(&self) -> [f32; 3] {
+        self.hi
+    }
+
+    /// `scale` of step 3.
+    pub fn scale(&self) -> [f32; 3] {
+        self.scale
+    }
+
+    /// The code width.
+    pub fn bits(&self) -> MortonBits {
+        self.bits
+    }
+
+    /// Steps 3 and 4 for one key: `morton(quantize(key, lo, scale, bits), bits)`.
+    #[inline]
+    pub fn code(&self, key: [f32; 3]) -> u64 {
+        morton(quantize(key, self.lo, self.scale, self.bits), self.bits)
+    }
+}
+
+/// Steps 1 to 4 over `key(j)` for `j` in `0 .. n`, in parallel: the quantizer and the code of every key, in order.
+/// Errors as [`Quantizer::of_keys`].
+pub fn morton_codes(
+    n: usize,
+    key: impl Fn(usize) -> [f32; 3] + Sync,
+    bits: MortonBits,
+) -> Result<(Quantizer, Vec<u64>), KeyError> {
+    use rayon::prelude::*;
+    let q = Quantizer::of_keys(n, &key, bits)?;
+    let codes = (0..n).into_par_iter().with_min_len(4096).map(|j| q.code(key(j))).collect();
+    Ok((q, codes))
 }
 
 /// Step 3, per triangle: `q = min(floor((s - lo) * scale), 2^b - 1)` in f32, then to an unsigned integer.
@@ -188,6 +410,32 @@ mod tests {
         }
         for &x in &xs {
             assert_eq!(from_ordered_bits(ordered_bits(x)).to_bits(), x.to_bits());
+        }
+    }
+
+    #[test]
+    fn quantizer_names_the_first_overflowing_key_before_the_extent() {
+        let b = MortonBits::Bits30;
+        let bad = [[0.0, 0.0, 0.0], [f32::INFINITY, 0.0, 0.0], [1.0, f32::NEG_INFINITY, 0.0]];
+        let e = Err(KeyError::Overflow { index: 1, key: bad[1] });
+        assert_eq!(Quantizer::of_slice(&bad, b), e);
+        assert_eq!(Quantizer::of_keys(3, |j| bad[j], b), e);
+        let wide = [[0.0, -3e38, 0.0], [0.0, 3e38, 0.0]];
+        let e = Quantizer::of_keys(2, |j| wide[j], b);
+        assert!(matches!(e, Err(KeyError::Extent { reason: ExtentError::Wide { axis: 1 }, .. })), "{e:?}");
+        let tiny = [[0.0; 3], [1e-44; 3]];
+        let e = Quantizer::of_slice(&tiny, MortonBits::Bits63);
+        assert!(matches!(e, Err(KeyError::Extent { reason: ExtentError::Narrow { per_axis: 21 }, .. })), "{e:?}");
+        assert_eq!(Quantizer::of_slice(&[], b), Err(KeyError::Empty));
+        assert_eq!(Quantizer::of_keys(0, |_| [0.0; 3], b), Err(KeyError::Empty));
+        let keys: Vec<[f32; 3]> = (0..10_000).map(|i| [i as f32, -(i as f32) * 0.5, (i % 7) as f32]).collect();
+        let q = Quantizer::of_slice(&keys, b).unwrap();
+        assert_eq!(Quantizer::of_keys(keys.len(), |j| keys[j], b), Ok(q));
+        let (q2, codes) = morton_codes(keys.len(), |j| keys[j], b).unwrap();
+        assert_eq!(q2, q);
+        assert_eq!((q.lo(), q.hi()), ([0.0, -4999.5, 0.0], [9999.0, -0.0, 6.0]));
+        for (k, c) in keys.iter().zip(&codes) {
+            assert_eq!(*c, morton(quantize(*k, q.lo(), quantization_scale(q.lo(), q.hi(), b).unwrap(), b), b));
         }
     }
 

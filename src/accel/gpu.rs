@@ -72,10 +72,10 @@ use crate::geom::{Aabb, Triangle};
 use crate::gpu::shaders::layout::{BOUNDS_HI, BOUNDS_LO, BOUNDS_WORDS, COLLAPSE_SIZE, COLLAPSE_WORDS};
 use crate::gpu::sort::{KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
 use crate::gpu::{
-    shaders, Buffer, Context, GpuError, InputError, Kernel, KernelDesc, KeysPush, MemoryKind, MeshBuffers, Recorder,
-    Result, RunError, Timer,
+    bounds_read_back, shaders, Buffer, Context, GpuError, InputError, Kernel, KernelDesc, KeysPush, MemoryKind,
+    MeshBuffers, Recorder, Result, RunError, Timer,
 };
-use crate::keys::{from_ordered_bits, quantization_scale, MortonBits};
+use crate::keys::{MortonBits, Quantizer};
 use glam::Vec3;
 
 /// Items per invocation of the per-element kernels.
@@ -345,11 +345,8 @@ impl BvhBuilder {
             rec.host_read_barrier();
             Ok(())
         })?;
-        let u: Vec<u32> = scratch.bounds_readback.read(0, BOUNDS_WORDS as usize)?;
-        let corner = |at: u32| [0, 1, 2].map(|a| from_ordered_bits(u[at as usize + a]));
-        let (lo, hi) = (corner(BOUNDS_LO), corner(BOUNDS_HI));
-        let finite = lo.iter().chain(hi.iter()).all(|x| x.is_finite());
-        let scale = quantization_scale(lo, hi, bits).filter(|_| finite).ok_or(InputError::Overflow { lo, hi })?;
+        let q = Quantizer::new(&bounds_read_back(&scratch.bounds_readback, 0)?, bits).map_err(InputError::from)?;
+        let (lo, scale) = (q.lo(), q.scale());
 
         let table_entries = hl.map_or(1, |(cb, _)| 1u64 << cb);
         let max_clusters = table_entries.min(n);

@@ -28,10 +28,10 @@
 //!    over the whole tree (a top node collapses only where its clusters are adjacent in sorted order), which
 //!    renumbers the kept nodes depth first; with 1 the layout of steps 3 and 4 stays.
 
-use super::bvh::{bvh_tree_traversal, BvhNode, BvhTree};
+use super::bvh::{bvh_tree_traversal, sweep_bins, BvhNode, BvhTree};
 use super::lbvh::{
-    check_depth_first_shape, check_karras_shape, collapse_leaves, fit_boxes_bottom_up, morton_codes,
-    radix_tree_children, sorted_keys, MAX_COLLAPSE_LEAF,
+    check_depth_first_shape, check_karras_shape, collapse_leaves, karras_nodes, morton_codes, sorted_keys,
+    MAX_COLLAPSE_LEAF,
 };
 use super::{invalid, prepare, AccelError, AccelStats, AccelStructure, StructureName};
 use crate::geom::Aabb;
@@ -69,28 +69,31 @@ pub struct Hlbvh {
     max_leaf: u32,
 }
 
-/// Split position of a top node's cluster list (reordered in place, stable on each side) by the binned SAH of
-/// step 4; `centers` are the cluster boxes' centres (`Aabb::center`), `scratch` is reused storage.
+/// Largest number of bins per axis of the top level.
+const MAX_TOP_BINS: usize = 64;
+
 /// Reused storage of [`top_split`]: the partition buffer and the bins (only the first `bins` entries are used).
 struct SplitScratch {
     list: Vec<u32>,
-    bb: [Aabb; 64],
-    bn: [usize; 64],
-    right: [(f32, usize); 64],
+    bb: [Aabb; MAX_TOP_BINS],
+    bn: [u32; MAX_TOP_BINS],
 }
 
 impl SplitScratch {
     fn new() -> Self {
-        SplitScratch { list: Vec::new(), bb: [Aabb::EMPTY; 64], bn: [0; 64], right: [(0.0, 0); 64] }
+        SplitScratch { list: Vec::new(), bb: [Aabb::EMPTY; MAX_TOP_BINS], bn: [0; MAX_TOP_BINS] }
     }
 }
 
+/// Split position of a top node's cluster list (reordered in place, stable on each side) by the binned SAH of
+/// step 4 (the sweep of the binned-SAH builder, [`sweep_bins`]); `centers` are the cluster boxes' centres
+/// (`Aabb::center`), `scratch` is reused storage.
 fn top_split(list: &mut [u32], boxes: &[Aabb], centers: &[Vec3], bins: usize, scratch: &mut SplitScratch) -> usize {
     let mut cb = Aabb::EMPTY;
     for &c in list.iter() {
         cb.grow(centers[c as usize]);
     }
-    let nb = bins.clamp(2, 64);
+    let nb = bins.clamp(2, MAX_TOP_BINS);
     let ext = cb.max - cb.min;
     // The scale of every axis, evaluated as the definition writes it (the same f32 operations in the same order).
     let scale: [f32; 3] = std::array::from_fn(|a| nb as f32 * (1.0 - 1e-6) / ext[a]);
@@ -103,7 +106,7 @@ fn top_split(list: &mut [u32], boxes: &[Aabb], centers: &[Vec3], bins: usize, sc
         if ext[a].is_nan() || ext[a] <= 0.0 {
             continue;
         }
-        let (bb, bn, right) = (&mut scratch.bb, &mut scratch.bn, &mut scratch.right);
+        let (bb, bn) = (&mut scratch.bb, &mut scratch.bn);
         bb[..nb].fill(Aabb::EMPTY);
         bn[..nb].fill(0);
         for &c in list.iter() {
@@ -111,27 +114,15 @@ fn top_split(list: &mut [u32], boxes: &[Aabb], centers: &[Vec3], bins: usize, sc
             bb[b] = bb[b].union(&boxes[c as usize]);
             bn[b] += 1;
         }
-        // Right sides by a backward sweep, left sides forward: the same boxes (unions are exact) as summing the
-        // bins of each side from scratch.
-        let (mut rb, mut rn) = (Aabb::EMPTY, 0);
-        for i in (1..nb).rev() {
-            rb = rb.union(&bb[i]);
-            rn += bn[i];
-            right[i] = (rb.half_area(), rn);
-        }
-        let (mut lb, mut ln) = (Aabb::EMPTY, 0);
-        for s in 1..nb {
-            lb = lb.union(&bb[s - 1]);
-            ln += bn[s - 1];
-            let (ra, rn) = right[s];
-            if ln == 0 || rn == 0 {
-                continue;
-            }
-            let cost = lb.half_area() * ln as f32 + ra * rn as f32;
-            if best.is_none_or(|(_, _, c)| cost < c) {
-                best = Some((a, s, cost));
-            }
-        }
+        sweep_bins::<Aabb, MAX_TOP_BINS>(
+            nb,
+            |i| (bb[i], bn[i]),
+            |s, cost, _| {
+                if best.is_none_or(|(_, _, c)| cost < c) {
+                    best = Some((a, s, cost));
+                }
+            },
+        );
     }
     match best {
         Some((a, s, _)) => {
@@ -318,14 +309,8 @@ impl Hlbvh {
             .par_iter()
             .zip(offsets.par_iter())
             .map(|(&(s, e), &offset)| {
-                let sub = &keys[s..e];
                 let m = e - s;
-                let children = radix_tree_children(sub, o.bits.total());
-                let mut nodes = vec![BvhNode::default(); 2 * m - 1];
-                for (p, nd) in nodes[m - 1..].iter_mut().enumerate() {
-                    *nd = BvhNode::leaf(&boxes[sub[p].1 as usize], (s + p) as u32, 1);
-                }
-                fit_boxes_bottom_up(&mut nodes, &children);
+                let mut nodes = karras_nodes(&keys[s..e], o.bits, &boxes, s);
                 for nd in nodes[..m - 1].iter_mut() {
                     nd.left_or_first += offset as u32;
                     nd.right_or_count += offset as u32;

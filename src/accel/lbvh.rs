@@ -44,14 +44,12 @@
 //! [`min_total`]: crate::keys::min_total
 //! [`max_total`]: crate::keys::max_total
 
-use super::bvh::{bvh_tree_traversal, BvhNode, BvhTree};
+use super::bvh::{bvh_tree_traversal, fit_boxes, BvhNode, BvhTree};
 use super::{prepare, AccelError, AccelStats, AccelStructure, StructureName};
 use crate::geom::{Aabb, Triangle};
-use crate::keys::{centroid_key, max_total, min_total, morton, quantization_scale, quantize, MortonBits};
+use crate::keys::{centroid_key, MortonBits};
 use crate::mesh::Mesh;
-use glam::Vec3;
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicU32, Ordering};
 
 /// Options of the LBVH.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -72,9 +70,13 @@ impl Default for LbvhOptions {
 /// Largest leaf the SAH collapse forms.
 pub const MAX_COLLAPSE_LEAF: u32 = 64;
 
-/// Morton codes of docs/spec.md for every triangle, in mesh order.
+/// Morton codes of docs/spec.md for every triangle, in mesh order ([`crate::keys::morton_codes`] over the keys of
+/// the mesh, computed once). The mesh must be valid (see [`prepare`]).
 pub fn morton_codes(mesh: &Mesh, bits: MortonBits, structure: &'static str) -> Result<Vec<u64>, AccelError> {
     let n = mesh.triangle_count();
+    if n == 0 {
+        return Ok(Vec::new());
+    }
     let keys: Vec<[f32; 3]> = (0..n)
         .into_par_iter()
         .map(|i| {
@@ -83,28 +85,8 @@ pub fn morton_codes(mesh: &Mesh, bits: MortonBits, structure: &'static str) -> R
             centroid_key(p(a), p(b), p(c))
         })
         .collect();
-    let init = || ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-    let (lo, hi) = keys
-        .par_iter()
-        .fold(init, |(mut lo, mut hi), s| {
-            for a in 0..3 {
-                lo[a] = min_total(lo[a], s[a]);
-                hi[a] = max_total(hi[a], s[a]);
-            }
-            (lo, hi)
-        })
-        .reduce(init, |(mut lo, mut hi), (l2, h2)| {
-            for a in 0..3 {
-                lo[a] = min_total(lo[a], l2[a]);
-                hi[a] = max_total(hi[a], h2[a]);
-            }
-            (lo, hi)
-        });
-    if n == 0 {
-        return Ok(Vec::new());
-    }
-    let scale = quantization_scale(lo, hi, bits).ok_or(AccelError::CoordinateRange { structure, lo, hi })?;
-    Ok(keys.par_iter().map(|s| morton(quantize(*s, lo, scale, bits), bits)).collect())
+    let (_, codes) = crate::keys::morton_codes(n, |i| keys[i], bits).map_err(|e| AccelError::of_keys(structure, e))?;
+    Ok(codes)
 }
 
 /// Sorted `(code, triangle)` pairs.
@@ -168,56 +150,28 @@ pub fn radix_tree_children(keys: &[(u64, u32)], code_bits: u32) -> Vec<(u32, u32
         .collect()
 }
 
-/// Fills `nodes` (internal `0 .. n-1` given by `children`, leaves `n-1 ..` with their boxes already set) with
-/// bottom-up boxes, in parallel (each leaf walks up; the second arrival at a node computes it).
-pub(crate) fn fit_boxes_bottom_up(nodes: &mut [BvhNode], children: &[(u32, u32)]) {
-    let n_int = children.len();
-    if n_int == 0 {
-        return;
+/// The nodes of the Karras tree of `keys` (sorted) in the unified numbering, boxes fitted: internal node `k` has
+/// the children [`radix_tree_children`] gives, the leaf of position `p` holds record `first + p` with the box of
+/// its triangle (`boxes`, in mesh order). Shared by the LBVH and every HLBVH cluster (`first` = the cluster's first
+/// position).
+pub(crate) fn karras_nodes(keys: &[(u64, u32)], bits: MortonBits, boxes: &[Aabb], first: usize) -> Vec<BvhNode> {
+    let m = keys.len();
+    if m == 0 {
+        return Vec::new();
     }
-    let mut parent = vec![u32::MAX; nodes.len()];
-    for (k, &(l, r)) in children.iter().enumerate() {
-        parent[l as usize] = k as u32;
-        parent[r as usize] = k as u32;
+    let children = radix_tree_children(keys, bits.total());
+    let mut nodes = vec![BvhNode::default(); 2 * m - 1];
+    let (internal, leaves) = nodes.split_at_mut(m - 1);
+    for (nd, &(l, r)) in internal.iter_mut().zip(&children) {
+        *nd = BvhNode::internal(&Aabb::EMPTY, l, r);
     }
-    let boxes: Vec<[AtomicU32; 6]> = nodes
-        .iter()
-        .map(|nd| {
-            let b = [nd.min[0], nd.min[1], nd.min[2], nd.max[0], nd.max[1], nd.max[2]];
-            b.map(|x| AtomicU32::new(x.to_bits()))
-        })
-        .collect();
-    let arrivals: Vec<AtomicU32> = (0..n_int).map(|_| AtomicU32::new(0)).collect();
-    let load = |k: usize| -> Aabb {
-        let b = &boxes[k];
-        let f = |i: usize| f32::from_bits(b[i].load(Ordering::Relaxed));
-        Aabb::new(Vec3::new(f(0), f(1), f(2)), Vec3::new(f(3), f(4), f(5)))
-    };
-    (n_int..nodes.len()).into_par_iter().for_each(|leaf| {
-        let mut k = parent[leaf];
-        while k != u32::MAX {
-            // AcqRel: the second arrival sees the box the first one stored before its increment.
-            if arrivals[k as usize].fetch_add(1, Ordering::AcqRel) == 0 {
-                return;
-            }
-            let (l, r) = children[k as usize];
-            let b = load(l as usize).union(&load(r as usize));
-            let v = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
-            for (slot, x) in boxes[k as usize].iter().zip(v) {
-                slot.store(x.to_bits(), Ordering::Relaxed);
-            }
-            k = parent[k as usize];
-        }
+    leaves.par_iter_mut().enumerate().with_min_len(1024).for_each(|(p, nd)| {
+        *nd = BvhNode::leaf(&boxes[keys[p].1 as usize], (first + p) as u32, 1);
     });
-    for (k, nd) in nodes.iter_mut().enumerate() {
-        let b = load(k);
-        nd.min = b.min.to_array();
-        nd.max = b.max.to_array();
-        if k < n_int {
-            nd.left_or_first = children[k].0;
-            nd.right_or_count = children[k].1;
-        }
-    }
+    // A Karras tree is a tree over all its nodes, so the fit cannot fail; its leaves keep the boxes set here.
+    let fitted = fit_boxes(&mut nodes, |leaf| Some(leaf.aabb()));
+    debug_assert!(fitted.is_ok(), "{fitted:?}");
+    nodes
 }
 
 /// Builds the Karras tree of sorted keys whose triangle boxes are `boxes` (mesh order), with triangle records
@@ -228,16 +182,7 @@ pub(crate) fn karras_tree(
     boxes: &[Aabb],
     tris: &[Triangle],
 ) -> (Vec<BvhNode>, Vec<Triangle>, Vec<u32>) {
-    let n = keys.len();
-    if n == 0 {
-        return (Vec::new(), Vec::new(), Vec::new());
-    }
-    let children = radix_tree_children(keys, bits.total());
-    let mut nodes = vec![BvhNode::default(); 2 * n - 1];
-    nodes[n - 1..].par_iter_mut().enumerate().for_each(|(p, nd)| {
-        *nd = BvhNode::leaf(&boxes[keys[p].1 as usize], p as u32, 1);
-    });
-    fit_boxes_bottom_up(&mut nodes, &children);
+    let nodes = karras_nodes(keys, bits, boxes, 0);
     let ids: Vec<u32> = keys.iter().map(|k| k.1).collect();
     let sorted_tris = ids.par_iter().map(|&i| tris[i as usize]).collect();
     (nodes, sorted_tris, ids)
@@ -468,6 +413,7 @@ pub(crate) fn check_karras_shape(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use glam::Vec3;
 
     #[test]
     fn karras_children_of_distinct_codes() {

@@ -23,8 +23,9 @@
 //! * **Empty mesh**: building from a mesh without triangles succeeds and gives an empty structure that hits nothing
 //!   and validates with all-zero statistics.
 //! * **Errors**: non-finite coordinates or out-of-range indices ([`AccelError::Mesh`]), more triangles than the node
-//!   encodings can address ([`AccelError::TooLarge`]), coordinates too far apart for f32 Morton keys
-//!   ([`AccelError::CoordinateRange`], LBVH and HLBVH only). Building never panics on input.
+//!   encodings can address ([`AccelError::TooLarge`]), coordinates too far apart for f32 extents
+//!   ([`AccelError::CoordinateRange`]: the Morton keys of the LBVH and HLBVH, the grid's cells), centroid keys that
+//!   overflow f32 ([`AccelError::KeyOverflow`], LBVH and HLBVH). Building never panics on input.
 //! * **SAH cost** ([`sah_cost`]): `C = K_T * sum_internal SA(n)/SA(root) + K_I * sum_leaf SA(n)/SA(root) * refs(n)`
 //!   with `K_T = 1`, `K_I = 1` ([`SAH_TRAVERSAL_COST`], [`SAH_INTERSECTION_COST`]), the expected-cost model of
 //!   MacDonald and Booth 1990 used by Wald 2007. For the kd-tree and BIH the node regions (voxels, clipped
@@ -46,6 +47,7 @@ pub mod kdtree;
 pub mod lbvh;
 
 use crate::geom::{Aabb, Hit, Ray, TraceCounters, Triangle};
+use crate::keys::KeyError;
 use crate::mesh::{Mesh, MeshError};
 
 /// `K_T` of the SAH cost model: cost of one traversal step.
@@ -74,16 +76,29 @@ pub enum AccelError {
         /// The limit.
         limit: usize,
     },
-    /// Coordinates span more than f32 can represent as an extent (Morton quantization of docs/spec.md step 3, grid
-    /// cells).
+    /// Bounds that f32 cannot quantize or divide: an extent that overflows f32 (Morton quantization of
+    /// docs/spec.md step 3, grid cells), or a non-zero extent so small that the quantization scale `2^b / extent`
+    /// overflows (Morton quantization).
     #[error("{structure}: bounds {lo:?}..{hi:?} too wide for f32 extents")]
     CoordinateRange {
         /// Which structure.
         structure: &'static str,
-        /// Lower centroid-key bound.
+        /// Lower bound (of the centroid keys for the LBVH and HLBVH, of the triangles for the grid).
         lo: [f32; 3],
-        /// Upper centroid-key bound.
+        /// Upper bound.
         hi: [f32; 3],
+    },
+    /// A centroid key `(v0 + v1) + v2` overflows f32 (coordinates above about 1e38; LBVH and HLBVH).
+    #[error(
+        "{structure}: triangle {triangle}: centroid key (v0 + v1) + v2 = {key:?} overflows f32 (coordinates too large)"
+    )]
+    KeyOverflow {
+        /// Which structure.
+        structure: &'static str,
+        /// The first triangle whose key overflows.
+        triangle: usize,
+        /// The key as computed.
+        key: [f32; 3],
     },
     /// `validate()` found a broken invariant.
     #[error("{structure}: invalid: {reason}")]
@@ -100,6 +115,17 @@ pub enum AccelError {
         /// Which structure.
         structure: &'static str,
     },
+}
+
+impl AccelError {
+    /// The builders' error for a [`KeyError`] of the Morton keys of every triangle (key `i` is triangle `i`).
+    pub(crate) fn of_keys(structure: &'static str, e: KeyError) -> AccelError {
+        match e {
+            KeyError::Overflow { index, key } => AccelError::KeyOverflow { structure, triangle: index, key },
+            KeyError::Extent { lo, hi, .. } => AccelError::CoordinateRange { structure, lo, hi },
+            KeyError::Empty => invalid(structure, "Morton codes of no triangles"),
+        }
+    }
 }
 
 /// Names of the structures, as used on the command line and in JSON (`bvh`, `kdtree`, `grid`, `bih`, `lbvh`,

@@ -1,10 +1,11 @@
 //! The CPU paths of `docs/spec.md`: [`naive`], a single-threaded transcription of the steps (the reference, and the
 //! thesis's "naive implementation" of Table 5.3), and [`fast`], chunked over rayon with fixed-width integer
-//! accumulators. Both produce the same [`Characterization`] bit for bit (timings, backend and device aside).
+//! accumulators. Both take keys, bounds and codes from [`crate::keys`] (the definitions the LBVH and the feature
+//! pass use too) and finish with [`super::finalize`]. Both produce the same [`Characterization`] bit for bit (timings, backend and device aside).
 
 use super::finalize::{self, class_from_thresholds, class_thresholds};
-use super::{CharError, Characterization, CodeStats, Params, PassTime, PerTriangle};
-use crate::keys::{self, MortonBits};
+use super::{Backend, CharError, Characterization, CodeStats, Exact, Params, PassTime, PerTriangle};
+use crate::keys::{self, MortonBits, Quantizer};
 use crate::mesh::Mesh;
 use num_bigint::BigUint;
 use num_traits::Zero;
@@ -52,30 +53,13 @@ fn key_of(mesh: &Mesh, i: usize) -> [f32; 3] {
     keys::centroid_key(p[a as usize], p[b as usize], p[c as usize])
 }
 
-/// Step 3, host part, with the errors of an extent that f32 cannot quantize.
-fn scale_for(mesh: &Mesh, lo: [f32; 3], hi: [f32; 3], bits: MortonBits) -> Result<[f32; 3], CharError> {
-    let err = |reason: String| CharError::Extent { mesh: mesh.name.clone(), lo, hi, reason };
-    keys::quantization_scale(lo, hi, bits).ok_or_else(|| {
-        let axis = (0..3).find(|&a| !(hi[a] - lo[a]).is_finite());
-        err(match axis {
-            Some(a) => format!("axis {a}: hi - lo overflows f32"),
-            None => format!("an extent is so small that 2^{} / extent overflows f32", bits.per_axis()),
-        })
-    })
-}
-
 fn pass(name: &str, t: Instant) -> PassTime {
     PassTime { name: name.to_string(), ms: t.elapsed().as_secs_f64() * 1e3 }
 }
 
-/// Steps 5 to 10 on the host from the exact statistics: moments, `k`.
-fn moments_and_k(stats: &CodeStats, params: &Params) -> (super::Moments, u32) {
-    let m = finalize::moments(stats);
-    let k = finalize::class_count(params.class_rule, stats.n, &m, stats.code_min == stats.code_max);
-    (m, k)
-}
-
-/// The single-threaded reference: docs/spec.md steps 1 to 10 written out one element at a time, power sums in `BigUint`.
+/// The single-threaded reference: docs/spec.md steps 1 to 10 written out one element at a time on the calling thread
+/// (keys, bounds and codes by the scalar definitions of [`crate::keys`], [`Quantizer::of_slice`]), power sums in
+/// `BigUint`.
 ///
 /// Errors: invalid parameters, an invalid mesh (the error names the vertex), no (sampled) triangles, a centroid key
 /// that overflows f32, bounds that f32 cannot quantize.
@@ -84,48 +68,23 @@ pub fn naive(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError
     check_input(mesh, params)?;
     let stride = params.sample_stride as usize;
     let bits = params.morton_bits;
-    let b = bits.per_axis();
     let mut timings = Vec::new();
 
-    // Steps 1 and 2: keys and bounds.
+    // Steps 1 and 2: keys and bounds; step 3, host part: the scale.
     let t = Instant::now();
-    let mut keys_v: Vec<[f32; 3]> = Vec::new();
-    for i in (0..mesh.triangle_count()).step_by(stride) {
-        let key = key_of(mesh, i);
-        if !key.iter().all(|c| c.is_finite()) {
-            return Err(CharError::KeyOverflow { mesh: mesh.name.clone(), triangle: i, key });
-        }
-        keys_v.push(key);
-    }
-    let mut lo = keys_v[0];
-    let mut hi = keys_v[0];
-    for key in &keys_v {
-        for a in 0..3 {
-            lo[a] = keys::min_total(lo[a], key[a]);
-            hi[a] = keys::max_total(hi[a], key[a]);
-        }
-    }
+    let keys_v: Vec<[f32; 3]> = (0..mesh.triangle_count()).step_by(stride).map(|i| key_of(mesh, i)).collect();
+    let q = Quantizer::of_slice(&keys_v, bits).map_err(|e| CharError::of_keys(&mesh.name, stride, e))?;
+    let (lo, hi) = (q.lo(), q.hi());
     timings.push(pass("keys_bounds", t));
 
-    // Steps 3 to 5: quantization, Morton codes by a bit loop, exact power sums.
+    // Steps 3 to 5: quantization, Morton codes, exact power sums.
     let t = Instant::now();
-    let scale = scale_for(mesh, lo, hi, bits)?;
-    let top = ((1u32 << b) - 1) as f32;
     let mut codes = Vec::with_capacity(keys_v.len());
     let mut s1 = BigUint::zero();
     let mut s2 = BigUint::zero();
     let mut s3 = BigUint::zero();
     for key in &keys_v {
-        let mut q = [0u32; 3];
-        for a in 0..3 {
-            q[a] = ((key[a] - lo[a]) * scale[a]).floor().min(top) as u32;
-        }
-        let mut code = 0u64;
-        for i in 0..b {
-            code |= u64::from((q[0] >> i) & 1) << (3 * i + 2);
-            code |= u64::from((q[1] >> i) & 1) << (3 * i + 1);
-            code |= u64::from((q[2] >> i) & 1) << (3 * i);
-        }
+        let code = q.code(*key);
         let m = BigUint::from(code);
         s1 += &m;
         s2 += &m * &m;
@@ -140,7 +99,7 @@ pub fn naive(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError
         s2,
         s3,
     };
-    let (moments, k) = moments_and_k(&stats, params);
+    let k = finalize::class_count_of(params.class_rule, &stats);
     timings.push(pass("morton_moments", t));
 
     // Steps 7 and 8: classes by the u128 formula, histogram by counting.
@@ -158,22 +117,9 @@ pub fn naive(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError
     timings.push(pass("chi_square", t));
     timings.push(pass("total", start));
 
-    Ok(Characterization {
-        total_triangles: mesh.triangle_count() as u64,
-        triangles: stats.n,
-        params: params.clone(),
-        lo,
-        hi,
-        code_stats: stats,
-        moments,
-        classes: k,
-        histogram,
-        stats: hstats,
-        per_triangle: params.keep_per_triangle.then_some(PerTriangle { codes, classes }),
-        timings,
-        backend: "naive".into(),
-        device: cpu_device_name(1),
-    })
+    let per_triangle = params.keep_per_triangle.then_some(PerTriangle { codes, classes });
+    let exact = Exact { lo, hi, code_stats: stats, classes: k, histogram, stats: hstats, per_triangle };
+    Ok(Characterization::from_exact(mesh, params, exact, timings, Backend::Naive, cpu_device_name(1)))
 }
 
 /// A 256-bit unsigned accumulator (`hi * 2^128 + lo`).
@@ -244,7 +190,7 @@ impl ChunkSums {
     }
 }
 
-/// The rayon path: per-chunk bounds in the total order of [`keys::ordered_bits`], codes by [`keys::morton`],
+/// The rayon path: bounds in the total order of [`keys::ordered_bits`] and codes by [`Quantizer`],
 /// power sums in fixed-width integers (`u128`, 256 bits for 63-bit codes) combined exactly, classes by `u64`
 /// division where `(m_max - m_min) k < 2^64` and by [`class_thresholds`] otherwise, per-chunk histograms merged.
 ///
@@ -257,50 +203,16 @@ pub fn fast(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError>
     let mut timings = Vec::new();
     let tri = |j: usize| j * stride as usize;
 
-    // Steps 1 and 2: bounds per chunk in ordered-bits form; the first overflowing key, if any.
+    // Steps 1 and 2: bounds in parallel, in ordered-bits form; the first overflowing key, if any; step 3, host
+    // part: the scale.
     let t = Instant::now();
-    type Bounds = ([u32; 3], [u32; 3], Option<usize>);
-    let chunk_bounds = |range: std::ops::Range<usize>| -> Bounds {
-        let mut lo = [u32::MAX; 3];
-        let mut hi = [0u32; 3];
-        for j in range {
-            let key = key_of(mesh, tri(j));
-            if !(key[0].is_finite() && key[1].is_finite() && key[2].is_finite()) {
-                return (lo, hi, Some(tri(j)));
-            }
-            for a in 0..3 {
-                let o = keys::ordered_bits(key[a]);
-                lo[a] = lo[a].min(o);
-                hi[a] = hi[a].max(o);
-            }
-        }
-        (lo, hi, None)
-    };
-    let (lo_b, hi_b, bad) =
-        (0..n.div_ceil(CHUNK)).into_par_iter().map(|c| chunk_bounds(c * CHUNK..((c + 1) * CHUNK).min(n))).reduce(
-            || ([u32::MAX; 3], [0u32; 3], None),
-            |a, b| {
-                let bad = match (a.2, b.2) {
-                    (Some(x), Some(y)) => Some(x.min(y)),
-                    (x, y) => x.or(y),
-                };
-                (
-                    [a.0[0].min(b.0[0]), a.0[1].min(b.0[1]), a.0[2].min(b.0[2])],
-                    [a.1[0].max(b.1[0]), a.1[1].max(b.1[1]), a.1[2].max(b.1[2])],
-                    bad,
-                )
-            },
-        );
-    if let Some(i) = bad {
-        return Err(CharError::KeyOverflow { mesh: mesh.name.clone(), triangle: i, key: key_of(mesh, i) });
-    }
-    let lo = lo_b.map(keys::from_ordered_bits);
-    let hi = hi_b.map(keys::from_ordered_bits);
+    let q = Quantizer::of_keys(n, |j| key_of(mesh, tri(j)), bits)
+        .map_err(|e| CharError::of_keys(&mesh.name, stride as usize, e))?;
+    let (lo, hi) = (q.lo(), q.hi());
     timings.push(pass("keys_bounds", t));
 
     // Steps 3 to 5.
     let t = Instant::now();
-    let scale = scale_for(mesh, lo, hi, bits)?;
     let mut codes = vec![0u64; n];
     let sums: Vec<ChunkSums> = codes
         .par_chunks_mut(CHUNK)
@@ -308,8 +220,7 @@ pub fn fast(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError>
         .map(|(c, out)| {
             let base = c * CHUNK;
             for (o, j) in out.iter_mut().zip(base..) {
-                let q = keys::quantize(key_of(mesh, tri(j)), lo, scale, bits);
-                *o = keys::morton(q, bits);
+                *o = q.code(key_of(mesh, tri(j)));
             }
             match bits {
                 MortonBits::Bits30 => ChunkSums::of_30(out),
@@ -332,7 +243,7 @@ pub fn fast(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError>
         stats.s2 += s.s2.to_big();
         stats.s3 += s.s3.to_big();
     }
-    let (moments, k) = moments_and_k(&stats, params);
+    let k = finalize::class_count_of(params.class_rule, &stats);
     timings.push(pass("morton_moments", t));
 
     // Steps 7 and 8.
@@ -387,22 +298,10 @@ pub fn fast(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError>
     timings.push(pass("chi_square", t));
     timings.push(pass("total", start));
 
-    Ok(Characterization {
-        total_triangles: mesh.triangle_count() as u64,
-        triangles: stats.n,
-        params: params.clone(),
-        lo,
-        hi,
-        code_stats: stats,
-        moments,
-        classes: k,
-        histogram,
-        stats: hstats,
-        per_triangle: params.keep_per_triangle.then_some(PerTriangle { codes, classes: classes_out }),
-        timings,
-        backend: "cpu".into(),
-        device: cpu_device_name(rayon::current_num_threads()),
-    })
+    let per_triangle = params.keep_per_triangle.then_some(PerTriangle { codes, classes: classes_out });
+    let exact = Exact { lo, hi, code_stats: stats, classes: k, histogram, stats: hstats, per_triangle };
+    let device = cpu_device_name(rayon::current_num_threads());
+    Ok(Characterization::from_exact(mesh, params, exact, timings, Backend::Cpu, device))
 }
 
 fn merge_hist(mut a: Vec<u64>, b: Vec<u64>) -> Vec<u64> {

@@ -22,7 +22,7 @@
 //! Derived real-valued quantities for models ([`Features::derived`]) are computed from these integers on the host.
 
 use super::{CharError, Params};
-use crate::keys;
+use crate::keys::{self, Quantizer};
 use crate::mesh::Mesh;
 
 /// Deepest Morton-prefix depth counted (`3 * 7 = 21` bits, a `2^21`-bit mask).
@@ -174,7 +174,8 @@ impl FeatureChange {
 }
 
 /// CPU reference of the features of `mesh` for `params` (`morton_bits` and `sample_stride` apply as in the
-/// characterization). Sequential exact integer arithmetic; O(n) time plus a `2^21`-bit mask.
+/// characterization). Exact integer arithmetic (the key bounds of [`Quantizer::of_keys`] in parallel, the rest
+/// sequential); O(n) time plus a `2^21`-bit mask.
 ///
 /// # Errors
 ///
@@ -195,32 +196,23 @@ pub fn features_cpu(mesh: &Mesh, params: &Params) -> Result<Features, CharError>
         let [a, b, c] = mesh.indices[i];
         [p[a as usize], p[b as usize], p[c as usize]]
     };
-    // Key bounds (docs/spec.md steps 1-2) and vertex bounds.
-    let mut klo = [f32::INFINITY; 3];
-    let mut khi = [f32::NEG_INFINITY; 3];
+    // Key bounds and scale (docs/spec.md steps 1-3), as the characterization; vertex bounds.
+    let key = |i: usize| {
+        let [v0, v1, v2] = tri(i);
+        keys::centroid_key(v0, v1, v2)
+    };
+    let q =
+        Quantizer::of_keys(ids.len(), |j| key(ids[j]), bits).map_err(|e| CharError::of_keys(&mesh.name, stride, e))?;
     let mut vlo = [f32::INFINITY; 3];
     let mut vhi = [f32::NEG_INFINITY; 3];
     for &i in &ids {
-        let [v0, v1, v2] = tri(i);
-        let k = keys::centroid_key(v0, v1, v2);
-        for a in 0..3 {
-            if !k[a].is_finite() {
-                return Err(CharError::KeyOverflow { mesh: mesh.name.clone(), triangle: i, key: k });
-            }
-            klo[a] = keys::min_total(klo[a], k[a]);
-            khi[a] = keys::max_total(khi[a], k[a]);
-            for v in [v0, v1, v2] {
+        for v in tri(i) {
+            for a in 0..3 {
                 vlo[a] = keys::min_total(vlo[a], v[a]);
                 vhi[a] = keys::max_total(vhi[a], v[a]);
             }
         }
     }
-    let scale = keys::quantization_scale(klo, khi, bits).ok_or_else(|| CharError::Extent {
-        mesh: mesh.name.clone(),
-        lo: klo,
-        hi: khi,
-        reason: "the key bounds cannot be quantized in f32".into(),
-    })?;
     let shift = bits.total() - 3 * OCCUPANCY_DEPTHS as u32;
     let mut mask = vec![0u64; (1usize << (3 * OCCUPANCY_DEPTHS)) / 64];
     let extent = |lo: &[f32; 3], hi: &[f32; 3]| -> f32 {
@@ -235,7 +227,7 @@ pub fn features_cpu(mesh: &Mesh, params: &Params) -> Result<Features, CharError>
     let mut zero_extent = 0u64;
     for &i in &ids {
         let [v0, v1, v2] = tri(i);
-        let code = keys::morton(keys::quantize(keys::centroid_key(v0, v1, v2), klo, scale, bits), bits);
+        let code = q.code(keys::centroid_key(v0, v1, v2));
         let prefix = (code >> shift) as usize;
         mask[prefix / 64] |= 1u64 << (prefix % 64);
         let mut tlo = v0;

@@ -145,6 +145,12 @@ pub fn class_count(rule: ClassRule, n: u64, m: &Moments, all_equal: bool) -> u32
     k.clamp(1.0, MAX_CLASSES as f64) as u32
 }
 
+/// The class count of step 6 for the codes of `s`: [`class_count`] with the [`moments`] of `s` (every code equal when
+/// `code_min == code_max`). What every backend plans its classes with.
+pub fn class_count_of(rule: ClassRule, s: &CodeStats) -> u32 {
+    class_count(rule, s.n, &moments(s), s.code_min == s.code_max)
+}
+
 /// Class of a code (docs/spec.md step 7): `min(((m - m_min) k) div (m_max - m_min), k - 1)`, exact in `u128`; 0 when
 /// `m_max == m_min` or `k <= 1`. Codes outside `[m_min, m_max]` are clamped to the nearest end.
 #[inline]

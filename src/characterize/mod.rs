@@ -21,6 +21,7 @@ pub use crate::keys::MortonBits;
 pub use features::{features_cpu, Features};
 pub use finalize::{class_count, class_of, class_thresholds, histogram_stats, histogram_stats_exact, moments};
 
+use crate::keys::KeyError;
 use crate::mesh::{Animation, Mesh, MeshError};
 use num_bigint::BigUint;
 
@@ -76,6 +77,19 @@ pub enum CharError {
     /// The GPU path failed or is not available.
     #[error("Vulkan backend: {0}")]
     Gpu(String),
+}
+
+impl CharError {
+    /// The characterization's error for a [`KeyError`] over the sample of `mesh` (key `j` is triangle
+    /// `j * sample_stride`).
+    pub(crate) fn of_keys(mesh: &str, sample_stride: usize, e: KeyError) -> CharError {
+        let mesh = mesh.to_string();
+        match e {
+            KeyError::Empty => CharError::Empty { mesh },
+            KeyError::Overflow { index, key } => CharError::KeyOverflow { mesh, triangle: index * sample_stride, key },
+            KeyError::Extent { lo, hi, reason } => CharError::Extent { mesh, lo, hi, reason: reason.to_string() },
+        }
+    }
 }
 
 impl Params {
@@ -377,6 +391,56 @@ pub struct PerTriangle {
     pub codes: Vec<u64>,
     /// Class of each sampled triangle.
     pub classes: Vec<u32>,
+}
+
+/// What a backend measures on the data: only exact quantities (see the module docs). [`Characterization::from_exact`]
+/// turns them into the result; every backend goes through it, so no backend computes a reported float itself.
+pub(crate) struct Exact {
+    /// `lo` of step 2.
+    pub(crate) lo: [f32; 3],
+    /// `hi` of step 2.
+    pub(crate) hi: [f32; 3],
+    /// Exact code statistics of step 5 (`n` is the number of sampled triangles).
+    pub(crate) code_stats: CodeStats,
+    /// `k`.
+    pub(crate) classes: u32,
+    /// `O_0 .. O_{k-1}`.
+    pub(crate) histogram: Vec<u64>,
+    /// Steps 9 and 10, by [`histogram_stats`] or [`histogram_stats_exact`].
+    pub(crate) stats: HistogramStats,
+    /// Per-triangle codes and classes, when kept.
+    pub(crate) per_triangle: Option<PerTriangle>,
+}
+
+impl Characterization {
+    /// The result of `backend` on `device` for `mesh` with `params`: the exact quantities, the moments computed from
+    /// them by [`moments`], and the pass timings.
+    pub(crate) fn from_exact(
+        mesh: &Mesh,
+        params: &Params,
+        exact: Exact,
+        timings: Vec<PassTime>,
+        backend: Backend,
+        device: String,
+    ) -> Characterization {
+        let Exact { lo, hi, code_stats, classes, histogram, stats, per_triangle } = exact;
+        Characterization {
+            total_triangles: mesh.triangle_count() as u64,
+            triangles: code_stats.n,
+            params: params.clone(),
+            lo,
+            hi,
+            moments: moments(&code_stats),
+            code_stats,
+            classes,
+            histogram,
+            stats,
+            per_triangle,
+            timings,
+            backend: backend.name().into(),
+            device,
+        }
+    }
 }
 
 /// The result of characterizing one mesh (or one frame) on one backend.

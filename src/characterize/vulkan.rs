@@ -1,13 +1,12 @@
-//! The Vulkan backend: [`super::gpu::passes`]'s exact GPU passes, finished by this module's host math.
+//! The Vulkan backend: the exact GPU passes of [`super::gpu`] (characterization and scene features), finished on
+//! the host by the math of [`super::finalize`], the same as the CPU paths'.
 
 use super::features::{features_from_gpu, SIZE_BINS};
+use super::finalize::class_count_of;
 use super::gpu::features::FeaturesGpu;
 use super::gpu::passes::{CharacterizeGpu, ClassPlan, CodeSums};
 use super::Features;
-use super::{
-    class_count, class_thresholds, moments, CharError, Characterization, ClassRule, CodeStats, Params, PassTime,
-    PerTriangle,
-};
+use super::{class_thresholds, Backend, CharError, Characterization, CodeStats, Exact, Params, PassTime, PerTriangle};
 use crate::gpu::{Context, MeshBuffers, RunError};
 use crate::mesh::{Animation, Mesh};
 use num_bigint::BigUint;
@@ -131,7 +130,7 @@ impl VulkanBackend {
         let max_k = self.gpu.max_classes();
         let plan = move |s: &CodeSums| -> Result<ClassPlan, String> {
             let stats = code_stats(s);
-            let k = planned_k(rule, &stats).min(max_k);
+            let k = class_count_of(rule, &stats).min(max_k);
             Ok(ClassPlan { k, thresholds: class_thresholds(s.code_min, s.code_max, k) })
         };
         let out = self
@@ -141,8 +140,6 @@ impl VulkanBackend {
                 RunError::Gpu(g) => gpu_err(g),
                 RunError::Input(i) => CharError::Input { mesh: mesh.name.clone(), reason: i.to_string() },
             })?;
-        let stats = code_stats(&out.sums);
-        let m = moments(&stats);
         let k = out.plan.k;
         let hstats = super::finalize::histogram_stats_exact(
             out.chi_numerator,
@@ -156,28 +153,18 @@ impl VulkanBackend {
         let mut timings: Vec<PassTime> = vec![PassTime { name: "upload".into(), ms: upload_ms }];
         timings.extend(out.timings.iter().map(|(name, ms)| PassTime { name: name.clone(), ms: *ms }));
         timings.push(PassTime { name: "total".into(), ms: start.elapsed().as_secs_f64() * 1e3 });
-        Ok(Characterization {
-            total_triangles: mesh.triangle_count() as u64,
-            triangles: out.n,
-            params: params.clone(),
+        let exact = Exact {
             lo: out.lo,
             hi: out.hi,
-            code_stats: stats,
-            moments: m,
+            code_stats: code_stats(&out.sums),
             classes: k,
             histogram: out.histogram,
             stats: hstats,
             per_triangle: out.per_triangle.map(|(codes, classes)| PerTriangle { codes, classes }),
-            timings,
-            backend: "vulkan".into(),
-            device: self.ctx.caps().name.clone(),
-        })
+        };
+        let device = self.ctx.caps().name.clone();
+        Ok(Characterization::from_exact(mesh, params, exact, timings, Backend::Vulkan, device))
     }
-}
-
-fn planned_k(rule: ClassRule, stats: &CodeStats) -> u32 {
-    let m = moments(stats);
-    class_count(rule, stats.n, &m, stats.code_min == stats.code_max)
 }
 
 fn gpu_err(e: crate::gpu::GpuError) -> CharError {

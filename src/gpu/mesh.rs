@@ -3,6 +3,7 @@
 //! device operations that are about their input.
 
 use crate::gpu::{Buffer, Context, GpuError, Result};
+use crate::keys::{KeyBounds, KeyError};
 
 pub use crate::gpu::shaders::keys_bounds::Push as KeysPush;
 
@@ -66,6 +67,34 @@ pub enum InputError {
     /// The class plan is unusable.
     #[error("class plan: {0}")]
     Plan(String),
+}
+
+impl From<KeyError> for InputError {
+    /// The device passes see only the bounds of the keys (an overflowing key makes them infinite), so every key
+    /// error is [`InputError::Overflow`] of those bounds (of the key itself for [`KeyError::Overflow`]), or
+    /// [`InputError::Empty`].
+    fn from(e: KeyError) -> Self {
+        match e {
+            KeyError::Empty => InputError::Empty,
+            KeyError::Overflow { key, .. } => InputError::Overflow { lo: key, hi: key },
+            KeyError::Extent { lo, hi, .. } => InputError::Overflow { lo, hi },
+        }
+    }
+}
+
+/// The key bounds `glsl/keys_bounds.comp` reduced (six `u32` in [`crate::keys::ordered_bits`] form), read from byte
+/// `offset` of a host-visible buffer.
+pub(crate) fn bounds_read_back(buffer: &Buffer, offset: u64) -> Result<KeyBounds> {
+    use crate::gpu::shaders::layout::{BOUNDS_HI, BOUNDS_LO, BOUNDS_WORDS};
+    let u: Vec<u32> = buffer.read(offset, BOUNDS_WORDS as usize)?;
+    let corner = |at: u32| -> Result<[u32; 3]> {
+        let at = at as usize;
+        u.get(at..at + 3)
+            .and_then(|c| c.try_into().ok())
+            .ok_or_else(|| GpuError::Buffer("key bounds: short read".into()))
+    };
+    let (lo, hi) = (corner(BOUNDS_LO)?, corner(BOUNDS_HI)?);
+    Ok(KeyBounds::from_ordered_bits([lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]]))
 }
 
 /// Error of a device operation over a mesh (characterization, feature pass, BVH builds).

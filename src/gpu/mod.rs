@@ -28,6 +28,7 @@ pub use context::{
     DeviceSummary, RawDevice,
 };
 pub use kernel::{Kernel, KernelDesc};
+pub(crate) use mesh::bounds_read_back;
 pub use mesh::{InputError, KeysPush, MeshBuffers, RunError};
 pub use record::{Recorder, Timer};
 pub use shaders::{check_push_layout, check_struct_layout, PushConstants, ShaderInfo};

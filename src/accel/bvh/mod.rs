@@ -1,5 +1,5 @@
-//! The node layout, traversal and validation shared by every BVH of the crate ([`Bvh`], [`super::lbvh::Lbvh`],
-//! [`super::hlbvh::Hlbvh`]), and the binned-SAH builder ([`sah`]).
+//! The node layout, traversal, bottom-up box fit, refit and validation shared by every BVH of the crate ([`Bvh`],
+//! [`super::lbvh::Lbvh`], [`super::hlbvh::Hlbvh`]), and the binned-SAH builder ([`sah`]).
 //!
 //! # Node layout ([`BvhNode`], 32 bytes, `#[repr(C)]`, `bytemuck::Pod`)
 //!
@@ -23,6 +23,7 @@ mod sah;
 
 #[cfg(feature = "eval")]
 pub(crate) use sah::partition;
+pub(crate) use sah::sweep_bins;
 pub use sah::{Bvh, BvhOptions};
 
 use super::{bytes_of, invalid, sah_cost, AccelError, AccelStats, TraversalStack};
@@ -30,6 +31,8 @@ use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCou
 use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
 use glam::Vec3;
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
 
 /// The [`AccelStructure`] methods every structure stored as a [`BvhTree`] in a field `tree` shares (BVH, LBVH,
 /// HLBVH): triangle count, closest hit and any hit by the tree's traversal.
@@ -87,6 +90,101 @@ impl BvhNode {
     pub fn aabb(&self) -> Aabb {
         Aabb::new(Vec3::from_array(self.min), Vec3::from_array(self.max))
     }
+}
+
+/// The bottom-up box fit of every BVH of the crate (the LBVH's Karras tree, each HLBVH cluster, [`BvhTree::refit`]):
+/// every leaf's box is `leaf_box(leaf)` (`None`: the leaf is out of range), every internal node's the union
+/// `left ∪ right` of its children's. In parallel, after Karras 2012: each leaf walks up towards the root and the
+/// second arrival at a node computes its box, so every node is computed once, after both children. Unions are exact,
+/// so the result does not depend on the schedule.
+///
+/// `nodes` must form one tree rooted at node 0 (any numbering): the error says where it does not (a child index out
+/// of range, a node with two parents or none, a cycle). On error the boxes are unspecified.
+pub(crate) fn fit_boxes(
+    nodes: &mut [BvhNode],
+    leaf_box: impl Fn(&BvhNode) -> Option<Aabb> + Sync,
+) -> Result<(), String> {
+    if nodes.is_empty() {
+        return Ok(());
+    }
+    let mut parent = vec![u32::MAX; nodes.len()];
+    let mut internal = 0usize;
+    for (k, nd) in nodes.iter().enumerate().filter(|(_, nd)| !nd.is_leaf()) {
+        internal += 1;
+        for c in [nd.left_or_first, nd.right_or_count] {
+            let slot = parent.get_mut(c as usize).filter(|_| c != 0);
+            let slot = slot.ok_or_else(|| format!("node {k}: child {c} out of range"))?;
+            if *slot != u32::MAX {
+                return Err(format!("node {c} has two parents"));
+            }
+            *slot = k as u32;
+        }
+    }
+    if let Some(k) = parent.iter().skip(1).position(|&p| p == u32::MAX) {
+        return Err(format!("node {} is nobody's child", k + 1));
+    }
+    // Small trees (the HLBVH's clusters) stay on one thread.
+    const MIN_LEN: usize = 1024;
+    let bad_leaf = AtomicUsize::new(usize::MAX);
+    let boxes: Vec<[AtomicU32; 6]> = nodes
+        .par_iter()
+        .enumerate()
+        .with_min_len(MIN_LEN)
+        .map(|(k, nd)| {
+            let b = match nd.is_leaf() {
+                false => Aabb::EMPTY,
+                true => leaf_box(nd).unwrap_or_else(|| {
+                    bad_leaf.fetch_min(k, Ordering::Relaxed);
+                    Aabb::EMPTY
+                }),
+            };
+            [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z].map(|x| AtomicU32::new(x.to_bits()))
+        })
+        .collect();
+    let bad_leaf = bad_leaf.into_inner();
+    if bad_leaf != usize::MAX {
+        return Err(format!("leaf {bad_leaf} out of range"));
+    }
+    let load = |k: usize| -> Aabb {
+        let f = |i: usize| f32::from_bits(boxes[k][i].load(Ordering::Relaxed));
+        Aabb::new(Vec3::new(f(0), f(1), f(2)), Vec3::new(f(3), f(4), f(5)))
+    };
+    let arrivals: Vec<AtomicU32> = (0..nodes.len()).map(|_| AtomicU32::new(0)).collect();
+    let nodes_ro = &*nodes;
+    let fitted: usize = (0..nodes.len())
+        .into_par_iter()
+        .with_min_len(MIN_LEN)
+        .filter(|&k| nodes_ro[k].is_leaf())
+        .map(|leaf| {
+            let mut fitted = 0;
+            let mut k = parent[leaf];
+            while k != u32::MAX {
+                // AcqRel: the second arrival sees the box the first one stored before its increment.
+                if arrivals[k as usize].fetch_add(1, Ordering::AcqRel) == 0 {
+                    break;
+                }
+                let nd = &nodes_ro[k as usize];
+                let b = load(nd.left_or_first as usize).union(&load(nd.right_or_count as usize));
+                let v = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
+                for (slot, x) in boxes[k as usize].iter().zip(v) {
+                    slot.store(x.to_bits(), Ordering::Relaxed);
+                }
+                fitted += 1;
+                k = parent[k as usize];
+            }
+            fitted
+        })
+        .sum();
+    // Every internal node is computed exactly once when the nodes form a tree; one on a cycle never is.
+    if fitted != internal {
+        return Err("the nodes do not form a tree".into());
+    }
+    for (k, nd) in nodes.iter_mut().enumerate() {
+        let b = load(k);
+        nd.min = b.min.to_array();
+        nd.max = b.max.to_array();
+    }
+    Ok(())
 }
 
 /// Nodes plus the triangle records in leaf order: the traversable part of every BVH of the crate.
@@ -189,56 +287,37 @@ impl BvhTree {
     }
 
     /// Refits the tree to new vertex positions of the same triangles (the next frame of an animation): every
-    /// triangle record is recomputed from `mesh` and every box from its children, bottom up; the topology is kept.
+    /// triangle record is recomputed from `mesh`, every leaf's box from its triangles' vertices and every internal
+    /// box from its children, bottom up (the fit the builders use); the topology is kept.
     ///
     /// # Errors
     ///
-    /// [`AccelError::Invalid`] when `mesh` has another triangle count or the tree is malformed (a child index out
-    /// of range), [`AccelError::Mesh`] for an invalid mesh.
+    /// [`AccelError::Invalid`] when `mesh` has another triangle count or the tree is malformed (an index out of
+    /// range, nodes that do not form one tree rooted at node 0), [`AccelError::Mesh`] for an invalid mesh.
     pub fn refit(&mut self, mesh: &Mesh) -> Result<(), AccelError> {
         mesh.validate()?;
         let bad = |reason: String| AccelError::Invalid { structure: "refit", reason };
         if mesh.triangle_count() != self.tris.len() {
             return Err(bad(format!("mesh has {} triangles, the tree {}", mesh.triangle_count(), self.tris.len())));
         }
+        if let Some(id) = self.ids.iter().find(|&&id| id as usize >= self.tris.len()) {
+            return Err(bad(format!("triangle id {id} out of range")));
+        }
         for (t, &id) in self.tris.iter_mut().zip(&self.ids) {
             *t = Triangle::new(&mesh.triangle(id as usize));
         }
-        if self.nodes.is_empty() {
-            return Ok(());
-        }
-        // Post order by an explicit stack: (node, children done).
-        let n = self.nodes.len();
-        let mut stack = vec![(0u32, false)];
-        let mut steps = 0usize;
-        while let Some((i, done)) = stack.pop() {
-            steps += 1;
-            if steps > 2 * n + 2 {
-                return Err(bad("the nodes do not form a tree".into()));
-            }
-            let node = *self.nodes.get(i as usize).ok_or_else(|| bad(format!("node {i} out of range")))?;
-            if node.is_leaf() {
-                let (first, count) = (node.left_or_first as usize, node.count() as usize);
-                let ids = self.ids.get(first..first + count).ok_or_else(|| bad(format!("leaf {i} out of range")))?;
-                let mut b = Aabb::EMPTY;
-                for &id in ids {
-                    for v in mesh.triangle(id as usize) {
-                        b.grow(v);
-                    }
+        let ids = &self.ids;
+        fit_boxes(&mut self.nodes, |leaf| {
+            let (first, count) = (leaf.left_or_first as usize, leaf.count() as usize);
+            let mut b = Aabb::EMPTY;
+            for &id in ids.get(first..first + count)? {
+                for v in mesh.triangle(id as usize) {
+                    b.grow(v);
                 }
-                self.nodes[i as usize] = BvhNode::leaf(&b, node.left_or_first, node.count());
-            } else if !done {
-                stack.push((i, true));
-                stack.push((node.left_or_first, false));
-                stack.push((node.right_or_count, false));
-            } else {
-                let l = self.nodes.get(node.left_or_first as usize).ok_or_else(|| bad(format!("node {i}: child")))?;
-                let r = self.nodes.get(node.right_or_count as usize).ok_or_else(|| bad(format!("node {i}: child")))?;
-                let b = l.aabb().union(&r.aabb());
-                self.nodes[i as usize] = BvhNode::internal(&b, node.left_or_first, node.right_or_count);
             }
-        }
-        Ok(())
+            Some(b)
+        })
+        .map_err(bad)
     }
 
     /// SAH cost of the tree (see [`super::sah_cost`]).
@@ -335,5 +414,47 @@ impl BvhTree {
             return Err(invalid(structure, format!("triangle record {k} in no leaf")));
         }
         Ok(stats)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fit_boxes_fits_any_numbering_and_rejects_what_is_not_a_tree() {
+        let unit = |x: f32| Aabb::new(Vec3::splat(x), Vec3::splat(x + 1.0));
+        let e = Aabb::EMPTY;
+        // Root 0 -> (3, 1); 1 -> (2, 4): leaves 2, 3, 4 hold records 0, 1, 2 at x = 0, 1, 2.
+        let mut nodes = vec![
+            BvhNode::internal(&e, 3, 1),
+            BvhNode::internal(&e, 2, 4),
+            BvhNode::leaf(&e, 0, 1),
+            BvhNode::leaf(&e, 1, 1),
+            BvhNode::leaf(&e, 2, 1),
+        ];
+        let leaf_box = |nd: &BvhNode| (nd.left_or_first < 3).then(|| unit(nd.left_or_first as f32));
+        fit_boxes(&mut nodes, leaf_box).unwrap();
+        assert_eq!(nodes[1].aabb(), unit(0.0).union(&unit(2.0)));
+        assert_eq!(nodes[0].aabb(), unit(1.0).union(&nodes[1].aabb()));
+        assert_eq!(nodes[3].aabb(), unit(1.0));
+        let broken = |edit: &dyn Fn(&mut Vec<BvhNode>)| {
+            let mut v = nodes.clone();
+            edit(&mut v);
+            fit_boxes(&mut v, leaf_box).unwrap_err()
+        };
+        assert!(broken(&|v| v[1].right_or_count = 9).contains("out of range"));
+        assert!(broken(&|v| v[1].right_or_count = 3).contains("two parents"));
+        assert!(broken(&|v| v[1].right_or_count = 0).contains("out of range"));
+        assert!(broken(&|v| v.push(BvhNode::leaf(&e, 0, 1))).contains("nobody's child"));
+        assert!(broken(&|v| v[4].left_or_first = 7).contains("leaf 4"));
+        // 1 and 5 are each other's child: every node has one parent, but 1 and 5 hang on a cycle.
+        let cycle = |v: &mut Vec<BvhNode>| {
+            v[1].right_or_count = 5;
+            v.push(BvhNode::internal(&e, 1, 4));
+            v[0].right_or_count = 6;
+            v.push(BvhNode::leaf(&e, 0, 1));
+        };
+        assert!(broken(&cycle).contains("do not form a tree"));
     }
 }

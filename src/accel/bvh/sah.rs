@@ -191,36 +191,92 @@ fn find_split(refs: &[Ref], cb: &B4, nb: usize) -> Option<(usize, usize, f32, Bi
         if g.k[a] == 0.0 {
             continue;
         }
-        let mut right_area = [0.0f32; MAX_BINS];
-        let mut right_n = [0u32; MAX_BINS];
-        let mut acc = B4::EMPTY;
-        let mut cnt = 0u32;
-        for i in (1..nb).rev() {
-            acc = acc.union(ab[i].b);
-            cnt += ab[i].n;
-            right_area[i] = acc.half_area();
-            right_n[i] = cnt;
-        }
-        let mut acc = B4::EMPTY;
-        let mut cnt = 0u32;
-        for i in 1..nb {
-            acc = acc.union(ab[i - 1].b);
-            cnt += ab[i - 1].n;
-            if cnt == 0 || right_n[i] == 0 {
-                continue;
-            }
-            let cost = acc.half_area() * cnt as f32 + right_area[i] * right_n[i] as f32;
-            let imbalance = (2 * cnt as i64 - n).abs();
-            let better = match best {
-                None => true,
-                Some((_, _, bc, bi)) => cost < bc || (cost == bc && imbalance < bi),
-            };
-            if better {
-                best = Some((a, i, cost, imbalance));
-            }
-        }
+        sweep_bins::<B4, MAX_BINS>(
+            nb,
+            |i| (ab[i].b, ab[i].n),
+            |i, cost, cnt| {
+                let imbalance = (2 * cnt as i64 - n).abs();
+                let better = match best {
+                    None => true,
+                    Some((_, _, bc, bi)) => cost < bc || (cost == bc && imbalance < bi),
+                };
+                if better {
+                    best = Some((a, i, cost, imbalance));
+                }
+            },
+        );
     }
     best.map(|(a, i, c, _)| (a, i, c, g))
+}
+
+/// A box the SAH sweep accumulates: [`Aabb`] (the HLBVH's top level) or the builder's SIMD box.
+pub(crate) trait SweepBox: Copy {
+    /// The empty box.
+    const EMPTY: Self;
+    /// The smallest box containing both.
+    fn union(self, o: Self) -> Self;
+    /// Half the surface area, `e.x e.y + e.y e.z + e.z e.x` (0 for the empty box).
+    fn half_area(&self) -> f32;
+}
+
+impl SweepBox for B4 {
+    const EMPTY: Self = B4::EMPTY;
+    #[inline]
+    fn union(self, o: Self) -> Self {
+        B4::union(self, o)
+    }
+    #[inline]
+    fn half_area(&self) -> f32 {
+        B4::half_area(self)
+    }
+}
+
+impl SweepBox for Aabb {
+    const EMPTY: Self = Aabb::EMPTY;
+    #[inline]
+    fn union(self, o: Self) -> Self {
+        Aabb::union(&self, &o)
+    }
+    #[inline]
+    fn half_area(&self) -> f32 {
+        Aabb::half_area(self)
+    }
+}
+
+/// The binned-SAH sweep over one axis, shared by the builder and the HLBVH's top level: `bin(i)` is the box and
+/// the count of bin `i` of `nb <= N`. Right sides are accumulated by a backward sweep, left sides forward (the same
+/// boxes, unions being exact, as summing the bins of each side from scratch); for every plane `s` in `1 .. nb`
+/// (left: bins `0 .. s`) with both sides non-empty, `visit(s, cost, n_left)` gets
+/// `cost = half_area(left) * n_left + half_area(right) * n_right` in f32, evaluated in that order.
+#[inline]
+pub(crate) fn sweep_bins<B: SweepBox, const N: usize>(
+    nb: usize,
+    bin: impl Fn(usize) -> (B, u32),
+    mut visit: impl FnMut(usize, f32, u32),
+) {
+    let nb = nb.min(N);
+    let mut right_area = [0.0f32; N];
+    let mut right_n = [0u32; N];
+    let mut acc = B::EMPTY;
+    let mut cnt = 0u32;
+    for i in (1..nb).rev() {
+        let (b, n) = bin(i);
+        acc = acc.union(b);
+        cnt += n;
+        right_area[i] = acc.half_area();
+        right_n[i] = cnt;
+    }
+    let mut acc = B::EMPTY;
+    let mut cnt = 0u32;
+    for i in 1..nb {
+        let (b, n) = bin(i - 1);
+        acc = acc.union(b);
+        cnt += n;
+        if cnt == 0 || right_n[i] == 0 {
+            continue;
+        }
+        visit(i, acc.half_area() * cnt as f32 + right_area[i] * right_n[i] as f32, cnt);
+    }
 }
 
 /// In-place partition; returns the number of elements for which `left` holds (they come first).

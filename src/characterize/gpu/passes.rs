@@ -10,10 +10,10 @@ use crate::gpu::shaders::layout::{
     CHI_WORDS, MOMENTS_CODE_MAX, MOMENTS_CODE_MIN, MOMENTS_LIMBS,
 };
 use crate::gpu::{
-    shaders, Buffer, Context, GpuError, InputError, Kernel, KernelDesc, KeysPush, MemoryKind, MeshBuffers, Result,
-    RunError, Timer,
+    bounds_read_back, shaders, Buffer, Context, GpuError, InputError, Kernel, KernelDesc, KeysPush, MemoryKind,
+    MeshBuffers, Result, RunError, Timer,
 };
-use crate::keys::{from_ordered_bits, quantization_scale, MortonBits};
+use crate::keys::{MortonBits, Quantizer};
 
 /// Items per invocation and tile in the per-triangle passes.
 const ITEMS: u32 = 8;
@@ -226,11 +226,8 @@ impl CharacterizeGpu {
             rec.host_read_barrier();
             Ok(())
         })?;
-        let u: Vec<u32> = readback.read(OFF_BOUNDS, BOUNDS_WORDS as usize)?;
-        let corner = |at: u32| [0, 1, 2].map(|a| from_ordered_bits(u[at as usize + a]));
-        let (lo, hi) = (corner(BOUNDS_LO), corner(BOUNDS_HI));
-        let finite = lo.iter().chain(hi.iter()).all(|x| x.is_finite());
-        let scale = quantization_scale(lo, hi, bits).filter(|_| finite).ok_or(InputError::Overflow { lo, hi })?;
+        let q = Quantizer::new(&bounds_read_back(readback, OFF_BOUNDS)?, bits).map_err(InputError::from)?;
+        let (lo, hi, scale) = (q.lo(), q.hi(), q.scale());
 
         // Pass 2: codes, their range and exact power sums.
         ctx.submit_and_wait(|rec| {
