@@ -158,7 +158,7 @@ impl FeaturesGpu {
             rec.fill(result, Self::off_bounds() + 12, Some(12), 0);
             rec.fill(result, Self::off_hist(), Some(4 * (self.size_bins as u64 + 1)), 0);
             rec.barrier();
-            rec.timestamp(timer, "-");
+            rec.timestamp_start(timer);
             let push = FeatureBoundsPush {
                 positions: mesh.positions.address(),
                 indices: mesh.indices.address(),
@@ -191,7 +191,7 @@ impl FeaturesGpu {
         let mask = words.chunks(2).map(|w| w[0] as u64 | (w[1] as u64) << 32).collect();
         let b: Vec<u32> = readback.read(Self::off_bounds(), 6)?;
         let h: Vec<u32> = readback.read(Self::off_hist(), self.size_bins as usize + 1)?;
-        let timings = self.timer.read()?.into_iter().filter(|(name, _)| name != "-").collect();
+        let timings = self.timer.read()?;
         Ok(GpuFeatures {
             mask,
             size_histogram: h[..self.size_bins as usize].iter().map(|&x| x as u64).collect(),

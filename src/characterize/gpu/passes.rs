@@ -267,7 +267,7 @@ impl CharacterizeGpu {
             rec.fill(result, OFF_BOUNDS, Some(12), u32::MAX);
             rec.fill(result, OFF_BOUNDS + 12, Some(12), 0);
             rec.barrier();
-            rec.timestamp(timer, "-");
+            rec.timestamp_start(timer);
             let push = KeysPush {
                 positions: mesh.positions.address(),
                 indices: mesh.indices.address(),
@@ -292,7 +292,7 @@ impl CharacterizeGpu {
             rec.fill(result, OFF_MORTON, Some(8), u32::MAX);
             rec.fill(result, OFF_MORTON + 8, Some(8 * (1 + NLIMBS as u64)), 0);
             rec.barrier();
-            rec.timestamp(timer, "-");
+            rec.timestamp_start(timer);
             let push = MortonPush {
                 keys: scratch.keys.address(),
                 codes: scratch.codes.address(),
@@ -337,7 +337,7 @@ impl CharacterizeGpu {
         ctx.submit_and_wait(|rec| {
             rec.fill(result, OFF_HIST, Some(4 * k as u64), 0);
             rec.barrier();
-            rec.timestamp(timer, "-");
+            rec.timestamp_start(timer);
             let push = ClassesPush {
                 codes: scratch.codes.address(),
                 classes: scratch.classes.address(),
@@ -364,7 +364,7 @@ impl CharacterizeGpu {
         })?;
         let chi: Vec<u64> = readback.read(OFF_CHI, 5)?;
         let hist: Vec<u32> = readback.read(OFF_HIST, k as usize)?;
-        let timings = timer.read()?.into_iter().filter(|(name, _)| name != "-").collect();
+        let timings = timer.read()?;
         let per_triangle = if read_back {
             let codes: Vec<u64> = if b63 == 1 {
                 ctx.read_buffer(&scratch.codes, 0, n as usize)?
