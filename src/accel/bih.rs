@@ -29,7 +29,8 @@
 
 use super::bvh::partition;
 use super::{
-    bytes_of, invalid, prepare, sah_cost, AccelError, AccelStats, AccelStructure, StructureName, TraversalStack,
+    bytes_of, check_permutation, prepare, sah_cost, triangle_in_box, AccelError, AccelStats, AccelStructure,
+    StructureName, TraversalStack, Validation,
 };
 use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCounters};
 use crate::geom::{Aabb, Triangle};
@@ -338,15 +339,7 @@ impl AccelStructure for Bih {
     fn name(&self) -> StructureName {
         StructureName::Bih
     }
-    fn triangle_count(&self) -> usize {
-        self.tris.len()
-    }
-    fn intersect(&self, ray: &Ray, c: &mut TraceCounters) -> Option<Hit> {
-        self.traverse(ray, false, c)
-    }
-    fn occluded(&self, ray: &Ray, c: &mut TraceCounters) -> bool {
-        self.traverse(ray, true, c).is_some()
-    }
+    traversal_methods!();
     fn memory_bytes(&self) -> usize {
         bytes_of(&self.nodes) + bytes_of(&self.tris) + bytes_of(&self.ids)
     }
@@ -356,76 +349,42 @@ impl AccelStructure for Bih {
     /// never cut a triangle off), ids a permutation.
     fn validate(&self) -> Result<AccelStats, AccelError> {
         let n = self.tris.len();
-        let mut stats = AccelStats { triangles: n, bytes: self.memory_bytes(), ..Default::default() };
+        let mut v = Validation::new("bih", n, self.memory_bytes(), self.nodes.len(), n);
         if self.nodes.is_empty() {
-            if n != 0 {
-                return Err(invalid("bih", "no nodes for triangles"));
-            }
-            return Ok(stats);
+            return v.without_nodes(n != 0, "no nodes for triangles");
         }
-        let mut seen_id = vec![false; n];
-        for &id in &self.ids {
-            match seen_id.get_mut(id as usize) {
-                Some(s) if !*s => *s = true,
-                _ => return Err(invalid("bih", format!("triangle id {id} repeated or out of range"))),
-            }
-        }
-        let mut visited = vec![false; self.nodes.len()];
-        let mut covered = vec![false; n];
+        check_permutation("bih", &self.ids, n)?;
         let mut stack = vec![(0usize, self.bounds, 0usize)];
         while let Some((k, b, depth)) = stack.pop() {
-            let nd = *self.nodes.get(k).ok_or_else(|| invalid("bih", format!("node {k} out of range")))?;
-            if std::mem::replace(&mut visited[k], true) {
-                return Err(invalid("bih", format!("node {k} reached twice")));
-            }
-            stats.nodes += 1;
-            stats.max_depth = stats.max_depth.max(depth);
+            v.visit(k, depth)?;
+            let nd = self.nodes[k];
             if nd.is_leaf() {
                 let first = (nd.flags >> 2) as usize;
                 let count = nd.count() as usize;
-                if first + count > n {
-                    return Err(invalid("bih", format!("leaf {k} out of range")));
-                }
-                stats.leaves += 1;
-                stats.references += count;
-                if count == 0 {
-                    stats.empty_leaves += 1;
-                }
-                for (i, cov) in covered.iter_mut().enumerate().skip(first).take(count) {
-                    if std::mem::replace(cov, true) {
-                        return Err(invalid("bih", format!("record {i} in two leaves")));
-                    }
-                    let t = &self.tris[i];
-                    let slack = (b.max.abs() + b.min.abs()) * 1e-6;
-                    let loose = Aabb::new(b.min - slack, b.max + slack);
-                    if !loose.contains(&Aabb::of_triangle(&[t.v0, t.v0 + t.e1, t.v0 + t.e2])) {
-                        return Err(invalid("bih", format!("triangle {} outside leaf {k}", self.ids[i])));
+                v.leaf(k, first, count)?;
+                for (t, &id) in self.tris[first..first + count].iter().zip(&self.ids[first..]) {
+                    if !triangle_in_box(t, &b) {
+                        return Err(v.invalid(format!("triangle {id} outside leaf {k}")));
                     }
                 }
             } else {
                 let a = (nd.flags & 3) as usize;
                 let ch = (nd.flags >> 2) as usize;
                 if ch + 1 >= self.nodes.len() || ch <= k {
-                    return Err(invalid("bih", format!("node {k}: children {ch} out of range")));
+                    return Err(v.invalid(format!("node {k}: children {ch} out of range")));
                 }
                 let mut l = b;
                 l.max[a] = l.max[a].min(nd.clip[0]);
                 let mut r = b;
                 r.min[a] = r.min[a].max(nd.clip[1]);
                 if !b.contains(&l) || !b.contains(&r) {
-                    return Err(invalid("bih", format!("node {k}: child outside parent")));
+                    return Err(v.invalid(format!("node {k}: child outside parent")));
                 }
                 stack.push((ch, l, depth + 1));
                 stack.push((ch + 1, r, depth + 1));
             }
         }
-        if stats.nodes != self.nodes.len() {
-            return Err(invalid("bih", format!("{} nodes unreachable", self.nodes.len() - stats.nodes)));
-        }
-        if covered.iter().any(|c| !c) {
-            return Err(invalid("bih", "triangle record in no leaf"));
-        }
-        Ok(stats)
+        v.finish()
     }
 
     fn sah_cost(&self) -> Option<f64> {

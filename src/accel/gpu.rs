@@ -72,8 +72,8 @@ use crate::geom::{Aabb, Triangle};
 use crate::gpu::shaders::layout::{BOUNDS_HI, BOUNDS_LO, BOUNDS_WORDS, COLLAPSE_SIZE, COLLAPSE_WORDS};
 use crate::gpu::sort::{KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
 use crate::gpu::{
-    bounds_read_back, shaders, Buffer, Context, GpuError, InputError, Kernel, KernelDesc, KeysPush, MemoryKind,
-    MeshBuffers, Recorder, Result, RunError, Timer,
+    bounds_read_back, shaders, Buffer, Context, DeviceType, GpuError, InputError, Kernel, KernelDesc, KeysPush,
+    MemoryKind, MeshBuffers, Recorder, Result, RunError, Timer,
 };
 use crate::keys::{MortonBits, Quantizer};
 use glam::Vec3;
@@ -226,7 +226,7 @@ impl BvhBuilder {
             fit: Kernel::new(
                 ctx,
                 &KernelDesc::new(&shaders::bvh_fit::INFO)
-                    .constant("FENCES", u32::from(ctx.caps().device_type != "cpu")),
+                    .constant("FENCES", u32::from(ctx.caps().device_type != DeviceType::Cpu)),
             )?,
             parents: Kernel::new(ctx, &KernelDesc::new(&shaders::bvh_parents::INFO))?,
             heads: [heads(0)?, heads(1)?],
@@ -235,7 +235,7 @@ impl BvhBuilder {
             collapse_cost: Kernel::new(
                 ctx,
                 &KernelDesc::new(&shaders::bvh_collapse_cost::INFO)
-                    .constant("FENCES", u32::from(ctx.caps().device_type != "cpu")),
+                    .constant("FENCES", u32::from(ctx.caps().device_type != DeviceType::Cpu)),
             )?,
             compact: Kernel::new(ctx, &KernelDesc::new(&shaders::bvh_compact::INFO))?,
             sort: RadixSort::new(ctx, SortConfig::for_device(ctx.caps()))?,
@@ -329,7 +329,7 @@ impl BvhBuilder {
             rec.fill(&scratch.bounds, 4 * BOUNDS_LO as u64, Some(12), u32::MAX);
             rec.fill(&scratch.bounds, 4 * BOUNDS_HI as u64, Some(12), 0);
             rec.barrier();
-            rec.timestamp(timer, "-");
+            rec.timestamp_start(timer);
             let push = KeysPush {
                 positions: mesh.positions.address(),
                 indices: mesh.indices.address(),
@@ -363,7 +363,7 @@ impl BvhBuilder {
 
         // Submission 2: codes, sort, (clusters), tree, boxes.
         ctx.submit_and_wait(|rec| {
-            rec.timestamp(timer, "-");
+            rec.timestamp_start(timer);
             let (codes_buf, ids_buf) = match &scratch.sort.payload {
                 Some((p, _)) => (&scratch.sort.keys, p),
                 None => return Err(GpuError::Buffer("sort payload".into())),
@@ -446,7 +446,7 @@ impl BvhBuilder {
             }
             Ok(())
         })?;
-        let mut timings: Vec<(String, f64)> = timer_owned.read()?.into_iter().filter(|(name, _)| name != "-").collect();
+        let mut timings: Vec<(String, f64)> = timer_owned.read()?;
         let kind = match hl {
             None => GpuBvhKind::Lbvh,
             Some((_, bins)) => {
@@ -475,7 +475,7 @@ impl BvhBuilder {
                         rec.dispatch(&self.parents, &push, rec.groups_for(c - 1, self.parents.workgroup_size() as u64));
                         if let Some(cl) = &collapsed {
                             rec.reset_timer(&mut timer2);
-                            rec.timestamp(&mut timer2, "-");
+                            rec.timestamp_start(&mut timer2);
                             self.record_collapse(
                                 rec,
                                 &bvh_nodes,
@@ -492,17 +492,13 @@ impl BvhBuilder {
                 } else if let Some(cl) = &collapsed {
                     ctx.submit_and_wait(|rec| {
                         rec.reset_timer(&mut timer2);
-                        rec.timestamp(&mut timer2, "-");
+                        rec.timestamp_start(&mut timer2);
                         self.record_collapse(rec, &bvh_nodes, &parents, &counters, total, cl, max_leaf, &mut timer2);
                         Ok(())
                     })?;
                 }
                 let host_ms = t0.elapsed().as_secs_f64() * 1e3;
-                let collapse_ms: Vec<(String, f64)> = if collapsed.is_some() {
-                    timer2.read()?.into_iter().filter(|(name, _)| name != "-").collect()
-                } else {
-                    Vec::new()
-                };
+                let collapse_ms: Vec<(String, f64)> = if collapsed.is_some() { timer2.read()? } else { Vec::new() };
                 let device_ms: f64 = collapse_ms.iter().map(|t| t.1).sum();
                 timings.push(("top_cpu".into(), host_ms - device_ms));
                 timings.extend(collapse_ms);
@@ -638,7 +634,7 @@ impl BvhBuilder {
         ctx.submit_and_wait(|rec| {
             rec.reset_timer(&mut timer);
             rec.barrier();
-            rec.timestamp(&mut timer, "-");
+            rec.timestamp_start(&mut timer);
             self.record_boxes(
                 rec,
                 mesh,

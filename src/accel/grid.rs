@@ -25,7 +25,7 @@
 //! (indexed by the low bits of the triangle index), so a triangle spanning several cells is usually tested once.
 //! `box_tests` counts cells visited (plus the test against the grid box).
 
-use super::{bytes_of, invalid, prepare, AccelError, AccelStats, AccelStructure, StructureName};
+use super::{bytes_of, invalid, prepare, AccelError, AccelStats, AccelStructure, StructureName, Validation};
 use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCounters};
 use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
@@ -310,15 +310,7 @@ impl AccelStructure for Grid {
     fn name(&self) -> StructureName {
         StructureName::Grid
     }
-    fn triangle_count(&self) -> usize {
-        self.tris.len()
-    }
-    fn intersect(&self, ray: &Ray, c: &mut TraceCounters) -> Option<Hit> {
-        self.traverse(ray, false, c)
-    }
-    fn occluded(&self, ray: &Ray, c: &mut TraceCounters) -> bool {
-        self.traverse(ray, true, c).is_some()
-    }
+    traversal_methods!();
     fn memory_bytes(&self) -> usize {
         bytes_of(&self.cell_start) + bytes_of(&self.refs) + bytes_of(&self.tris)
     }
@@ -328,12 +320,10 @@ impl AccelStructure for Grid {
     /// assigns it (so none is lost and none is stray).
     fn validate(&self) -> Result<AccelStats, AccelError> {
         let n = self.tris.len();
-        let mut stats = AccelStats { triangles: n, bytes: self.memory_bytes(), ..Default::default() };
+        let bytes = self.memory_bytes();
         if n == 0 {
-            if !self.refs.is_empty() || !self.cell_start.is_empty() {
-                return Err(invalid("grid", "references without triangles"));
-            }
-            return Ok(stats);
+            let holds = !self.refs.is_empty() || !self.cell_start.is_empty();
+            return Validation::new("grid", 0, bytes, 0, 0).without_nodes(holds, "references without triangles");
         }
         let ncells = self.res.iter().map(|&x| x as usize).product::<usize>();
         if self.cell_start.len() != ncells + 1 || self.cell_start.last().copied() != Some(self.refs.len() as u32) {
@@ -342,24 +332,23 @@ impl AccelStructure for Grid {
         if self.cell_start.windows(2).any(|w| w[0] > w[1]) || self.cell_start[0] != 0 {
             return Err(invalid("grid", "row starts not monotone"));
         }
-        let mut expected = 0usize;
+        // Every cell is a leaf (depth 0) over its row of the reference array.
+        let mut v = Validation::new("grid", n, bytes, ncells, self.refs.len());
         let mut seen = vec![0u32; n];
         for z in 0..self.res[2] {
             for y in 0..self.res[1] {
                 for x in 0..self.res[0] {
                     let idx = self.cell_index(x, y, z);
-                    let list = &self.refs[self.cell_start[idx] as usize..self.cell_start[idx + 1] as usize];
-                    if list.is_empty() {
-                        stats.empty_leaves += 1;
-                    }
+                    let (start, end) = (self.cell_start[idx] as usize, self.cell_start[idx + 1] as usize);
+                    v.visit(idx, 0)?;
+                    v.leaf(idx, start, end - start)?;
                     let cb = self.cell_box(x, y, z);
                     let w = (cb.max - cb.min) * (2.0 * WIDEN) + (cb.max.abs() + cb.min.abs()) * 1e-6;
                     let wide = Aabb::new(cb.min - w, cb.max + w);
-                    for &id in list {
-                        let b =
-                            self.boxes.get(id as usize).ok_or_else(|| invalid("grid", format!("reference {id}")))?;
+                    for &id in &self.refs[start..end] {
+                        let b = self.boxes.get(id as usize).ok_or_else(|| v.invalid(format!("reference {id}")))?;
                         if !wide.overlaps(b) {
-                            return Err(invalid("grid", format!("triangle {id} outside cell ({x},{y},{z})")));
+                            return Err(v.invalid(format!("triangle {id} outside cell ({x},{y},{z})")));
                         }
                         seen[id as usize] += 1;
                     }
@@ -382,12 +371,9 @@ impl AccelStructure for Grid {
             if count == 0 || count != seen_i {
                 return Err(invalid("grid", format!("triangle {i}: {seen_i} references, {count} expected")));
             }
-            expected += count as usize;
         }
-        stats.nodes = ncells;
-        stats.leaves = ncells;
-        stats.references = expected;
-        Ok(stats)
+        // Each triangle's references are the cells the build rule gives it, so the references are all of them.
+        v.finish()
     }
 
     fn sah_cost(&self) -> Option<f64> {

@@ -28,7 +28,7 @@
 //!    over the whole tree (a top node collapses only where its clusters are adjacent in sorted order), which
 //!    renumbers the kept nodes depth first; with 1 the layout of steps 3 and 4 stays.
 
-use super::bvh::{bvh_tree_traversal, sweep_bins, BvhNode, BvhTree};
+use super::bvh::{sweep_bins, BvhNode, BvhTree};
 use super::lbvh::{
     check_depth_first_shape, check_karras_shape, collapse_leaves, karras_nodes, morton_codes, sorted_keys,
     MAX_COLLAPSE_LEAF,
@@ -353,7 +353,7 @@ impl AccelStructure for Hlbvh {
     fn name(&self) -> StructureName {
         StructureName::Hlbvh
     }
-    bvh_tree_traversal!();
+    traversal_methods!(tree);
     /// The BVH checks of [`BvhTree::validate`], plus the HLBVH shape: `C - 1` top nodes, then one Karras block per
     /// cluster covering its positions, clusters contiguous and in order; after the collapse, the depth-first
     /// numbering, leaves of at most `max_leaf` records and clusters covering the records.

@@ -30,6 +30,7 @@
 
 use super::{
     bytes_of, invalid, prepare, sah_cost, AccelError, AccelStats, AccelStructure, StructureName, TraversalStack,
+    Validation,
 };
 use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCounters};
 use crate::geom::{Aabb, Triangle};
@@ -431,15 +432,7 @@ impl AccelStructure for KdTree {
     fn name(&self) -> StructureName {
         StructureName::KdTree
     }
-    fn triangle_count(&self) -> usize {
-        self.tris.len()
-    }
-    fn intersect(&self, ray: &Ray, c: &mut TraceCounters) -> Option<Hit> {
-        self.traverse(ray, false, c)
-    }
-    fn occluded(&self, ray: &Ray, c: &mut TraceCounters) -> bool {
-        self.traverse(ray, true, c).is_some()
-    }
+    traversal_methods!();
     fn memory_bytes(&self) -> usize {
         bytes_of(&self.nodes) + bytes_of(&self.refs) + bytes_of(&self.tris) + bytes_of(&self.ids)
     }
@@ -449,71 +442,45 @@ impl AccelStructure for KdTree {
     /// voxel, and every triangle is referenced by every leaf the partition rule sends it to (no lost reference).
     fn validate(&self) -> Result<AccelStats, AccelError> {
         let n = self.tris.len();
-        let mut stats = AccelStats { triangles: n, bytes: self.memory_bytes(), ..Default::default() };
+        let mut v = Validation::new("kdtree", n, self.memory_bytes(), self.nodes.len(), self.refs.len());
         if self.nodes.is_empty() {
-            if n != 0 || !self.refs.is_empty() {
-                return Err(invalid("kdtree", "no nodes but triangles or references"));
-            }
-            return Ok(stats);
+            return v.without_nodes(n != 0 || !self.refs.is_empty(), "no nodes but triangles or references");
         }
-        let mut visited = vec![false; self.nodes.len()];
-        let mut ref_used = vec![false; self.refs.len()];
         let mut stack = vec![(0usize, self.bounds, 0usize)];
         while let Some((k, voxel, depth)) = stack.pop() {
-            let nd = *self.nodes.get(k).ok_or_else(|| invalid("kdtree", format!("node {k} out of range")))?;
-            if std::mem::replace(&mut visited[k], true) {
-                return Err(invalid("kdtree", format!("node {k} reached twice")));
-            }
-            stats.nodes += 1;
-            stats.max_depth = stats.max_depth.max(depth);
+            v.visit(k, depth)?;
+            let nd = self.nodes[k];
             if nd.is_leaf() {
                 let first = (nd.flags >> 2) as usize;
                 let count = nd.split_or_count as usize;
-                let list = self
-                    .refs
-                    .get(first..first + count)
-                    .ok_or_else(|| invalid("kdtree", format!("leaf {k} range {first}+{count} out of range")))?;
-                stats.leaves += 1;
-                stats.references += count;
-                if count == 0 {
-                    stats.empty_leaves += 1;
-                }
-                for (j, &id) in list.iter().enumerate() {
-                    if std::mem::replace(&mut ref_used[first + j], true) {
-                        return Err(invalid("kdtree", format!("reference {} in two leaves", first + j)));
-                    }
-                    let b =
-                        self.boxes.get(id as usize).ok_or_else(|| invalid("kdtree", format!("reference to {id}")))?;
+                v.leaf(k, first, count)?;
+                for &id in &self.refs[first..first + count] {
+                    let b = self.boxes.get(id as usize).ok_or_else(|| v.invalid(format!("reference to {id}")))?;
                     if !voxel.overlaps(b) {
-                        return Err(invalid("kdtree", format!("triangle {id} in leaf {k} outside its voxel")));
+                        return Err(v.invalid(format!("triangle {id} in leaf {k} outside its voxel")));
                     }
                 }
             } else {
                 let (a, p) = (nd.axis(), nd.split());
                 if !(p > voxel.min[a] && p < voxel.max[a]) {
-                    return Err(invalid("kdtree", format!("node {k}: split {p} outside voxel {voxel:?}")));
+                    return Err(v.invalid(format!("node {k}: split {p} outside voxel {voxel:?}")));
                 }
                 let right = k + (nd.flags >> 2) as usize;
                 if right <= k + 1 || right >= self.nodes.len() {
-                    return Err(invalid("kdtree", format!("node {k}: right child {right} out of range")));
+                    return Err(v.invalid(format!("node {k}: right child {right} out of range")));
                 }
                 let mut lv = voxel;
                 lv.max[a] = p;
                 let mut rv = voxel;
                 rv.min[a] = p;
                 if !voxel.contains(&lv) || !voxel.contains(&rv) {
-                    return Err(invalid("kdtree", format!("node {k}: child voxel outside parent")));
+                    return Err(v.invalid(format!("node {k}: child voxel outside parent")));
                 }
                 stack.push((k + 1, lv, depth + 1));
                 stack.push((right, rv, depth + 1));
             }
         }
-        if stats.nodes != self.nodes.len() {
-            return Err(invalid("kdtree", format!("{} nodes unreachable", self.nodes.len() - stats.nodes)));
-        }
-        if ref_used.iter().any(|u| !u) {
-            return Err(invalid("kdtree", "reference entries in no leaf"));
-        }
+        let stats = v.finish()?;
         for i in 0..n {
             if self.check_reference(i)? == 0 {
                 return Err(invalid("kdtree", format!("triangle {i} in no leaf")));

@@ -44,7 +44,7 @@
 //! [`min_total`]: crate::keys::min_total
 //! [`max_total`]: crate::keys::max_total
 
-use super::bvh::{bvh_tree_traversal, fit_boxes, BvhNode, BvhTree};
+use super::bvh::{fit_boxes, BvhNode, BvhTree};
 use super::{prepare, AccelError, AccelStats, AccelStructure, StructureName};
 use crate::geom::{Aabb, Triangle};
 use crate::keys::{centroid_key, MortonBits};
@@ -332,7 +332,7 @@ impl AccelStructure for Lbvh {
     fn name(&self) -> StructureName {
         StructureName::Lbvh
     }
-    bvh_tree_traversal!();
+    traversal_methods!(tree);
     /// The BVH checks of [`BvhTree::validate`], plus the LBVH shape: `n - 1` internal nodes and `n` leaves of one
     /// record each, leaf `n - 1 + p` holding record `p` (after the collapse: the depth-first numbering of step 7 and
     /// leaves of at most `max_leaf` records), codes sorted with ids ascending among equal codes.

@@ -33,6 +33,23 @@
 //! * **Counters**: `box_tests` counts ray-box slab tests for BVH-like structures, node visits (one split-plane test
 //!   each) for the kd-tree and BIH, and cells visited for the grid; `prim_tests` counts ray-triangle tests.
 
+/// The [`AccelStructure`] methods every structure that keeps its triangle records in `tris` and traverses with
+/// `traverse(ray, any, counters) -> Option<Hit>` shares: triangle count, closest hit, any hit. The optional field
+/// path says where those live (`traversal_methods!(tree)` for the BVH family's [`bvh::BvhTree`]).
+macro_rules! traversal_methods {
+    ($($field:ident).*) => {
+        fn triangle_count(&self) -> usize {
+            self$(.$field)*.tris.len()
+        }
+        fn intersect(&self, ray: &$crate::geom::Ray, c: &mut $crate::geom::TraceCounters) -> Option<$crate::geom::Hit> {
+            self$(.$field)*.traverse(ray, false, c)
+        }
+        fn occluded(&self, ray: &$crate::geom::Ray, c: &mut $crate::geom::TraceCounters) -> bool {
+            self$(.$field)*.traverse(ray, true, c).is_some()
+        }
+    };
+}
+
 #[cfg(feature = "eval")]
 pub mod bih;
 #[cfg(feature = "eval")]
@@ -337,6 +354,105 @@ pub(crate) fn invalid(structure: &'static str, reason: impl Into<String>) -> Acc
     AccelError::Invalid { structure, reason: reason.into() }
 }
 
+/// The checks and counts every `validate()` shares: the statistics, the rule for a structure without nodes, the
+/// walk's bookkeeping (every node reached exactly once, depth) and the leaves' (every record or reference entry in
+/// exactly one leaf, leaf and reference counts). Each structure walks its own layout and checks its own geometry
+/// (boxes, voxels, clip planes, cells) and reports what it finds through this.
+pub(crate) struct Validation {
+    structure: &'static str,
+    stats: AccelStats,
+    visited: Vec<bool>,
+    covered: Vec<bool>,
+}
+
+impl Validation {
+    /// Validation of `structure` over `triangles` triangles taking `bytes`, walking `nodes` nodes (or cells) whose
+    /// leaves cover `entries` records (or reference entries).
+    pub(crate) fn new(structure: &'static str, triangles: usize, bytes: usize, nodes: usize, entries: usize) -> Self {
+        Validation {
+            structure,
+            stats: AccelStats { triangles, bytes, ..Default::default() },
+            visited: vec![false; nodes],
+            covered: vec![false; entries],
+        }
+    }
+
+    /// The failure `reason` of this structure.
+    pub(crate) fn invalid(&self, reason: impl Into<String>) -> AccelError {
+        invalid(self.structure, reason)
+    }
+
+    /// For a structure without nodes: the all-zero statistics when it holds nothing (`holds` false: no triangle,
+    /// no reference), else the failure `what`.
+    pub(crate) fn without_nodes(self, holds: bool, what: &str) -> Result<AccelStats, AccelError> {
+        if holds {
+            return Err(self.invalid(what));
+        }
+        Ok(self.stats)
+    }
+
+    /// Node `k`, reached at `depth`: fails when it is out of range or was reached before.
+    pub(crate) fn visit(&mut self, k: usize, depth: usize) -> Result<(), AccelError> {
+        let seen = self.visited.get_mut(k).ok_or_else(|| invalid(self.structure, format!("node {k} out of range")))?;
+        if std::mem::replace(seen, true) {
+            return Err(self.invalid(format!("node {k} reached twice")));
+        }
+        self.stats.nodes += 1;
+        self.stats.max_depth = self.stats.max_depth.max(depth);
+        Ok(())
+    }
+
+    /// Leaf `k` covering entries `first .. first + count` (none: an empty leaf): fails when they are out of range or
+    /// one is in another leaf already.
+    pub(crate) fn leaf(&mut self, k: usize, first: usize, count: usize) -> Result<(), AccelError> {
+        let range = first.checked_add(count).and_then(|end| self.covered.get_mut(first..end));
+        let entries = range.ok_or_else(|| invalid(self.structure, format!("leaf {k} covers {first}+{count}")))?;
+        if let Some(j) = entries.iter().position(|&c| c) {
+            return Err(self.invalid(format!("entry {} in two leaves", first + j)));
+        }
+        entries.fill(true);
+        self.stats.leaves += 1;
+        self.stats.references += count;
+        self.stats.empty_leaves += usize::from(count == 0);
+        Ok(())
+    }
+
+    /// The statistics, after checking that the walk reached every node and the leaves cover every entry.
+    pub(crate) fn finish(self) -> Result<AccelStats, AccelError> {
+        let unreached = self.visited.iter().filter(|&&v| !v).count();
+        if unreached > 0 {
+            return Err(self.invalid(format!("{unreached} of {} nodes unreachable", self.visited.len())));
+        }
+        if let Some(j) = self.covered.iter().position(|&c| !c) {
+            return Err(self.invalid(format!("entry {j} in no leaf")));
+        }
+        Ok(self.stats)
+    }
+}
+
+/// Checks that `ids` (the mesh index of every triangle record) is a permutation of `0 .. n`.
+pub(crate) fn check_permutation(structure: &'static str, ids: &[u32], n: usize) -> Result<(), AccelError> {
+    if ids.len() != n {
+        return Err(invalid(structure, format!("{} ids for {n} triangle records", ids.len())));
+    }
+    let mut seen = vec![false; n];
+    for &id in ids {
+        match seen.get_mut(id as usize) {
+            Some(s) if !*s => *s = true,
+            _ => return Err(invalid(structure, format!("triangle id {id} repeated or out of range"))),
+        }
+    }
+    Ok(())
+}
+
+/// Whether the box of triangle record `t` lies in `b` widened by a relative `1e-6` (the records are stored as
+/// `v0` and two edges, so their corners may round outside the exact box).
+pub(crate) fn triangle_in_box(t: &Triangle, b: &Aabb) -> bool {
+    let slack = (b.max.abs() + b.min.abs()) * 1e-6;
+    let loose = Aabb::new(b.min - slack, b.max + slack);
+    loose.contains(&Aabb::of_triangle(&[t.v0, t.v0 + t.e1, t.v0 + t.e2]))
+}
+
 /// A fixed-capacity stack that spills to the heap past 64 entries, for traversal.
 pub(crate) struct TraversalStack<T: Copy + Default> {
     buf: [T; 64],
@@ -391,4 +507,43 @@ pub fn sah_cost(root_area: f64, nodes: impl Iterator<Item = (f64, bool, usize)>)
             }
         })
         .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn validation_counts_a_walk_and_names_what_breaks_it() {
+        // Root 0 over leaves 1 (entries 0..2) and 2 (empty) at depth 1.
+        let mut v = Validation::new("t", 2, 10, 3, 2);
+        v.visit(0, 0).unwrap();
+        v.visit(1, 1).unwrap();
+        v.leaf(1, 0, 2).unwrap();
+        v.visit(2, 1).unwrap();
+        v.leaf(2, 2, 0).unwrap();
+        let s = v.finish().unwrap();
+        let want =
+            AccelStats { triangles: 2, nodes: 3, leaves: 2, empty_leaves: 1, max_depth: 1, references: 2, bytes: 10 };
+        assert_eq!(s, want);
+        let msg = |e: AccelError| e.to_string();
+        let mut v = Validation::new("t", 2, 0, 2, 2);
+        assert!(msg(v.visit(2, 0).unwrap_err()).contains("node 2 out of range"));
+        v.visit(0, 0).unwrap();
+        assert!(msg(v.visit(0, 1).unwrap_err()).contains("reached twice"));
+        assert!(msg(v.leaf(0, 1, 2).unwrap_err()).contains("covers 1+2"));
+        v.leaf(0, 0, 1).unwrap();
+        assert!(msg(v.leaf(0, 0, 2).unwrap_err()).contains("entry 0 in two leaves"));
+        assert!(msg(v.finish().unwrap_err()).contains("1 of 2 nodes unreachable"));
+        let mut v = Validation::new("t", 2, 0, 1, 2);
+        v.visit(0, 0).unwrap();
+        v.leaf(0, 0, 1).unwrap();
+        assert!(msg(v.finish().unwrap_err()).contains("entry 1 in no leaf"));
+        assert_eq!(Validation::new("t", 0, 4, 0, 0).without_nodes(false, "x").unwrap().bytes, 4);
+        assert!(Validation::new("t", 1, 4, 0, 0).without_nodes(true, "x").is_err());
+        check_permutation("t", &[2, 0, 1], 3).unwrap();
+        assert!(check_permutation("t", &[0, 0, 1], 3).is_err());
+        assert!(check_permutation("t", &[0, 3, 1], 3).is_err());
+        assert!(check_permutation("t", &[0, 1], 3).is_err());
+    }
 }

@@ -115,7 +115,7 @@ pub fn naive(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError
     let t = Instant::now();
     let hstats = finalize::histogram_stats(&histogram, stats.n, params.alpha);
     timings.push(pass("chi_square", t));
-    timings.push(pass("total", start));
+    timings.push(pass(PassTime::TOTAL, start));
 
     let per_triangle = params.keep_per_triangle.then_some(PerTriangle { codes, classes });
     let exact = Exact { lo, hi, code_stats: stats, classes: k, histogram, stats: hstats, per_triangle };
@@ -296,7 +296,7 @@ pub fn fast(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError>
     let t = Instant::now();
     let hstats = finalize::histogram_stats(&histogram, stats.n, params.alpha);
     timings.push(pass("chi_square", t));
-    timings.push(pass("total", start));
+    timings.push(pass(PassTime::TOTAL, start));
 
     let per_triangle = params.keep_per_triangle.then_some(PerTriangle { codes, classes: classes_out });
     let exact = Exact { lo, hi, code_stats: stats, classes: k, histogram, stats: hstats, per_triangle };

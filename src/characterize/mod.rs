@@ -378,10 +378,15 @@ pub struct HistogramStats {
 /// GPU (or CPU) time of one pass.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct PassTime {
-    /// Pass name (`keys_bounds`, `morton_moments`, `classes_histogram`, `chi_square`, ...).
+    /// Pass name (`keys_bounds`, `morton_moments`, `classes_histogram`, `chi_square`, ..., [`PassTime::TOTAL`]).
     pub name: String,
     /// Milliseconds.
     pub ms: f64,
+}
+
+impl PassTime {
+    /// The name of the last entry of every backend's timings: the whole characterization.
+    pub const TOTAL: &'static str = "total";
 }
 
 /// Codes and classes of every sampled triangle, in sample order.

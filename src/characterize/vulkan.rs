@@ -152,7 +152,7 @@ impl VulkanBackend {
         );
         let mut timings: Vec<PassTime> = vec![PassTime { name: "upload".into(), ms: upload_ms }];
         timings.extend(out.timings.iter().map(|(name, ms)| PassTime { name: name.clone(), ms: *ms }));
-        timings.push(PassTime { name: "total".into(), ms: start.elapsed().as_secs_f64() * 1e3 });
+        timings.push(PassTime { name: PassTime::TOTAL.into(), ms: start.elapsed().as_secs_f64() * 1e3 });
         let exact = Exact {
             lo: out.lo,
             hi: out.hi,

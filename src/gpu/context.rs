@@ -22,15 +22,102 @@ pub struct ContextDesc {
     pub max_dispatch_groups: Option<u32>,
 }
 
+/// The kind of a device (`VkPhysicalDeviceType`), in the engine's order of preference when it picks one: discrete,
+/// integrated, virtual, CPU, other.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DeviceType {
+    /// A discrete GPU.
+    Discrete,
+    /// A GPU integrated with the host.
+    Integrated,
+    /// A virtual GPU.
+    Virtual,
+    /// A CPU driver (lavapipe, SwiftShader).
+    Cpu,
+    /// Anything else.
+    Other,
+}
+
+impl DeviceType {
+    /// `discrete`, `integrated`, `virtual`, `cpu` or `other` (as in JSON).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DeviceType::Discrete => "discrete",
+            DeviceType::Integrated => "integrated",
+            DeviceType::Virtual => "virtual",
+            DeviceType::Cpu => "cpu",
+            DeviceType::Other => "other",
+        }
+    }
+
+    fn of(t: vk::PhysicalDeviceType) -> DeviceType {
+        match t {
+            vk::PhysicalDeviceType::DISCRETE_GPU => DeviceType::Discrete,
+            vk::PhysicalDeviceType::INTEGRATED_GPU => DeviceType::Integrated,
+            vk::PhysicalDeviceType::VIRTUAL_GPU => DeviceType::Virtual,
+            vk::PhysicalDeviceType::CPU => DeviceType::Cpu,
+            _ => DeviceType::Other,
+        }
+    }
+}
+
+impl std::fmt::Display for DeviceType {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// The subgroup operations the kernels use, with their names in [`DeviceCaps::subgroup_operations`].
+const NEEDED_SUBGROUP_OPS: [(vk::SubgroupFeatureFlags, &str); 4] = [
+    (vk::SubgroupFeatureFlags::BASIC, "basic"),
+    (vk::SubgroupFeatureFlags::ARITHMETIC, "arithmetic"),
+    (vk::SubgroupFeatureFlags::BALLOT, "ballot"),
+    (vk::SubgroupFeatureFlags::SHUFFLE, "shuffle"),
+];
+
+/// One thing a device lacks for the engine; [`DeviceCaps::missing`] lists them as text.
+#[derive(Clone, Debug, PartialEq, Eq)]
+enum Lack {
+    Vulkan12(String),
+    ComputeQueue,
+    SubgroupsInCompute,
+    SubgroupOp(&'static str),
+    Int64,
+    Int64Atomics,
+    BufferDeviceAddress,
+    QueueTimestamps,
+    SubgroupSize(u32),
+}
+
+impl std::fmt::Display for Lack {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Lack::Vulkan12(has) => write!(f, "Vulkan 1.2 (device has {has})"),
+            Lack::ComputeQueue => f.write_str("a compute queue"),
+            Lack::SubgroupsInCompute => f.write_str("subgroup operations in compute shaders"),
+            Lack::SubgroupOp(op) => write!(f, "subgroup {op} operations"),
+            Lack::Int64 => f.write_str("shaderInt64"),
+            Lack::Int64Atomics => f.write_str("shaderBufferInt64Atomics"),
+            Lack::BufferDeviceAddress => f.write_str("bufferDeviceAddress"),
+            Lack::QueueTimestamps => f.write_str("timestamps on the compute queue"),
+            Lack::SubgroupSize(has) => write!(f, "a subgroup size between 4 and 128 (device has {has})"),
+        }
+    }
+}
+
 /// The properties and limits of a device that the engine relies on, all queried, none assumed.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct DeviceCaps {
     /// Device name.
     pub name: String,
-    /// `discrete`, `integrated`, `virtual`, `cpu` or `other`.
-    pub device_type: String,
+    /// Discrete, integrated, virtual, CPU or other (`discrete`, ... in JSON).
+    pub device_type: DeviceType,
     /// Vulkan API version `major.minor.patch`.
     pub api_version: String,
+    /// The API version as Vulkan encodes it.
+    #[serde(skip)]
+    pub(crate) api: u32,
     /// Driver name and version string (from `VkPhysicalDeviceDriverProperties`).
     pub driver: String,
     /// Raw driver version.
@@ -45,6 +132,9 @@ pub struct DeviceCaps {
     pub max_subgroup_size: u32,
     /// Supported subgroup operations (`basic`, `vote`, `arithmetic`, `ballot`, `shuffle`, ...).
     pub subgroup_operations: Vec<String>,
+    /// The same as Vulkan reports them.
+    #[serde(skip)]
+    pub(crate) subgroup_flags: vk::SubgroupFeatureFlags,
     /// Whether subgroup operations are supported in compute shaders.
     pub subgroup_in_compute: bool,
     /// `maxComputeWorkGroupCount`.
@@ -82,36 +172,39 @@ pub struct DeviceCaps {
 impl DeviceCaps {
     /// Everything this device lacks for the engine (empty when it can run it).
     pub fn missing(&self) -> Vec<String> {
+        self.lacks().iter().map(Lack::to_string).collect()
+    }
+
+    fn lacks(&self) -> Vec<Lack> {
         let mut m = Vec::new();
-        let v: Vec<u32> = self.api_version.split('.').filter_map(|s| s.parse().ok()).collect();
-        if v.len() < 2 || (v[0], v[1]) < (1, 2) {
-            m.push(format!("Vulkan 1.2 (device has {})", self.api_version));
+        if (vk::api_version_major(self.api), vk::api_version_minor(self.api)) < (1, 2) {
+            m.push(Lack::Vulkan12(self.api_version.clone()));
         }
         if self.queue_family.is_none() {
-            m.push("a compute queue".into());
+            m.push(Lack::ComputeQueue);
         }
         if !self.subgroup_in_compute {
-            m.push("subgroup operations in compute shaders".into());
+            m.push(Lack::SubgroupsInCompute);
         }
-        for op in ["basic", "arithmetic", "ballot", "shuffle"] {
-            if !self.subgroup_operations.iter().any(|o| o == op) {
-                m.push(format!("subgroup {op} operations"));
+        for (flag, op) in NEEDED_SUBGROUP_OPS {
+            if !self.subgroup_flags.contains(flag) {
+                m.push(Lack::SubgroupOp(op));
             }
         }
         if !self.int64 {
-            m.push("shaderInt64".into());
+            m.push(Lack::Int64);
         }
         if !self.int64_atomics {
-            m.push("shaderBufferInt64Atomics".into());
+            m.push(Lack::Int64Atomics);
         }
         if !self.buffer_device_address {
-            m.push("bufferDeviceAddress".into());
+            m.push(Lack::BufferDeviceAddress);
         }
         if self.timestamp_valid_bits == 0 {
-            m.push("timestamps on the compute queue".into());
+            m.push(Lack::QueueTimestamps);
         }
         if self.subgroup_size < 4 || self.max_subgroup_size > 128 || !self.subgroup_size.is_power_of_two() {
-            m.push(format!("a subgroup size between 4 and 128 (device has {})", self.subgroup_size));
+            m.push(Lack::SubgroupSize(self.subgroup_size));
         }
         m
     }
@@ -409,13 +502,6 @@ pub(crate) fn query_caps(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> 
             (vk::SubgroupFeatureFlags::CLUSTERED, "clustered"),
             (vk::SubgroupFeatureFlags::QUAD, "quad"),
         ];
-        let device_type = match props.device_type {
-            vk::PhysicalDeviceType::DISCRETE_GPU => "discrete",
-            vk::PhysicalDeviceType::INTEGRATED_GPU => "integrated",
-            vk::PhysicalDeviceType::VIRTUAL_GPU => "virtual",
-            vk::PhysicalDeviceType::CPU => "cpu",
-            _ => "other",
-        };
         let (min_sg, max_sg) = if has_size_control && size_control.min_subgroup_size > 0 {
             (size_control.min_subgroup_size, size_control.max_subgroup_size)
         } else {
@@ -434,8 +520,9 @@ pub(crate) fn query_caps(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> 
         };
         DeviceCaps {
             name: props.device_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default(),
-            device_type: device_type.into(),
+            device_type: DeviceType::of(props.device_type),
             api_version: version_string(api),
+            api,
             driver: driver_name,
             driver_version: props.driver_version,
             vendor_id: props.vendor_id,
@@ -443,6 +530,7 @@ pub(crate) fn query_caps(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> 
             min_subgroup_size: min_sg,
             max_subgroup_size: max_sg,
             subgroup_operations: names.iter().filter(|(f, _)| ops.contains(*f)).map(|(_, n)| n.to_string()).collect(),
+            subgroup_flags: ops,
             subgroup_in_compute: subgroup.supported_stages.contains(vk::ShaderStageFlags::COMPUTE),
             max_workgroup_count: props.limits.max_compute_work_group_count,
             max_workgroup_size: props.limits.max_compute_work_group_size,
@@ -463,16 +551,6 @@ pub(crate) fn query_caps(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> 
     }
 }
 
-fn type_rank(t: &str) -> u32 {
-    match t {
-        "discrete" => 0,
-        "integrated" => 1,
-        "virtual" => 2,
-        "cpu" => 3,
-        _ => 4,
-    }
-}
-
 /// Picks a device: `wanted` (an index or a name substring) if given, else the best supported one by type.
 fn pick(list: &[DeviceSummary], wanted: Option<&str>) -> Result<usize> {
     if list.is_empty() {
@@ -490,13 +568,13 @@ fn pick(list: &[DeviceSummary], wanted: Option<&str>) -> Result<usize> {
         .iter()
         .enumerate()
         .filter(|(_, d)| d.missing.is_empty())
-        .min_by_key(|(_, d)| (type_rank(&d.caps.device_type), d.index))
+        .min_by_key(|(_, d)| (d.caps.device_type, d.index))
         .map(|(i, _)| i);
     match best {
         Some(i) => Ok(i),
         // No device is complete: report what the preferred one lacks.
         None => {
-            let d = list.iter().min_by_key(|d| type_rank(&d.caps.device_type)).ok_or(GpuError::NoDevice)?;
+            let d = list.iter().min_by_key(|d| d.caps.device_type).ok_or(GpuError::NoDevice)?;
             Err(GpuError::Unsupported { name: d.caps.name.clone(), missing: d.missing.clone() })
         }
     }
@@ -584,7 +662,10 @@ impl Context {
         }
         let Some(family) = caps.queue_family else {
             cleanup(&instance, &debug);
-            return Err(GpuError::Unsupported { name: caps.name.clone(), missing: vec!["a compute queue".into()] });
+            return Err(GpuError::Unsupported {
+                name: caps.name.clone(),
+                missing: vec![Lack::ComputeQueue.to_string()],
+            });
         };
         let priorities = [1.0f32];
         let queue_info =
@@ -625,8 +706,14 @@ impl Context {
     ///   use the queue from another thread at the same time (Vulkan requires external synchronization of queues).
     pub unsafe fn from_raw(raw: RawDevice) -> Result<Self> {
         let caps = query_caps(&raw.instance, raw.physical_device);
-        let mut missing = caps.missing();
-        missing.retain(|m| !m.contains("compute queue"));
+        // The engine names its queue: what the device's own choice of compute queue lacks does not matter (the
+        // given queue's timestamps are checked below).
+        let missing: Vec<String> = caps
+            .lacks()
+            .iter()
+            .filter(|m| !matches!(m, Lack::ComputeQueue | Lack::QueueTimestamps))
+            .map(Lack::to_string)
+            .collect();
         if !missing.is_empty() {
             return Err(GpuError::Unsupported { name: caps.name.clone(), missing });
         }

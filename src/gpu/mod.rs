@@ -25,7 +25,7 @@ pub use bounds::{BoundsPush, PointBounds};
 pub use buffer::{Buffer, MemoryKind};
 pub use context::{
     enumerate_devices, required_device_extensions, required_device_features, Context, ContextDesc, DeviceCaps,
-    DeviceSummary, RawDevice,
+    DeviceSummary, DeviceType, RawDevice,
 };
 pub use kernel::{Kernel, KernelDesc};
 pub(crate) use mesh::bounds_read_back;

@@ -121,14 +121,24 @@ impl<'a> Recorder<'a> {
         unsafe { self.dev().cmd_reset_query_pool(self.cmd, timer.pool, 0, timer.capacity) };
     }
 
-    /// Writes a timestamp named `name` after all earlier work completes. Pass times are differences of consecutive
-    /// timestamps (see [`Timer::read`]). Timestamps past the timer's capacity are dropped.
+    /// Writes a timestamp named `name` after all earlier work completes: the end of pass `name`, timed from the
+    /// timestamp before it (see [`Timer::read`]). Timestamps past the timer's capacity are dropped.
     pub fn timestamp(&mut self, timer: &mut Timer, name: &str) {
+        self.write_timestamp(timer, Some(name.to_string()));
+    }
+
+    /// Writes an unnamed timestamp after all earlier work completes: it only starts the next pass (work between the
+    /// timestamp before and this one, such as fills and barriers, is not reported by [`Timer::read`]).
+    pub fn timestamp_start(&mut self, timer: &mut Timer) {
+        self.write_timestamp(timer, None);
+    }
+
+    fn write_timestamp(&mut self, timer: &mut Timer, name: Option<String>) {
         if timer.names.len() as u32 >= timer.capacity {
             return;
         }
         let q = timer.names.len() as u32;
-        timer.names.push(name.to_string());
+        timer.names.push(name);
         // SAFETY: recording command buffer; query index inside the pool, reset earlier in this command buffer.
         unsafe { self.dev().cmd_write_timestamp(self.cmd, vk::PipelineStageFlags::ALL_COMMANDS, timer.pool, q) };
     }
@@ -139,7 +149,7 @@ pub struct Timer {
     ctx: Arc<Inner>,
     pool: vk::QueryPool,
     capacity: u32,
-    names: Vec<String>,
+    names: Vec<Option<String>>,
 }
 
 impl Timer {
@@ -151,8 +161,8 @@ impl Timer {
         Ok(Timer { ctx: ctx.inner.clone(), pool, capacity, names: Vec::new() })
     }
 
-    /// After the command buffer completed: `(name, milliseconds since the previous timestamp)` for every timestamp
-    /// but the first.
+    /// After the command buffer completed: `(name, milliseconds since the previous timestamp)` for every named
+    /// timestamp but the first ([`Recorder::timestamp_start`] ones have no name).
     pub fn read(&self) -> Result<Vec<(String, f64)>> {
         let n = self.names.len();
         if n < 2 {
@@ -172,9 +182,9 @@ impl Timer {
         let mask = if bits >= 64 { u64::MAX } else { (1u64 << bits) - 1 };
         let period = self.ctx.caps.timestamp_period as f64;
         Ok((1..n)
-            .map(|i| {
+            .filter_map(|i| {
                 let dt = (ticks[i] & mask).wrapping_sub(ticks[i - 1] & mask) & mask;
-                (self.names[i].clone(), dt as f64 * period * 1e-6)
+                Some((self.names[i].clone()?, dt as f64 * period * 1e-6))
             })
             .collect())
     }

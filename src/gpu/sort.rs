@@ -38,7 +38,9 @@
 //! # Ok::<(), meshchar::gpu::GpuError>(())
 //! ```
 
-use crate::gpu::{shaders, Buffer, Context, DeviceCaps, GpuError, Kernel, KernelDesc, MemoryKind, Recorder, Result};
+use crate::gpu::{
+    shaders, Buffer, Context, DeviceCaps, DeviceType, GpuError, Kernel, KernelDesc, MemoryKind, Recorder, Result,
+};
 
 /// Bits per digit.
 pub const DIGIT_BITS: u32 = 8;
@@ -118,10 +120,10 @@ impl SortConfig {
     pub const CPU: SortConfig =
         SortConfig { workgroup_size: 32, keys_per_thread: 64, scan_workgroup_size: 64, scan_items: 32 };
 
-    /// The profile for the device ([`SortConfig::CPU`] for `device_type == "cpu"`, else [`SortConfig::GPU`]), fitted
+    /// The profile for the device ([`SortConfig::CPU`] for a [`DeviceType::Cpu`], else [`SortConfig::GPU`]), fitted
     /// to its limits with [`SortConfig::fitted`].
     pub fn for_device(caps: &DeviceCaps) -> Self {
-        let profile = if caps.device_type == "cpu" { Self::CPU } else { Self::GPU };
+        let profile = if caps.device_type == DeviceType::Cpu { Self::CPU } else { Self::GPU };
         profile.fitted(caps)
     }
 

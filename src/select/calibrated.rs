@@ -21,13 +21,39 @@ pub fn choose(preds: &[Prediction], tie_margin: f64) -> Option<StructureName> {
     preds.iter().filter(|p| p.total_ms <= limit).min_by(|a, b| a.build_ms.total_cmp(&b.build_ms)).map(|p| p.structure)
 }
 
+/// What a frame of an animation does with its structure.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FrameAction {
+    /// Build the structure anew for this frame.
+    Rebuild,
+    /// Refit the tree in use to this frame.
+    Refit,
+}
+
+impl FrameAction {
+    /// `rebuild` or `refit` (as in JSON).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            FrameAction::Rebuild => "rebuild",
+            FrameAction::Refit => "refit",
+        }
+    }
+}
+
+impl std::fmt::Display for FrameAction {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 /// One frame's decision for an animation.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct FrameDecision {
     /// Frame index.
     pub frame: usize,
-    /// `rebuild` or `refit`.
-    pub action: &'static str,
+    /// Rebuild or refit (`rebuild`, `refit` in JSON).
+    pub action: FrameAction,
     /// The structure traced in this frame.
     pub structure: StructureName,
     /// Predicted ms of the action (build or refit).
@@ -62,7 +88,7 @@ pub fn plan_frames(
         let Some(pf) = pf else { break };
         let rebuild = FrameDecision {
             frame: i,
-            action: "rebuild",
+            action: FrameAction::Rebuild,
             structure: fresh,
             update_ms: pf.build_ms,
             trace_ms: pf.trace_ms,
@@ -73,7 +99,7 @@ pub fn plan_frames(
                 let d = crate::cost::drift(&features[b], f);
                 FrameDecision {
                     frame: i,
-                    action: "refit",
+                    action: FrameAction::Refit,
                     structure: s,
                     update_ms: r.refit_ns_per_triangle * f.total_triangles.max(f.triangles) as f64 * 1e-6,
                     trace_ms: p.trace_ms * (1.0 + r.sah_growth_per_drift.max(0.0) * d),
@@ -190,7 +216,7 @@ impl Policy for CalibratedPolicy {
         }
         if scene.features.len() > 1 {
             let plan = plan_frames(&self.model, scene.features, self.kind, self.rays_per_frame, self.tie_margin);
-            let refits = plan.iter().filter(|d| d.action == "refit").count();
+            let refits = plan.iter().filter(|d| d.action == FrameAction::Refit).count();
             let total: f64 = plan.iter().map(|d| d.update_ms + d.trace_ms).sum();
             reasons.push(format!(
                 "per frame: {} rebuild(s), {refits} refit(s), predicted {total:.2} ms in all: {}",

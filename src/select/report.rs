@@ -116,9 +116,9 @@ impl Report {
     /// count. Fill the rest with [`Report::frame`], [`Report::selection`] and [`Report::zero_area`].
     pub fn new(mesh: impl Into<String>, c: &Characterization) -> Report {
         let mut timings = c.timings.clone();
-        if !timings.iter().any(|p| p.name == "total") {
+        if !timings.iter().any(|p| p.name == PassTime::TOTAL) {
             let total = timings.iter().map(|p| p.ms).sum();
-            timings.push(PassTime { name: "total".into(), ms: total });
+            timings.push(PassTime { name: PassTime::TOTAL.into(), ms: total });
         }
         let s = &c.stats;
         Report {

@@ -26,30 +26,15 @@ pub(crate) use sah::partition;
 pub(crate) use sah::sweep_bins;
 pub use sah::{Bvh, BvhOptions};
 
-use super::{bytes_of, invalid, sah_cost, AccelError, AccelStats, TraversalStack};
+use super::{
+    bytes_of, check_permutation, sah_cost, triangle_in_box, AccelError, AccelStats, TraversalStack, Validation,
+};
 use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCounters};
 use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
 use glam::Vec3;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
-
-/// The [`AccelStructure`] methods every structure stored as a [`BvhTree`] in a field `tree` shares (BVH, LBVH,
-/// HLBVH): triangle count, closest hit and any hit by the tree's traversal.
-macro_rules! bvh_tree_traversal {
-    () => {
-        fn triangle_count(&self) -> usize {
-            self.tree.tris.len()
-        }
-        fn intersect(&self, ray: &$crate::geom::Ray, c: &mut $crate::geom::TraceCounters) -> Option<$crate::geom::Hit> {
-            self.tree.traverse(ray, false, c)
-        }
-        fn occluded(&self, ray: &$crate::geom::Ray, c: &mut $crate::geom::TraceCounters) -> bool {
-            self.tree.traverse(ray, true, c).is_some()
-        }
-    };
-}
-pub(crate) use bvh_tree_traversal;
 
 /// Bit 31 of [`BvhNode::right_or_count`] marks a leaf (`BVH_LEAF_FLAG` of `glsl/include/bvh.glsl`).
 pub const LEAF_FLAG: u32 = crate::gpu::shaders::layout::BVH_LEAF_FLAG;
@@ -338,82 +323,42 @@ impl BvhTree {
     /// triangle array, every triangle record in exactly one leaf and inside its leaf's box, ids a permutation.
     pub fn validate(&self, structure: &'static str) -> Result<AccelStats, AccelError> {
         let n = self.tris.len();
-        if self.ids.len() != n {
-            return Err(invalid(structure, format!("{} ids for {} triangle records", self.ids.len(), n)));
-        }
-        let mut seen_id = vec![false; n];
-        for &id in &self.ids {
-            let s = seen_id
-                .get_mut(id as usize)
-                .ok_or_else(|| invalid(structure, format!("triangle id {id} out of range {n}")))?;
-            if *s {
-                return Err(invalid(structure, format!("triangle id {id} appears twice")));
-            }
-            *s = true;
-        }
+        check_permutation(structure, &self.ids, n)?;
+        let mut v = Validation::new(structure, n, self.memory_bytes(), self.nodes.len(), n);
         if self.nodes.is_empty() {
-            if n != 0 {
-                return Err(invalid(structure, format!("no nodes for {n} triangles")));
-            }
-            return Ok(AccelStats { bytes: self.memory_bytes(), ..Default::default() });
+            return v.without_nodes(n != 0, &format!("no nodes for {n} triangles"));
         }
-        let mut visited = vec![false; self.nodes.len()];
-        let mut covered = vec![false; n];
-        let mut stats = AccelStats { triangles: n, bytes: self.memory_bytes(), ..Default::default() };
         let mut stack = vec![(0usize, 0usize)];
         while let Some((i, depth)) = stack.pop() {
-            let node = self.nodes.get(i).ok_or_else(|| invalid(structure, format!("node {i} out of range")))?;
-            if std::mem::replace(&mut visited[i], true) {
-                return Err(invalid(structure, format!("node {i} reached twice")));
-            }
-            stats.nodes += 1;
-            stats.max_depth = stats.max_depth.max(depth);
+            v.visit(i, depth)?;
+            let node = &self.nodes[i];
             let b = node.aabb();
             if b.is_empty() || !b.min.is_finite() || !b.max.is_finite() {
-                return Err(invalid(structure, format!("node {i} has an empty or non-finite box {b:?}")));
+                return Err(v.invalid(format!("node {i} has an empty or non-finite box {b:?}")));
             }
             if node.is_leaf() {
                 let (first, count) = (node.left_or_first as usize, node.count() as usize);
-                if count == 0 || first + count > n {
-                    return Err(invalid(structure, format!("leaf {i} covers {first}+{count} of {n} records")));
+                if count == 0 {
+                    return Err(v.invalid(format!("leaf {i} is empty")));
                 }
-                stats.leaves += 1;
-                stats.references += count;
-                let slack = (b.max.abs() + b.min.abs()) * 1e-6;
-                let loose = Aabb::new(b.min - slack, b.max + slack);
-                for (k, cov) in covered.iter_mut().enumerate().skip(first).take(count) {
-                    if std::mem::replace(cov, true) {
-                        return Err(invalid(structure, format!("record {k} in two leaves")));
-                    }
-                    let t = &self.tris[k];
-                    let tb = Aabb::of_triangle(&[t.v0, t.v0 + t.e1, t.v0 + t.e2]);
-                    if !b.contains(&Aabb::new(t.v0, t.v0)) || !loose.contains(&tb) {
-                        return Err(invalid(structure, format!("triangle {} outside leaf {i}", self.ids[k])));
+                v.leaf(i, first, count)?;
+                for (t, &id) in self.tris[first..first + count].iter().zip(&self.ids[first..]) {
+                    if !b.contains(&Aabb::new(t.v0, t.v0)) || !triangle_in_box(t, &b) {
+                        return Err(v.invalid(format!("triangle {id} outside leaf {i}")));
                     }
                 }
             } else {
                 for c in [node.left_or_first as usize, node.right_or_count as usize] {
-                    let child = self
-                        .nodes
-                        .get(c)
-                        .ok_or_else(|| invalid(structure, format!("node {i}: child {c} out of range")))?;
+                    let child =
+                        self.nodes.get(c).ok_or_else(|| v.invalid(format!("node {i}: child {c} out of range")))?;
                     if !b.contains(&child.aabb()) {
-                        return Err(invalid(structure, format!("node {i}: child {c} box outside parent")));
+                        return Err(v.invalid(format!("node {i}: child {c} box outside parent")));
                     }
                     stack.push((c, depth + 1));
                 }
             }
         }
-        if stats.nodes != self.nodes.len() {
-            return Err(invalid(
-                structure,
-                format!("{} of {} nodes unreachable", self.nodes.len() - stats.nodes, self.nodes.len()),
-            ));
-        }
-        if let Some(k) = covered.iter().position(|c| !c) {
-            return Err(invalid(structure, format!("triangle record {k} in no leaf")));
-        }
-        Ok(stats)
+        v.finish()
     }
 }
 

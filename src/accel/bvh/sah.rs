@@ -9,7 +9,7 @@
 //! triangles owns `2k - 1` slots), which a final pass compacts with siblings adjacent. The result does not depend on
 //! the number of threads.
 
-use super::{bvh_tree_traversal, BvhNode, BvhTree};
+use super::{BvhNode, BvhTree};
 use crate::accel::{
     prepare, AccelError, AccelStats, AccelStructure, StructureName, SAH_INTERSECTION_COST, SAH_TRAVERSAL_COST,
 };
@@ -450,7 +450,7 @@ impl AccelStructure for Bvh {
     fn name(&self) -> StructureName {
         StructureName::Bvh
     }
-    bvh_tree_traversal!();
+    traversal_methods!(tree);
     fn validate(&self) -> Result<AccelStats, AccelError> {
         self.tree.validate("bvh")
     }

@@ -118,7 +118,7 @@ impl FeaturesGpu {
             rec.fill(result, Self::off_bounds() + 4 * BOUNDS_HI as u64, Some(12), 0);
             rec.fill(result, Self::off_hist(), Some(4 * (self.size_bins as u64 + 1)), 0);
             rec.barrier();
-            rec.timestamp(timer, "-");
+            rec.timestamp_start(timer);
             let push = FeatureBoundsPush {
                 positions: mesh.positions.address(),
                 indices: mesh.indices.address(),
@@ -152,7 +152,7 @@ impl FeaturesGpu {
         let b: Vec<u32> = readback.read(Self::off_bounds(), BOUNDS_WORDS as usize)?;
         let corner = |at: u32| [0, 1, 2].map(|a| from_ordered_bits(b[at as usize + a]));
         let h: Vec<u32> = readback.read(Self::off_hist(), self.size_bins as usize + 1)?;
-        let timings = self.timer.read()?.into_iter().filter(|(name, _)| name != "-").collect();
+        let timings = self.timer.read()?;
         Ok(GpuFeatures {
             mask,
             size_histogram: h[..self.size_bins as usize].iter().map(|&x| x as u64).collect(),

@@ -209,7 +209,7 @@ impl CharacterizeGpu {
             rec.fill(result, OFF_BOUNDS + 4 * BOUNDS_LO as u64, Some(12), u32::MAX);
             rec.fill(result, OFF_BOUNDS + 4 * BOUNDS_HI as u64, Some(12), 0);
             rec.barrier();
-            rec.timestamp(timer, "-");
+            rec.timestamp_start(timer);
             let push = KeysPush {
                 positions: mesh.positions.address(),
                 indices: mesh.indices.address(),
@@ -235,7 +235,7 @@ impl CharacterizeGpu {
             rec.fill(result, OFF_MORTON + 8 * MOMENTS_CODE_MAX as u64, Some(8), 0);
             rec.fill(result, OFF_MORTON + 8 * MOMENTS_LIMBS as u64, Some(8 * NLIMBS as u64), 0);
             rec.barrier();
-            rec.timestamp(timer, "-");
+            rec.timestamp_start(timer);
             let push = MortonPush {
                 keys: scratch.keys.address(),
                 codes: scratch.codes.address(),
@@ -282,7 +282,7 @@ impl CharacterizeGpu {
         ctx.submit_and_wait(|rec| {
             rec.fill(result, OFF_HIST, Some(4 * k as u64), 0);
             rec.barrier();
-            rec.timestamp(timer, "-");
+            rec.timestamp_start(timer);
             let push = ClassesPush {
                 codes: scratch.codes.address(),
                 classes: scratch.classes.address(),
@@ -309,7 +309,7 @@ impl CharacterizeGpu {
         })?;
         let chi: Vec<u64> = readback.read(OFF_CHI, CHI_WORDS as usize)?;
         let hist: Vec<u32> = readback.read(OFF_HIST, k as usize)?;
-        let timings = timer.read()?.into_iter().filter(|(name, _)| name != "-").collect();
+        let timings = timer.read()?;
         let per_triangle = if read_back {
             let codes: Vec<u64> = if b63 == 1 {
                 ctx.read_buffer(&scratch.codes, 0, n as usize)?

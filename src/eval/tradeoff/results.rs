@@ -52,6 +52,9 @@ pub struct SettingResult {
     pub accuracy: Vec<Accuracy>,
     /// Per scene.
     pub scenes: Vec<SceneRun>,
+    /// The setting itself (its backend and parameters, named in the fields above), for comparing results.
+    #[serde(skip)]
+    pub setting: Setting,
 }
 
 impl SettingResult {
@@ -147,8 +150,9 @@ pub struct Sufficiency {
 /// backend).
 pub fn sufficiency(results: &[SettingResult], tol: &StatsTolerance) -> Vec<Sufficiency> {
     let Some(reference) = results.first() else { return Vec::new() };
-    let ref_backend = reference.backend.clone();
-    let on_ref = |r: &&SettingResult| r.backend == ref_backend;
+    let (ref_backend, ref_params) = (reference.setting.backend, &reference.setting.params);
+    let on_ref = |r: &&SettingResult| r.setting.backend == ref_backend;
+    let same_rule = |r: &SettingResult| r.setting.params.class_rule == ref_params.class_rule;
     reference
         .scenes
         .iter()
@@ -159,7 +163,7 @@ pub fn sufficiency(results: &[SettingResult], tol: &StatsTolerance) -> Vec<Suffi
             let mut strides: Vec<&SettingResult> = results
                 .iter()
                 .filter(on_ref)
-                .filter(|r| r.morton_bits == reference.morton_bits && r.class_rule == reference.class_rule)
+                .filter(|r| r.morton_bits == reference.morton_bits && same_rule(r))
                 .collect();
             strides.sort_by_key(|r| r.sample_stride);
             let chain = |ok: &dyn Fn(&SceneRun) -> bool| -> Option<u32> {
@@ -183,7 +187,10 @@ pub fn sufficiency(results: &[SettingResult], tol: &StatsTolerance) -> Vec<Suffi
                 .iter()
                 .filter(on_ref)
                 .filter(|r| r.sample_stride == 1 && r.morton_bits == reference.morton_bits)
-                .filter_map(|r| r.class_rule.parse::<u32>().ok().map(|k| (k, r)))
+                .filter_map(|r| match r.setting.params.class_rule {
+                    ClassRule::Fixed(k) => Some((k, r)),
+                    _ => None,
+                })
                 .collect();
             fixed.sort_by_key(|&(k, _)| std::cmp::Reverse(k));
             let mut fixed_k_selection = None;
@@ -197,14 +204,14 @@ pub fn sufficiency(results: &[SettingResult], tol: &StatsTolerance) -> Vec<Suffi
                 .iter()
                 .filter(on_ref)
                 .filter(|r| r.sample_stride == 1 && r.morton_bits == reference.morton_bits)
-                .filter(|r| r.class_rule != reference.class_rule)
+                .filter(|r| !same_rule(r))
                 .filter(|r| scene(r).is_some_and(|s| s.same_selection))
                 .map(|r| r.class_rule.clone())
                 .collect();
             let bits30_enough = results
                 .iter()
                 .filter(on_ref)
-                .filter(|r| r.sample_stride == 1 && r.class_rule == reference.class_rule)
+                .filter(|r| r.sample_stride == 1 && same_rule(r))
                 .filter(|r| r.morton_bits != reference.morton_bits)
                 .all(|r| scene(r).is_some_and(|s| s.same_selection && tol.accepts(&s.drift)));
             Sufficiency {

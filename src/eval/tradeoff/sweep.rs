@@ -155,6 +155,7 @@ pub fn sweep(
                 })
                 .collect(),
             scenes: runs,
+            setting: setting.clone(),
         });
     }
     Ok(out)
