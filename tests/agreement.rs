@@ -11,15 +11,6 @@ use meshchar::mesh::Mesh;
 use meshchar::trace::workload::{build_workload, mesh_bounds};
 use meshchar::trace::{trace, Camera};
 
-const STRUCTURES: [StructureName; 6] = [
-    StructureName::Bvh,
-    StructureName::KdTree,
-    StructureName::Grid,
-    StructureName::Bih,
-    StructureName::Lbvh,
-    StructureName::Hlbvh,
-];
-
 /// Traces the three workloads (`resolution`^2 primary rays, and the shadow and diffuse rays from their hits) through
 /// every structure and `reference`, and returns one line per disagreement (at most 3 per structure and workload)
 /// and the number of rays that hit in the reference (summed over the workloads).
@@ -31,7 +22,7 @@ fn disagreements(mesh: &Mesh, reference: &dyn AccelStructure, resolution: u32) -
         let rays = build_workload(kind, mesh, &camera, resolution, reference);
         let want = trace(reference, &rays);
         hits += want.hits.iter().filter(|h| h.is_some()).count() + want.occluded.iter().filter(|&&o| o).count();
-        for s in STRUCTURES {
+        for s in StructureName::ALL {
             let accel = build_structure(s, mesh).unwrap_or_else(|e| panic!("{}: {s}: {e}", mesh.name));
             let got = trace(accel.as_ref(), &rays);
             assert_eq!(got.rays(), want.rays(), "{}: {s}: ray count", mesh.name);
