@@ -14,8 +14,9 @@
 //! * A static scene (one mesh) rendered for `F` frames: `total = B + F * T` when the structure is built once,
 //!   `F * (B + T)` when rebuilt every frame, with `B`, `T` the build and trace time of one frame.
 //! * An animation (several meshes, one topology): frames `0 .. F` are used, each rebuilt and traced:
-//!   `total = sum_f (B_f + T_f)`. Building once is refused for an animation: no structure here can be refitted,
-//!   and tracing frame `f` through frame 0's structure would give wrong hits.
+//!   `total = sum_f (B_f + T_f)`. Building once is refused for an animation: tracing frame `f` through frame 0's
+//!   structure would give wrong hits. (The BVH family can be refitted, `accel::bvh::BvhTree::refit`, but the
+//!   oracle does not yet measure refits as candidates of their own; the calibrated policy's frame plan predicts them.)
 //!
 //! The **oracle best** is the structure with the smallest median total among those that built, validated and
 //! agreed with the reference hits. The **regret** of a selection `s` is `total(s) / total(best) - 1`.
@@ -309,7 +310,7 @@ pub fn evaluate_scene(
     if animated && config.rebuild == Rebuild::Once {
         return Err(EvalError::Config {
             scene: scene.name.clone(),
-            reason: "building once is only meaningful for a static scene (no refitting here); use per-frame rebuilds"
+            reason: "building once is only meaningful for a static scene (the oracle measures no refits); use per-frame rebuilds"
                 .into(),
         });
     }

@@ -107,11 +107,13 @@ impl Drop for Buffer {
 impl Context {
     /// Creates a buffer of `size` bytes (at least 4) in memory of `kind`.
     ///
-    /// Sizes above the device's `maxBufferSize` or `maxMemoryAllocationSize` give [`GpuError::Limit`].
+    /// Sizes above the device's `maxBufferSize` or `maxMemoryAllocationSize` give [`GpuError::Limit`] (a limit the
+    /// device does not report, 0, is taken as no limit).
     pub fn create_buffer(&self, name: &str, size: u64, kind: MemoryKind) -> Result<Buffer> {
         let size = size.max(4).next_multiple_of(4);
         let caps = &self.inner.caps;
-        let limit = caps.max_buffer_size.unwrap_or(u64::MAX).min(caps.max_memory_allocation_size.max(1 << 30));
+        let reported = |x: u64| if x == 0 { u64::MAX } else { x };
+        let limit = caps.max_buffer_size.map_or(u64::MAX, reported).min(reported(caps.max_memory_allocation_size));
         if size > limit {
             return Err(GpuError::Limit { what: format!("buffer {name}"), requested: size, limit });
         }
