@@ -1,4 +1,4 @@
-use super::context::{lock, Inner};
+use super::context::Inner;
 use super::{vk_check, Context, GpuError, Result};
 use ash::vk;
 use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
@@ -99,7 +99,9 @@ impl Drop for Buffer {
         // (every convenience path waits for its submission).
         unsafe { self.ctx.device.destroy_buffer(self.buffer, None) };
         if let Some(a) = self.allocation.take() {
-            let _ = lock(&self.ctx.allocator).free(a);
+            if let Ok(mut allocator) = self.ctx.allocator() {
+                let _ = allocator.free(a);
+            }
         }
     }
 }
@@ -131,7 +133,7 @@ impl Context {
             MemoryKind::Readback => MemoryLocation::GpuToCpu,
         };
         let large = size >= 64 << 20;
-        let allocation = lock(&self.inner.allocator).allocate(&AllocationCreateDesc {
+        let allocation = self.inner.allocator()?.allocate(&AllocationCreateDesc {
             name,
             requirements,
             location,
@@ -155,7 +157,9 @@ impl Context {
         if let Err(result) = bound {
             // SAFETY: as above.
             unsafe { dev.destroy_buffer(buffer, None) };
-            let _ = lock(&self.inner.allocator).free(allocation);
+            if let Ok(mut allocator) = self.inner.allocator() {
+                let _ = allocator.free(allocation);
+            }
             return Err(GpuError::Vk { call: "vkBindBufferMemory", result });
         }
         // SAFETY: bound buffer with SHADER_DEVICE_ADDRESS usage; the feature is enabled.
