@@ -107,13 +107,17 @@ impl Drop for Buffer {
 }
 
 impl Context {
-    /// Creates a buffer of `size` bytes (at least 4) in memory of `kind`.
+    /// Creates a buffer of `size` bytes (at least 4, rounded up to a multiple of 4) in memory of `kind`.
     ///
-    /// Sizes above the device's `maxBufferSize` or `maxMemoryAllocationSize` give [`GpuError::Limit`].
+    /// The device's limits, as queried, are honoured: a size above `maxBufferSize` (where reported) or
+    /// `maxMemoryAllocationSize`, or a buffer whose memory requirements exceed `maxMemoryAllocationSize`, gives
+    /// [`GpuError::Limit`]. Buffers of 64 MiB and more get a dedicated allocation of their own size; smaller ones
+    /// share memory blocks of at most 256 MiB (64 MiB host-visible), which the context also keeps within
+    /// `maxMemoryAllocationSize`. No allocation is ever larger than that limit.
     pub fn create_buffer(&self, name: &str, size: u64, kind: MemoryKind) -> Result<Buffer> {
         let size = size.max(4).next_multiple_of(4);
         let caps = &self.inner.caps;
-        let limit = caps.max_buffer_size.unwrap_or(u64::MAX).min(caps.max_memory_allocation_size.max(1 << 30));
+        let limit = caps.max_buffer_size.unwrap_or(u64::MAX).min(caps.max_memory_allocation_size);
         if size > limit {
             return Err(GpuError::Limit { what: format!("buffer {name}"), requested: size, limit });
         }
@@ -127,6 +131,16 @@ impl Context {
         let buffer = vk_check("vkCreateBuffer", unsafe { dev.create_buffer(&info, None) })?;
         // SAFETY: buffer from this device.
         let requirements = unsafe { dev.get_buffer_memory_requirements(buffer) };
+        if requirements.size > caps.max_memory_allocation_size {
+            // SAFETY: unbound buffer of ours.
+            unsafe { dev.destroy_buffer(buffer, None) };
+            let limit = caps.max_memory_allocation_size;
+            return Err(GpuError::Limit {
+                what: format!("memory of buffer {name}"),
+                requested: requirements.size,
+                limit,
+            });
+        }
         let location = match kind {
             MemoryKind::DeviceLocal => MemoryLocation::GpuOnly,
             MemoryKind::Upload => MemoryLocation::CpuToGpu,

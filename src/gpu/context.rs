@@ -627,6 +627,15 @@ pub fn enumerate_devices() -> Result<(Vec<DeviceSummary>, Option<usize>)> {
     Ok((list, selected))
 }
 
+/// The allocator's shared memory blocks: gpu-allocator's default sizes (256 MiB device-local, 64 MiB host-visible),
+/// never above `maxMemoryAllocationSize` (Vulkan guarantees at least 1 GiB; gpu-allocator keeps blocks between
+/// 4 MiB and 256 MiB).
+fn memory_block_sizes(max_allocation: u64) -> (u64, u64) {
+    const MIB: u64 = 1 << 20;
+    let fit = |size: u64| size.min(max_allocation / (4 * MIB) * (4 * MIB)).max(4 * MIB);
+    (fit(256 * MIB), fit(64 * MIB))
+}
+
 /// The summary of every physical device, in enumeration order.
 fn summaries(instance: &ash::Instance, pdevs: &[vk::PhysicalDevice]) -> Vec<DeviceSummary> {
     pdevs
@@ -761,7 +770,10 @@ impl Context {
             physical_device: pdev,
             debug_settings,
             buffer_device_address: true,
-            allocation_sizes: Default::default(),
+            allocation_sizes: {
+                let (device_block, host_block) = memory_block_sizes(caps.max_memory_allocation_size);
+                gpu_allocator::AllocationSizes::new(device_block, host_block)
+            },
         })
         .map_err(|e| GpuError::Alloc { name: "allocator".into(), bytes: 0, source: e })?;
         objects.allocator = Some(Mutex::new(allocator));
@@ -852,6 +864,15 @@ pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn memory_blocks_stay_within_the_allocation_limit() {
+        const MIB: u64 = 1 << 20;
+        assert_eq!(memory_block_sizes(1 << 30), (256 * MIB, 64 * MIB));
+        assert_eq!(memory_block_sizes(u64::MAX), (256 * MIB, 64 * MIB));
+        assert_eq!(memory_block_sizes(100 * MIB + 3), (100 * MIB, 64 * MIB));
+        assert_eq!(memory_block_sizes(10 * MIB), (8 * MIB, 8 * MIB));
+    }
 
     #[test]
     fn device_types_rank_and_print_as_before() {
