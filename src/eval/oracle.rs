@@ -14,9 +14,10 @@
 //! * A static scene (one mesh) rendered for `F` frames: `total = B + F * T` when the structure is built once,
 //!   `F * (B + T)` when rebuilt every frame, with `B`, `T` the build and trace time of one frame.
 //! * An animation (several meshes, one topology): frames `0 .. F` are used, each rebuilt and traced:
-//!   `total = sum_f (B_f + T_f)`. Building once is refused for an animation: tracing frame `f` through frame 0's
-//!   structure would give wrong hits. (The BVH family can be refitted, `accel::bvh::BvhTree::refit`, but the
-//!   oracle does not yet measure refits as candidates of their own; the calibrated policy's frame plan predicts them.)
+//!   `total = sum_f (B_f + T_f)`. Building once is refused for an animation: the oracle builds every structure
+//!   through [`AccelStructure`], which has no refit (of the six, only the BVH family can be refitted, with
+//!   [`crate::accel::bvh::BvhTree::refit`]; [`crate::eval::failure_study::refit_study`] measures refitting against
+//!   rebuilding), and tracing frame `f` through frame 0's structure without a refit would give wrong hits.
 //!
 //! The **oracle best** is the structure with the smallest median total among those that built, validated and
 //! agreed with the reference hits. The **regret** of a selection `s` is `total(s) / total(best) - 1`.

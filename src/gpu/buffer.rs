@@ -1,4 +1,4 @@
-use super::context::{lock, Inner};
+use super::context::Inner;
 use super::{vk_check, Context, GpuError, Result};
 use ash::vk;
 use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
@@ -99,21 +99,25 @@ impl Drop for Buffer {
         // (every convenience path waits for its submission).
         unsafe { self.ctx.device.destroy_buffer(self.buffer, None) };
         if let Some(a) = self.allocation.take() {
-            let _ = lock(&self.ctx.allocator).free(a);
+            if let Ok(mut allocator) = self.ctx.allocator() {
+                let _ = allocator.free(a);
+            }
         }
     }
 }
 
 impl Context {
-    /// Creates a buffer of `size` bytes (at least 4) in memory of `kind`.
+    /// Creates a buffer of `size` bytes (at least 4, rounded up to a multiple of 4) in memory of `kind`.
     ///
-    /// Sizes above the device's `maxBufferSize` or `maxMemoryAllocationSize` give [`GpuError::Limit`] (a limit the
-    /// device does not report, 0, is taken as no limit).
+    /// The device's limits, as queried, are honoured: a size above `maxBufferSize` (where reported) or
+    /// `maxMemoryAllocationSize`, or a buffer whose memory requirements exceed `maxMemoryAllocationSize`, gives
+    /// [`GpuError::Limit`]. Buffers of 64 MiB and more get a dedicated allocation of their own size; smaller ones
+    /// share memory blocks of at most 256 MiB (64 MiB host-visible), which the context also keeps within
+    /// `maxMemoryAllocationSize`. No allocation is ever larger than that limit.
     pub fn create_buffer(&self, name: &str, size: u64, kind: MemoryKind) -> Result<Buffer> {
         let size = size.max(4).next_multiple_of(4);
         let caps = &self.inner.caps;
-        let reported = |x: u64| if x == 0 { u64::MAX } else { x };
-        let limit = caps.max_buffer_size.map_or(u64::MAX, reported).min(reported(caps.max_memory_allocation_size));
+        let limit = caps.max_buffer_size.unwrap_or(u64::MAX).min(caps.max_memory_allocation_size);
         if size > limit {
             return Err(GpuError::Limit { what: format!("buffer {name}"), requested: size, limit });
         }
@@ -127,13 +131,23 @@ impl Context {
         let buffer = vk_check("vkCreateBuffer", unsafe { dev.create_buffer(&info, None) })?;
         // SAFETY: buffer from this device.
         let requirements = unsafe { dev.get_buffer_memory_requirements(buffer) };
+        if requirements.size > caps.max_memory_allocation_size {
+            // SAFETY: unbound buffer of ours.
+            unsafe { dev.destroy_buffer(buffer, None) };
+            let limit = caps.max_memory_allocation_size;
+            return Err(GpuError::Limit {
+                what: format!("memory of buffer {name}"),
+                requested: requirements.size,
+                limit,
+            });
+        }
         let location = match kind {
             MemoryKind::DeviceLocal => MemoryLocation::GpuOnly,
             MemoryKind::Upload => MemoryLocation::CpuToGpu,
             MemoryKind::Readback => MemoryLocation::GpuToCpu,
         };
         let large = size >= 64 << 20;
-        let allocation = lock(&self.inner.allocator).allocate(&AllocationCreateDesc {
+        let allocation = self.inner.allocator()?.allocate(&AllocationCreateDesc {
             name,
             requirements,
             location,
@@ -157,7 +171,9 @@ impl Context {
         if let Err(result) = bound {
             // SAFETY: as above.
             unsafe { dev.destroy_buffer(buffer, None) };
-            let _ = lock(&self.inner.allocator).free(allocation);
+            if let Ok(mut allocator) = self.inner.allocator() {
+                let _ = allocator.free(allocation);
+            }
             return Err(GpuError::Vk { call: "vkBindBufferMemory", result });
         }
         // SAFETY: bound buffer with SHADER_DEVICE_ADDRESS usage; the feature is enabled.

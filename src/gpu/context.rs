@@ -1,8 +1,10 @@
+//! The device of a [`Context`]: instance and device creation (or a host engine's device), device choice, the
+//! capabilities the engine checks, and the guard that destroys everything a context made, in order.
+
 use super::{vk_check, GpuError, Result};
 use ash::vk;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
 use std::ffi::{c_void, CStr};
-use std::mem::ManuallyDrop;
 use std::sync::{Arc, Mutex, MutexGuard};
 
 const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
@@ -263,48 +265,173 @@ pub fn required_device_features(
 }
 
 type Messages = Arc<Mutex<Vec<String>>>;
-type Debug = (ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT, *mut Messages);
+type Messenger = (ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT);
+
+/// Whether a context destroys its device.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Ownership {
+    /// Created by the context ([`Context::new`]).
+    Owned,
+    /// A host engine's ([`Context::from_raw`]): never destroyed here.
+    Borrowed,
+}
+
+/// Every Vulkan object a context made, the guard that destroys them: each is recorded here as soon as it exists,
+/// so an error at any step of creation just returns and drops the guard, and a finished context drops it last.
+/// Drop destroys in reverse order of creation: it waits for the device, frees the allocator's memory, destroys the
+/// command pool, then what the context owns: the device, the debug messenger, the instance; then frees the message
+/// sink the messengers write into, which must outlive `vkDestroyInstance` (the messenger chained to the instance's
+/// creation may report during it); the loader is unloaded last.
+#[derive(Default)]
+struct Objects {
+    /// The Vulkan loader (owned contexts).
+    entry: Option<ash::Entry>,
+    /// The boxed [`Messages`] the debug messengers get as user data (null without validation).
+    sink: Option<std::ptr::NonNull<Messages>>,
+    /// The instance, when the context created it.
+    instance: Option<ash::Instance>,
+    /// The debug messenger on that instance.
+    messenger: Option<Messenger>,
+    /// The device the pool and allocator belong to, and whether the context created it.
+    device: Option<(ash::Device, Ownership)>,
+    /// The command pool (null until created).
+    pool: vk::CommandPool,
+    /// The allocator.
+    allocator: Option<Mutex<Allocator>>,
+}
+
+// SAFETY: the sink pointer is a boxed Arc only touched at creation and destruction, and by the driver's callback,
+// which only locks the mutex inside it; everything else is Vulkan handles and ash's function tables.
+unsafe impl Send for Objects {}
+unsafe impl Sync for Objects {}
+
+impl Drop for Objects {
+    fn drop(&mut self) {
+        // SAFETY: every buffer, kernel and timer holds an Arc<Inner>, so none is alive when the context's objects
+        // go; the device is idle after the wait; each object is destroyed once, after everything made from it.
+        unsafe {
+            if let Some((device, ownership)) = &self.device {
+                let _ = device.device_wait_idle();
+                drop(self.allocator.take());
+                if self.pool != vk::CommandPool::null() {
+                    device.destroy_command_pool(self.pool, None);
+                }
+                if *ownership == Ownership::Owned {
+                    device.destroy_device(None);
+                }
+            }
+            if let Some((du, messenger)) = self.messenger.take() {
+                du.destroy_debug_utils_messenger(messenger, None);
+            }
+            if let Some(instance) = &self.instance {
+                instance.destroy_instance(None);
+            }
+            if let Some(sink) = self.sink.take() {
+                drop(Box::from_raw(sink.as_ptr()));
+            }
+        }
+        // `entry` drops after this, unloading the loader when nothing uses it any more.
+    }
+}
+
+impl Objects {
+    /// Loads Vulkan and creates an instance (with the validation layer and a messenger recording its warnings and
+    /// errors when `validation`); the guard and the messages the messenger records.
+    fn with_instance(validation: bool) -> Result<(Objects, Messages)> {
+        let mut o = Objects::default();
+        // SAFETY: loading the system Vulkan loader library; ash checks the symbols it resolves.
+        let entry = unsafe { ash::Entry::load() }.map_err(|e| GpuError::Loader(e.to_string()))?;
+        // The guard keeps the loader loaded until everything made from it is destroyed.
+        o.entry = Some(entry.clone());
+        let messages: Messages = Arc::new(Mutex::new(Vec::new()));
+        // SAFETY: plain queries of the loader.
+        let loader_version =
+            unsafe { entry.try_enumerate_instance_version() }.ok().flatten().unwrap_or(vk::API_VERSION_1_0);
+        if vk::api_version_major(loader_version) == 1 && vk::api_version_minor(loader_version) < 2 {
+            return Err(GpuError::Unsupported {
+                name: "Vulkan loader".into(),
+                missing: vec![format!(
+                    "Vulkan 1.2 instance (loader supports {}.{})",
+                    vk::api_version_major(loader_version),
+                    vk::api_version_minor(loader_version)
+                )],
+            });
+        }
+        let api = if vk::api_version_minor(loader_version) >= 3 { vk::API_VERSION_1_3 } else { vk::API_VERSION_1_2 };
+        let app =
+            vk::ApplicationInfo::default().application_name(c"meshchar").engine_name(c"meshchar").api_version(api);
+        let mut layers = Vec::new();
+        let mut exts = Vec::new();
+        if validation {
+            // SAFETY: plain query.
+            let available = unsafe { entry.enumerate_instance_layer_properties() }.unwrap_or_default();
+            if !available.iter().any(|l| l.layer_name_as_c_str().is_ok_and(|n| n == VALIDATION_LAYER)) {
+                return Err(GpuError::NoValidationLayer);
+            }
+            layers.push(VALIDATION_LAYER.as_ptr());
+            exts.push(ash::ext::debug_utils::NAME.as_ptr());
+            o.sink = Some(std::ptr::NonNull::from(Box::leak(Box::new(messages.clone()))));
+        }
+        let user = o.sink.map_or(std::ptr::null_mut(), |p| p.as_ptr() as *mut c_void);
+        let messenger_info = || {
+            vk::DebugUtilsMessengerCreateInfoEXT::default()
+                .message_severity(
+                    vk::DebugUtilsMessageSeverityFlagsEXT::WARNING | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
+                )
+                .message_type(
+                    vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
+                        | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+                        | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
+                )
+                .pfn_user_callback(Some(debug_callback))
+                .user_data(user)
+        };
+        // Chained to the instance's creation, this messenger also reports during vkCreateInstance and
+        // vkDestroyInstance.
+        let mut chained = messenger_info();
+        let mut info = vk::InstanceCreateInfo::default()
+            .application_info(&app)
+            .enabled_layer_names(&layers)
+            .enabled_extension_names(&exts);
+        if validation {
+            info = info.push_next(&mut chained);
+        }
+        // SAFETY: the create info and everything it points to live until the call returns; the sink outlives the
+        // instance (see Drop).
+        let instance = vk_check("vkCreateInstance", unsafe { entry.create_instance(&info, None) })?;
+        o.instance = Some(instance.clone());
+        if validation {
+            let du = ash::ext::debug_utils::Instance::new(&entry, &instance);
+            // SAFETY: valid instance with VK_EXT_debug_utils enabled; the sink outlives the messenger.
+            let m = vk_check("vkCreateDebugUtilsMessengerEXT", unsafe {
+                du.create_debug_utils_messenger(&messenger_info(), None)
+            })?;
+            o.messenger = Some((du, m));
+        }
+        Ok((o, messages))
+    }
+
+    fn instance(&self) -> Result<&ash::Instance> {
+        self.instance.as_ref().ok_or_else(|| GpuError::Buffer("context: no instance".into()))
+    }
+}
 
 pub(crate) struct Inner {
-    pub(crate) instance: ash::Instance,
     pub(crate) device: ash::Device,
     pub(crate) physical_device: vk::PhysicalDevice,
     pub(crate) queue: Mutex<vk::Queue>,
     pub(crate) queue_family: u32,
     pub(crate) caps: DeviceCaps,
-    pub(crate) allocator: ManuallyDrop<Mutex<Allocator>>,
     pub(crate) pool: Mutex<vk::CommandPool>,
-    owned: Option<Owned>,
     messages: Messages,
+    /// Destroys everything above (the handles are copies of the ones it holds).
+    objects: Objects,
 }
 
-struct Owned {
-    _entry: ash::Entry,
-    debug: Option<Debug>,
-}
-
-// SAFETY: the raw pointer in `Owned` is a boxed Arc only touched at creation and destruction, and by the driver's
-// callback, which only locks the mutex inside it.
-unsafe impl Send for Owned {}
-unsafe impl Sync for Owned {}
-
-impl Drop for Inner {
-    fn drop(&mut self) {
-        // SAFETY: all buffers and kernels hold an Arc<Inner>, so none is alive now; the device is idle after the wait.
-        unsafe {
-            let _ = self.device.device_wait_idle();
-            let pool = *self.pool.get_mut().unwrap_or_else(|e| e.into_inner());
-            self.device.destroy_command_pool(pool, None);
-            ManuallyDrop::drop(&mut self.allocator);
-            if let Some(owned) = self.owned.take() {
-                self.device.destroy_device(None);
-                if let Some((du, messenger, ptr)) = owned.debug {
-                    du.destroy_debug_utils_messenger(messenger, None);
-                    drop(Box::from_raw(ptr));
-                }
-                self.instance.destroy_instance(None);
-            }
-        }
+impl Inner {
+    /// The allocator (always there once the context exists).
+    pub(crate) fn allocator(&self) -> Result<MutexGuard<'_, Allocator>> {
+        self.objects.allocator.as_ref().map(lock).ok_or_else(|| GpuError::Buffer("context: no allocator".into()))
     }
 }
 
@@ -342,95 +469,6 @@ unsafe extern "system" fn debug_callback(
         m.push(format!("[{severity:?} {types:?}] {text}"));
     }
     vk::FALSE
-}
-
-fn load_entry() -> Result<ash::Entry> {
-    // SAFETY: loading the system Vulkan loader library; ash checks the symbols it resolves.
-    unsafe { ash::Entry::load() }.map_err(|e| GpuError::Loader(e.to_string()))
-}
-
-fn create_instance(entry: &ash::Entry, validation: bool) -> Result<(ash::Instance, Option<Debug>, Messages)> {
-    let messages: Messages = Arc::new(Mutex::new(Vec::new()));
-    // SAFETY: plain queries of the loader.
-    let loader_version =
-        unsafe { entry.try_enumerate_instance_version() }.ok().flatten().unwrap_or(vk::API_VERSION_1_0);
-    if vk::api_version_major(loader_version) == 1 && vk::api_version_minor(loader_version) < 2 {
-        return Err(GpuError::Unsupported {
-            name: "Vulkan loader".into(),
-            missing: vec![format!(
-                "Vulkan 1.2 instance (loader supports {}.{})",
-                vk::api_version_major(loader_version),
-                vk::api_version_minor(loader_version)
-            )],
-        });
-    }
-    let api = if vk::api_version_minor(loader_version) >= 3 { vk::API_VERSION_1_3 } else { vk::API_VERSION_1_2 };
-    let app = vk::ApplicationInfo::default().application_name(c"meshchar").engine_name(c"meshchar").api_version(api);
-    let mut layers = Vec::new();
-    let mut exts = Vec::new();
-    let user: *mut Messages = Box::into_raw(Box::new(messages.clone()));
-    let severity = vk::DebugUtilsMessageSeverityFlagsEXT::WARNING | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR;
-    let types = vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
-        | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
-        | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE;
-    let mut messenger_info = vk::DebugUtilsMessengerCreateInfoEXT::default()
-        .message_severity(severity)
-        .message_type(types)
-        .pfn_user_callback(Some(debug_callback))
-        .user_data(user as *mut c_void);
-    if validation {
-        // SAFETY: plain query.
-        let available = unsafe { entry.enumerate_instance_layer_properties() }.unwrap_or_default();
-        let found = available.iter().any(|l| l.layer_name_as_c_str().is_ok_and(|n| n == VALIDATION_LAYER));
-        if !found {
-            // SAFETY: `user` came from Box::into_raw above and was not handed out.
-            drop(unsafe { Box::from_raw(user) });
-            return Err(GpuError::NoValidationLayer);
-        }
-        layers.push(VALIDATION_LAYER.as_ptr());
-        exts.push(ash::ext::debug_utils::NAME.as_ptr());
-    }
-    let mut info = vk::InstanceCreateInfo::default()
-        .application_info(&app)
-        .enabled_layer_names(&layers)
-        .enabled_extension_names(&exts);
-    if validation {
-        info = info.push_next(&mut messenger_info);
-    }
-    // SAFETY: the create info and everything it points to live until the call returns.
-    let instance = match unsafe { entry.create_instance(&info, None) } {
-        Ok(i) => i,
-        Err(result) => {
-            // SAFETY: as above.
-            drop(unsafe { Box::from_raw(user) });
-            return Err(GpuError::Vk { call: "vkCreateInstance", result });
-        }
-    };
-    let debug = if validation {
-        let du = ash::ext::debug_utils::Instance::new(entry, &instance);
-        let messenger_info = vk::DebugUtilsMessengerCreateInfoEXT::default()
-            .message_severity(severity)
-            .message_type(types)
-            .pfn_user_callback(Some(debug_callback))
-            .user_data(user as *mut c_void);
-        // SAFETY: valid instance with VK_EXT_debug_utils enabled.
-        match unsafe { du.create_debug_utils_messenger(&messenger_info, None) } {
-            Ok(m) => Some((du, m, user)),
-            Err(result) => {
-                // SAFETY: the instance is ours and unused; `user` is no longer referenced by any messenger.
-                unsafe {
-                    instance.destroy_instance(None);
-                    drop(Box::from_raw(user));
-                }
-                return Err(GpuError::Vk { call: "vkCreateDebugUtilsMessengerEXT", result });
-            }
-        }
-    } else {
-        // SAFETY: not handed to any messenger.
-        drop(unsafe { Box::from_raw(user) });
-        None
-    };
-    Ok((instance, debug, messages))
 }
 
 fn version_string(v: u32) -> String {
@@ -583,85 +621,60 @@ fn pick(list: &[DeviceSummary], wanted: Option<&str>) -> Result<usize> {
 /// Lists every Vulkan device with its capabilities, and the index (into the returned list) the engine would pick
 /// (following `MESHCHAR_DEVICE` when set), or `None` when none is usable.
 pub fn enumerate_devices() -> Result<(Vec<DeviceSummary>, Option<usize>)> {
-    let entry = load_entry()?;
-    let (instance, debug, _messages) = create_instance(&entry, false)?;
+    let (objects, _messages) = Objects::with_instance(false)?;
+    let instance = objects.instance()?;
     // SAFETY: valid instance.
-    let pdevs = unsafe { instance.enumerate_physical_devices() };
-    let list: Vec<DeviceSummary> = pdevs
-        .unwrap_or_default()
-        .into_iter()
-        .enumerate()
-        .map(|(index, p)| {
-            let caps = query_caps(&instance, p);
-            let missing = caps.missing();
-            DeviceSummary { index, caps, missing }
-        })
-        .collect();
-    debug_assert!(debug.is_none());
-    // SAFETY: nothing created from the instance remains.
-    unsafe { instance.destroy_instance(None) };
+    let pdevs = unsafe { instance.enumerate_physical_devices() }.unwrap_or_default();
+    let list = summaries(instance, &pdevs);
     let wanted = std::env::var("MESHCHAR_DEVICE").ok();
     let selected = pick(&list, wanted.as_deref()).ok().filter(|&i| list[i].missing.is_empty());
     Ok((list, selected))
+}
+
+/// The allocator's shared memory blocks: gpu-allocator's default sizes (256 MiB device-local, 64 MiB host-visible),
+/// never above `maxMemoryAllocationSize` (Vulkan guarantees at least 1 GiB; gpu-allocator keeps blocks between
+/// 4 MiB and 256 MiB).
+fn memory_block_sizes(max_allocation: u64) -> (u64, u64) {
+    const MIB: u64 = 1 << 20;
+    let fit = |size: u64| size.min(max_allocation / (4 * MIB) * (4 * MIB)).max(4 * MIB);
+    (fit(256 * MIB), fit(64 * MIB))
+}
+
+/// The summary of every physical device, in enumeration order.
+fn summaries(instance: &ash::Instance, pdevs: &[vk::PhysicalDevice]) -> Vec<DeviceSummary> {
+    pdevs
+        .iter()
+        .enumerate()
+        .map(|(index, &p)| {
+            let caps = query_caps(instance, p);
+            let missing = caps.missing();
+            DeviceSummary { index, caps, missing }
+        })
+        .collect()
 }
 
 impl Context {
     /// Creates an instance and a device of its own: validation layer and message recording when asked, device
     /// chosen as [`ContextDesc::device`] says, every requirement checked (the error lists all that is missing).
     pub fn new(desc: &ContextDesc) -> Result<Self> {
-        let entry = load_entry()?;
-        let (instance, debug, messages) = create_instance(&entry, desc.validation)?;
-        let cleanup = |instance: &ash::Instance, debug: &Option<Debug>| {
-            // SAFETY: the instance and messenger are ours and nothing else was created from them.
-            unsafe {
-                if let Some((du, m, ptr)) = debug {
-                    du.destroy_debug_utils_messenger(*m, None);
-                    drop(Box::from_raw(*ptr));
-                }
-                instance.destroy_instance(None);
-            }
-        };
+        let (mut objects, messages) = Objects::with_instance(desc.validation)?;
+        let instance = objects.instance()?.clone();
         // SAFETY: valid instance.
-        let pdevs = match unsafe { instance.enumerate_physical_devices() } {
-            Ok(p) => p,
-            Err(result) => {
-                cleanup(&instance, &debug);
-                return Err(GpuError::Vk { call: "vkEnumeratePhysicalDevices", result });
-            }
-        };
-        let list: Vec<DeviceSummary> = pdevs
-            .iter()
-            .enumerate()
-            .map(|(index, &p)| {
-                let caps = query_caps(&instance, p);
-                let missing = caps.missing();
-                DeviceSummary { index, caps, missing }
-            })
-            .collect();
+        let pdevs = vk_check("vkEnumeratePhysicalDevices", unsafe { instance.enumerate_physical_devices() })?;
+        let list = summaries(&instance, &pdevs);
         let wanted = desc.device.clone().or_else(|| std::env::var("MESHCHAR_DEVICE").ok());
-        let chosen = match pick(&list, wanted.as_deref()) {
-            Ok(i) if list[i].missing.is_empty() => i,
-            Ok(i) => {
-                cleanup(&instance, &debug);
-                return Err(GpuError::Unsupported {
-                    name: list[i].caps.name.clone(),
-                    missing: list[i].missing.clone(),
-                });
-            }
-            Err(e) => {
-                cleanup(&instance, &debug);
-                return Err(e);
-            }
-        };
-        let pdev = pdevs[list[chosen].index];
-        let mut caps = list[chosen].caps.clone();
+        let chosen = pick(&list, wanted.as_deref())?;
+        let DeviceSummary { index, caps, missing } = &list[chosen];
+        if !missing.is_empty() {
+            return Err(GpuError::Unsupported { name: caps.name.clone(), missing: missing.clone() });
+        }
+        let (pdev, mut caps) = (pdevs[*index], caps.clone());
         if let Some(cap) = desc.max_dispatch_groups {
             for c in &mut caps.max_workgroup_count {
                 *c = (*c).min(cap.max(1));
             }
         }
         let Some(family) = caps.queue_family else {
-            cleanup(&instance, &debug);
             return Err(GpuError::Unsupported {
                 name: caps.name.clone(),
                 missing: vec![Lack::ComputeQueue.to_string()],
@@ -680,15 +693,9 @@ impl Context {
             .enabled_extension_names(&ext_names)
             .push_next(&mut f2);
         // SAFETY: the physical device supports every enabled feature (checked by `missing`).
-        let device = match unsafe { instance.create_device(pdev, &info, None) } {
-            Ok(d) => d,
-            Err(result) => {
-                cleanup(&instance, &debug);
-                return Err(GpuError::Vk { call: "vkCreateDevice", result });
-            }
-        };
-        let owned = Owned { _entry: entry, debug };
-        Self::finish(instance, device, pdev, family, 0, caps, Some(owned), messages)
+        let device = vk_check("vkCreateDevice", unsafe { instance.create_device(pdev, &info, None) })?;
+        objects.device = Some((device.clone(), Ownership::Owned));
+        Self::finish(objects, &instance, device, pdev, family, 0, caps, messages)
     }
 
     /// Wraps a host engine's device. The engine keeps ownership: dropping the context (and everything made from it)
@@ -729,56 +736,41 @@ impl Context {
                 missing: vec!["timestamps on the given queue".into()],
             });
         }
+        let mut objects = Objects::default();
+        objects.device = Some((raw.device.clone(), Ownership::Borrowed));
         let messages = Arc::new(Mutex::new(Vec::new()));
         Self::finish(
-            raw.instance,
+            objects,
+            &raw.instance,
             raw.device,
             raw.physical_device,
             raw.queue_family_index,
             raw.queue_index,
             caps,
-            None,
             messages,
         )
     }
 
+    /// The context on `device` (recorded in `objects`, with whatever else was created so far): its queue, command
+    /// pool and allocator.
     #[allow(clippy::too_many_arguments)]
     fn finish(
-        instance: ash::Instance,
+        mut objects: Objects,
+        instance: &ash::Instance,
         device: ash::Device,
         pdev: vk::PhysicalDevice,
         family: u32,
         queue_index: u32,
         caps: DeviceCaps,
-        owned: Option<Owned>,
         messages: Messages,
     ) -> Result<Self> {
-        let destroy_owned = |device: &ash::Device, instance: &ash::Instance, owned: Option<Owned>| {
-            if let Some(owned) = owned {
-                // SAFETY: the device and instance are ours and nothing else was created from them.
-                unsafe {
-                    device.destroy_device(None);
-                    if let Some((du, m, ptr)) = owned.debug {
-                        du.destroy_debug_utils_messenger(m, None);
-                        drop(Box::from_raw(ptr));
-                    }
-                    instance.destroy_instance(None);
-                }
-            }
-        };
         // SAFETY: valid device and queue family/index (ours, or the engine's per from_raw's contract).
         let queue = unsafe { device.get_device_queue(family, queue_index) };
         let pool_info = vk::CommandPoolCreateInfo::default()
             .queue_family_index(family)
             .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER | vk::CommandPoolCreateFlags::TRANSIENT);
         // SAFETY: valid device.
-        let pool = match unsafe { device.create_command_pool(&pool_info, None) } {
-            Ok(p) => p,
-            Err(result) => {
-                destroy_owned(&device, &instance, owned);
-                return Err(GpuError::Vk { call: "vkCreateCommandPool", result });
-            }
-        };
+        objects.pool = vk_check("vkCreateCommandPool", unsafe { device.create_command_pool(&pool_info, None) })?;
         let mut debug_settings = gpu_allocator::AllocatorDebugSettings::default();
         debug_settings.log_leaks_on_shutdown = true;
         let allocator = Allocator::new(&AllocatorCreateDesc {
@@ -787,29 +779,23 @@ impl Context {
             physical_device: pdev,
             debug_settings,
             buffer_device_address: true,
-            allocation_sizes: Default::default(),
-        });
-        let allocator = match allocator {
-            Ok(a) => a,
-            Err(e) => {
-                // SAFETY: the pool is ours.
-                unsafe { device.destroy_command_pool(pool, None) };
-                destroy_owned(&device, &instance, owned);
-                return Err(GpuError::Alloc { name: "allocator".into(), bytes: 0, source: e });
-            }
-        };
+            allocation_sizes: {
+                let (device_block, host_block) = memory_block_sizes(caps.max_memory_allocation_size);
+                gpu_allocator::AllocationSizes::new(device_block, host_block)
+            },
+        })
+        .map_err(|e| GpuError::Alloc { name: "allocator".into(), bytes: 0, source: e })?;
+        objects.allocator = Some(Mutex::new(allocator));
         Ok(Context {
             inner: Arc::new(Inner {
-                instance,
                 device,
                 physical_device: pdev,
                 queue: Mutex::new(queue),
                 queue_family: family,
                 caps,
-                allocator: ManuallyDrop::new(Mutex::new(allocator)),
-                pool: Mutex::new(pool),
-                owned,
+                pool: Mutex::new(objects.pool),
                 messages,
+                objects,
             }),
         })
     }
@@ -882,4 +868,30 @@ impl Context {
 
 pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn memory_blocks_stay_within_the_allocation_limit() {
+        const MIB: u64 = 1 << 20;
+        assert_eq!(memory_block_sizes(1 << 30), (256 * MIB, 64 * MIB));
+        assert_eq!(memory_block_sizes(u64::MAX), (256 * MIB, 64 * MIB));
+        assert_eq!(memory_block_sizes(100 * MIB + 3), (100 * MIB, 64 * MIB));
+        assert_eq!(memory_block_sizes(10 * MIB), (8 * MIB, 8 * MIB));
+    }
+
+    #[test]
+    fn device_types_rank_and_print_as_before() {
+        let mut t =
+            [DeviceType::Other, DeviceType::Cpu, DeviceType::Virtual, DeviceType::Integrated, DeviceType::Discrete];
+        t.sort();
+        let names: Vec<String> = t.iter().map(|d| d.to_string()).collect();
+        assert_eq!(names, ["discrete", "integrated", "virtual", "cpu", "other"]);
+        assert_eq!(serde_json::to_string(&DeviceType::Cpu).ok().as_deref(), Some("\"cpu\""));
+        assert_eq!(Lack::QueueTimestamps.to_string(), "timestamps on the compute queue");
+        assert_eq!(Lack::SubgroupOp("ballot").to_string(), "subgroup ballot operations");
+    }
 }
