@@ -11,6 +11,8 @@
 //! Scenes come from `../shared/meshes`; the bench fails naming the path when they are missing.
 //! Run: `cargo bench --bench accel` (filter with e.g. `-- side_by_side` or `-- build/bunny`).
 
+mod common;
+
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use meshchar::accel::{build_structure, StructureName};
 use meshchar::geom::Ray;
@@ -30,13 +32,7 @@ const SCENES: [(&str, &str); 3] = [
 const RES: u32 = 256;
 
 fn scenes() -> Vec<(&'static str, Mesh)> {
-    SCENES
-        .iter()
-        .map(|(name, rel)| {
-            let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/meshes").join(rel);
-            (*name, meshchar::mesh::load_mesh(&p).unwrap_or_else(|e| panic!("benchmark mesh missing or broken: {e}")))
-        })
-        .collect()
+    SCENES.iter().map(|(name, rel)| (*name, common::load_shared(rel))).collect()
 }
 
 fn rays_for(mesh: &Mesh) -> RaySet {

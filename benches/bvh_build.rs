@@ -10,6 +10,9 @@
 //! skipped with a printed line. `MESHCHAR_BENCH_MESHES=bunny,sponza` restricts the meshes (names: bunny,
 //! dragon-res2, dragon, sponza).
 
+mod common;
+
+use common::load_shared as load;
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode};
 use meshchar::accel::bvh::{Bvh, BvhTree};
 use meshchar::accel::gpu::{BvhBuilder, GpuBvh};
@@ -17,8 +20,7 @@ use meshchar::accel::hlbvh::{Hlbvh, HlbvhOptions};
 use meshchar::accel::lbvh::{Lbvh, LbvhOptions};
 use meshchar::gpu::MeshBuffers;
 use meshchar::gpu::{Context, ContextDesc};
-use meshchar::mesh::{load_mesh, Mesh};
-use std::path::PathBuf;
+use meshchar::mesh::Mesh;
 use std::time::{Duration, Instant};
 
 const MESHES: [(&str, &str); 4] = [
@@ -32,16 +34,6 @@ const BUILDERS: [&str; 5] = ["cpu_binned_sah", "cpu_lbvh", "cpu_hlbvh", "gpu_lbv
 
 /// Timed runs per builder and mesh for the table.
 const TABLE_RUNS: usize = 3;
-
-fn load(rel: &str) -> Mesh {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/meshes").join(rel);
-    load_mesh(&p).unwrap_or_else(|e| {
-        panic!(
-            "benchmark mesh {} is missing or broken ({e}); the shared meshes belong beside the checkout",
-            p.display()
-        )
-    })
-}
 
 fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);

@@ -6,23 +6,16 @@
 //! `cargo bench --bench characterize` (all), `-- whole` (only the meshes), `-- scaling` (only the scaling run).
 //! Set `MESHCHAR_BENCH_NAIVE=0` to skip the slow naive path.
 
+mod common;
+
+use common::load_shared as load;
 use criterion::{criterion_group, criterion_main, Criterion};
 use meshchar::characterize::vulkan::VulkanBackend;
 use meshchar::characterize::{cpu, Characterization, Params};
 use meshchar::gpu::{Context, ContextDesc};
-use meshchar::mesh::{generate, load_mesh, Mesh};
+use meshchar::mesh::{generate, Mesh};
 use std::collections::BTreeMap;
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
-
-fn shared(rel: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/meshes").join(rel)
-}
-
-fn load(rel: &str) -> Mesh {
-    let p = shared(rel);
-    load_mesh(&p).unwrap_or_else(|e| panic!("benchmark mesh {} is missing or broken: {e}", p.display()))
-}
 
 fn median(v: &mut [f64]) -> f64 {
     if v.is_empty() {

@@ -1,6 +1,8 @@
 //! The CPU characterization: the naive reference and the rayon path agree bit for bit; moments agree with an f64
 //! two-pass; docs/spec.md's degenerate cases; sampling; 63-bit codes; the JSON report.
 
+mod common;
+
 use meshchar::characterize::{cpu, finalize, run, Backend, CharError, Characterization, ClassRule, MortonBits, Params};
 use meshchar::mesh::{Mesh, MeshError};
 use meshchar::rng::SplitMix64 as Rng;
@@ -60,12 +62,6 @@ fn scaled(mesh: &Mesh, f: f32, name: &str) -> Mesh {
 
 fn load(path: &Path) -> Mesh {
     meshchar::mesh::load_mesh(path).unwrap_or_else(|e| panic!("cannot load {}: {e}", path.display()))
-}
-
-fn meshes_dir() -> PathBuf {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/meshes");
-    assert!(dir.is_dir(), "test meshes not found at {} (shared/ must sit beside the checkout)", dir.display());
-    dir
 }
 
 fn params(bits: MortonBits) -> Params {
@@ -266,7 +262,7 @@ fn agree_on_flat_and_zero_area_meshes() {
 
 #[test]
 fn agree_on_real_meshes() {
-    let dir = meshes_dir();
+    let dir = common::shared_meshes();
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir.join("small"))
         .unwrap_or_else(|e| panic!("{}: {e}", dir.join("small").display()))
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -298,7 +294,7 @@ fn agree_on_real_meshes() {
 
 #[test]
 fn animation_frames_and_policy() {
-    let dir = meshes_dir().join("bart/museum5");
+    let dir = common::shared_meshes().join("bart/museum5");
     let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
         .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
         .filter_map(|e| e.ok().map(|e| e.path()))

@@ -354,7 +354,7 @@ impl StructureModel {
     }
 }
 
-/// Per-frame refit model for animations (see [`policy`]): a refitted BVH's SAH cost grows with the drift of the
+/// Per-frame refit model for animations (see [`crate::select::plan_frames`]): a refitted BVH's SAH cost grows with the drift of the
 /// geometry since its build, `sah_refit / sah_fresh = 1 + sah_growth_per_drift * drift`, and a refit costs
 /// `refit_ns_per_triangle * n`.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -1,5 +1,5 @@
 //! The node layout, traversal, bottom-up box fit, refit and validation shared by every BVH of the crate ([`Bvh`],
-//! [`super::lbvh::Lbvh`], [`super::hlbvh::Hlbvh`]), and the binned-SAH builder ([`sah`]).
+//! [`super::lbvh::Lbvh`], [`super::hlbvh::Hlbvh`]), and the binned-SAH builder of [`Bvh`] (module `sah`).
 //!
 //! # Node layout ([`BvhNode`], 32 bytes, `#[repr(C)]`, `bytemuck::Pod`)
 //!

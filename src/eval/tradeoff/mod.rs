@@ -15,7 +15,7 @@
 //!   distance between the two class histograms read as step densities over the normalized code range
 //!   ([`histogram_distance`], defined for different `k` too).
 //! * **Selection** ([`Selector`]): either one policy (any [`Policy`], e.g. the thesis policy) on the scene's
-//!   characterized frames, one selection per scene; or the calibrated policy ([`CalibratedPolicy`]), one selection
+//!   characterized frames, one selection per scene; or the calibrated policy ([`crate::select::CalibratedPolicy`]), one selection
 //!   per scene *and workload*, since its answer depends on the rays per frame: for each workload, the oracle line's
 //!   `rays_per_frame` and `frames` and the scene's features ([`features_cpu`]) computed with the setting's
 //!   parameters (sampling and bit depth change the features too). The features are one more pass over the

@@ -72,13 +72,13 @@ pub enum Selector<'a> {
     /// One policy for every workload (e.g. [`crate::select::ThesisPolicy`]): one selection per scene, from
     /// the characterized frames alone.
     Policy(&'a dyn Policy),
-    /// The calibrated policy with this cost model and tie margin (see [`CalibratedPolicy`]): one selection per
+    /// The calibrated policy with this cost model and tie margin (see [`crate::select::CalibratedPolicy`]): one selection per
     /// scene and workload, for the rays per frame and frames of the scene's oracle line of that workload, from the
     /// features computed with the setting's parameters.
     Calibrated {
         /// The cost model.
         model: &'a CostModel,
-        /// Relative margin within which the cheaper build wins ([`CalibratedPolicy::tie_margin`]).
+        /// Relative margin within which the cheaper build wins ([`crate::select::CalibratedPolicy::tie_margin`]).
         tie_margin: f64,
     },
 }
