@@ -210,6 +210,10 @@ fn print_table(e: &SceneEvaluation) {
             _ => "",
         }
     );
+    println!("  reference hits: {} rays over {} frame(s)", e.reference_hits, e.frames_measured);
+    if let Some(why) = &e.no_best_reason {
+        println!("  no best structure: {why}");
+    }
     println!(
         "  {:<7} {:>10} {:>10} {:>18} {:>9} {:>9} {:>9} {:>10} {:>9} {:>5} {:>5}",
         "", "build ms", "trace ms", "total ms", "Mrays/s", "box/ray", "tri/ray", "memory MB", "SAH", "valid", "agree"

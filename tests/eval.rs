@@ -187,3 +187,27 @@ fn noise_is_the_half_range_and_ties_overlap() {
     assert_eq!(Measurement::of(&[4.0, 2.0]).median, 3.0);
     assert_eq!(Measurement::of(&[]), Measurement::default());
 }
+
+#[test]
+fn no_best_structure_is_named_when_the_reference_finds_no_hit() {
+    // At 1e30 the f32 ray-triangle test hits nothing (docs/failure-study.md): every trace is a miss.
+    let soup = scene(200, 0.0);
+    let huge = meshchar::mesh::generate::scaled(&soup, 1e30).expect("scaled");
+    let anim = Animation { name: "huge".into(), frames: vec![huge] };
+    let e = evaluate_scene(&anim, &config(WorkloadKind::Primary), Some(StructureName::Bvh), &|_| {}).expect("oracle");
+    assert_eq!(e.reference_hits, 0);
+    assert_eq!(e.oracle_best, None);
+    assert!(e.oracle_within_noise.is_empty() && e.oracle_cheapest_within_noise.is_none());
+    assert_eq!((e.regret, e.regret_within_noise), (None, None));
+    let why = e.no_best_reason.as_deref().expect("a reason");
+    assert!(why.contains("no hit"), "{why}");
+    let rec = e.record();
+    assert_eq!(rec.no_best_reason.as_deref(), Some(why));
+    assert!(rec.to_json_line().contains("\"reference_hits\":0"));
+    // The same soup at scale 1: hits, a best structure, no reason.
+    let anim = Animation { name: "soup".into(), frames: vec![soup] };
+    let e = evaluate_scene(&anim, &config(WorkloadKind::Primary), None, &|_| {}).expect("oracle");
+    assert!(e.reference_hits > 0, "the soup is in view");
+    assert!(e.oracle_best.is_some() && e.no_best_reason.is_none());
+    assert!(!e.record().to_json_line().contains("no_best_reason"));
+}

@@ -212,6 +212,12 @@ pub struct SceneEvaluation {
     pub regret: Option<f64>,
     /// Whether the selection is within noise of the best.
     pub regret_within_noise: Option<bool>,
+    /// Rays that hit something in the reference (closest-hit workloads) or were occluded (any-hit), over every
+    /// measured frame.
+    pub reference_hits: u64,
+    /// Why no best structure is named, when none is (the reference finds no hit: every structure's trace is a miss
+    /// and measures no intersection work, so the totals cannot rank structures for this workload).
+    pub no_best_reason: Option<String>,
     /// Per structure.
     pub structures: Vec<StructureResult>,
 }
@@ -231,6 +237,7 @@ impl SceneEvaluation {
             frames: self.frames,
             frames_measured: self.frames_measured,
             mesh: self.mesh.clone(),
+            no_best_reason: self.no_best_reason.clone(),
             oracle_best: self.oracle_best,
             oracle_cheapest_within_noise: self.oracle_cheapest_within_noise,
             oracle_within_noise: self.oracle_within_noise.clone(),
@@ -238,6 +245,7 @@ impl SceneEvaluation {
             predicted: None,
             rays_per_frame: self.rays_per_frame,
             rebuild: self.rebuild,
+            reference_hits: self.reference_hits,
             regret: self.regret,
             regret_within_noise: self.regret_within_noise,
             repeats: self.repeats,
@@ -333,6 +341,8 @@ pub fn evaluate_scene(
         a.trace = vec![0.0; repeats];
     }
     let mut rays_per_frame = 0;
+    let mut reference_hits = 0u64;
+    let mut rays_total = 0u64;
     for (fi, mesh) in measured.iter().enumerate() {
         progress(&format!("{}: frame {}/{}: rays and reference hits", scene.name, fi + 1, measured.len()));
         let reference = crate::accel::bvh::Bvh::build(mesh)?;
@@ -342,6 +352,9 @@ pub fn evaluate_scene(
         }
         let want: TraceOutcome = trace(&reference, &rays);
         drop(reference);
+        reference_hits +=
+            (want.hits.iter().filter(|h| h.is_some()).count() + want.occluded.iter().filter(|&&o| o).count()) as u64;
+        rays_total += rays.rays.len() as u64;
         for r in 0..repeats {
             for (si, &name) in names.iter().enumerate() {
                 let a = &mut acc[si];
@@ -437,8 +450,15 @@ pub fn evaluate_scene(
             }
         })
         .collect();
+    let no_best_reason = (reference_hits == 0).then(|| {
+        format!(
+            "the reference finds no hit on any of the {rays_total} rays: every trace is a miss and measures no \
+             intersection work, so no structure is named best"
+        )
+    });
     let best = results
         .iter()
+        .filter(|_| no_best_reason.is_none())
         .filter(|s| s.valid && s.hits_agree)
         .min_by(|a, b| a.total_ms.median.total_cmp(&b.total_ms.median))
         .map(|s| (s.name, s.total_ms.clone()));
@@ -477,6 +497,8 @@ pub fn evaluate_scene(
         oracle_cheapest_within_noise,
         regret,
         regret_within_noise,
+        reference_hits,
+        no_best_reason,
         structures: results,
     })
 }

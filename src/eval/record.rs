@@ -149,6 +149,9 @@ pub struct OracleRecord {
     pub frames_measured: usize,
     /// Scene name (the path it was loaded from).
     pub mesh: String,
+    /// Why no best structure is named (the reference finds no hit), when none is.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub no_best_reason: Option<String>,
     /// The structure with the smallest median total.
     #[serde(default, deserialize_with = "known_structure")]
     pub oracle_best: Option<StructureName>,
@@ -171,6 +174,10 @@ pub struct OracleRecord {
     /// Whether structures were built once or per frame.
     #[serde(default = "default_once")]
     pub rebuild: Rebuild,
+    /// Rays that hit (or were occluded) in the reference over every measured frame (0 in records written before
+    /// the field existed).
+    #[serde(default)]
+    pub reference_hits: u64,
     /// `total(selected) / total(best) - 1`, when a selection was given and both were measured.
     #[serde(default)]
     pub regret: Option<f64>,
