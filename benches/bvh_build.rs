@@ -61,8 +61,8 @@ fn build(name: &str, mesh: &Mesh, gpu: Option<(&mut Gpu, &MeshBuffers)>) -> (Bvh
     let (g, buffers) = gpu.expect("a GPU build needs a device");
     let t = Instant::now();
     let bvh: GpuBvh = match name {
-        "gpu_lbvh" => g.builder.build_lbvh(buffers, &LbvhOptions::default()),
-        _ => g.builder.build_hlbvh(buffers, &HlbvhOptions::default()),
+        "gpu_lbvh" => g.builder.build_lbvh(&buffers.view(), &LbvhOptions::default()),
+        _ => g.builder.build_hlbvh(&buffers.view(), &HlbvhOptions::default()),
     }
     .expect("gpu build");
     let wall = t.elapsed().as_secs_f64() * 1e3;

@@ -113,8 +113,8 @@ fn run(args: Args) -> anyhow::Result<()> {
         let mut b = BvhBuilder::new(&ctx)?;
         // One warm-up build (pipelines, allocations), then the measured one.
         let build = |b: &mut BvhBuilder| match builder {
-            Builder::Hlbvh => b.build_hlbvh(&buffers, &ho),
-            _ => b.build_lbvh(&buffers, &lo),
+            Builder::Hlbvh => b.build_hlbvh(&buffers.view(), &ho),
+            _ => b.build_lbvh(&buffers.view(), &lo),
         };
         build(&mut b)?;
         let t = Instant::now();

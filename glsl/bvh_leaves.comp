@@ -8,12 +8,19 @@ layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint ITEMS = 8;
 
 layout(push_constant) uniform Push {
-    uint64_t positions; // Address of the positions.
-    uint64_t indices;   // Address of the indices.
+    uint64_t positions;    // Address of the position of vertex 0 (include/geometry.glsl).
+    uint64_t indices;      // Address of the first index (include/geometry.glsl).
+    uint64_t vertex_count; // Vertices of the view (include/geometry.glsl).
+    uint vertex_stride;    // Bytes between vertices (include/geometry.glsl).
+    uint index_type;       // GEOMETRY_INDEX_* (include/geometry.glsl).
+    uint base_vertex;      // Added to every index (include/geometry.glsl).
+    uint geometry_pad;     // Padding.
     uint64_t ids;       // Address of the triangle ids of the records.
     uint64_t nodes;     // Address of the nodes.
     uint64_t count;     // Number of nodes.
 } pc;
+
+#include "geometry.glsl"
 
 void main() {
     uint tile = gl_WorkGroupSize.x * ITEMS;
@@ -31,10 +38,10 @@ void main() {
             vec3 lo = vec3(uintBitsToFloat(0x7f800000u));
             vec3 hi = -lo;
             for (uint q = 0u; q < n; ++q) {
-                uvec3 tri = ld_uvec3(pc.indices, uint64_t(ld_u32(pc.ids, uint64_t(first + q))));
-                vec3 v0 = ld_vec3(pc.positions, tri.x);
-                vec3 v1 = ld_vec3(pc.positions, tri.y);
-                vec3 v2 = ld_vec3(pc.positions, tri.z);
+                u64vec3 tri = geometry_triangle(uint64_t(ld_u32(pc.ids, uint64_t(first + q))));
+                vec3 v0 = geometry_vertex(tri.x);
+                vec3 v1 = geometry_vertex(tri.y);
+                vec3 v2 = geometry_vertex(tri.z);
                 lo = min(lo, min(min(v0, v1), v2));
                 hi = max(hi, max(max(v0, v1), v2));
             }

@@ -36,7 +36,7 @@ void main() {
             uint64_t i = base + uint64_t(j * gl_WorkGroupSize.x);
             if (i < pc.count) {
                 uint64_t m = BITS63 != 0u ? ld_u64(pc.codes, i) : uint64_t(ld_u32(pc.codes, i));
-                uint64_t x = m - pc.code_min;
+                uint64_t x = m - min(m, pc.code_min); // codes below a planned code_min clamp to class 0
                 // Upper bound: first j with t_j > x.
                 uint a = 0u;
                 uint b = pc.k - 1u;

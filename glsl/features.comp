@@ -16,8 +16,13 @@ layout(constant_id = 2) const uint BITS63 = 0u;
 layout(constant_id = 3) const uint SIZE_BINS = 24u;
 
 layout(push_constant) uniform Push {
-    uint64_t positions; // Address of the vertex positions.
-    uint64_t indices;   // Address of the triangle indices.
+    uint64_t positions;    // Address of the position of vertex 0 (include/geometry.glsl).
+    uint64_t indices;      // Address of the first index (include/geometry.glsl).
+    uint64_t vertex_count; // Vertices of the view (include/geometry.glsl).
+    uint vertex_stride;    // Bytes between vertices (include/geometry.glsl).
+    uint index_type;       // GEOMETRY_INDEX_* (include/geometry.glsl).
+    uint base_vertex;      // Added to every index (include/geometry.glsl).
+    uint geometry_pad;     // Padding.
     uint64_t codes;     // Address of the Morton codes of the sampled triangles (u32 or u64).
     uint64_t mask;      // Address of the `uint[2^21 / 32]` occupancy mask.
     uint64_t hist;      // Address of the `uint[size_bins + 1]` size histogram (last entry: zero or non-normal extents).
@@ -27,6 +32,8 @@ layout(push_constant) uniform Push {
     uint shift;         // `bits - 21`: the shift that leaves a code's depth-7 prefix.
     uint pad;           // Padding.
 } pc;
+
+#include "geometry.glsl"
 
 shared uint s_hist[SIZE_BINS + 1u];
 
@@ -71,10 +78,10 @@ void main() {
                 uint64_t m = BITS63 != 0u ? ld_u64(pc.codes, i) : uint64_t(ld_u32(pc.codes, i));
                 uint prefix = uint(m >> pc.shift);
                 atomicOr(U32Ref(pc.mask + 4ul * uint64_t(prefix >> 5)).v, 1u << (prefix & 31u));
-                uvec3 tri = ld_uvec3(pc.indices, i * pc.stride);
-                vec3 v0 = ld_vec3(pc.positions, tri.x);
-                vec3 v1 = ld_vec3(pc.positions, tri.y);
-                vec3 v2 = ld_vec3(pc.positions, tri.z);
+                u64vec3 tri = geometry_triangle(i * pc.stride);
+                vec3 v0 = geometry_vertex(tri.x);
+                vec3 v1 = geometry_vertex(tri.y);
+                vec3 v2 = geometry_vertex(tri.z);
                 // Triangle box from ordered bits: exact whatever the device does with signed zeros or denormals.
                 uvec3 o0 = uvec3(ordered_bits(v0.x), ordered_bits(v0.y), ordered_bits(v0.z));
                 uvec3 o1 = uvec3(ordered_bits(v1.x), ordered_bits(v1.y), ordered_bits(v1.z));

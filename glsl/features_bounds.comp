@@ -9,12 +9,19 @@ layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint ITEMS = 8;
 
 layout(push_constant) uniform Push {
-    uint64_t positions; // Address of the vertex positions.
-    uint64_t indices;   // Address of the triangle indices.
+    uint64_t positions;    // Address of the position of vertex 0 (include/geometry.glsl).
+    uint64_t indices;      // Address of the first index (include/geometry.glsl).
+    uint64_t vertex_count; // Vertices of the view (include/geometry.glsl).
+    uint vertex_stride;    // Bytes between vertices (include/geometry.glsl).
+    uint index_type;       // GEOMETRY_INDEX_* (include/geometry.glsl).
+    uint base_vertex;      // Added to every index (include/geometry.glsl).
+    uint geometry_pad;     // Padding.
     uint64_t result;    // Address of the `uint[6]` bounds (ordered bits).
     uint64_t count;     // Sampled triangles.
     uint64_t stride;    // Sample stride.
 } pc;
+
+#include "geometry.glsl"
 
 void main() {
     uvec3 lo = uvec3(0xffffffffu);
@@ -26,9 +33,9 @@ void main() {
         for (uint j = 0u; j < ITEMS; ++j) {
             uint64_t i = base + uint64_t(j * gl_WorkGroupSize.x);
             if (i < pc.count) {
-                uvec3 tri = ld_uvec3(pc.indices, i * pc.stride);
+                u64vec3 tri = geometry_triangle(i * pc.stride);
                 for (uint v = 0u; v < 3u; ++v) {
-                    vec3 p = ld_vec3(pc.positions, tri[v]);
+                    vec3 p = geometry_vertex(tri[v]);
                     uvec3 o = uvec3(ordered_bits(p.x), ordered_bits(p.y), ordered_bits(p.z));
                     lo = min(lo, o);
                     hi = max(hi, o);

@@ -35,7 +35,7 @@ void main() {
             if (i < pc.count) {
                 vec3 s = ld_vec3(pc.keys, i);
                 precise vec3 d = (s - lo) * scale;
-                uvec3 q = uvec3(min(floor(d), vec3(top)));
+                uvec3 q = uvec3(clamp(floor(d), vec3(0.0), vec3(top))); // below 0 only for a planned quantizer
                 if (BITS63 != 0u) {
                     st_u64(pc.codes, i, morton63(q));
                 } else {

@@ -46,7 +46,7 @@ void main() {
             if (i < pc.count) {
                 vec3 s = ld_vec3(pc.keys, i);
                 precise vec3 d = (s - lo) * scale;
-                uvec3 q = uvec3(min(floor(d), vec3(top)));
+                uvec3 q = uvec3(clamp(floor(d), vec3(0.0), vec3(top))); // below 0 only for a planned quantizer
                 uint64_t m;
                 if (BITS63 != 0u) {
                     m = morton63(q);

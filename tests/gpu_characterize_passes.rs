@@ -128,7 +128,7 @@ fn check(
         Ok(ClassPlan { k, thresholds: thresholds(s.code_min, s.code_max, k) })
     };
     let start = std::time::Instant::now();
-    let got = gpu.run(&mesh, bits, stride as u64, &plan, true).expect("run");
+    let got = gpu.run(&mesh.view(), bits, stride as u64, &plan, true).expect("run");
     let wall_ms = start.elapsed().as_secs_f64() * 1e3;
     let n = want.codes.len();
     let what = format!("n = {n}, stride {stride}, {bits:?}");

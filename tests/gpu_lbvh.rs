@@ -40,7 +40,7 @@ fn check_lbvh(ctx: &Context, builder: &mut BvhBuilder, mesh: &Mesh, bits: Morton
     let what = format!("{} ({bits:?}, max_leaf {max_leaf})", mesh.name);
     let buffers = MeshBuffers::upload(ctx, &mesh.positions, &mesh.indices).unwrap();
     let o = LbvhOptions { bits, max_leaf };
-    let gpu = builder.build_lbvh(&buffers, &o).unwrap();
+    let gpu = builder.build_lbvh(&buffers.view(), &o).unwrap();
     assert_eq!(gpu.kind(), GpuBvhKind::Lbvh);
     let tree = gpu.read_back(ctx, &buffers).unwrap();
     let cpu = Lbvh::build_with(mesh, &o).unwrap();
@@ -125,8 +125,8 @@ fn gpu_lbvh_equals_cpu_lbvh_on_degenerate_meshes() {
     }
     // An empty mesh is an error, not a panic.
     let empty = MeshBuffers::upload(&ctx, &[], &[]).unwrap();
-    assert!(builder.build_lbvh(&empty, &LbvhOptions::default()).is_err());
-    assert!(builder.build_hlbvh(&empty, &HlbvhOptions::default()).is_err());
+    assert!(builder.build_lbvh(&empty.view(), &LbvhOptions::default()).is_err());
+    assert!(builder.build_hlbvh(&empty.view(), &HlbvhOptions::default()).is_err());
     gpu_support::assert_no_validation_messages(&ctx);
 }
 
@@ -154,7 +154,7 @@ fn hlbvh_on_static_meshes(check_sah: bool) {
         }
         let mesh = load_mesh(&common::shared_mesh(rel)).unwrap();
         let buffers = MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).unwrap();
-        let gpu = builder.build_hlbvh(&buffers, &o).unwrap();
+        let gpu = builder.build_hlbvh(&buffers.view(), &o).unwrap();
         let tree = gpu.read_back(&ctx, &buffers).unwrap();
         tree.validate("hlbvh").unwrap();
         let cpu = Hlbvh::build_with(&mesh, &o).unwrap();
@@ -181,7 +181,7 @@ fn hlbvh_on_static_meshes(check_sah: bool) {
     }
     for mesh in [generate::all_equal(500), generate::single_triangle(), generate::two_triangles()] {
         let buffers = MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).unwrap();
-        let tree = builder.build_hlbvh(&buffers, &o).unwrap().read_back(&ctx, &buffers).unwrap();
+        let tree = builder.build_hlbvh(&buffers.view(), &o).unwrap().read_back(&ctx, &buffers).unwrap();
         same_tree(&mesh.name, &tree, Hlbvh::build_with(&mesh, &o).unwrap().tree());
     }
     // Without the collapse (one triangle per leaf, cluster blocks in the Karras numbering) and with the previous
@@ -190,7 +190,7 @@ fn hlbvh_on_static_meshes(check_sah: bool) {
         let mesh = load_mesh(&common::shared_mesh(rel)).unwrap();
         let buffers = MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).unwrap();
         for o in [HlbvhOptions { max_leaf: 1, ..o }, HlbvhOptions { cluster_bits: 12, ..o }] {
-            let tree = builder.build_hlbvh(&buffers, &o).unwrap().read_back(&ctx, &buffers).unwrap();
+            let tree = builder.build_hlbvh(&buffers.view(), &o).unwrap().read_back(&ctx, &buffers).unwrap();
             let cpu = Hlbvh::build_with(&mesh, &o).unwrap();
             cpu.validate().unwrap();
             same_tree(&format!("{rel} {o:?}"), &tree, cpu.tree());
@@ -209,13 +209,13 @@ fn refit_after_bart_frame_change_equals_fresh_fit() {
     for hl in [false, true] {
         let buffers = MeshBuffers::upload(&ctx, &f0.positions, &f0.indices).unwrap();
         let mut bvh = if hl {
-            builder.build_hlbvh(&buffers, &HlbvhOptions::default()).unwrap()
+            builder.build_hlbvh(&buffers.view(), &HlbvhOptions::default()).unwrap()
         } else {
-            builder.build_lbvh(&buffers, &LbvhOptions::default()).unwrap()
+            builder.build_lbvh(&buffers.view(), &LbvhOptions::default()).unwrap()
         };
         let before = bvh.read_back(&ctx, &buffers).unwrap();
         buffers.update_positions(&ctx, &f1.positions).unwrap();
-        builder.refit(&buffers, &mut bvh).unwrap();
+        builder.refit(&buffers.view(), &mut bvh).unwrap();
         let after = bvh.read_back(&ctx, &buffers).unwrap();
         // Same topology, ids and records order.
         assert_eq!(after.triangle_ids(), before.triangle_ids());
@@ -229,7 +229,7 @@ fn refit_after_bart_frame_change_equals_fresh_fit() {
         assert_ne!(after.nodes()[0].min, before.nodes()[0].min, "frame 80 moved the scene");
         // Refitting back to frame 0 restores the built tree exactly.
         buffers.update_positions(&ctx, &f0.positions).unwrap();
-        builder.refit(&buffers, &mut bvh).unwrap();
+        builder.refit(&buffers.view(), &mut bvh).unwrap();
         same_tree("refit back", &bvh.read_back(&ctx, &buffers).unwrap(), &before);
     }
     gpu_support::assert_no_validation_messages(&ctx);

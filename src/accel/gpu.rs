@@ -72,11 +72,12 @@ use crate::geom::{Aabb, Triangle};
 use crate::gpu::shaders::layout::{BOUNDS_HI, BOUNDS_LO, BOUNDS_WORDS, COLLAPSE_SIZE, COLLAPSE_WORDS};
 use crate::gpu::sort::{KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
 use crate::gpu::{
-    bounds_read_back, shaders, Buffer, Context, DeviceType, GpuError, InputError, Kernel, KernelDesc, KeysPush,
-    MemoryKind, MeshBuffers, Recorder, Result, RunError, Timer,
+    bounds_read_back, geometry_push, shaders, Buffer, Context, DeviceType, GeometryView, GpuError, InputError, Kernel,
+    KernelDesc, KeysPush, MemoryKind, MeshBuffers, Pass, Recorder, Result, RunError, Timer,
 };
 use crate::keys::{MortonBits, Quantizer};
 use glam::Vec3;
+use std::sync::Arc;
 
 /// Items per invocation of the per-element kernels.
 const ITEMS: u32 = 8;
@@ -117,6 +118,18 @@ pub struct GpuBvh {
     parents: Buffer,
     counters: Buffer,
     timings: Vec<(String, f64)>,
+    /// A recorded build not yet finished: what [`GpuBvh::finish`] reads.
+    pending: Option<PendingBuild>,
+}
+
+/// What a recorded build keeps until [`GpuBvh::finish`]: its timer, the readback of the collapsed node count, and
+/// the builder's scratch buffers it used (alive until the tree is finished or dropped, even if the builder moves on
+/// to larger ones).
+#[derive(Debug)]
+struct PendingBuild {
+    timer: Timer,
+    collapsed_count: Option<Buffer>,
+    _scratch: Arc<Scratch>,
 }
 
 impl GpuBvh {
@@ -128,9 +141,35 @@ impl GpuBvh {
     pub fn triangle_count(&self) -> u64 {
         self.triangles
     }
-    /// Nodes: `2n - 1`, or fewer after the SAH collapse.
+    /// Nodes: `2n - 1`, or fewer after the SAH collapse (for a recorded build with the collapse, known only once
+    /// [`GpuBvh::finish`] has read it: `2n - 1` before).
     pub fn node_count(&self) -> u64 {
         self.node_count
+    }
+
+    /// Whether the tree comes from a recorded build that [`GpuBvh::finish`] has not read yet.
+    pub fn is_pending(&self) -> bool {
+        self.pending.is_some()
+    }
+
+    /// Completes a recorded build ([`BvhBuilder::record_lbvh`]) once its command buffer has completed and the
+    /// caller has seen it complete: reads the pass times and, after the SAH collapse, the node count.
+    /// [`GpuError::Vk`] with `VK_NOT_READY` (the build stays pending) while the timestamps are not available.
+    /// Finishing a tree that is not pending does nothing.
+    pub fn finish(&mut self) -> Result<()> {
+        let Some(p) = &self.pending else { return Ok(()) };
+        let timings = p.timer.try_read()?;
+        if let Some(readback) = &p.collapsed_count {
+            let size: Vec<u32> = readback.read(0, 1)?;
+            let size = size[0] as u64;
+            if size == 0 || size > 2 * self.triangles - 1 {
+                return Err(GpuError::Buffer(format!("collapse: {size} nodes read back")));
+            }
+            self.node_count = size;
+        }
+        self.timings = timings;
+        self.pending = None;
+        Ok(())
     }
     /// The nodes ([`BvhNode`], 32 bytes each, root at 0; the first [`GpuBvh::node_count`] are the tree, the buffer
     /// holds `2n - 1`).
@@ -150,14 +189,27 @@ impl GpuBvh {
         &self.timings
     }
 
+    /// Copies the nodes and ids to the host, with the triangle records from `mesh` (the host copy of the geometry
+    /// the tree was built or refitted for).
+    pub fn read_back_with(&self, ctx: &Context, mesh: &crate::mesh::Mesh) -> Result<BvhTree> {
+        self.read_back_from(ctx, &mesh.positions, &mesh.indices)
+    }
+
     /// Copies the nodes and ids to the host, with the triangle records from the mesh on the device (the same mesh
     /// the tree was built or refitted for).
     pub fn read_back(&self, ctx: &Context, mesh: &MeshBuffers) -> Result<BvhTree> {
+        let positions: Vec<[f32; 3]> = ctx.read_buffer(&mesh.positions, 0, mesh.vertices as usize)?;
+        let indices: Vec<[u32; 3]> = ctx.read_buffer(&mesh.indices, 0, mesh.triangles as usize)?;
+        self.read_back_from(ctx, &positions, &indices)
+    }
+
+    fn read_back_from(&self, ctx: &Context, positions: &[[f32; 3]], indices: &[[u32; 3]]) -> Result<BvhTree> {
+        if self.is_pending() {
+            return Err(GpuError::Buffer("read back of a recorded build not yet finished (GpuBvh::finish)".into()));
+        }
         let n = self.triangles as usize;
         let nodes: Vec<BvhNode> = ctx.read_buffer(&self.nodes, 0, self.node_count as usize)?;
         let ids: Vec<u32> = ctx.read_buffer(&self.ids, 0, n)?;
-        let positions: Vec<[f32; 3]> = ctx.read_buffer(&mesh.positions, 0, mesh.vertices as usize)?;
-        let indices: Vec<[u32; 3]> = ctx.read_buffer(&mesh.indices, 0, mesh.triangles as usize)?;
         let mut tris = Vec::with_capacity(n);
         for &id in &ids {
             let t =
@@ -172,12 +224,34 @@ impl GpuBvh {
     }
 }
 
+#[derive(Debug)]
 struct Scratch {
     capacity: u64,
     keys: Buffer,
     bounds: Buffer,
     bounds_readback: Buffer,
     sort: SortStorage,
+}
+
+/// The buffers of one build.
+struct BuildBuffers {
+    n: u64,
+    total: u64,
+    bits: MortonBits,
+    hl: Option<(u32, usize)>,
+    max_leaf: u32,
+    scratch: Arc<Scratch>,
+    bvh_nodes: Buffer,
+    bvh_ids: Buffer,
+    parents: Buffer,
+    counters: Buffer,
+    collapsed: Option<(Buffer, Buffer, Buffer, Buffer)>,
+    table_entries: u64,
+    max_clusters: u64,
+    table: Buffer,
+    starts: Buffer,
+    roots: Buffer,
+    readback: Buffer,
 }
 
 /// The LBVH and HLBVH pipelines of one device, with scratch buffers reused across builds.
@@ -195,7 +269,7 @@ pub struct BvhBuilder {
     collapse_cost: Kernel<CollapseCostPush>,
     compact: Kernel<CompactPush>,
     sort: RadixSort,
-    scratch: Option<Scratch>,
+    scratch: Option<Arc<Scratch>>,
 }
 
 impl std::fmt::Debug for BvhBuilder {
@@ -248,25 +322,25 @@ impl BvhBuilder {
             self.scratch = None;
             let ctx = &self.ctx;
             let sort_mem = self.sort.memory_requirements(n, KeyBits::U64);
-            self.scratch = Some(Scratch {
+            self.scratch = Some(Arc::new(Scratch {
                 capacity: n,
                 keys: ctx.create_buffer("lbvh keys", 12 * n, MemoryKind::DeviceLocal)?,
                 bounds: ctx.create_buffer("lbvh bounds", 32, MemoryKind::DeviceLocal)?,
                 bounds_readback: ctx.create_buffer("lbvh bounds readback", 32, MemoryKind::Readback)?,
                 sort: SortStorage::new(ctx, &sort_mem, true)?,
-            });
+            }));
         }
         Ok(())
     }
 
-    /// Builds the LBVH of the mesh on the device (two submissions: the bounds, then the tree).
-    pub fn build_lbvh(&mut self, mesh: &MeshBuffers, o: &LbvhOptions) -> std::result::Result<GpuBvh, RunError> {
+    /// Builds the LBVH of the geometry on the device (two submissions: the bounds, then the tree).
+    pub fn build_lbvh(&mut self, mesh: &GeometryView<'_>, o: &LbvhOptions) -> std::result::Result<GpuBvh, RunError> {
         self.build(mesh, o.bits, None, o.max_leaf)
     }
 
-    /// Builds the HLBVH of the mesh: everything but the top level over the clusters on the device (see the module
-    /// docs). `cluster_bits` above [`MAX_GPU_CLUSTER_BITS`] gives [`GpuError::Limit`].
-    pub fn build_hlbvh(&mut self, mesh: &MeshBuffers, o: &HlbvhOptions) -> std::result::Result<GpuBvh, RunError> {
+    /// Builds the HLBVH of the geometry: everything but the top level over the clusters on the device (see the
+    /// module docs). `cluster_bits` above [`MAX_GPU_CLUSTER_BITS`] gives [`GpuError::Limit`].
+    pub fn build_hlbvh(&mut self, mesh: &GeometryView<'_>, o: &HlbvhOptions) -> std::result::Result<GpuBvh, RunError> {
         let cb = o.cluster_bits.min(o.bits.total());
         if cb > MAX_GPU_CLUSTER_BITS {
             return Err(GpuError::Limit {
@@ -279,16 +353,71 @@ impl BvhBuilder {
         self.build(mesh, o.bits, Some((cb, o.bins)), o.max_leaf)
     }
 
-    fn build(
+    /// Records an LBVH build into `rec` with a quantizer given in advance (no host round trip: in an animation, the
+    /// quantizer of the previous frame's bounds, or of a characterization recorded before), then
+    /// [`GpuBvh::finish`] once the command buffer has completed. A key outside the quantizer's bounds gets the code
+    /// of the nearest cell (docs/spec.md, "Planned characterization"); with the quantizer of the geometry's own
+    /// bounds the tree equals [`BvhBuilder::build_lbvh`]'s and the CPU reference's.
+    ///
+    /// Recording contract: the first access to the geometry is a compute-shader read (`keys_bounds`, `leaves`),
+    /// the caller records a barrier before that makes its geometry writes visible to compute-shader reads; the
+    /// last accesses are compute-shader writes to [`GpuBvh::nodes`], [`GpuBvh::parents`] and [`GpuBvh::ids`]
+    /// (and, after the collapse, a transfer write of the node count to a readback buffer of the tree's own); the
+    /// caller records a barrier before reading the tree. The tree and the builder must stay alive until the
+    /// command buffer completes.
+    pub fn record_lbvh(
         &mut self,
-        mesh: &MeshBuffers,
+        rec: &mut Recorder<'_>,
+        mesh: &GeometryView<'_>,
+        quantizer: &Quantizer,
+        o: &LbvhOptions,
+    ) -> std::result::Result<GpuBvh, RunError> {
+        if quantizer.bits() != o.bits {
+            return Err(InputError::Plan(format!(
+                "the quantizer has {}-bit codes, the options ask for {}",
+                quantizer.bits().total(),
+                o.bits.total()
+            ))
+            .into());
+        }
+        let mut b = self.prepare(mesh, o.bits, None, o.max_leaf)?;
+        let ctx = self.ctx.clone();
+        let mut timer = Timer::new(&ctx, 32)?;
+        rec.reset_timer(&mut timer);
+        self.record_keys(rec, mesh, &b, &mut timer);
+        rec.dependency(Pass::Compute, Pass::Compute);
+        self.record_tree(rec, mesh, &b, quantizer.lo(), quantizer.scale(), &mut timer)?;
+        rec.timestamp_start(&mut timer);
+        let scratch = b.scratch.clone();
+        let collapsed_count = b.collapsed.take().map(|(out_nodes, out_parents, _, readback)| {
+            b.bvh_nodes = out_nodes;
+            b.parents = out_parents;
+            readback
+        });
+        Ok(GpuBvh {
+            kind: GpuBvhKind::Lbvh,
+            triangles: b.n,
+            node_count: b.total,
+            nodes: b.bvh_nodes,
+            ids: b.bvh_ids,
+            parents: b.parents,
+            counters: b.counters,
+            timings: Vec::new(),
+            pending: Some(PendingBuild { timer, collapsed_count, _scratch: scratch }),
+        })
+    }
+
+    /// The buffers of one build of `n` triangles.
+    fn prepare(
+        &mut self,
+        mesh: &GeometryView<'_>,
         bits: MortonBits,
         hl: Option<(u32, usize)>,
         max_leaf: u32,
-    ) -> std::result::Result<GpuBvh, RunError> {
+    ) -> std::result::Result<BuildBuffers, RunError> {
         let max_leaf = max_leaf.min(MAX_COLLAPSE_LEAF);
         let collapse = max_leaf > 1;
-        let n = mesh.triangles;
+        let n = mesh.triangle_count();
         if n == 0 {
             return Err(InputError::Empty.into());
         }
@@ -297,21 +426,12 @@ impl BvhBuilder {
         }
         self.scratch(n)?;
         let ctx = self.ctx.clone();
-        let Some(scratch) = self.scratch.as_ref() else {
+        let Some(scratch) = self.scratch.clone() else {
             return Err(GpuError::Buffer("lbvh scratch".into()).into());
         };
-        let mut timer_owned = Timer::new(&ctx, 32)?;
-        let timer = &mut timer_owned;
-        let wg = self.keys.workgroup_size() as u64;
-        let per_group = wg * ITEMS as u64;
-        let b63 = usize::from(bits == MortonBits::Bits63);
         let total = 2 * n - 1;
         let dl = MemoryKind::DeviceLocal;
-        let bvh_nodes = ctx.create_buffer("bvh nodes", 32 * total, dl)?;
-        let bvh_ids = ctx.create_buffer("bvh ids", 4 * n, dl)?;
-        let parents = ctx.create_buffer("bvh parents", 4 * total, dl)?;
-        let counters = ctx.create_buffer("bvh counters", 4 * total, dl)?;
-        // With the collapse the tree above is the input of the collapse and these are the output.
+        // With the collapse the tree is the input of the collapse and `collapsed` the output.
         let collapsed = if collapse {
             Some((
                 ctx.create_buffer("bvh collapsed nodes", 32 * total, dl)?,
@@ -322,130 +442,92 @@ impl BvhBuilder {
         } else {
             None
         };
+        let table_entries = hl.map_or(1, |(cb, _)| 1u64 << cb);
+        let max_clusters = table_entries.min(n);
+        Ok(BuildBuffers {
+            n,
+            total,
+            bits,
+            hl,
+            max_leaf,
+            bvh_nodes: ctx.create_buffer("bvh nodes", 32 * total, dl)?,
+            bvh_ids: ctx.create_buffer("bvh ids", 4 * n, dl)?,
+            parents: ctx.create_buffer("bvh parents", 4 * total, dl)?,
+            counters: ctx.create_buffer("bvh counters", 4 * total, dl)?,
+            collapsed,
+            table_entries,
+            max_clusters,
+            table: ctx.create_buffer("hlbvh table", 4 * table_entries, dl)?,
+            starts: ctx.create_buffer("hlbvh starts", 4 * (max_clusters + 2), dl)?,
+            roots: ctx.create_buffer("hlbvh roots", 32 * max_clusters, dl)?,
+            readback: ctx.create_buffer(
+                "hlbvh readback",
+                if hl.is_some() { 4 * (max_clusters + 2) + 32 * max_clusters } else { 4 },
+                MemoryKind::Readback,
+            )?,
+            scratch,
+        })
+    }
+
+    /// Records the keys and their bounds (fills, keys_bounds).
+    fn record_keys(&self, rec: &mut Recorder<'_>, mesh: &GeometryView<'_>, b: &BuildBuffers, timer: &mut Timer) {
+        let scratch = &b.scratch;
+        let n = b.n;
+        rec.fill(&scratch.bounds, 4 * BOUNDS_LO as u64, Some(12), u32::MAX);
+        rec.fill(&scratch.bounds, 4 * BOUNDS_HI as u64, Some(12), 0);
+        rec.dependency(Pass::Transfer, Pass::Compute);
+        rec.timestamp_start(timer);
+        let push = geometry_push!(KeysPush, mesh, {
+            keys: scratch.keys.address(),
+            result: scratch.bounds.address(),
+            count: n,
+            stride: 1,
+        });
+        let per_group = self.keys.workgroup_size() as u64 * ITEMS as u64;
+        // SAFETY: reads the n triangles of the view, writes n keys (scratch capacity >= n) and six bound words.
+        unsafe { rec.dispatch(&self.keys, &push, rec.groups_for(n, per_group)) };
+        rec.timestamp(timer, "keys_bounds");
+    }
+
+    fn build(
+        &mut self,
+        mesh: &GeometryView<'_>,
+        bits: MortonBits,
+        hl: Option<(u32, usize)>,
+        max_leaf: u32,
+    ) -> std::result::Result<GpuBvh, RunError> {
+        let b = self.prepare(mesh, bits, hl, max_leaf)?;
+        let ctx = self.ctx.clone();
+        let mut timer_owned = Timer::new(&ctx, 32)?;
+        let timer = &mut timer_owned;
+        let scratch = b.scratch.clone();
 
         // Submission 1: keys and their bounds.
         ctx.submit_and_wait(|rec| {
             rec.reset_timer(timer);
-            rec.fill(&scratch.bounds, 4 * BOUNDS_LO as u64, Some(12), u32::MAX);
-            rec.fill(&scratch.bounds, 4 * BOUNDS_HI as u64, Some(12), 0);
-            rec.barrier();
-            rec.timestamp_start(timer);
-            let push = KeysPush {
-                positions: mesh.positions.address(),
-                indices: mesh.indices.address(),
-                keys: scratch.keys.address(),
-                result: scratch.bounds.address(),
-                count: n,
-                stride: 1,
-            };
-            rec.dispatch(&self.keys, &push, rec.groups_for(n, per_group));
-            rec.timestamp(timer, "keys_bounds");
-            rec.barrier();
+            self.record_keys(rec, mesh, &b, timer);
+            rec.dependency(Pass::Compute, Pass::Transfer);
             rec.copy(&scratch.bounds, 0, &scratch.bounds_readback, 0, 4 * BOUNDS_WORDS as u64);
             rec.host_read_barrier();
             Ok(())
         })?;
         let q = Quantizer::new(&bounds_read_back(&scratch.bounds_readback, 0)?, bits).map_err(InputError::from)?;
-        let (lo, scale) = (q.lo(), q.scale());
-
-        let table_entries = hl.map_or(1, |(cb, _)| 1u64 << cb);
-        let max_clusters = table_entries.min(n);
-        let table = ctx.create_buffer("hlbvh table", 4 * table_entries, dl)?;
-        let starts = ctx.create_buffer("hlbvh starts", 4 * (max_clusters + 2), dl)?;
-        let roots = ctx.create_buffer("hlbvh roots", 32 * max_clusters, dl)?;
-        let readback = ctx.create_buffer(
-            "hlbvh readback",
-            if hl.is_some() { 4 * (max_clusters + 2) + 32 * max_clusters } else { 4 },
-            MemoryKind::Readback,
-        )?;
-        let shift = hl.map_or(0, |(cb, _)| bits.total() - cb);
-        let key_bits = if b63 == 1 { KeyBits::U64 } else { KeyBits::U32 };
 
         // Submission 2: codes, sort, (clusters), tree, boxes.
-        ctx.submit_and_wait(|rec| {
-            rec.timestamp_start(timer);
-            let (codes_buf, ids_buf) = match &scratch.sort.payload {
-                Some((p, _)) => (&scratch.sort.keys, p),
-                None => return Err(GpuError::Buffer("sort payload".into())),
-            };
-            let push = CodesPush {
-                keys: scratch.keys.address(),
-                codes: codes_buf.address(),
-                ids: ids_buf.address(),
-                count: n,
-                lo_x: lo[0],
-                lo_y: lo[1],
-                lo_z: lo[2],
-                scale_x: scale[0],
-                scale_y: scale[1],
-                scale_z: scale[2],
-            };
-            rec.dispatch(&self.codes[b63], &push, rec.groups_for(n, per_group));
-            rec.timestamp(timer, "codes");
-            let sorted_in = self.sort.record(rec, &scratch.sort.buffers(), n, key_bits)?;
-            let (codes_buf, ids_buf) = match scratch.sort.result(sorted_in) {
-                (k, Some(p)) => (k, p),
-                (_, None) => return Err(GpuError::Buffer("sort payload".into())),
-            };
-            debug_assert_eq!(sorted_in, SortedIn::Input);
-            rec.barrier();
-            rec.timestamp(timer, "sort");
-            if hl.is_some() {
-                rec.fill(&table, 0, None, u32::MAX);
-                rec.barrier();
-                let push = HeadsPush { codes: codes_buf.address(), table: table.address(), count: n, shift, pad: 0 };
-                rec.dispatch(&self.heads[b63], &push, rec.groups_for(n, self.heads[b63].workgroup_size() as u64));
-                rec.barrier();
-                let push = ScanPush {
-                    table: table.address(),
-                    starts: starts.address(),
-                    nodes: bvh_nodes.address(),
-                    entries: table_entries,
-                    count: n as u32,
-                    pad: 0,
-                };
-                rec.dispatch(&self.scan, &push, 1);
-                rec.timestamp(timer, "clusters");
-            }
-            rec.fill(&parents, 0, None, u32::MAX);
-            rec.barrier();
-            let push = KarrasPush {
-                codes: codes_buf.address(),
-                ids: ids_buf.address(),
-                nodes: bvh_nodes.address(),
-                parents: parents.address(),
-                table: table.address(),
-                starts: starts.address(),
-                count: n,
-                shift,
-                pad: 0,
-            };
-            let h = usize::from(hl.is_some());
-            rec.dispatch(&self.karras[b63][h], &push, rec.groups_for(n, per_group));
-            rec.timestamp(timer, "karras");
-            rec.barrier();
-            rec.copy(ids_buf, 0, &bvh_ids, 0, 4 * n);
-            self.record_boxes(rec, mesh, ids_buf, &bvh_nodes, &parents, &counters, total, Some(timer));
-            if let (None, Some(cl)) = (hl, &collapsed) {
-                self.record_collapse(rec, &bvh_nodes, &parents, &counters, total, cl, max_leaf, timer);
-            }
-            if hl.is_some() {
-                rec.barrier();
-                let push = RootsPush {
-                    starts: starts.address(),
-                    nodes: bvh_nodes.address(),
-                    roots: roots.address(),
-                    limit: max_clusters,
-                };
-                rec.dispatch(&self.roots, &push, rec.groups_for(max_clusters, self.roots.workgroup_size() as u64));
-                rec.timestamp(timer, "roots");
-                rec.barrier();
-                rec.copy(&starts, 0, &readback, 0, 4 * (max_clusters + 2));
-                rec.copy(&roots, 0, &readback, 4 * (max_clusters + 2), 32 * max_clusters);
-                rec.host_read_barrier();
-            }
-            Ok(())
-        })?;
+        ctx.submit_and_wait(|rec| self.record_tree(rec, mesh, &b, q.lo(), q.scale(), timer))?;
+        let BuildBuffers {
+            n,
+            total,
+            max_leaf,
+            collapsed,
+            max_clusters,
+            readback,
+            bvh_nodes,
+            bvh_ids,
+            parents,
+            counters,
+            ..
+        } = b;
         let mut timings: Vec<(String, f64)> = timer_owned.read()?;
         let kind = match hl {
             None => GpuBvhKind::Lbvh,
@@ -472,7 +554,15 @@ impl BvhBuilder {
                         rec.copy(&staging, 0, &bvh_nodes, 0, 32 * top.len() as u64);
                         rec.barrier();
                         let push = ParentsPush { nodes: bvh_nodes.address(), parents: parents.address(), count: c - 1 };
-                        rec.dispatch(&self.parents, &push, rec.groups_for(c - 1, self.parents.workgroup_size() as u64));
+                        // SAFETY: every address is a buffer of this build, sized in `prepare` for its n triangles and 2n - 1 nodes
+                        // (or of the tree being refitted, of the same sizes), and the view's triangles are valid per its constructor.
+                        unsafe {
+                            rec.dispatch(
+                                &self.parents,
+                                &push,
+                                rec.groups_for(c - 1, self.parents.workgroup_size() as u64),
+                            )
+                        };
                         if let Some(cl) = &collapsed {
                             rec.reset_timer(&mut timer2);
                             rec.timestamp_start(&mut timer2);
@@ -516,7 +606,139 @@ impl BvhBuilder {
             }
             None => (bvh_nodes, parents, total),
         };
-        Ok(GpuBvh { kind, triangles: n, node_count, nodes, ids: bvh_ids, parents, counters, timings })
+        Ok(GpuBvh { kind, triangles: n, node_count, nodes, ids: bvh_ids, parents, counters, timings, pending: None })
+    }
+
+    /// Records codes, sort, (clusters), tree, boxes (and the collapse of an LBVH; the cluster roots' readback of an
+    /// HLBVH) with the quantizer `lo`, `scale`.
+    fn record_tree(
+        &self,
+        rec: &mut Recorder<'_>,
+        mesh: &GeometryView<'_>,
+        b: &BuildBuffers,
+        lo: [f32; 3],
+        scale: [f32; 3],
+        timer: &mut Timer,
+    ) -> Result<()> {
+        let BuildBuffers {
+            n,
+            total,
+            bits,
+            hl,
+            max_leaf,
+            ref scratch,
+            ref bvh_nodes,
+            ref bvh_ids,
+            ref parents,
+            ref counters,
+            ref collapsed,
+            table_entries,
+            max_clusters,
+            ref table,
+            ref starts,
+            ref roots,
+            ref readback,
+        } = *b;
+        let per_group = self.keys.workgroup_size() as u64 * ITEMS as u64;
+        let b63 = usize::from(bits == MortonBits::Bits63);
+        let shift = hl.map_or(0, |(cb, _)| bits.total() - cb);
+        let key_bits = if b63 == 1 { KeyBits::U64 } else { KeyBits::U32 };
+        rec.timestamp_start(timer);
+        let (codes_buf, ids_buf) = match &scratch.sort.payload {
+            Some((p, _)) => (&scratch.sort.keys, p),
+            None => return Err(GpuError::Buffer("sort payload".into())),
+        };
+        let push = CodesPush {
+            keys: scratch.keys.address(),
+            codes: codes_buf.address(),
+            ids: ids_buf.address(),
+            count: n,
+            lo_x: lo[0],
+            lo_y: lo[1],
+            lo_z: lo[2],
+            scale_x: scale[0],
+            scale_y: scale[1],
+            scale_z: scale[2],
+        };
+        // SAFETY: every address is a buffer of this build, sized in `prepare` for its n triangles and 2n - 1 nodes
+        // (or of the tree being refitted, of the same sizes), and the view's triangles are valid per its constructor.
+        unsafe { rec.dispatch(&self.codes[b63], &push, rec.groups_for(n, per_group)) };
+        rec.timestamp(timer, "codes");
+        let sorted_in = self.sort.record(rec, &scratch.sort.buffers(), n, key_bits)?;
+        let (codes_buf, ids_buf) = match scratch.sort.result(sorted_in) {
+            (k, Some(p)) => (k, p),
+            (_, None) => return Err(GpuError::Buffer("sort payload".into())),
+        };
+        debug_assert_eq!(sorted_in, SortedIn::Input);
+        rec.barrier();
+        rec.timestamp(timer, "sort");
+        if hl.is_some() {
+            rec.fill(table, 0, None, u32::MAX);
+            rec.barrier();
+            let push = HeadsPush { codes: codes_buf.address(), table: table.address(), count: n, shift, pad: 0 };
+            // SAFETY: every address is a buffer of this build, sized in `prepare` for its n triangles and 2n - 1 nodes
+            // (or of the tree being refitted, of the same sizes), and the view's triangles are valid per its constructor.
+            unsafe {
+                rec.dispatch(&self.heads[b63], &push, rec.groups_for(n, self.heads[b63].workgroup_size() as u64))
+            };
+            rec.barrier();
+            let push = ScanPush {
+                table: table.address(),
+                starts: starts.address(),
+                nodes: bvh_nodes.address(),
+                entries: table_entries,
+                count: n as u32,
+                pad: 0,
+            };
+            // SAFETY: every address is a buffer of this build, sized in `prepare` for its n triangles and 2n - 1 nodes
+            // (or of the tree being refitted, of the same sizes), and the view's triangles are valid per its constructor.
+            unsafe { rec.dispatch(&self.scan, &push, 1) };
+            rec.timestamp(timer, "clusters");
+        }
+        rec.fill(parents, 0, None, u32::MAX);
+        rec.barrier();
+        let push = KarrasPush {
+            codes: codes_buf.address(),
+            ids: ids_buf.address(),
+            nodes: bvh_nodes.address(),
+            parents: parents.address(),
+            table: table.address(),
+            starts: starts.address(),
+            count: n,
+            shift,
+            pad: 0,
+        };
+        let h = usize::from(hl.is_some());
+        // SAFETY: every address is a buffer of this build, sized in `prepare` for its n triangles and 2n - 1 nodes
+        // (or of the tree being refitted, of the same sizes), and the view's triangles are valid per its constructor.
+        unsafe { rec.dispatch(&self.karras[b63][h], &push, rec.groups_for(n, per_group)) };
+        rec.timestamp(timer, "karras");
+        rec.barrier();
+        rec.copy(ids_buf, 0, bvh_ids, 0, 4 * n);
+        self.record_boxes(rec, mesh, ids_buf, bvh_nodes, parents, counters, total, Some(timer));
+        if let (None, Some(cl)) = (hl, &collapsed) {
+            self.record_collapse(rec, bvh_nodes, parents, counters, total, cl, max_leaf, timer);
+        }
+        if hl.is_some() {
+            rec.barrier();
+            let push = RootsPush {
+                starts: starts.address(),
+                nodes: bvh_nodes.address(),
+                roots: roots.address(),
+                limit: max_clusters,
+            };
+            // SAFETY: every address is a buffer of this build, sized in `prepare` for its n triangles and 2n - 1 nodes
+            // (or of the tree being refitted, of the same sizes), and the view's triangles are valid per its constructor.
+            unsafe {
+                rec.dispatch(&self.roots, &push, rec.groups_for(max_clusters, self.roots.workgroup_size() as u64))
+            };
+            rec.timestamp(timer, "roots");
+            rec.barrier();
+            rec.copy(starts, 0, readback, 0, 4 * (max_clusters + 2));
+            rec.copy(roots, 0, readback, 4 * (max_clusters + 2), 32 * max_clusters);
+            rec.host_read_barrier();
+        }
+        Ok(())
     }
 
     /// Records the SAH collapse (`bvh_collapse_cost`, `bvh_compact`) of the `count` nodes of a fitted tree with
@@ -547,7 +769,11 @@ impl BvhBuilder {
             max_leaf,
             pad: 0,
         };
-        rec.dispatch(&self.collapse_cost, &push, rec.groups_for(count, self.collapse_cost.workgroup_size() as u64));
+        // SAFETY: every address is a buffer of this build, sized in `prepare` for its n triangles and 2n - 1 nodes
+        // (or of the tree being refitted, of the same sizes), and the view's triangles are valid per its constructor.
+        unsafe {
+            rec.dispatch(&self.collapse_cost, &push, rec.groups_for(count, self.collapse_cost.workgroup_size() as u64))
+        };
         rec.timestamp(timer, "collapse_cost");
         rec.barrier();
         let push = CompactPush {
@@ -558,7 +784,9 @@ impl BvhBuilder {
             out_parents: out_parents.address(),
             count,
         };
-        rec.dispatch(&self.compact, &push, rec.groups_for(count, self.compact.workgroup_size() as u64));
+        // SAFETY: every address is a buffer of this build, sized in `prepare` for its n triangles and 2n - 1 nodes
+        // (or of the tree being refitted, of the same sizes), and the view's triangles are valid per its constructor.
+        unsafe { rec.dispatch(&self.compact, &push, rec.groups_for(count, self.compact.workgroup_size() as u64)) };
         rec.timestamp(timer, "compact");
         rec.barrier();
         rec.copy(info, 4 * COLLAPSE_SIZE as u64, readback, 0, 4);
@@ -571,7 +799,7 @@ impl BvhBuilder {
     fn record_boxes(
         &self,
         rec: &mut Recorder<'_>,
-        mesh: &MeshBuffers,
+        mesh: &GeometryView<'_>,
         ids: &Buffer,
         nodes: &Buffer,
         parents: &Buffer,
@@ -582,20 +810,18 @@ impl BvhBuilder {
         let per_group = self.leaves.workgroup_size() as u64 * ITEMS as u64;
         rec.fill(counters, 0, Some(4 * count), 0);
         rec.barrier();
-        let push = LeavesPush {
-            positions: mesh.positions.address(),
-            indices: mesh.indices.address(),
-            ids: ids.address(),
-            nodes: nodes.address(),
-            count,
-        };
-        rec.dispatch(&self.leaves, &push, rec.groups_for(count, per_group));
+        let push = geometry_push!(LeavesPush, mesh, { ids: ids.address(), nodes: nodes.address(), count: count });
+        // SAFETY: every address is a buffer of this build, sized in `prepare` for its n triangles and 2n - 1 nodes
+        // (or of the tree being refitted, of the same sizes), and the view's triangles are valid per its constructor.
+        unsafe { rec.dispatch(&self.leaves, &push, rec.groups_for(count, per_group)) };
         if let Some(t) = timer.as_deref_mut() {
             rec.timestamp(t, "leaves");
         }
         rec.barrier();
         let push = FitPush { nodes: nodes.address(), parents: parents.address(), counters: counters.address(), count };
-        rec.dispatch(&self.fit, &push, rec.groups_for(count, self.fit.workgroup_size() as u64));
+        // SAFETY: every address is a buffer of this build, sized in `prepare` for its n triangles and 2n - 1 nodes
+        // (or of the tree being refitted, of the same sizes), and the view's triangles are valid per its constructor.
+        unsafe { rec.dispatch(&self.fit, &push, rec.groups_for(count, self.fit.workgroup_size() as u64)) };
         if let Some(t) = timer {
             rec.timestamp(t, "fit");
         }
@@ -608,13 +834,8 @@ impl BvhBuilder {
     /// before, are visible); ends with the fit's shader writes to [`GpuBvh::nodes`] and no barrier after it: the
     /// caller records one before reading the nodes. `mesh` and `bvh` must stay alive until the command buffer
     /// completes.
-    pub fn record_refit(&self, rec: &mut Recorder<'_>, mesh: &MeshBuffers, bvh: &GpuBvh) -> Result<()> {
-        if mesh.triangles != bvh.triangles {
-            return Err(GpuError::Buffer(format!(
-                "refit: mesh has {} triangles, the tree {}",
-                mesh.triangles, bvh.triangles
-            )));
-        }
+    pub fn record_refit(&self, rec: &mut Recorder<'_>, mesh: &GeometryView<'_>, bvh: &GpuBvh) -> Result<()> {
+        check_refit(mesh, bvh)?;
         rec.barrier();
         self.record_boxes(rec, mesh, &bvh.ids, &bvh.nodes, &bvh.parents, &bvh.counters, bvh.node_count(), None);
         Ok(())
@@ -622,13 +843,8 @@ impl BvhBuilder {
 
     /// Refits `bvh` for the positions now in `mesh` (see [`BvhBuilder::record_refit`]); submits and waits, and
     /// stores the pass times in [`GpuBvh::timings`].
-    pub fn refit(&self, mesh: &MeshBuffers, bvh: &mut GpuBvh) -> Result<()> {
-        if mesh.triangles != bvh.triangles {
-            return Err(GpuError::Buffer(format!(
-                "refit: mesh has {} triangles, the tree {}",
-                mesh.triangles, bvh.triangles
-            )));
-        }
+    pub fn refit(&self, mesh: &GeometryView<'_>, bvh: &mut GpuBvh) -> Result<()> {
+        check_refit(mesh, bvh)?;
         let ctx = self.ctx.clone();
         let mut timer = Timer::new(&ctx, 4)?;
         ctx.submit_and_wait(|rec| {
@@ -650,4 +866,19 @@ impl BvhBuilder {
         bvh.timings = timer.read()?;
         Ok(())
     }
+}
+
+/// A refit needs the tree's triangles, and a finished tree (a recorded build's node count is known only then).
+fn check_refit(mesh: &GeometryView<'_>, bvh: &GpuBvh) -> Result<()> {
+    if mesh.triangle_count() != bvh.triangles {
+        return Err(GpuError::Buffer(format!(
+            "refit: the geometry has {} triangles, the tree {}",
+            mesh.triangle_count(),
+            bvh.triangles
+        )));
+    }
+    if bvh.is_pending() {
+        return Err(GpuError::Buffer("refit of a recorded build not yet finished (GpuBvh::finish)".into()));
+    }
+    Ok(())
 }

@@ -91,7 +91,7 @@ impl VulkanBackend {
         else {
             return Err(CharError::Gpu("feature pass without a characterized mesh".into()));
         };
-        let g = fg.run(buffers, codes, n, params.sample_stride as u64, params.morton_bits).map_err(gpu_err)?;
+        let g = fg.run(&buffers.view(), codes, n, params.sample_stride as u64, params.morton_bits).map_err(gpu_err)?;
         let f = features_from_gpu(&g, n, mesh.triangle_count() as u64, params.morton_bits);
         Ok((f, g.timings))
     }
@@ -135,7 +135,7 @@ impl VulkanBackend {
         };
         let out = self
             .gpu
-            .run(buffers, params.morton_bits, params.sample_stride as u64, &plan, params.keep_per_triangle)
+            .run(&buffers.view(), params.morton_bits, params.sample_stride as u64, &plan, params.keep_per_triangle)
             .map_err(|e| match e {
                 RunError::Gpu(g) => gpu_err(g),
                 RunError::Input(i) => CharError::Input { mesh: mesh.name.clone(), reason: i.to_string() },

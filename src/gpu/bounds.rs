@@ -49,7 +49,8 @@ impl PointBounds {
         let wg = self.kernel.workgroup_size() as u64;
         let groups = rec.groups_for(count, wg * self.items as u64);
         let push = BoundsPush { points: points.address(), result: result.address() + result_offset, count };
-        rec.dispatch(&self.kernel, &push, groups);
+        // SAFETY: `points` holds `count` points (checked above) and `result` six words.
+        unsafe { rec.dispatch(&self.kernel, &push, groups) };
         Ok(())
     }
 

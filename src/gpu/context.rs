@@ -294,8 +294,8 @@ struct Objects {
     messenger: Option<Messenger>,
     /// The device the pool and allocator belong to, and whether the context created it.
     device: Option<(ash::Device, Ownership)>,
-    /// The command pool (null until created).
-    pool: vk::CommandPool,
+    /// The idle command pools of the convenience submissions (one per submission in progress, reused after).
+    pools: Mutex<Vec<vk::CommandPool>>,
     /// The allocator.
     allocator: Option<Mutex<Allocator>>,
 }
@@ -313,8 +313,8 @@ impl Drop for Objects {
             if let Some((device, ownership)) = &self.device {
                 let _ = device.device_wait_idle();
                 drop(self.allocator.take());
-                if self.pool != vk::CommandPool::null() {
-                    device.destroy_command_pool(self.pool, None);
+                for pool in lock(&self.pools).drain(..) {
+                    device.destroy_command_pool(pool, None);
                 }
                 if *ownership == Ownership::Owned {
                     device.destroy_device(None);
@@ -422,7 +422,7 @@ pub(crate) struct Inner {
     pub(crate) queue: Mutex<vk::Queue>,
     pub(crate) queue_family: u32,
     pub(crate) caps: DeviceCaps,
-    pub(crate) pool: Mutex<vk::CommandPool>,
+    pub(crate) host_waits: std::sync::atomic::AtomicU64,
     messages: Messages,
     /// Destroys everything above (the handles are copies of the ones it holds).
     objects: Objects,
@@ -766,11 +766,6 @@ impl Context {
     ) -> Result<Self> {
         // SAFETY: valid device and queue family/index (ours, or the engine's per from_raw's contract).
         let queue = unsafe { device.get_device_queue(family, queue_index) };
-        let pool_info = vk::CommandPoolCreateInfo::default()
-            .queue_family_index(family)
-            .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER | vk::CommandPoolCreateFlags::TRANSIENT);
-        // SAFETY: valid device.
-        objects.pool = vk_check("vkCreateCommandPool", unsafe { device.create_command_pool(&pool_info, None) })?;
         let mut debug_settings = gpu_allocator::AllocatorDebugSettings::default();
         debug_settings.log_leaks_on_shutdown = true;
         let allocator = Allocator::new(&AllocatorCreateDesc {
@@ -793,7 +788,7 @@ impl Context {
                 queue: Mutex::new(queue),
                 queue_family: family,
                 caps,
-                pool: Mutex::new(objects.pool),
+                host_waits: std::sync::atomic::AtomicU64::new(0),
                 messages,
                 objects,
             }),
@@ -825,21 +820,59 @@ impl Context {
         lock(&self.inner.messages).clone()
     }
 
+    /// How many times the context's convenience paths ([`Context::submit_and_wait`] and everything built on it)
+    /// have waited on the host for the device. An engine counts the waits inside its frame with it: the recording
+    /// paths never wait.
+    pub fn host_waits(&self) -> u64 {
+        self.inner.host_waits.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// A command pool of the context's queue family, idle and owned by the caller until [`Context::put_pool`].
+    fn take_pool(&self) -> Result<vk::CommandPool> {
+        if let Some(pool) = lock(&self.inner.objects.pools).pop() {
+            return Ok(pool);
+        }
+        let info = vk::CommandPoolCreateInfo::default()
+            .queue_family_index(self.inner.queue_family)
+            .flags(vk::CommandPoolCreateFlags::TRANSIENT);
+        // SAFETY: valid device.
+        vk_check("vkCreateCommandPool", unsafe { self.inner.device.create_command_pool(&info, None) })
+    }
+
+    /// Returns a pool taken by [`Context::take_pool`], reset (none of its command buffers is pending).
+    fn put_pool(&self, pool: vk::CommandPool) {
+        // SAFETY: no command buffer of the pool is pending (the caller waited or never submitted); the pool is
+        // owned by this thread until it goes back to the list.
+        let reset = unsafe { self.inner.device.reset_command_pool(pool, vk::CommandPoolResetFlags::empty()) };
+        if reset.is_ok() {
+            lock(&self.inner.objects.pools).push(pool);
+        } else {
+            // SAFETY: as above; a pool that cannot be reset is not reused.
+            unsafe { self.inner.device.destroy_command_pool(pool, None) };
+        }
+    }
+
     /// Records one command buffer with `record`, submits it, waits for it, and returns what `record` returned.
+    ///
+    /// No lock is held while `record` runs or while the host waits: each call records into a command pool of its
+    /// own (taken from an idle list), and the queue's mutex is held only around `vkQueueSubmit`. Every call counts
+    /// in [`Context::host_waits`].
     pub fn submit_and_wait<T>(&self, record: impl FnOnce(&mut super::Recorder<'_>) -> Result<T>) -> Result<T> {
         let dev = &self.inner.device;
-        let pool = lock(&self.inner.pool);
-        let alloc = vk::CommandBufferAllocateInfo::default()
-            .command_pool(*pool)
-            .level(vk::CommandBufferLevel::PRIMARY)
-            .command_buffer_count(1);
-        // SAFETY: the pool is externally synchronized by its mutex, held until the command buffer is freed.
-        let cmd = vk_check("vkAllocateCommandBuffers", unsafe { dev.allocate_command_buffers(&alloc) })?[0];
+        let pool = self.take_pool()?;
         let result = (|| {
+            let alloc = vk::CommandBufferAllocateInfo::default()
+                .command_pool(pool)
+                .level(vk::CommandBufferLevel::PRIMARY)
+                .command_buffer_count(1);
+            // SAFETY: the pool is owned by this call until put back.
+            let cmd = vk_check("vkAllocateCommandBuffers", unsafe { dev.allocate_command_buffers(&alloc) })?[0];
             let begin = vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
             // SAFETY: fresh command buffer from our pool.
             vk_check("vkBeginCommandBuffer", unsafe { dev.begin_command_buffer(cmd, &begin) })?;
-            let mut rec = super::Recorder::new(self, cmd);
+            // SAFETY: `cmd` is recording, from a pool of the context's compute family owned by this call; the
+            // call waits for the submission before anything recorded can be freed by the caller.
+            let mut rec = unsafe { super::Recorder::new(self, cmd) };
             let value = record(&mut rec)?;
             // SAFETY: recording state.
             vk_check("vkEndCommandBuffer", unsafe { dev.end_command_buffer(cmd) })?;
@@ -847,21 +880,23 @@ impl Context {
             let fence = vk_check("vkCreateFence", unsafe { dev.create_fence(&vk::FenceCreateInfo::default(), None) })?;
             let cmds = [cmd];
             let submit = [vk::SubmitInfo::default().command_buffers(&cmds)];
-            let waited = {
+            let submitted = {
                 let queue = lock(&self.inner.queue);
                 // SAFETY: the queue is externally synchronized by its mutex; the command buffer is executable.
-                vk_check("vkQueueSubmit", unsafe { dev.queue_submit(*queue, &submit, fence) }).and_then(|_| {
-                    // SAFETY: fence from this device.
-                    vk_check("vkWaitForFences", unsafe { dev.wait_for_fences(&[fence], true, u64::MAX) })
-                })
+                vk_check("vkQueueSubmit", unsafe { dev.queue_submit(*queue, &submit, fence) })
             };
+            let waited = submitted.and_then(|_| {
+                self.inner.host_waits.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                // SAFETY: fence from this device; no lock is held while waiting.
+                vk_check("vkWaitForFences", unsafe { dev.wait_for_fences(&[fence], true, u64::MAX) })
+            });
             // SAFETY: the fence is signalled or was never submitted.
             unsafe { dev.destroy_fence(fence, None) };
             waited?;
             Ok(value)
         })();
-        // SAFETY: the command buffer is not pending (waited, or never submitted).
-        unsafe { dev.free_command_buffers(*pool, &[cmd]) };
+        // The pool's command buffers are not pending (waited, or never submitted): resetting frees them.
+        self.put_pool(pool);
         result
     }
 }

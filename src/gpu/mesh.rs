@@ -2,7 +2,7 @@
 //! characterization and the LBVH/HLBVH builders share (`glsl/keys_bounds.comp`, [`KeysPush`]), and the errors of
 //! device operations that are about their input.
 
-use crate::gpu::{Buffer, Context, GpuError, Result};
+use crate::gpu::{Buffer, Context, GeometryView, GpuError, IndexType, Indices, Result, Vertices};
 use crate::keys::{KeyBounds, KeyError};
 
 pub use crate::gpu::shaders::keys_bounds::Push as KeysPush;
@@ -31,6 +31,16 @@ impl MeshBuffers {
             vertices: positions.len() as u64,
             triangles: indices.len() as u64,
         })
+    }
+
+    /// The view of these buffers that every device operation reads: packed positions (stride 12), 32-bit indices.
+    pub fn view(&self) -> GeometryView<'_> {
+        GeometryView::new(
+            Vertices { buffer: &self.positions, offset: 0, stride: 12, count: self.vertices },
+            Some(Indices { buffer: &self.indices, offset: 0, index_type: IndexType::U32, base_vertex: 0 }),
+            self.triangles,
+        )
+        .expect("the buffers of an upload hold what their counts say")
     }
 
     /// Replaces the positions (same vertex count): the next frame of an animation.

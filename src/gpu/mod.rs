@@ -15,6 +15,7 @@
 mod bounds;
 mod buffer;
 mod context;
+mod geometry;
 mod kernel;
 mod mesh;
 mod record;
@@ -27,10 +28,12 @@ pub use context::{
     enumerate_devices, required_device_extensions, required_device_features, Context, ContextDesc, DeviceCaps,
     DeviceSummary, DeviceType, RawDevice,
 };
+pub(crate) use geometry::geometry_push;
+pub use geometry::{GeometryView, IndexType, Indices, Vertices};
 pub use kernel::{Kernel, KernelDesc};
 pub(crate) use mesh::bounds_read_back;
 pub use mesh::{InputError, KeysPush, MeshBuffers, RunError};
-pub use record::{Recorder, Timer};
+pub use record::{Pass, Recorder, Timer};
 pub use shaders::{check_push_layout, check_struct_layout, PushConstants, ShaderInfo};
 
 use ash::vk;

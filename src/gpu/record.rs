@@ -4,22 +4,68 @@ use super::{vk_check, Buffer, Context, Kernel, Result};
 use ash::vk;
 use std::sync::Arc;
 
-/// Records the engine's passes into a command buffer: one the engine owns ([`Recorder::new`]) or one of
+/// The kind of work on either side of a dependency ([`Recorder::dependency`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pass {
+    /// Compute-shader dispatches (writes: `SHADER_WRITE`; reads: `SHADER_READ | SHADER_WRITE`, since kernels also
+    /// update in place and use atomics).
+    Compute,
+    /// Transfers: fills and copies (writes: `TRANSFER_WRITE`; reads: `TRANSFER_READ | TRANSFER_WRITE`).
+    Transfer,
+}
+
+impl Pass {
+    fn stage(self) -> vk::PipelineStageFlags {
+        match self {
+            Pass::Compute => vk::PipelineStageFlags::COMPUTE_SHADER,
+            Pass::Transfer => vk::PipelineStageFlags::TRANSFER,
+        }
+    }
+    fn writes(self) -> vk::AccessFlags {
+        match self {
+            Pass::Compute => vk::AccessFlags::SHADER_WRITE,
+            Pass::Transfer => vk::AccessFlags::TRANSFER_WRITE,
+        }
+    }
+    fn accesses(self) -> vk::AccessFlags {
+        match self {
+            Pass::Compute => vk::AccessFlags::SHADER_READ | vk::AccessFlags::SHADER_WRITE,
+            Pass::Transfer => vk::AccessFlags::TRANSFER_READ | vk::AccessFlags::TRANSFER_WRITE,
+        }
+    }
+}
+
+/// Records the engine's passes into a command buffer: one the caller owns ([`Recorder::new`], `unsafe`) or one of
 /// [`Context::submit_and_wait`].
 ///
-/// Synchronization is explicit: [`Recorder::barrier`] makes every earlier compute and transfer write visible to
-/// every later compute and transfer access; the engine's multi-pass operations insert it between their passes and
-/// document what they expect before and after.
+/// # The unsafe contract
+///
+/// Recording is where memory safety is decided, so it is where `unsafe` sits: wrapping a raw command buffer
+/// ([`Recorder::new`]) and dispatching a kernel with raw device addresses ([`Recorder::dispatch`]) are `unsafe`;
+/// the crate's operations (characterization, features, BVH builds, refit, sort, bounds) record through a
+/// `Recorder` from safe methods, because they build their push constants from buffers and views whose ranges they
+/// checked. Whoever made the recorder keeps every buffer used alive until the command buffer completes.
+///
+/// Synchronization is explicit: [`Recorder::dependency`] orders one kind of work before another (compute or
+/// transfer, naming only those stages and accesses), [`Recorder::barrier`] is the full compute-and-transfer
+/// barrier, and each multi-pass operation documents its first and last access to every buffer it touches.
 pub struct Recorder<'a> {
     ctx: &'a Context,
     cmd: vk::CommandBuffer,
 }
 
 impl<'a> Recorder<'a> {
-    /// Wraps a command buffer in the recording state. It must come from a pool of a queue family with compute
-    /// support on the context's device; the caller submits it and keeps every buffer and kernel used alive until
-    /// it completes.
-    pub fn new(ctx: &'a Context, cmd: vk::CommandBuffer) -> Self {
+    /// Wraps a command buffer that the caller owns.
+    ///
+    /// # Safety
+    ///
+    /// - `cmd` is in the recording state, was allocated from a pool of a queue family with compute support on the
+    ///   context's device, and is externally synchronized (no other thread records into it or its pool while the
+    ///   recorder lives).
+    /// - The caller submits it, and keeps every buffer, kernel, timer and view recorded into it alive (and the
+    ///   buffers' memory bound) until the command buffer has completed; it does not reset or free the command
+    ///   buffer while the device may still execute it.
+    pub unsafe fn new(ctx: &'a Context, cmd: vk::CommandBuffer) -> Self {
         Recorder { ctx, cmd }
     }
 
@@ -39,7 +85,13 @@ impl<'a> Recorder<'a> {
 
     /// Dispatches `groups` workgroups of `kernel` (x only; the engine's kernels loop over tiles, so callers clamp
     /// `groups` with [`Recorder::groups_for`]).
-    pub fn dispatch<P: PushConstants>(&mut self, kernel: &Kernel<P>, push: &P, groups: u32) {
+    ///
+    /// # Safety
+    ///
+    /// Every device address in `push` points into a live buffer of this device with room for everything the
+    /// kernel reads and writes for the counts in `push` (each kernel's GLSL source documents its arrays), and the
+    /// buffers stay alive until the command buffer completes.
+    pub unsafe fn dispatch<P: PushConstants>(&mut self, kernel: &Kernel<P>, push: &P, groups: u32) {
         let dev = self.dev();
         // SAFETY: recording command buffer; pipeline and layout of this device; push size checked at creation.
         unsafe {
@@ -58,6 +110,24 @@ impl<'a> Recorder<'a> {
     pub fn groups_for(&self, items: u64, per_group: u64) -> u32 {
         let needed = items.div_ceil(per_group.max(1)).max(1);
         needed.min(self.ctx.caps().max_workgroup_count[0] as u64) as u32
+    }
+
+    /// Orders every earlier `src` work before every later `dst` work and makes `src`'s writes visible to `dst`'s
+    /// accesses (a global memory barrier naming only those stages and accesses).
+    pub fn dependency(&mut self, src: Pass, dst: Pass) {
+        let mb = [vk::MemoryBarrier::default().src_access_mask(src.writes()).dst_access_mask(dst.accesses())];
+        // SAFETY: recording command buffer.
+        unsafe {
+            self.dev().cmd_pipeline_barrier(
+                self.cmd,
+                src.stage(),
+                dst.stage(),
+                vk::DependencyFlags::empty(),
+                &mb,
+                &[],
+                &[],
+            )
+        };
     }
 
     /// Full compute/transfer memory barrier: every earlier shader or transfer write is visible to every later
@@ -162,21 +232,28 @@ impl Timer {
     }
 
     /// After the command buffer completed: `(name, milliseconds since the previous timestamp)` for every named
-    /// timestamp but the first ([`Recorder::timestamp_start`] ones have no name).
+    /// timestamp but the first ([`Recorder::timestamp_start`] ones have no name). Waits for the queries if they
+    /// are not available yet (callers read after waiting for the submission).
     pub fn read(&self) -> Result<Vec<(String, f64)>> {
+        self.read_with(vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT)
+    }
+
+    /// [`Timer::read`] without waiting: [`GpuError::Vk`](super::GpuError::Vk) with `VK_NOT_READY` while any
+    /// timestamp is not yet available (the command buffer has not completed).
+    pub fn try_read(&self) -> Result<Vec<(String, f64)>> {
+        self.read_with(vk::QueryResultFlags::TYPE_64)
+    }
+
+    fn read_with(&self, flags: vk::QueryResultFlags) -> Result<Vec<(String, f64)>> {
         let n = self.names.len();
-        if n < 2 {
+        if n == 0 {
             return Ok(Vec::new());
         }
         let mut ticks = vec![0u64; n];
-        // SAFETY: queries written by a completed command buffer (callers read after waiting).
+        // SAFETY: queries reset and written by a recorded command buffer; without WAIT an unavailable query gives
+        // VK_NOT_READY and writes nothing we use.
         vk_check("vkGetQueryPoolResults", unsafe {
-            self.ctx.device.get_query_pool_results(
-                self.pool,
-                0,
-                &mut ticks,
-                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
-            )
+            self.ctx.device.get_query_pool_results(self.pool, 0, &mut ticks, flags)
         })?;
         let bits = self.ctx.caps.timestamp_valid_bits;
         let mask = if bits >= 64 { u64::MAX } else { (1u64 << bits) - 1 };
@@ -187,6 +264,12 @@ impl Timer {
                 Some((self.names[i].clone()?, dt as f64 * period * 1e-6))
             })
             .collect())
+    }
+}
+
+impl std::fmt::Debug for Timer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Timer").field("capacity", &self.capacity).field("written", &self.names.len()).finish()
     }
 }
 

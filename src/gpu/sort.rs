@@ -483,7 +483,8 @@ impl RadixSort {
                 shift,
                 pad: 0,
             };
-            rec.dispatch(&self.count[key64], &push, block_groups);
+            // SAFETY: the sort buffers were sized by memory_requirements for `n` keys (checked in record), and the kernel touches only those ranges.
+            unsafe { rec.dispatch(&self.count[key64], &push, block_groups) };
             rec.barrier();
             self.record_scan(rec, buffers.internal, &mem);
             rec.barrier();
@@ -497,7 +498,8 @@ impl RadixSort {
                 blocks,
                 shift,
             };
-            rec.dispatch(&self.scatter[key64], &push, block_groups);
+            // SAFETY: the sort buffers were sized by memory_requirements for `n` keys (checked in record), and the kernel touches only those ranges.
+            unsafe { rec.dispatch(&self.scatter[key64], &push, block_groups) };
             if pass + 1 < passes {
                 rec.barrier();
             }
@@ -515,15 +517,18 @@ impl RadixSort {
         for i in 0..top {
             let ((src, n), (dst, _)) = (level(i), level(i + 1));
             let push = SortScanReducePush { src, dst, n };
-            rec.dispatch(&self.reduce, &push, rec.groups_for(n, tile));
+            // SAFETY: the sort buffers were sized by memory_requirements for `n` keys (checked in record), and the kernel touches only those ranges.
+            unsafe { rec.dispatch(&self.reduce, &push, rec.groups_for(n, tile)) };
             rec.barrier();
         }
         let (data, n) = level(top);
-        rec.dispatch(&self.down, &SortScanDownPush { data, partials: 0, n }, 1);
+        // SAFETY: the sort buffers were sized by memory_requirements for `n` keys (checked in record), and the kernel touches only those ranges.
+        unsafe { rec.dispatch(&self.down, &SortScanDownPush { data, partials: 0, n }, 1) };
         for i in (0..top).rev() {
             rec.barrier();
             let ((data, n), (partials, _)) = (level(i), level(i + 1));
-            rec.dispatch(&self.down, &SortScanDownPush { data, partials, n }, rec.groups_for(n, tile));
+            // SAFETY: the sort buffers were sized by memory_requirements for `n` keys (checked in record), and the kernel touches only those ranges.
+            unsafe { rec.dispatch(&self.down, &SortScanDownPush { data, partials, n }, rec.groups_for(n, tile)) };
         }
     }
 

@@ -3,12 +3,28 @@
 //! Morton cells at the deepest counted depth (the host counts set bits per depth), the histogram of triangle-size
 //! exponents, and the vertex bounds of the sampled triangles.
 //!
-//! Two dispatches in one submission: `features_bounds` (vertex bounds in IEEE total order), then `features` (mask
-//! bits by atomic OR, size histogram privatized in shared memory), which reads the bounds from device memory, so
-//! no host round trip separates them.
+//! Two dispatches: `features_bounds` (vertex bounds in IEEE total order), then `features` (mask bits by atomic OR,
+//! size histogram privatized in shared memory), which reads the bounds from device memory, so no host round trip
+//! separates them and the whole pass records into a caller's command buffer ([`FeaturesGpu::record`], read with
+//! [`FeaturesGpu::finish`]) as well as it submits ([`FeaturesGpu::run`]).
+//!
+//! # Recording contract ([`FeaturesGpu::record`])
+//!
+//! | buffer | first access | last access |
+//! |---|---|---|
+//! | geometry (the [`GeometryView`]) | compute-shader read | compute-shader read |
+//! | `codes` | compute-shader read (`features`) | compute-shader read |
+//! | the pass's result buffer | transfer write (fill) | transfer read (copy to the readback) |
+//! | the pass's readback buffer | transfer write (copy) | host read, after the recorded host barrier |
+//!
+//! The caller records, before, a barrier that makes the geometry and the codes visible to compute-shader reads
+//! (after a characterization recorded just before: [`Recorder::dependency`] from compute to compute).
 
 use crate::gpu::shaders::layout::{BOUNDS_HI, BOUNDS_LO, BOUNDS_WORDS};
-use crate::gpu::{shaders, Buffer, Context, GpuError, Kernel, KernelDesc, MemoryKind, MeshBuffers, Result, Timer};
+use crate::gpu::{
+    geometry_push, shaders, Buffer, Context, GeometryView, GpuError, Kernel, KernelDesc, MemoryKind, Pass, Recorder,
+    Result, Timer,
+};
 use crate::keys::{from_ordered_bits, MortonBits};
 
 const ITEMS: u32 = 8;
@@ -45,6 +61,7 @@ pub struct FeaturesGpu {
     result: Buffer,
     readback: Buffer,
     timer: Timer,
+    pending: bool,
 }
 
 impl FeaturesGpu {
@@ -69,6 +86,7 @@ impl FeaturesGpu {
             result: ctx.create_buffer("features result", bytes, MemoryKind::DeviceLocal)?,
             readback: ctx.create_buffer("features readback", bytes, MemoryKind::Readback)?,
             timer: Timer::new(ctx, 4)?,
+            pending: false,
         })
     }
 
@@ -83,76 +101,99 @@ impl FeaturesGpu {
         Self::off_hist() + 4 * (size_bins as u64 + 1)
     }
 
-    /// Runs the pass over `n` sampled triangles (every `stride`-th of `mesh`) whose `bits` Morton codes are in
+    /// Runs the pass over `n` sampled triangles (every `stride`-th of the view) whose `bits` Morton codes are in
     /// `codes` (as [`super::passes::CharacterizeGpu::device_arrays`] leaves them), submits and waits.
     pub fn run(
         &mut self,
-        mesh: &MeshBuffers,
+        view: &GeometryView<'_>,
         codes: &Buffer,
         n: u64,
         stride: u64,
         bits: MortonBits,
     ) -> Result<GpuFeatures> {
+        let ctx = self.ctx.clone();
+        ctx.submit_and_wait(|rec| self.record(rec, view, codes, n, stride, bits))?;
+        self.finish()
+    }
+
+    /// Records the pass (see the module docs for the recording contract); [`FeaturesGpu::finish`] reads it once
+    /// the command buffer has completed. A pass recorded and not yet finished is an error.
+    pub fn record(
+        &mut self,
+        rec: &mut Recorder<'_>,
+        view: &GeometryView<'_>,
+        codes: &Buffer,
+        n: u64,
+        stride: u64,
+        bits: MortonBits,
+    ) -> Result<()> {
         let stride = stride.max(1);
-        if n == 0 || n > mesh.triangles.div_ceil(stride) {
+        if n == 0 || n > view.triangle_count().div_ceil(stride) {
             return Err(GpuError::Buffer(format!(
-                "feature pass over {n} sampled triangles of a {}-triangle mesh (stride {stride})",
-                mesh.triangles
+                "feature pass over {n} sampled triangles of a {}-triangle view (stride {stride})",
+                view.triangle_count()
             )));
+        }
+        if self.pending {
+            return Err(GpuError::Buffer("feature pass: the previous recorded pass was not finished".into()));
         }
         let b63 = usize::from(bits == MortonBits::Bits63);
         let code_bytes = if b63 == 1 { 8 } else { 4 };
         if codes.size() < n * code_bytes {
             return Err(GpuError::Buffer(format!("codes buffer of {} bytes for {n} codes", codes.size())));
         }
-        let ctx = self.ctx.clone();
         let (result, readback, timer) = (&self.result, &self.readback, &mut self.timer);
         let bytes = Self::result_bytes(self.size_bins);
         let wg = self.bounds.workgroup_size() as u64;
         let per_group = wg * ITEMS as u64;
         let bounds_addr = result.address() + Self::off_bounds();
-        ctx.submit_and_wait(|rec| {
-            rec.reset_timer(timer);
-            rec.fill(result, 0, Some(4 * MASK_WORDS), 0);
-            rec.fill(result, Self::off_bounds() + 4 * BOUNDS_LO as u64, Some(12), u32::MAX);
-            rec.fill(result, Self::off_bounds() + 4 * BOUNDS_HI as u64, Some(12), 0);
-            rec.fill(result, Self::off_hist(), Some(4 * (self.size_bins as u64 + 1)), 0);
-            rec.barrier();
-            rec.timestamp_start(timer);
-            let push = FeatureBoundsPush {
-                positions: mesh.positions.address(),
-                indices: mesh.indices.address(),
-                result: bounds_addr,
-                count: n,
-                stride,
-            };
-            rec.dispatch(&self.bounds, &push, rec.groups_for(n, per_group));
-            rec.barrier();
-            let push = FeaturesPush {
-                positions: mesh.positions.address(),
-                indices: mesh.indices.address(),
-                codes: codes.address(),
-                mask: result.address(),
-                hist: result.address() + Self::off_hist(),
-                bounds: bounds_addr,
-                count: n,
-                stride,
-                shift: bits.total() - MASK_LOG2,
-                pad: 0,
-            };
-            rec.dispatch(&self.features[b63], &push, rec.groups_for(n, per_group));
-            rec.timestamp(timer, "features");
-            rec.barrier();
-            rec.copy(result, 0, readback, 0, bytes);
-            rec.host_read_barrier();
-            Ok(())
-        })?;
+        rec.reset_timer(timer);
+        rec.fill(result, 0, Some(4 * MASK_WORDS), 0);
+        rec.fill(result, Self::off_bounds() + 4 * BOUNDS_LO as u64, Some(12), u32::MAX);
+        rec.fill(result, Self::off_bounds() + 4 * BOUNDS_HI as u64, Some(12), 0);
+        rec.fill(result, Self::off_hist(), Some(4 * (self.size_bins as u64 + 1)), 0);
+        rec.dependency(Pass::Transfer, Pass::Compute);
+        rec.timestamp_start(timer);
+        let push = geometry_push!(FeatureBoundsPush, view, { result: bounds_addr, count: n, stride: stride });
+        // SAFETY: reads n sampled triangles of the view (checked above) and writes six words of the result buffer.
+        unsafe { rec.dispatch(&self.bounds, &push, rec.groups_for(n, per_group)) };
+        rec.dependency(Pass::Compute, Pass::Compute);
+        let push = geometry_push!(FeaturesPush, view, {
+            codes: codes.address(),
+            mask: result.address(),
+            hist: result.address() + Self::off_hist(),
+            bounds: bounds_addr,
+            count: n,
+            stride: stride,
+            shift: bits.total() - MASK_LOG2,
+            pad: 0,
+        });
+        // SAFETY: reads n triangles and n codes (the codes buffer holds them: checked above), writes the mask and
+        // the size_bins + 1 histogram entries of the result buffer.
+        unsafe { rec.dispatch(&self.features[b63], &push, rec.groups_for(n, per_group)) };
+        rec.timestamp(timer, "features");
+        rec.dependency(Pass::Compute, Pass::Transfer);
+        rec.copy(result, 0, readback, 0, bytes);
+        rec.host_read_barrier();
+        rec.timestamp_start(timer);
+        self.pending = true;
+        Ok(())
+    }
+
+    /// The results of the recorded pass once its command buffer has completed ([`GpuError::Vk`] with
+    /// `VK_NOT_READY`, and still pending, before).
+    pub fn finish(&mut self) -> Result<GpuFeatures> {
+        if !self.pending {
+            return Err(GpuError::Buffer("feature pass: nothing recorded".into()));
+        }
+        let timings = self.timer.try_read()?;
+        self.pending = false;
+        let readback = &self.readback;
         let words: Vec<u32> = readback.read(0, MASK_WORDS as usize)?;
         let mask = words.chunks(2).map(|w| w[0] as u64 | (w[1] as u64) << 32).collect();
         let b: Vec<u32> = readback.read(Self::off_bounds(), BOUNDS_WORDS as usize)?;
         let corner = |at: u32| [0, 1, 2].map(|a| from_ordered_bits(b[at as usize + a]));
         let h: Vec<u32> = readback.read(Self::off_hist(), self.size_bins as usize + 1)?;
-        let timings = self.timer.read()?;
         Ok(GpuFeatures {
             mask,
             size_histogram: h[..self.size_bins as usize].iter().map(|&x| x as u64).collect(),
