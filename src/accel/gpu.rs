@@ -72,8 +72,8 @@ use crate::geom::{Aabb, Triangle};
 use crate::gpu::shaders::layout::{BOUNDS_HI, BOUNDS_LO, BOUNDS_WORDS, COLLAPSE_SIZE, COLLAPSE_WORDS};
 use crate::gpu::sort::{KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
 use crate::gpu::{
-    bounds_read_back, geometry_push, shaders, Buffer, Context, DeviceType, GeometryView, GpuError, InputError, Kernel,
-    KernelDesc, KeysPush, MemoryKind, MeshBuffers, Pass, Recorder, Result, RunError, Timer,
+    bounds_read_back, geometry_push, shaders, Buffer, CompletionFlag, Context, DeviceType, GeometryView, GpuError,
+    InputError, Kernel, KernelDesc, KeysPush, MemoryKind, MeshBuffers, Pass, Recorder, Result, RunError, Timer,
 };
 use crate::keys::{MortonBits, Quantizer};
 use glam::Vec3;
@@ -128,6 +128,7 @@ pub struct GpuBvh {
 #[derive(Debug)]
 struct PendingBuild {
     timer: Timer,
+    done: CompletionFlag,
     collapsed_count: Option<Buffer>,
     _scratch: Arc<Scratch>,
 }
@@ -154,10 +155,11 @@ impl GpuBvh {
 
     /// Completes a recorded build ([`BvhBuilder::record_lbvh`]) once its command buffer has completed and the
     /// caller has seen it complete: reads the pass times and, after the SAH collapse, the node count.
-    /// [`GpuError::Vk`] with `VK_NOT_READY` (the build stays pending) while the timestamps are not available.
+    /// [`GpuError::NotReady`] (the build stays pending) before the command buffer has completed.
     /// Finishing a tree that is not pending does nothing.
     pub fn finish(&mut self) -> Result<()> {
         let Some(p) = &self.pending else { return Ok(()) };
+        p.done.check("recorded BVH build")?;
         let timings = p.timer.try_read()?;
         if let Some(readback) = &p.collapsed_count {
             let size: Vec<u32> = readback.read(0, 1)?;
@@ -388,6 +390,8 @@ impl BvhBuilder {
         rec.dependency(Pass::Compute, Pass::Compute);
         self.record_tree(rec, mesh, &b, quantizer.lo(), quantizer.scale(), &mut timer)?;
         rec.timestamp_start(&mut timer);
+        let mut done = CompletionFlag::new(&ctx)?;
+        done.record(rec)?;
         let scratch = b.scratch.clone();
         let collapsed_count = b.collapsed.take().map(|(out_nodes, out_parents, _, readback)| {
             b.bvh_nodes = out_nodes;
@@ -403,7 +407,7 @@ impl BvhBuilder {
             parents: b.parents,
             counters: b.counters,
             timings: Vec::new(),
-            pending: Some(PendingBuild { timer, collapsed_count, _scratch: scratch }),
+            pending: Some(PendingBuild { timer, done, collapsed_count, _scratch: scratch }),
         })
     }
 

@@ -15,6 +15,7 @@ pub mod cpu;
 pub mod features;
 pub mod finalize;
 pub mod gpu;
+pub mod plan;
 pub mod vulkan;
 
 pub use crate::keys::MortonBits;
@@ -418,7 +419,7 @@ pub(crate) struct Exact {
 }
 
 impl Characterization {
-    /// The result of `backend` on `device` for `mesh` with `params`: the exact quantities, the moments computed from
+    /// The result of `backend` on `device` for a mesh of `total_triangles` triangles with `params`: the exact quantities, the moments computed from
     /// them by [`moments`], and the pass timings.
     pub(crate) fn from_exact(
         mesh: &Mesh,
@@ -428,9 +429,21 @@ impl Characterization {
         backend: Backend,
         device: String,
     ) -> Characterization {
+        Self::from_exact_total(mesh.triangle_count() as u64, params, exact, timings, backend, device)
+    }
+
+    /// [`Characterization::from_exact`] for a mesh of `total_triangles` triangles (a device view).
+    pub(crate) fn from_exact_total(
+        total_triangles: u64,
+        params: &Params,
+        exact: Exact,
+        timings: Vec<PassTime>,
+        backend: Backend,
+        device: String,
+    ) -> Characterization {
         let Exact { lo, hi, code_stats, classes, histogram, stats, per_triangle } = exact;
         Characterization {
-            total_triangles: mesh.triangle_count() as u64,
+            total_triangles,
             triangles: code_stats.n,
             params: params.clone(),
             lo,

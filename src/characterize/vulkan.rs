@@ -5,9 +5,10 @@ use super::features::{features_from_gpu, SIZE_BINS};
 use super::finalize::class_count_of;
 use super::gpu::features::FeaturesGpu;
 use super::gpu::passes::{CharacterizeGpu, ClassPlan, CodeSums};
+use super::plan::{Plan, PlannedCharacterization};
 use super::Features;
 use super::{class_thresholds, Backend, CharError, Characterization, CodeStats, Exact, Params, PassTime, PerTriangle};
-use crate::gpu::{Context, MeshBuffers, RunError};
+use crate::gpu::{Context, GeometryView, MeshBuffers, Pass, Recorder, RunError};
 use crate::mesh::{Animation, Mesh};
 use num_bigint::BigUint;
 use std::time::Instant;
@@ -34,17 +35,135 @@ pub struct VulkanBackend {
     gpu: CharacterizeGpu,
     features: Option<FeaturesGpu>,
     mesh: Option<MeshBuffers>,
+    /// What each slot's recorded planned run needs to be finished.
+    planned: Vec<Option<PlannedSlot>>,
+}
+
+/// A planned run recorded into a slot: its parameters, plan and triangle count, and its feature pass.
+struct PlannedSlot {
+    params: Params,
+    plan: Plan,
+    total_triangles: u64,
+    name: String,
+    features: Option<FeaturesGpu>,
+    with_features: bool,
 }
 
 impl VulkanBackend {
     /// Builds the pipelines on `ctx`'s device.
     pub fn new(ctx: &Context) -> Result<Self, CharError> {
+        Self::with_slots(ctx, 1)
+    }
+
+    /// Builds the pipelines with `slots` slots for planned runs in flight at once (at least 1; the staged methods
+    /// use slot 0).
+    pub fn with_slots(ctx: &Context, slots: usize) -> Result<Self, CharError> {
+        let slots = slots.max(1);
         Ok(VulkanBackend {
             ctx: ctx.clone(),
-            gpu: CharacterizeGpu::new(ctx).map_err(gpu_err)?,
+            gpu: CharacterizeGpu::with_slots(ctx, slots).map_err(gpu_err)?,
             features: None,
             mesh: None,
+            planned: (0..slots).map(|_| None).collect(),
         })
+    }
+
+    /// Records a planned characterization of the geometry `view` (named `name` in the report) into `rec` (see
+    /// [`super::plan`] and [`CharacterizeGpu::record`] for the plan rule and the recording contract), and with
+    /// `features` the scene-feature pass after it, reading the codes it leaves (no second read of the geometry's
+    /// keys). Nothing waits. [`VulkanBackend::finish_planned`] reads the report once the command buffer has
+    /// completed.
+    pub fn record_planned(
+        &mut self,
+        rec: &mut Recorder<'_>,
+        slot: usize,
+        view: &GeometryView<'_>,
+        name: &str,
+        params: &Params,
+        plan: &Plan,
+        features: bool,
+    ) -> Result<(), CharError> {
+        params.validate()?;
+        let input = |reason: String| CharError::Input { mesh: name.to_string(), reason };
+        if plan.bits != params.morton_bits {
+            return Err(input(format!(
+                "a {}-bit plan for {}-bit parameters",
+                plan.bits.total(),
+                params.morton_bits.total()
+            )));
+        }
+        let n_slots = self.planned.len();
+        if slot >= n_slots {
+            return Err(CharError::Gpu(format!("slot {slot} of {n_slots}")));
+        }
+        let stride = params.sample_stride as u64;
+        self.gpu
+            .record(rec, slot, view, params.morton_bits, stride, &plan.pass_plan())
+            .map_err(|e| run_err(e, name))?;
+        let mut features_gpu = self.planned[slot].take().and_then(|p| p.features);
+        if features {
+            if features_gpu.is_none() {
+                features_gpu = Some(FeaturesGpu::new(&self.ctx, SIZE_BINS as u32).map_err(gpu_err)?);
+            }
+            let (Some(fg), Some((_, codes, _))) = (features_gpu.as_mut(), self.gpu.slot_arrays(slot)) else {
+                return Err(CharError::Gpu("feature pass without the slot's codes".into()));
+            };
+            rec.dependency(Pass::Compute, Pass::Compute);
+            let n = view.triangle_count().div_ceil(stride.max(1));
+            fg.record(rec, view, codes, n, stride, params.morton_bits).map_err(gpu_err)?;
+        }
+        self.planned[slot] = Some(PlannedSlot {
+            params: params.clone(),
+            plan: plan.clone(),
+            total_triangles: view.triangle_count(),
+            name: name.to_string(),
+            features: features_gpu,
+            with_features: features,
+        });
+        Ok(())
+    }
+
+    /// The report of the planned run recorded into `slot`, and its scene features when they were recorded, once
+    /// the command buffer has completed and the caller has seen it complete. Before that: an error
+    /// ([`CharError::Gpu`] naming `VK_NOT_READY`), and the run stays pending.
+    pub fn finish_planned(&mut self, slot: usize) -> Result<(PlannedCharacterization, Option<Features>), CharError> {
+        let Some(Some(p)) = self.planned.get_mut(slot) else {
+            return Err(CharError::Gpu(format!("slot {slot} has no recorded planned run")));
+        };
+        let name = p.name.clone();
+        let out = self.gpu.finish(slot).map_err(|e| run_err(e, &name))?;
+        let p = self.planned[slot].as_mut().ok_or_else(|| CharError::Gpu("slot emptied".into()))?;
+        let features = match (&mut p.features, p.with_features) {
+            (Some(fg), true) => {
+                let g = fg.finish().map_err(gpu_err)?;
+                Some(features_from_gpu(&g, out.n, p.total_triangles, p.params.morton_bits))
+            }
+            _ => None,
+        };
+        let hstats = super::finalize::histogram_stats_exact(
+            out.chi_numerator,
+            out.empty_classes,
+            out.concentrated_classes,
+            out.concentrated_triangles,
+            out.n,
+            out.plan.k,
+            p.params.alpha,
+        );
+        let timings: Vec<PassTime> =
+            out.timings.iter().map(|(name, ms)| PassTime { name: name.clone(), ms: *ms }).collect();
+        let exact = Exact {
+            lo: out.lo,
+            hi: out.hi,
+            code_stats: code_stats(&out.sums),
+            classes: out.plan.k,
+            histogram: out.histogram,
+            stats: hstats,
+            per_triangle: None,
+        };
+        let device = self.ctx.caps().name.clone();
+        let report =
+            Characterization::from_exact_total(p.total_triangles, &p.params, exact, timings, Backend::Vulkan, device);
+        Ok((PlannedCharacterization { report, plan: p.plan.clone() }, features))
     }
 
     /// The context.
@@ -164,6 +283,13 @@ impl VulkanBackend {
         };
         let device = self.ctx.caps().name.clone();
         Ok(Characterization::from_exact(mesh, params, exact, timings, Backend::Vulkan, device))
+    }
+}
+
+fn run_err(e: RunError, name: &str) -> CharError {
+    match e {
+        RunError::Gpu(g) => gpu_err(g),
+        RunError::Input(i) => CharError::Input { mesh: name.to_string(), reason: i.to_string() },
     }
 }
 

@@ -33,7 +33,7 @@ pub use geometry::{GeometryView, IndexType, Indices, Vertices};
 pub use kernel::{Kernel, KernelDesc};
 pub(crate) use mesh::bounds_read_back;
 pub use mesh::{InputError, KeysPush, MeshBuffers, RunError};
-pub use record::{Pass, Recorder, Timer};
+pub use record::{CompletionFlag, Pass, Recorder, Timer};
 pub use shaders::{check_push_layout, check_struct_layout, PushConstants, ShaderInfo};
 
 use ash::vk;
@@ -93,6 +93,9 @@ pub enum GpuError {
     /// A push-constant struct does not match its shader's block.
     #[error("push-constant layout mismatch: {0}")]
     Layout(String),
+    /// The results of a recorded operation were asked for before its command buffer completed (or was submitted).
+    #[error("{0}: the recorded work has not completed (submit the command buffer and wait for its fence first)")]
+    NotReady(String),
     /// A buffer access outside its size, or a wrong kind of buffer.
     #[error("buffer misuse: {0}")]
     Buffer(String),

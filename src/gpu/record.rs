@@ -279,3 +279,62 @@ impl Drop for Timer {
         unsafe { self.ctx.device.destroy_query_pool(self.pool, None) };
     }
 }
+
+/// A word in host-visible memory that the device sets when a recorded operation's last command has run: how a
+/// recorded operation's `finish` tells a completed run from one not yet submitted or still running (timestamp
+/// availability cannot: a reused query pool still holds the previous run's results until the recorded reset runs).
+/// Checking it is no substitute for synchronization: the caller reads results only after it has seen the command
+/// buffer complete (its fence); the flag turns a forgotten wait into an error instead of stale numbers.
+pub struct CompletionFlag {
+    buffer: super::Buffer,
+    serial: u32,
+}
+
+impl std::fmt::Debug for CompletionFlag {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CompletionFlag").field("serial", &self.serial).finish()
+    }
+}
+
+impl CompletionFlag {
+    /// A flag in a buffer of its own.
+    pub fn new(ctx: &Context) -> Result<Self> {
+        Ok(CompletionFlag { buffer: ctx.create_buffer("completion flag", 4, super::MemoryKind::Readback)?, serial: 0 })
+    }
+
+    /// Clears the flag on the host and records, at the current point of `rec`, the device's write of a new serial
+    /// after every earlier compute and transfer command, made visible to the host. Record it last. The flag's
+    /// previous run must have completed.
+    pub fn record(&mut self, rec: &mut Recorder<'_>) -> Result<()> {
+        self.serial = self.serial.wrapping_add(1).max(1);
+        self.buffer.write(0, &[0u32])?;
+        let mb = [vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE)
+            .dst_access_mask(vk::AccessFlags::TRANSFER_WRITE)];
+        // SAFETY: recording command buffer.
+        unsafe {
+            rec.dev().cmd_pipeline_barrier(
+                rec.cmd,
+                vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER,
+                vk::PipelineStageFlags::TRANSFER,
+                vk::DependencyFlags::empty(),
+                &mb,
+                &[],
+                &[],
+            )
+        };
+        rec.fill(&self.buffer, 0, Some(4), self.serial);
+        rec.host_read_barrier();
+        Ok(())
+    }
+
+    /// `Ok` once the device has written the serial of the last [`CompletionFlag::record`];
+    /// [`GpuError::NotReady`](super::GpuError::NotReady) naming `what` before.
+    pub fn check(&self, what: &str) -> Result<()> {
+        let v: Vec<u32> = self.buffer.read(0, 1)?;
+        if self.serial == 0 || v[0] != self.serial {
+            return Err(super::GpuError::NotReady(what.to_string()));
+        }
+        Ok(())
+    }
+}

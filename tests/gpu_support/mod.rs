@@ -42,3 +42,36 @@ pub fn assert_no_validation_messages(ctx: &Context) {
     let m = ctx.validation_messages();
     assert!(m.is_empty(), "{} validation message(s):\n{}", m.len(), m.join("\n"));
 }
+
+/// Records with `record` into a command buffer the test owns (its own pool, on the context's queue family),
+/// submits it to the context's queue and waits on a fence of its own: what an engine does, with meshchar only
+/// recording. Returns what `record` returned.
+pub fn in_caller_command_buffer<T>(ctx: &Context, record: impl FnOnce(&mut meshchar::gpu::Recorder<'_>) -> T) -> T {
+    use ash::vk;
+    let dev = ctx.device();
+    let info = vk::CommandPoolCreateInfo::default().queue_family_index(ctx.queue_family());
+    // SAFETY: plain Vulkan object creation and submission on the context's device, single-threaded; every object is
+    // destroyed after the fence wait.
+    unsafe {
+        let pool = dev.create_command_pool(&info, None).expect("command pool");
+        let alloc = vk::CommandBufferAllocateInfo::default()
+            .command_pool(pool)
+            .level(vk::CommandBufferLevel::PRIMARY)
+            .command_buffer_count(1);
+        let cmd = dev.allocate_command_buffers(&alloc).expect("command buffer")[0];
+        dev.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default()).expect("begin");
+        let out = {
+            let mut rec = meshchar::gpu::Recorder::new(ctx, cmd);
+            record(&mut rec)
+        };
+        dev.end_command_buffer(cmd).expect("end");
+        let fence = dev.create_fence(&vk::FenceCreateInfo::default(), None).expect("fence");
+        let queue = dev.get_device_queue(ctx.queue_family(), 0);
+        let cmds = [cmd];
+        dev.queue_submit(queue, &[vk::SubmitInfo::default().command_buffers(&cmds)], fence).expect("submit");
+        dev.wait_for_fences(&[fence], true, u64::MAX).expect("wait");
+        dev.destroy_fence(fence, None);
+        dev.destroy_command_pool(pool, None);
+        out
+    }
+}

@@ -22,8 +22,8 @@
 
 use crate::gpu::shaders::layout::{BOUNDS_HI, BOUNDS_LO, BOUNDS_WORDS};
 use crate::gpu::{
-    geometry_push, shaders, Buffer, Context, GeometryView, GpuError, Kernel, KernelDesc, MemoryKind, Pass, Recorder,
-    Result, Timer,
+    geometry_push, shaders, Buffer, CompletionFlag, Context, GeometryView, GpuError, Kernel, KernelDesc, MemoryKind,
+    Pass, Recorder, Result, Timer,
 };
 use crate::keys::{from_ordered_bits, MortonBits};
 
@@ -61,6 +61,7 @@ pub struct FeaturesGpu {
     result: Buffer,
     readback: Buffer,
     timer: Timer,
+    done: CompletionFlag,
     pending: bool,
 }
 
@@ -86,6 +87,7 @@ impl FeaturesGpu {
             result: ctx.create_buffer("features result", bytes, MemoryKind::DeviceLocal)?,
             readback: ctx.create_buffer("features readback", bytes, MemoryKind::Readback)?,
             timer: Timer::new(ctx, 4)?,
+            done: CompletionFlag::new(ctx)?,
             pending: false,
         })
     }
@@ -174,18 +176,19 @@ impl FeaturesGpu {
         rec.timestamp(timer, "features");
         rec.dependency(Pass::Compute, Pass::Transfer);
         rec.copy(result, 0, readback, 0, bytes);
-        rec.host_read_barrier();
         rec.timestamp_start(timer);
+        self.done.record(rec)?;
         self.pending = true;
         Ok(())
     }
 
-    /// The results of the recorded pass once its command buffer has completed ([`GpuError::Vk`] with
-    /// `VK_NOT_READY`, and still pending, before).
+    /// The results of the recorded pass once its command buffer has completed ([`GpuError::NotReady`], and still
+    /// pending, before).
     pub fn finish(&mut self) -> Result<GpuFeatures> {
         if !self.pending {
             return Err(GpuError::Buffer("feature pass: nothing recorded".into()));
         }
+        self.done.check("feature pass")?;
         let timings = self.timer.try_read()?;
         self.pending = false;
         let readback = &self.readback;

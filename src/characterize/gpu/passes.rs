@@ -30,8 +30,8 @@ use crate::gpu::shaders::layout::{
     CHI_WORDS, MOMENTS_CODE_MAX, MOMENTS_CODE_MIN, MOMENTS_LIMBS,
 };
 use crate::gpu::{
-    bounds_read_back, geometry_push, shaders, Buffer, Context, GeometryView, GpuError, InputError, Kernel, KernelDesc,
-    KeysPush, MemoryKind, Pass, Recorder, Result, RunError, Timer,
+    bounds_read_back, geometry_push, shaders, Buffer, CompletionFlag, Context, GeometryView, GpuError, InputError,
+    Kernel, KernelDesc, KeysPush, MemoryKind, Pass, Recorder, Result, RunError, Timer,
 };
 use crate::keys::{MortonBits, Quantizer};
 
@@ -143,6 +143,7 @@ struct Slot {
     readback: Buffer,
     scratch: Option<Scratch>,
     timer: Timer,
+    done: CompletionFlag,
     pending: Option<Pending>,
 }
 
@@ -154,6 +155,7 @@ impl Slot {
             readback: ctx.create_buffer("characterize readback", RESULT_BYTES, MemoryKind::Readback)?,
             scratch: None,
             timer: Timer::new(ctx, 16)?,
+            done: CompletionFlag::new(ctx)?,
             pending: None,
         })
     }
@@ -403,19 +405,21 @@ impl CharacterizeGpu {
         k.record_classes(rec, s, n, b63, plan.code_min, plan.classes.k);
         rec.dependency(Pass::Compute, Pass::Transfer);
         rec.copy(&s.result, 0, &s.readback, 0, OFF_HIST + 4 * plan.classes.k as u64);
-        rec.host_read_barrier();
-        // Written after everything above completes: its availability means the results are in the readback.
         rec.timestamp_start(&mut s.timer);
+        s.done.record(rec)?;
         s.pending = Some(Pending { n, plan: plan.clone() });
         Ok(())
     }
 
     /// The results of the run recorded into `slot`, once its command buffer has completed and the caller has seen
-    /// it complete (its fence signalled). A run whose timestamps are not all available yet gives
-    /// [`GpuError::Vk`] with `VK_NOT_READY` and stays pending; any other outcome frees the slot. Errors about the
+    /// it complete (its fence signalled). A run that has not completed gives [`GpuError::NotReady`] and stays
+    /// pending; any other outcome frees the slot. Errors about the
     /// input (a frame whose own bounds overflow) are [`RunError::Input`].
     pub fn finish(&mut self, slot: usize) -> std::result::Result<GpuCharacterization, RunError> {
         let s = self.slot(slot)?;
+        if s.pending.is_some() {
+            s.done.check(&format!("characterization slot {slot}"))?;
+        }
         let timings = s.timer.try_read()?;
         let Some(Pending { n, plan }) = s.pending.take() else {
             return Err(GpuError::Buffer(format!("characterization slot {slot} has no recorded run")).into());
