@@ -73,6 +73,7 @@ impl VulkanBackend {
     /// `features` the scene-feature pass after it, reading the codes it leaves (no second read of the geometry's
     /// keys). Nothing waits. [`VulkanBackend::finish_planned`] reads the report once the command buffer has
     /// completed.
+    #[allow(clippy::too_many_arguments)]
     pub fn record_planned(
         &mut self,
         rec: &mut Recorder<'_>,
