@@ -831,7 +831,8 @@ impl BvhBuilder {
         }
     }
 
-    /// Records a refit of `bvh` for the positions now in `mesh` (same triangles as at build): leaf boxes, counters
+    /// Records a refit of `bvh` (a recorded build may be refitted before it is finished, in a later command
+    /// buffer or later in the same one, unless it has the SAH collapse, whose node count is known only then) for the positions now in `mesh` (same triangles as at build): leaf boxes, counters
     /// reset, bottom-up fit.
     ///
     /// Synchronization: begins with [`Recorder::barrier`] (the new positions, written by a transfer or a kernel
@@ -881,8 +882,11 @@ fn check_refit(mesh: &GeometryView<'_>, bvh: &GpuBvh) -> Result<()> {
             bvh.triangles
         )));
     }
-    if bvh.is_pending() {
-        return Err(GpuError::Buffer("refit of a recorded build not yet finished (GpuBvh::finish)".into()));
+    if bvh.pending.as_ref().is_some_and(|p| p.collapsed_count.is_some()) {
+        return Err(GpuError::Buffer(
+            "refit of a recorded build with the SAH collapse not yet finished (GpuBvh::finish reads its node count)"
+                .into(),
+        ));
     }
     Ok(())
 }
