@@ -46,6 +46,14 @@
 //! animation: same triangles, same topology): `leaves`, counters reset, `fit`. The result equals a fresh
 //! leaves-and-fit pass over the same topology.
 //!
+//! # Recording
+//!
+//! [`BvhBuilder::build_lbvh`] and [`BvhBuilder::build_hlbvh`] submit and wait (the host reads the bounds back to
+//! make the quantizer). [`BvhBuilder::record_lbvh`] records the whole LBVH build into a caller's command buffer with
+//! a quantizer given in advance (the planned characterization's: [`crate::characterize::plan::Plan`]), and
+//! [`BvhBuilder::record_refit`] a refit; [`GpuBvh::finish`] completes a recorded tree once its command buffer has
+//! completed. Every builder reads geometry through a [`GeometryView`].
+//!
 //! An empty mesh is an error ([`InputError::Empty`]): a tree on the device needs at least one node.
 //!
 //! ```no_run
@@ -57,7 +65,7 @@
 //! let mesh = meshchar::mesh::generate::random_soup(1000, 1);
 //! let buffers = MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices)?;
 //! let mut builder = BvhBuilder::new(&ctx)?;
-//! let bvh = builder.build_lbvh(&buffers, &LbvhOptions::default())?;
+//! let bvh = builder.build_lbvh(&buffers.view(), &LbvhOptions::default())?;
 //! println!("nodes at 0x{:x}", bvh.nodes().address());
 //! let tree = bvh.read_back(&ctx, &buffers)?;
 //! tree.validate("lbvh")?;
@@ -831,9 +839,9 @@ impl BvhBuilder {
         }
     }
 
-    /// Records a refit of `bvh` (a recorded build may be refitted before it is finished, in a later command
-    /// buffer or later in the same one, unless it has the SAH collapse, whose node count is known only then) for the positions now in `mesh` (same triangles as at build): leaf boxes, counters
-    /// reset, bottom-up fit.
+    /// Records a refit of `bvh` for the positions now in `mesh` (same triangles as at build): leaf boxes, counters
+    /// reset, bottom-up fit. A recorded build may be refitted before it is finished (in a later command buffer or
+    /// later in the same one), unless it has the SAH collapse, whose node count is known only then.
     ///
     /// Synchronization: begins with [`Recorder::barrier`] (the new positions, written by a transfer or a kernel
     /// before, are visible); ends with the fit's shader writes to [`GpuBvh::nodes`] and no barrier after it: the

@@ -8,7 +8,7 @@
 //! `t` costs no wait; the report still carries frame `t`'s own bounds, code range and moments. What the plan
 //! changes is only where a key outside the planned bounds lands (the nearest cell) and which classes the codes fall
 //! in (codes outside the planned range go to the first or last class): the numbers are exact for that plan, and
-//! [`reference`] reproduces them bit for bit on the CPU. With the plan of the frame itself ([`Plan::exact`]) the
+//! [`reference()`] reproduces them bit for bit on the CPU. With the plan of the frame itself ([`Plan::exact`]) the
 //! planned run equals the staged one.
 
 use super::finalize::{class_count_of, class_of, histogram_stats};
