@@ -269,3 +269,77 @@ impl Policy for CalibratedPolicy {
         Selection { structure: choice, reasons }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::characterize::{features_cpu, Params};
+    use crate::geom::WorkloadKind;
+    use crate::mesh::generate;
+
+    fn exploding_features() -> Vec<Features> {
+        let anim = generate::explode(&generate::random_soup(400, 3), 5, 1).expect("animation");
+        anim.frames.iter().map(|m| features_cpu(m, &Params::default()).expect("features")).collect()
+    }
+
+    #[test]
+    fn frame_rule_rebuilds_without_a_tree_with_its_structures_and_sees_no_drift_in_the_same_scene() {
+        let model = CostModel::shipped().expect("shipped model");
+        let f = exploding_features();
+        let only = [StructureName::Lbvh];
+        let rule = FrameRule {
+            model: &model,
+            kind: WorkloadKind::Primary,
+            rays_per_frame: 1 << 20,
+            tie_margin: 0.05,
+            structures: &only,
+        };
+        let first = rule.decide(0, &f[0], None).expect("a decision");
+        assert_eq!((first.frame, first.action, first.structure), (0, FrameAction::Rebuild, StructureName::Lbvh));
+        let same = rule.decide(1, &f[0], Some((&f[0], StructureName::Lbvh))).expect("a decision");
+        assert_eq!(same.frame, 1);
+        if same.action == FrameAction::Refit {
+            assert_eq!((same.structure, same.drift), (StructureName::Lbvh, 0.0));
+        }
+        let later = rule.decide(4, &f[4], Some((&f[0], StructureName::Lbvh))).expect("a decision");
+        let drift = crate::cost::drift(&f[0], &f[4]);
+        assert!(drift > 0.0, "an explosion drifts");
+        if later.action == FrameAction::Refit {
+            assert_eq!(later.drift, drift);
+        }
+        // A structure the model does not predict: no decision.
+        let none: Vec<StructureName> = Vec::new();
+        let model_without = CostModel {
+            structures: model.structures.iter().filter(|s| s.structure != StructureName::Lbvh).cloned().collect(),
+            ..model.clone()
+        };
+        let rule = FrameRule { model: &model_without, structures: &only, ..rule };
+        assert!(rule.decide(0, &f[0], None).is_none());
+        let rule = FrameRule { structures: &none, ..rule };
+        assert!(rule.decide(0, &f[0], None).is_some(), "an empty list allows every calibrated structure");
+    }
+
+    #[test]
+    fn plan_frames_is_frame_rule_over_every_structure() {
+        let model = CostModel::shipped().expect("shipped model");
+        let f = exploding_features();
+        let plan = plan_frames(&model, &f, WorkloadKind::Primary, 1 << 20, 0.05);
+        assert_eq!(plan.len(), f.len());
+        let rule = FrameRule {
+            model: &model,
+            kind: WorkloadKind::Primary,
+            rays_per_frame: 1 << 20,
+            tie_margin: 0.05,
+            structures: &[],
+        };
+        let mut built: Option<usize> = None;
+        for (i, d) in plan.iter().enumerate() {
+            let tree = built.map(|b| (&f[b], plan[b].structure));
+            assert_eq!(Some(d.clone()), rule.decide(i, &f[i], tree), "frame {i}");
+            if d.action == FrameAction::Rebuild {
+                built = Some(i);
+            }
+        }
+        assert_eq!(plan[0].action, FrameAction::Rebuild);
+    }
+}
