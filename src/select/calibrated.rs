@@ -70,7 +70,8 @@ fn bvh_family(s: StructureName) -> bool {
 
 /// Per-frame rebuild-or-refit plan for an animation with per-frame `features` and `rays_per_frame` rays of `kind`
 /// per frame: greedy, frame by frame, the cheaper of rebuilding with the calibrated choice and refitting the tree in
-/// use (BVH family only, and only with a refit model).
+/// use (BVH family only, and only with a refit model). Each step is [`FrameRule::decide`] over all calibrated
+/// structures.
 pub fn plan_frames(
     model: &CostModel,
     features: &[Features],
@@ -78,46 +79,84 @@ pub fn plan_frames(
     rays_per_frame: u64,
     tie_margin: f64,
 ) -> Vec<FrameDecision> {
-    let w = Workload { kind, rays_per_frame, frames: 1, builds: 1 };
+    let rule = FrameRule { model, kind, rays_per_frame, tie_margin, structures: &[] };
     let mut out = Vec::new();
     let mut built: Option<(usize, StructureName)> = None;
     for (i, f) in features.iter().enumerate() {
-        let preds = model.predict(f, &w);
-        let Some(fresh) = choose(&preds, tie_margin) else { break };
-        let pf = preds.iter().find(|p| p.structure == fresh).copied();
-        let Some(pf) = pf else { break };
+        let Some(d) = rule.decide(i, f, built.map(|(b, s)| (&features[b], s))) else { break };
+        if d.action == FrameAction::Rebuild {
+            built = Some((i, d.structure));
+        }
+        out.push(d);
+    }
+    out
+}
+
+/// The per-frame rule of [`plan_frames`], one frame at a time: for a caller that learns each frame's features only
+/// as it goes (an engine deciding, frame by frame, whether to rebuild or refit; see `examples/engine_frame.rs`).
+#[derive(Clone, Copy, Debug)]
+pub struct FrameRule<'a> {
+    /// The cost model.
+    pub model: &'a CostModel,
+    /// Kind of the rays traced per frame.
+    pub kind: crate::geom::WorkloadKind,
+    /// Rays per frame.
+    pub rays_per_frame: u64,
+    /// Relative margin within which the cheaper build wins ([`choose`]).
+    pub tie_margin: f64,
+    /// The structures a rebuild may choose from (the builders the caller has); empty: every calibrated structure.
+    pub structures: &'a [StructureName],
+}
+
+impl FrameRule<'_> {
+    /// Frame `frame`'s decision for a scene with features `now`, given the tree in use (`built`: the features of
+    /// the frame it was built for and its structure, `None` before the first build): rebuild with the calibrated
+    /// choice among [`FrameRule::structures`] for a one-frame workload, or refit the tree in use (BVH family only,
+    /// and only when the model has a refit model), whichever predicts the smaller update plus trace time; without
+    /// a tree, rebuild. The refitted tree's trace time is the fresh one's times `1 + g * drift(built, now)`.
+    /// `None` when the model predicts none of the structures.
+    pub fn decide(
+        &self,
+        frame: usize,
+        now: &Features,
+        built: Option<(&Features, StructureName)>,
+    ) -> Option<FrameDecision> {
+        let w = Workload { kind: self.kind, rays_per_frame: self.rays_per_frame, frames: 1, builds: 1 };
+        let preds = self.model.predict(now, &w);
+        let allowed: Vec<Prediction> = preds
+            .iter()
+            .filter(|p| self.structures.is_empty() || self.structures.contains(&p.structure))
+            .copied()
+            .collect();
+        let fresh = choose(&allowed, self.tie_margin)?;
+        let pf = allowed.iter().find(|p| p.structure == fresh)?;
         let rebuild = FrameDecision {
-            frame: i,
+            frame,
             action: FrameAction::Rebuild,
             structure: fresh,
             update_ms: pf.build_ms,
             trace_ms: pf.trace_ms,
             drift: 0.0,
         };
-        let refit = match (built, model.refit) {
+        let refit = match (built, self.model.refit) {
             (Some((b, s)), Some(r)) if bvh_family(s) => preds.iter().find(|p| p.structure == s).map(|p| {
-                let d = crate::cost::drift(&features[b], f);
+                let d = crate::cost::drift(b, now);
                 FrameDecision {
-                    frame: i,
+                    frame,
                     action: FrameAction::Refit,
                     structure: s,
-                    update_ms: r.refit_ns_per_triangle * f.total_triangles.max(f.triangles) as f64 * 1e-6,
+                    update_ms: r.refit_ns_per_triangle * now.total_triangles.max(now.triangles) as f64 * 1e-6,
                     trace_ms: p.trace_ms * (1.0 + r.sah_growth_per_drift.max(0.0) * d),
                     drift: d,
                 }
             }),
             _ => None,
         };
-        let pick = match refit {
+        Some(match refit {
             Some(r) if r.update_ms + r.trace_ms < rebuild.update_ms + rebuild.trace_ms => r,
-            _ => {
-                built = Some((i, fresh));
-                rebuild
-            }
-        };
-        out.push(pick);
+            _ => rebuild,
+        })
     }
-    out
 }
 
 /// The calibrated policy (see the module docs). Needs the scene's features ([`SceneSummary::with_features`]);
@@ -228,5 +267,79 @@ impl Policy for CalibratedPolicy {
             ));
         }
         Selection { structure: choice, reasons }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::characterize::{features_cpu, Params};
+    use crate::geom::WorkloadKind;
+    use crate::mesh::generate;
+
+    fn exploding_features() -> Vec<Features> {
+        let anim = generate::explode(&generate::random_soup(400, 3), 5, 1).expect("animation");
+        anim.frames.iter().map(|m| features_cpu(m, &Params::default()).expect("features")).collect()
+    }
+
+    #[test]
+    fn frame_rule_rebuilds_without_a_tree_with_its_structures_and_sees_no_drift_in_the_same_scene() {
+        let model = CostModel::shipped().expect("shipped model");
+        let f = exploding_features();
+        let only = [StructureName::Lbvh];
+        let rule = FrameRule {
+            model: &model,
+            kind: WorkloadKind::Primary,
+            rays_per_frame: 1 << 20,
+            tie_margin: 0.05,
+            structures: &only,
+        };
+        let first = rule.decide(0, &f[0], None).expect("a decision");
+        assert_eq!((first.frame, first.action, first.structure), (0, FrameAction::Rebuild, StructureName::Lbvh));
+        let same = rule.decide(1, &f[0], Some((&f[0], StructureName::Lbvh))).expect("a decision");
+        assert_eq!(same.frame, 1);
+        if same.action == FrameAction::Refit {
+            assert_eq!((same.structure, same.drift), (StructureName::Lbvh, 0.0));
+        }
+        let later = rule.decide(4, &f[4], Some((&f[0], StructureName::Lbvh))).expect("a decision");
+        let drift = crate::cost::drift(&f[0], &f[4]);
+        assert!(drift > 0.0, "an explosion drifts");
+        if later.action == FrameAction::Refit {
+            assert_eq!(later.drift, drift);
+        }
+        // A structure the model does not predict: no decision.
+        let none: Vec<StructureName> = Vec::new();
+        let model_without = CostModel {
+            structures: model.structures.iter().filter(|s| s.structure != StructureName::Lbvh).cloned().collect(),
+            ..model.clone()
+        };
+        let rule = FrameRule { model: &model_without, structures: &only, ..rule };
+        assert!(rule.decide(0, &f[0], None).is_none());
+        let rule = FrameRule { structures: &none, ..rule };
+        assert!(rule.decide(0, &f[0], None).is_some(), "an empty list allows every calibrated structure");
+    }
+
+    #[test]
+    fn plan_frames_is_frame_rule_over_every_structure() {
+        let model = CostModel::shipped().expect("shipped model");
+        let f = exploding_features();
+        let plan = plan_frames(&model, &f, WorkloadKind::Primary, 1 << 20, 0.05);
+        assert_eq!(plan.len(), f.len());
+        let rule = FrameRule {
+            model: &model,
+            kind: WorkloadKind::Primary,
+            rays_per_frame: 1 << 20,
+            tie_margin: 0.05,
+            structures: &[],
+        };
+        let mut built: Option<usize> = None;
+        for (i, d) in plan.iter().enumerate() {
+            let tree = built.map(|b| (&f[b], plan[b].structure));
+            assert_eq!(Some(d.clone()), rule.decide(i, &f[i], tree), "frame {i}");
+            if d.action == FrameAction::Rebuild {
+                built = Some(i);
+            }
+        }
+        assert_eq!(plan[0].action, FrameAction::Rebuild);
     }
 }

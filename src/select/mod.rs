@@ -11,7 +11,7 @@ mod calibrated;
 mod report;
 mod thesis;
 
-pub use calibrated::{choose, plan_frames, CalibratedPolicy, FrameAction, FrameDecision};
+pub use calibrated::{choose, plan_frames, CalibratedPolicy, FrameAction, FrameDecision, FrameRule};
 pub use report::{Bounds, Report, Timings};
 pub use thesis::ThesisPolicy;
 

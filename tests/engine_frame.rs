@@ -1,0 +1,178 @@
+//! `examples/engine_frame.rs`, run as an engine would run it: its own instance (validation layer on), device, queue
+//! and allocator, meshchar only through `Context::from_raw`, one command buffer per frame with two frames in flight.
+//! Pipelined (the default): 60 frames, none with a host wait, none with a validation message, every planned report
+//! equal to the CPU reference on the positions the frame read back, rebuilds and refits counted consistently with
+//! the summary. Staged: its frames do wait (so the counter counts).
+//!
+//! The binary is the built example beside this test's directory (`target/<profile>/examples/engine_frame`): build
+//! the examples first (`cargo build --release --examples`, as `scripts/test` does). A missing binary, or one older
+//! than the sources, fails the test.
+
+mod gpu_support;
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+/// The example binary: `current_exe()` is `target/<profile>/deps/engine_frame-<hash>`.
+fn binary() -> PathBuf {
+    let exe = std::env::current_exe().expect("the test's own path");
+    let dir = exe.parent().and_then(Path::parent).expect("target/<profile>");
+    let path = dir.join("examples").join(format!("engine_frame{}", std::env::consts::EXE_SUFFIX));
+    assert!(
+        path.is_file(),
+        "example binary {} not found: build the examples first (`cargo build --release --examples`)",
+        path.display()
+    );
+    let built = std::fs::metadata(&path).and_then(|m| m.modified()).expect("the binary's time");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    // What cargo relinks the example for (a manifest edit need not relink it, and without `compile-glsl` an edit
+    // of glsl/ rebuilds nothing).
+    let sources = [root.join("examples"), root.join("src")];
+    if let Some(newer) = newest_source(&sources, built) {
+        panic!("example binary {} is older than {}: rebuild the examples", path.display(), newer.display());
+    }
+    path
+}
+
+/// A file under `paths` modified after `time`, if any.
+fn newest_source(paths: &[PathBuf], time: std::time::SystemTime) -> Option<PathBuf> {
+    for p in paths {
+        let Ok(meta) = std::fs::metadata(p) else { continue };
+        if meta.is_dir() {
+            let entries: Vec<PathBuf> =
+                std::fs::read_dir(p).into_iter().flatten().flatten().map(|e| e.path()).collect();
+            if let Some(f) = newest_source(&entries, time) {
+                return Some(f);
+            }
+        } else if meta.modified().is_ok_and(|m| m > time) {
+            return Some(p.clone());
+        }
+    }
+    None
+}
+
+fn run(args: &[&str]) -> Output {
+    Command::new(binary())
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run engine_frame: {e}"))
+}
+
+/// Runs the example with `args` (which include `--json`), expects exit 0, and returns its frame lines and summary.
+fn frames(args: &[&str]) -> (Vec<Value>, Value) {
+    let out = run(args);
+    let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert_eq!(out.status.code(), Some(0), "engine_frame {args:?}\nstdout:\n{stdout}\nstderr:\n{stderr}");
+    let mut values: Vec<Value> =
+        stdout.lines().map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("not JSON ({e}): {l}"))).collect();
+    let summary = values.pop().expect("a summary line");
+    assert_eq!(summary["summary"], Value::Bool(true), "the last line is the summary: {summary}");
+    assert!(values.iter().all(|v| v.get("summary").is_none()), "one summary, last");
+    (values, summary)
+}
+
+fn u(v: &Value, key: &str) -> u64 {
+    v[key].as_u64().unwrap_or_else(|| panic!("{key} is not a count in {v}"))
+}
+
+#[test]
+fn pipelined_frames_never_wait_stay_silent_and_equal_the_reference() {
+    if gpu_support::context().is_none() {
+        return;
+    }
+    let (lines, summary) = frames(&["--frames", "60", "--json", "--check"]);
+    assert_eq!(lines.len(), 60, "one line per frame");
+    let (mut rebuilds, mut refits) = (0u64, 0u64);
+    for (t, l) in lines.iter().enumerate() {
+        assert_eq!(u(l, "frame"), t as u64, "frames in order: {l}");
+        assert_eq!(l["mode"], "pipelined");
+        assert_eq!(u(l, "host_waits"), 0, "frame {t} waited on the host: {l}");
+        assert_eq!(u(l, "engine_waits"), 0, "frame {t}: {l}");
+        assert_eq!(u(l, "validation_messages"), 0, "frame {t}: {l}");
+        assert_eq!(l["reference_equal"], Value::Bool(true), "frame {t}: {l}");
+        assert!(l["characterize_ms"].as_f64().is_some_and(|ms| ms > 0.0), "frame {t}: {l}");
+        let meshes = l["meshes"].as_array().expect("meshes");
+        assert_eq!(meshes.len(), 2, "{l}");
+        assert_eq!(meshes[0]["index_type"], "u16");
+        assert_eq!(meshes[1]["index_type"], "u32");
+        assert_eq!(u(l, "triangles"), meshes.iter().map(|m| u(m, "triangles")).sum::<u64>());
+        let mut frame_rebuilds = 0u64;
+        for m in meshes {
+            assert_eq!(m["reference_equal"], Value::Bool(true), "frame {t}: {m}");
+            match m["decision"].as_str() {
+                Some("rebuild") => {
+                    assert!(m["build_ms"].as_f64().is_some() && m.get("refit_ms").is_none(), "{m}");
+                    frame_rebuilds += 1;
+                }
+                Some("refit") => {
+                    assert!(m["refit_ms"].as_f64().is_some() && m.get("build_ms").is_none(), "{m}");
+                    refits += 1;
+                }
+                _ => panic!("frame {t}: no decision in {m}"),
+            }
+        }
+        rebuilds += frame_rebuilds;
+        let want = if frame_rebuilds > 0 { "rebuild" } else { "refit" };
+        assert_eq!(l["decision"], want, "frame {t}: {l}");
+        assert_eq!(l.get("build_ms").is_some(), frame_rebuilds > 0, "{l}");
+        assert_eq!(l.get("refit_ms").is_some(), frame_rebuilds < meshes.len() as u64, "{l}");
+        if t == 0 {
+            assert_eq!(frame_rebuilds, 2, "the first frame builds every tree: {l}");
+        }
+    }
+    assert!(rebuilds >= 2, "at least the first frame's rebuilds");
+    assert_eq!(u(&summary, "frames"), 60);
+    assert_eq!(u(&summary, "rebuilds"), rebuilds);
+    assert_eq!(u(&summary, "refits"), refits);
+    assert_eq!(rebuilds + refits, 120, "a decision per mesh and frame");
+    assert_eq!(u(&summary, "host_waits"), 0);
+    assert_eq!(u(&summary, "validation_messages"), 0, "{summary}");
+    assert_eq!(summary["reference_equal"], Value::Bool(true));
+    let mean: f64 = lines.iter().map(|l| l["characterize_ms"].as_f64().unwrap_or(0.0)).sum::<f64>() / 60.0;
+    let reported = summary["mean_characterize_ms"].as_f64().expect("mean_characterize_ms");
+    assert!((reported - mean).abs() <= 1e-9 * mean.max(1.0), "mean {reported} vs {mean}");
+}
+
+#[test]
+fn staged_frames_wait_and_equal_the_reference() {
+    if gpu_support::context().is_none() {
+        return;
+    }
+    let (lines, summary) = frames(&["--frames", "3", "--json", "--check", "--mode", "staged"]);
+    assert_eq!(lines.len(), 3);
+    for l in &lines {
+        assert_eq!(l["mode"], "staged");
+        assert!(u(l, "host_waits") > 0, "the staged characterization waits on the host: {l}");
+        assert_eq!(u(l, "engine_waits"), 1, "{l}");
+        assert_eq!(u(l, "validation_messages"), 0, "{l}");
+        assert_eq!(l["reference_equal"], Value::Bool(true), "{l}");
+    }
+    assert_eq!(u(&summary, "host_waits"), lines.iter().map(|l| u(l, "host_waits")).sum::<u64>());
+    assert_eq!(u(&summary, "validation_messages"), 0);
+}
+
+#[test]
+fn help_and_png() {
+    let out = run(&["--help"]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(0));
+    for w in ["Usage: engine_frame", "--frames", "--mode", "pipelined", "staged", "--check", "--png", "--json"] {
+        assert!(stdout.contains(w), "--help lacks {w:?}:\n{stdout}");
+    }
+    let bad = run(&["--frames", "0"]);
+    assert_eq!(bad.status.code(), Some(2), "--frames 0 is a usage error");
+    if gpu_support::context().is_none() {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("meshchar-engine-frame-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temporary directory");
+    let png = dir.join("last.png");
+    let png_arg = png.to_str().expect("a UTF-8 temporary path");
+    let out = run(&["--frames", "3", "--subdivide", "0", "--png", png_arg]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let bytes = std::fs::read(&png).expect("the PNG was written");
+    assert!(bytes.starts_with(b"\x89PNG\r\n\x1a\n"), "not a PNG");
+    let _ = std::fs::remove_dir_all(&dir);
+}
