@@ -1,5 +1,5 @@
 use crate::gpu::shaders::layout::{BOUNDS_HI, BOUNDS_LO, BOUNDS_WORDS};
-use crate::gpu::{shaders, Buffer, Context, GpuError, Kernel, KernelDesc, MemoryKind, Recorder, Result};
+use crate::gpu::{shaders, Buffer, Context, GpuError, Kernel, KernelDesc, MemoryKind, Pass, Recorder, Result};
 use crate::keys::from_ordered_bits;
 
 /// Items each invocation handles per tile by default.
@@ -45,7 +45,7 @@ impl PointBounds {
         }
         rec.fill(result, result_offset + 4 * BOUNDS_LO as u64, Some(12), u32::MAX);
         rec.fill(result, result_offset + 4 * BOUNDS_HI as u64, Some(12), 0);
-        rec.barrier();
+        rec.dependency(Pass::Transfer, Pass::Compute);
         let wg = self.kernel.workgroup_size() as u64;
         let groups = rec.groups_for(count, wg * self.items as u64);
         let push = BoundsPush { points: points.address(), result: result.address() + result_offset, count };
@@ -63,7 +63,7 @@ impl PointBounds {
         let readback = ctx.create_buffer("bounds readback", 24, MemoryKind::Readback)?;
         ctx.submit_and_wait(|rec| {
             self.record(rec, points, count, &result, 0)?;
-            rec.barrier();
+            rec.dependency(Pass::Compute, Pass::Transfer);
             rec.copy(&result, 0, &readback, 0, 24);
             rec.host_read_barrier();
             Ok(())

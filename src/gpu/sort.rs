@@ -39,7 +39,7 @@
 //! ```
 
 use crate::gpu::{
-    shaders, Buffer, Context, DeviceCaps, DeviceType, GpuError, Kernel, KernelDesc, MemoryKind, Recorder, Result,
+    shaders, Buffer, Context, DeviceCaps, DeviceType, GpuError, Kernel, KernelDesc, MemoryKind, Pass, Recorder, Result,
 };
 
 /// Bits per digit.
@@ -483,11 +483,12 @@ impl RadixSort {
                 shift,
                 pad: 0,
             };
-            // SAFETY: the sort buffers were sized by memory_requirements for `n` keys (checked in record), and the kernel touches only those ranges.
+            // SAFETY: the sort buffers were sized by memory_requirements for these keys (checked in
+            // record), and the kernel touches only those ranges.
             unsafe { rec.dispatch(&self.count[key64], &push, block_groups) };
-            rec.barrier();
+            rec.dependency(Pass::Compute, Pass::Compute);
             self.record_scan(rec, buffers.internal, &mem);
-            rec.barrier();
+            rec.dependency(Pass::Compute, Pass::Compute);
             let push = SortScatterPush {
                 keys_in: src.address(),
                 keys_out: dst.address(),
@@ -498,10 +499,11 @@ impl RadixSort {
                 blocks,
                 shift,
             };
-            // SAFETY: the sort buffers were sized by memory_requirements for `n` keys (checked in record), and the kernel touches only those ranges.
+            // SAFETY: the sort buffers were sized by memory_requirements for these keys (checked in
+            // record), and the kernel touches only those ranges.
             unsafe { rec.dispatch(&self.scatter[key64], &push, block_groups) };
             if pass + 1 < passes {
-                rec.barrier();
+                rec.dependency(Pass::Compute, Pass::Compute);
             }
             std::mem::swap(&mut src, &mut dst);
             vals = vals.map(|(a, b)| (b, a));
@@ -517,17 +519,20 @@ impl RadixSort {
         for i in 0..top {
             let ((src, n), (dst, _)) = (level(i), level(i + 1));
             let push = SortScanReducePush { src, dst, n };
-            // SAFETY: the sort buffers were sized by memory_requirements for `n` keys (checked in record), and the kernel touches only those ranges.
+            // SAFETY: the sort buffers were sized by memory_requirements for these keys (checked in
+            // record), and the kernel touches only those ranges.
             unsafe { rec.dispatch(&self.reduce, &push, rec.groups_for(n, tile)) };
-            rec.barrier();
+            rec.dependency(Pass::Compute, Pass::Compute);
         }
         let (data, n) = level(top);
-        // SAFETY: the sort buffers were sized by memory_requirements for `n` keys (checked in record), and the kernel touches only those ranges.
+        // SAFETY: the sort buffers were sized by memory_requirements for these keys (checked in
+        // record), and the kernel touches only those ranges.
         unsafe { rec.dispatch(&self.down, &SortScanDownPush { data, partials: 0, n }, 1) };
         for i in (0..top).rev() {
-            rec.barrier();
+            rec.dependency(Pass::Compute, Pass::Compute);
             let ((data, n), (partials, _)) = (level(i), level(i + 1));
-            // SAFETY: the sort buffers were sized by memory_requirements for `n` keys (checked in record), and the kernel touches only those ranges.
+            // SAFETY: the sort buffers were sized by memory_requirements for these keys (checked in
+            // record), and the kernel touches only those ranges.
             unsafe { rec.dispatch(&self.down, &SortScanDownPush { data, partials, n }, rec.groups_for(n, tile)) };
         }
     }
