@@ -1,6 +1,6 @@
 //! Pipelines ready before work is timed: the crate's own pipeline-cache file (round trip; corrupted, truncated,
 //! foreign files ignored with a warning), a host engine's pipeline cache and allocation callbacks through
-//! `Context::from_raw` (every object created and destroyed with them).
+//! `Context::from_raw` (every object created and destroyed with them), and the warm-up of `VulkanBackend::new`.
 //! Runs on lavapipe with the validation layer on.
 
 mod gpu_support;
@@ -117,6 +117,21 @@ fn a_file_of_another_device_or_driver_is_ignored_with_a_warning() {
     other_driver[47] ^= 0xff;
     assert_ignored(&dir, "other-driver.bin", &other_driver, "another device or driver");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn warm_up_is_reported_apart() {
+    let Some(ctx) = gpu_support::context() else { return };
+    let waits = ctx.host_waits();
+    let mut backend = VulkanBackend::new(&ctx).expect("backend");
+    assert!(backend.warmup_ms() > 0.0);
+    assert!(ctx.host_waits() > waits, "the warm-up ran on the device");
+    // No mesh is left behind: a feature pass needs a characterization of the caller's first.
+    let mesh = generate::random_soup(500, 11);
+    let (c, f) = backend.characterize_with_features(&mesh, &Params::default()).expect("characterize");
+    assert_eq!(c.triangles, mesh.triangle_count() as u64);
+    assert_eq!(Ok(f), meshchar::characterize::features_cpu(&mesh, &Params::default()).map_err(|e| e.to_string()));
+    gpu_support::assert_no_validation_messages(&ctx);
 }
 
 // ---- A host engine's device, pipeline cache and allocation callbacks ----

@@ -6,7 +6,9 @@ use super::finalize::class_count_of;
 use super::gpu::features::FeaturesGpu;
 use super::gpu::passes::{CharacterizeGpu, ClassPlan, CodeSums};
 use super::Features;
-use super::{class_thresholds, Backend, CharError, Characterization, CodeStats, Exact, Params, PassTime, PerTriangle};
+use super::{
+    class_thresholds, Backend, CharError, Characterization, CodeStats, Exact, MortonBits, Params, PassTime, PerTriangle,
+};
 use crate::gpu::{Context, MeshBuffers, RunError};
 use crate::mesh::{Animation, Mesh};
 use num_bigint::BigUint;
@@ -29,22 +31,60 @@ fn code_stats(s: &CodeSums) -> CodeStats {
 }
 
 /// Characterization on a Vulkan device. Pipelines and buffers are made once and reused for every mesh and frame.
+///
+/// Pipelines are ready before any work is timed: some drivers compile a pipeline only at its first dispatch
+/// (lavapipe compiles it with LLVM then, inside the pass's timestamps), so [`VulkanBackend::new`] runs every
+/// pipeline once on a tiny mesh and reports that warm-up apart ([`VulkanBackend::warmup_ms`]). Other operations
+/// on the same context are not warmed by it: a caller that times `accel::gpu::BvhBuilder` builds warms the builder
+/// with a tiny build first.
 pub struct VulkanBackend {
     ctx: Context,
     gpu: CharacterizeGpu,
     features: Option<FeaturesGpu>,
     mesh: Option<MeshBuffers>,
+    warmup_ms: f64,
 }
 
 impl VulkanBackend {
-    /// Builds the pipelines on `ctx`'s device.
+    /// Builds the pipelines on `ctx`'s device (through its pipeline cache) and warms them: a characterization of
+    /// a tiny mesh with each code width, each followed by the feature pass, so that every pipeline of the
+    /// characterization and the features has been dispatched once (see [`VulkanBackend::warmup_ms`]). The warm-up
+    /// waits for the device like [`VulkanBackend::characterize`] does (it counts in
+    /// [`Context::host_waits`](crate::gpu::Context::host_waits)) and leaves no mesh behind.
     pub fn new(ctx: &Context) -> Result<Self, CharError> {
-        Ok(VulkanBackend {
+        let start = Instant::now();
+        let mut backend = VulkanBackend {
             ctx: ctx.clone(),
             gpu: CharacterizeGpu::new(ctx).map_err(gpu_err)?,
-            features: None,
+            features: Some(FeaturesGpu::new(ctx, SIZE_BINS as u32).map_err(gpu_err)?),
             mesh: None,
-        })
+            warmup_ms: 0.0,
+        };
+        let warm = backend.warm_up();
+        // The warm-up's mesh is not the caller's: a feature pass must follow a characterization of theirs.
+        backend.mesh = None;
+        warm?;
+        backend.warmup_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(backend)
+    }
+
+    /// Dispatches every pipeline once: keys and bounds, codes and moments, classes and histogram, chi-square and
+    /// the two feature passes, with 30-bit and with 63-bit codes.
+    fn warm_up(&mut self) -> Result<(), CharError> {
+        let mesh = warmup_mesh()?;
+        for morton_bits in [MortonBits::Bits30, MortonBits::Bits63] {
+            let params = Params { morton_bits, ..Params::default() };
+            let c = self.run(&mesh, &params, false)?;
+            self.features_of_last(&mesh, &params, c.triangles)?;
+        }
+        Ok(())
+    }
+
+    /// Wall time of the warm-up in [`VulkanBackend::new`], in milliseconds: the pipelines' creation plus one
+    /// tiny run of each (on drivers that compile at the first dispatch, most of it is that compilation). No pass
+    /// time reported by [`VulkanBackend::characterize`] and the others includes it.
+    pub fn warmup_ms(&self) -> f64 {
+        self.warmup_ms
     }
 
     /// The context.
@@ -165,6 +205,12 @@ impl VulkanBackend {
         let device = self.ctx.caps().name.clone();
         Ok(Characterization::from_exact(mesh, params, exact, timings, Backend::Vulkan, device))
     }
+}
+
+/// The mesh of the warm-up: two triangles spanning a unit box (non-empty bounds in every axis).
+fn warmup_mesh() -> Result<Mesh, CharError> {
+    let positions = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 1.0]];
+    Mesh::new("warm-up", positions, vec![[0, 1, 2], [1, 3, 2]]).map_err(CharError::Mesh)
 }
 
 fn gpu_err(e: crate::gpu::GpuError) -> CharError {
