@@ -65,6 +65,10 @@ fn run(args: Args) -> anyhow::Result<()> {
             "      float64 {}, int64 {}, int64 atomics {}, buffer device address {}, timestamps {} bits at {} ns",
             c.float64, c.int64, c.int64_atomics, c.buffer_device_address, c.timestamp_valid_bits, c.timestamp_period
         );
+        println!(
+            "      device UUID {}, driver UUID {}, pipeline cache UUID {}",
+            c.device_uuid, c.driver_uuid, c.pipeline_cache_uuid
+        );
         if !d.missing.is_empty() {
             println!("      cannot run meshchar: missing {}", d.missing.join(", "));
         }

@@ -1342,13 +1342,8 @@ fn frames(
     scene: &[SceneMesh],
     sink: &MessageSink,
 ) -> Result<Outcome> {
-    let raw = RawDevice {
-        instance: engine.instance.instance.clone(),
-        device: engine.device.clone(),
-        physical_device: engine.physical,
-        queue_family_index: engine.family,
-        queue_index: 0,
-    };
+    let raw =
+        RawDevice::new(engine.instance.instance.clone(), engine.device.clone(), engine.physical, engine.family, 0);
     // SAFETY: the device was created from this physical device of this instance with every feature of
     // required_device_features and the extensions of required_device_extensions, and has queue 0 of a compute
     // family; the engine outlives the context and everything made from it (all dropped before this function

@@ -7,7 +7,9 @@ use super::gpu::features::FeaturesGpu;
 use super::gpu::passes::{CharacterizeGpu, ClassPlan, CodeSums};
 use super::plan::{Plan, PlannedCharacterization};
 use super::Features;
-use super::{class_thresholds, Backend, CharError, Characterization, CodeStats, Exact, Params, PassTime, PerTriangle};
+use super::{
+    class_thresholds, Backend, CharError, Characterization, CodeStats, Exact, MortonBits, Params, PassTime, PerTriangle,
+};
 use crate::gpu::{Context, GeometryView, MeshBuffers, Pass, Recorder, RunError};
 use crate::mesh::{Animation, Mesh};
 use num_bigint::BigUint;
@@ -30,13 +32,22 @@ fn code_stats(s: &CodeSums) -> CodeStats {
 }
 
 /// Characterization on a Vulkan device. Pipelines and buffers are made once and reused for every mesh and frame.
+///
+/// Pipelines are ready before any work is timed: some drivers compile a pipeline only at its first dispatch
+/// (lavapipe compiles it with LLVM then, inside the pass's timestamps), so [`VulkanBackend::new`] runs every
+/// pipeline once on a tiny mesh and reports that warm-up apart ([`VulkanBackend::warmup_ms`]). Other operations
+/// on the same context are not warmed by it: a caller that times `accel::gpu::BvhBuilder` builds warms the builder
+/// with a tiny build first.
 pub struct VulkanBackend {
     ctx: Context,
     gpu: CharacterizeGpu,
     features: Option<FeaturesGpu>,
     mesh: Option<MeshBuffers>,
+    warmup_ms: f64,
     /// What each slot's recorded planned run needs to be finished.
     planned: Vec<Option<PlannedSlot>>,
+    /// Each slot's feature pass (sharing the pipelines of `features`).
+    slot_features: Vec<FeaturesGpu>,
 }
 
 /// A planned run recorded into a slot: its parameters, plan and triangle count, and its feature pass.
@@ -45,27 +56,62 @@ struct PlannedSlot {
     plan: Plan,
     total_triangles: u64,
     name: String,
-    features: Option<FeaturesGpu>,
     with_features: bool,
 }
 
 impl VulkanBackend {
-    /// Builds the pipelines on `ctx`'s device.
+    /// Builds the pipelines on `ctx`'s device (through its pipeline cache) and warms them: a characterization of
+    /// a tiny mesh with each code width, each followed by the feature pass, so that every pipeline of the
+    /// characterization and the features has been dispatched once (see [`VulkanBackend::warmup_ms`]). The warm-up
+    /// waits for the device like [`VulkanBackend::characterize`] does (it counts in
+    /// [`Context::host_waits`](crate::gpu::Context::host_waits)) and leaves no mesh behind.
     pub fn new(ctx: &Context) -> Result<Self, CharError> {
         Self::with_slots(ctx, 1)
     }
 
     /// Builds the pipelines with `slots` slots for planned runs in flight at once (at least 1; the staged methods
-    /// use slot 0).
+    /// use slot 0), and warms them as [`VulkanBackend::new`] does.
     pub fn with_slots(ctx: &Context, slots: usize) -> Result<Self, CharError> {
         let slots = slots.max(1);
-        Ok(VulkanBackend {
+        let start = Instant::now();
+        let features = FeaturesGpu::new(ctx, SIZE_BINS as u32).map_err(gpu_err)?;
+        // Every slot's feature pass shares the warmed pipelines.
+        let slot_features =
+            (0..slots).map(|_| features.sharing_pipelines().map_err(gpu_err)).collect::<Result<Vec<_>, _>>()?;
+        let mut backend = VulkanBackend {
             ctx: ctx.clone(),
             gpu: CharacterizeGpu::with_slots(ctx, slots).map_err(gpu_err)?,
-            features: None,
+            features: Some(features),
             mesh: None,
+            warmup_ms: 0.0,
             planned: (0..slots).map(|_| None).collect(),
-        })
+            slot_features,
+        };
+        let warm = backend.warm_up();
+        // The warm-up's mesh is not the caller's: a feature pass must follow a characterization of theirs.
+        backend.mesh = None;
+        warm?;
+        backend.warmup_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(backend)
+    }
+
+    /// Dispatches every pipeline once: keys and bounds, codes and moments, classes and histogram, chi-square and
+    /// the two feature passes, with 30-bit and with 63-bit codes.
+    fn warm_up(&mut self) -> Result<(), CharError> {
+        let mesh = warmup_mesh()?;
+        for morton_bits in [MortonBits::Bits30, MortonBits::Bits63] {
+            let params = Params { morton_bits, ..Params::default() };
+            let c = self.run(&mesh, &params, false)?;
+            self.features_of_last(&mesh, &params, c.triangles)?;
+        }
+        Ok(())
+    }
+
+    /// Wall time of the warm-up in [`VulkanBackend::new`], in milliseconds: the pipelines' creation plus one
+    /// tiny run of each (on drivers that compile at the first dispatch, most of it is that compilation). No pass
+    /// time reported by [`VulkanBackend::characterize`] and the others includes it.
+    pub fn warmup_ms(&self) -> f64 {
+        self.warmup_ms
     }
 
     /// Records a planned characterization of the geometry `view` (named `name` in the report) into `rec` (see
@@ -101,12 +147,9 @@ impl VulkanBackend {
         self.gpu
             .record(rec, slot, view, params.morton_bits, stride, &plan.pass_plan())
             .map_err(|e| run_err(e, name))?;
-        let mut features_gpu = self.planned[slot].take().and_then(|p| p.features);
+        self.planned[slot] = None;
         if features {
-            if features_gpu.is_none() {
-                features_gpu = Some(FeaturesGpu::new(&self.ctx, SIZE_BINS as u32).map_err(gpu_err)?);
-            }
-            let (Some(fg), Some((_, codes, _))) = (features_gpu.as_mut(), self.gpu.slot_arrays(slot)) else {
+            let (Some(fg), Some((_, codes, _))) = (self.slot_features.get_mut(slot), self.gpu.slot_arrays(slot)) else {
                 return Err(CharError::Gpu("feature pass without the slot's codes".into()));
             };
             rec.dependency(Pass::Compute, Pass::Compute);
@@ -118,7 +161,6 @@ impl VulkanBackend {
             plan: plan.clone(),
             total_triangles: view.triangle_count(),
             name: name.to_string(),
-            features: features_gpu,
             with_features: features,
         });
         Ok(())
@@ -126,7 +168,7 @@ impl VulkanBackend {
 
     /// The report of the planned run recorded into `slot`, and its scene features when they were recorded, once
     /// the command buffer has completed and the caller has seen it complete. Before that: an error
-    /// ([`CharError::Gpu`] naming `VK_NOT_READY`), and the run stays pending.
+    /// ([`CharError::Gpu`] saying the work has not completed), and the run stays pending.
     pub fn finish_planned(&mut self, slot: usize) -> Result<(PlannedCharacterization, Option<Features>), CharError> {
         let Some(Some(p)) = self.planned.get_mut(slot) else {
             return Err(CharError::Gpu(format!("slot {slot} has no recorded planned run")));
@@ -134,7 +176,7 @@ impl VulkanBackend {
         let name = p.name.clone();
         let out = self.gpu.finish(slot).map_err(|e| run_err(e, &name))?;
         let p = self.planned[slot].as_mut().ok_or_else(|| CharError::Gpu("slot emptied".into()))?;
-        let features = match (&mut p.features, p.with_features) {
+        let features = match (self.slot_features.get_mut(slot), p.with_features) {
             (Some(fg), true) => {
                 let g = fg.finish().map_err(gpu_err)?;
                 Some(features_from_gpu(&g, out.n, p.total_triangles, p.params.morton_bits))
@@ -292,6 +334,12 @@ fn run_err(e: RunError, name: &str) -> CharError {
         RunError::Gpu(g) => gpu_err(g),
         RunError::Input(i) => CharError::Input { mesh: name.to_string(), reason: i.to_string() },
     }
+}
+
+/// The mesh of the warm-up: two triangles spanning a unit box (non-empty bounds in every axis).
+fn warmup_mesh() -> Result<Mesh, CharError> {
+    let positions = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 1.0]];
+    Mesh::new("warm-up", positions, vec![[0, 1, 2], [1, 3, 2]]).map_err(CharError::Mesh)
 }
 
 fn gpu_err(e: crate::gpu::GpuError) -> CharError {

@@ -97,7 +97,7 @@ impl Drop for Buffer {
     fn drop(&mut self) {
         // SAFETY: the buffer was created from this device; the caller guarantees the device no longer uses it
         // (every convenience path waits for its submission).
-        unsafe { self.ctx.device.destroy_buffer(self.buffer, None) };
+        unsafe { self.ctx.device.destroy_buffer(self.buffer, self.ctx.alloc()) };
         if let Some(a) = self.allocation.take() {
             if let Ok(mut allocator) = self.ctx.allocator() {
                 let _ = allocator.free(a);
@@ -122,18 +122,19 @@ impl Context {
             return Err(GpuError::Limit { what: format!("buffer {name}"), requested: size, limit });
         }
         let dev = &self.inner.device;
+        let alloc = self.inner.alloc();
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER
             | vk::BufferUsageFlags::TRANSFER_SRC
             | vk::BufferUsageFlags::TRANSFER_DST
             | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
         let info = vk::BufferCreateInfo::default().size(size).usage(usage).sharing_mode(vk::SharingMode::EXCLUSIVE);
         // SAFETY: valid device and create info.
-        let buffer = vk_check("vkCreateBuffer", unsafe { dev.create_buffer(&info, None) })?;
+        let buffer = vk_check("vkCreateBuffer", unsafe { dev.create_buffer(&info, alloc) })?;
         // SAFETY: buffer from this device.
         let requirements = unsafe { dev.get_buffer_memory_requirements(buffer) };
         if requirements.size > caps.max_memory_allocation_size {
             // SAFETY: unbound buffer of ours.
-            unsafe { dev.destroy_buffer(buffer, None) };
+            unsafe { dev.destroy_buffer(buffer, alloc) };
             let limit = caps.max_memory_allocation_size;
             return Err(GpuError::Limit {
                 what: format!("memory of buffer {name}"),
@@ -162,7 +163,7 @@ impl Context {
             Ok(a) => a,
             Err(source) => {
                 // SAFETY: unbound buffer of ours.
-                unsafe { dev.destroy_buffer(buffer, None) };
+                unsafe { dev.destroy_buffer(buffer, alloc) };
                 return Err(GpuError::Alloc { name: name.into(), bytes: size, source });
             }
         };
@@ -170,7 +171,7 @@ impl Context {
         let bound = unsafe { dev.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) };
         if let Err(result) = bound {
             // SAFETY: as above.
-            unsafe { dev.destroy_buffer(buffer, None) };
+            unsafe { dev.destroy_buffer(buffer, alloc) };
             if let Ok(mut allocator) = self.inner.allocator() {
                 let _ = allocator.free(allocation);
             }

@@ -1,10 +1,12 @@
 //! The device of a [`Context`]: instance and device creation (or a host engine's device), device choice, the
 //! capabilities the engine checks, and the guard that destroys everything a context made, in order.
 
+use super::pipeline_cache::{self, CacheKey};
 use super::{vk_check, GpuError, Result};
 use ash::vk;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
 use std::ffi::{c_void, CStr};
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard};
 
 const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
@@ -22,6 +24,13 @@ pub struct ContextDesc {
     /// device's limit). Every kernel splits its work into dispatches of at most this many workgroups, so a small cap
     /// exercises the tiling loops with little data on devices whose limit is 2^31 - 1 (tests use it).
     pub max_dispatch_groups: Option<u32>,
+    /// A pipeline-cache file of the crate's own: loaded into the context's `VkPipelineCache` when it exists and
+    /// was written for this device and driver (the file is keyed by `deviceUUID` and `driverUUID` of
+    /// `VkPhysicalDeviceIDProperties`, and the Vulkan cache header's vendor, device and `pipelineCacheUUID` are
+    /// checked), written by [`Context::save_pipeline_cache`]. A missing file is an empty cache; a corrupted,
+    /// truncated or foreign one is ignored with a warning ([`Context::warnings`]) and an empty cache is used.
+    /// `None`: an empty in-memory cache that is never written.
+    pub pipeline_cache: Option<PathBuf>,
 }
 
 /// The kind of a device (`VkPhysicalDeviceType`), in the engine's order of preference when it picks one: discrete,
@@ -126,6 +135,17 @@ pub struct DeviceCaps {
     pub driver_version: u32,
     /// PCI vendor id.
     pub vendor_id: u32,
+    /// Vendor-specific device id (`VkPhysicalDeviceProperties::deviceID`).
+    pub device_id: u32,
+    /// `deviceUUID` of `VkPhysicalDeviceIDProperties`, 32 hex digits (zeros when the device reports none).
+    pub device_uuid: String,
+    /// `driverUUID` of `VkPhysicalDeviceIDProperties`, 32 hex digits.
+    pub driver_uuid: String,
+    /// `pipelineCacheUUID`, 32 hex digits: pipeline-cache data is only valid for the same one.
+    pub pipeline_cache_uuid: String,
+    /// The same three UUIDs as bytes.
+    #[serde(skip)]
+    pub(crate) uuids: [[u8; vk::UUID_SIZE]; 3],
     /// Subgroup size (the default one for compute).
     pub subgroup_size: u32,
     /// Smallest subgroup size the device may use (equal to `subgroup_size` without subgroup size control).
@@ -211,6 +231,17 @@ impl DeviceCaps {
         m
     }
 
+    /// What a pipeline-cache file of this device must match.
+    pub(crate) fn cache_key(&self) -> CacheKey {
+        CacheKey {
+            device_uuid: self.uuids[0],
+            driver_uuid: self.uuids[1],
+            vendor_id: self.vendor_id,
+            device_id: self.device_id,
+            pipeline_cache_uuid: self.uuids[2],
+        }
+    }
+
     /// Workgroup size the kernels use: 256 invocations where the device allows it (at least one subgroup), never
     /// more than 64 subgroups of the smallest size.
     pub fn workgroup_size(&self) -> u32 {
@@ -232,7 +263,9 @@ pub struct DeviceSummary {
     pub missing: Vec<String>,
 }
 
-/// A device handed over by a host engine, for [`Context::from_raw`].
+/// A device handed over by a host engine, for [`Context::from_raw`]. Build it with [`RawDevice::new`] (no
+/// pipeline cache, no allocation callbacks) and set the other fields as needed:
+/// `RawDevice { pipeline_cache, ..RawDevice::new(instance, device, physical_device, family, 0) }`.
 pub struct RawDevice {
     /// The engine's instance.
     pub instance: ash::Instance,
@@ -244,6 +277,34 @@ pub struct RawDevice {
     pub queue_family_index: u32,
     /// The queue index within that family.
     pub queue_index: u32,
+    /// The engine's pipeline cache, through which every kernel of the context is created; null: none. The context
+    /// never destroys it (see [`Context::from_raw`] for what it must satisfy).
+    pub pipeline_cache: vk::PipelineCache,
+    /// The engine's host allocation callbacks, passed to every create and destroy call the context makes
+    /// (pipelines, pipeline layouts, shader modules, query pools, command pools, fences, buffers); `None`: the
+    /// driver's allocator. Device memory is allocated by gpu-allocator, which takes no callbacks.
+    pub allocation_callbacks: Option<vk::AllocationCallbacks<'static>>,
+}
+
+impl RawDevice {
+    /// The engine's device and queue, with no pipeline cache and no allocation callbacks.
+    pub fn new(
+        instance: ash::Instance,
+        device: ash::Device,
+        physical_device: vk::PhysicalDevice,
+        queue_family_index: u32,
+        queue_index: u32,
+    ) -> Self {
+        RawDevice {
+            instance,
+            device,
+            physical_device,
+            queue_family_index,
+            queue_index,
+            pipeline_cache: vk::PipelineCache::null(),
+            allocation_callbacks: None,
+        }
+    }
 }
 
 /// Device extensions a host engine must enable for [`Context::from_raw`]. Everything the engine uses is core in
@@ -267,6 +328,27 @@ pub fn required_device_features(
 type Messages = Arc<Mutex<Vec<String>>>;
 type Messenger = (ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT);
 
+/// The host engine's allocation callbacks ([`RawDevice::allocation_callbacks`]; none for owned contexts), passed
+/// to every create and destroy call the context and its buffers, kernels and timers make.
+#[derive(Clone, Copy, Default)]
+pub(crate) struct HostAllocator(Option<vk::AllocationCallbacks<'static>>);
+
+// SAFETY: the callbacks are plain function pointers and the engine's `pUserData`; `Context::from_raw`'s contract
+// requires that they may be called from any thread, concurrently, and that `pUserData` stays valid as long as the
+// context and everything made from it. The context never dereferences `pUserData` itself: it only hands the struct
+// to Vulkan calls. (ash declares `AllocationCallbacks` Send and Sync unconditionally; this impl states the reason
+// here instead of relying on that.)
+unsafe impl Send for HostAllocator {}
+// SAFETY: as above; the struct is never mutated after creation.
+unsafe impl Sync for HostAllocator {}
+
+impl HostAllocator {
+    /// The callbacks to pass to a create or destroy call.
+    pub(crate) fn get(&self) -> Option<&vk::AllocationCallbacks<'static>> {
+        self.0.as_ref()
+    }
+}
+
 /// Whether a context destroys its device.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Ownership {
@@ -279,7 +361,8 @@ enum Ownership {
 /// Every Vulkan object a context made, the guard that destroys them: each is recorded here as soon as it exists,
 /// so an error at any step of creation just returns and drops the guard, and a finished context drops it last.
 /// Drop destroys in reverse order of creation: it waits for the device, frees the allocator's memory, destroys the
-/// command pool, then what the context owns: the device, the debug messenger, the instance; then frees the message
+/// command pools and the context's own pipeline cache, then what the context owns: the device, the debug messenger,
+/// the instance; then frees the message
 /// sink the messengers write into, which must outlive `vkDestroyInstance` (the messenger chained to the instance's
 /// creation may report during it); the loader is unloaded last.
 #[derive(Default)]
@@ -296,6 +379,10 @@ struct Objects {
     device: Option<(ash::Device, Ownership)>,
     /// The idle command pools of the convenience submissions (one per submission in progress, reused after).
     pools: Mutex<Vec<vk::CommandPool>>,
+    /// The pipeline cache the context created ([`Context::new`]); an engine's cache is never destroyed here.
+    own_cache: Option<vk::PipelineCache>,
+    /// The engine's allocation callbacks, for every create and destroy call.
+    host_alloc: HostAllocator,
     /// The allocator.
     allocator: Option<Mutex<Allocator>>,
 }
@@ -313,8 +400,12 @@ impl Drop for Objects {
             if let Some((device, ownership)) = &self.device {
                 let _ = device.device_wait_idle();
                 drop(self.allocator.take());
+                let alloc = self.host_alloc.get();
                 for pool in lock(&self.pools).drain(..) {
-                    device.destroy_command_pool(pool, None);
+                    device.destroy_command_pool(pool, alloc);
+                }
+                if let Some(cache) = self.own_cache.take() {
+                    device.destroy_pipeline_cache(cache, alloc);
                 }
                 if *ownership == Ownership::Owned {
                     device.destroy_device(None);
@@ -423,12 +514,23 @@ pub(crate) struct Inner {
     pub(crate) queue_family: u32,
     pub(crate) caps: DeviceCaps,
     pub(crate) host_waits: std::sync::atomic::AtomicU64,
+    /// The cache every kernel is created through (the context's own, the engine's, or null).
+    pub(crate) pipeline_cache: vk::PipelineCache,
+    /// Where [`Context::save_pipeline_cache`] writes the context's own cache.
+    cache_file: Option<PathBuf>,
+    /// What the context noticed and ignored ([`Context::warnings`]).
+    warnings: Mutex<Vec<String>>,
     messages: Messages,
     /// Destroys everything above (the handles are copies of the ones it holds).
     objects: Objects,
 }
 
 impl Inner {
+    /// The engine's allocation callbacks for every create and destroy call (`None`: the driver's allocator).
+    pub(crate) fn alloc(&self) -> Option<&vk::AllocationCallbacks<'static>> {
+        self.objects.host_alloc.get()
+    }
+
     /// The allocator (always there once the context exists).
     pub(crate) fn allocator(&self) -> Result<MutexGuard<'_, Allocator>> {
         self.objects.allocator.as_ref().map(lock).ok_or_else(|| GpuError::Buffer("context: no allocator".into()))
@@ -475,6 +577,10 @@ fn version_string(v: u32) -> String {
     format!("{}.{}.{}", vk::api_version_major(v), vk::api_version_minor(v), vk::api_version_patch(v))
 }
 
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
 fn has_device_extension(instance: &ash::Instance, pdev: vk::PhysicalDevice, name: &CStr) -> bool {
     // SAFETY: plain query on a valid physical device.
     unsafe { instance.enumerate_device_extension_properties(pdev) }
@@ -496,10 +602,15 @@ pub(crate) fn query_caps(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> 
         let mut driver = vk::PhysicalDeviceDriverProperties::default();
         let mut size_control = vk::PhysicalDeviceSubgroupSizeControlProperties::default();
         let mut maint4 = vk::PhysicalDeviceMaintenance4Properties::default();
+        let mut ids = vk::PhysicalDeviceIDProperties::default();
+        let v11 = vk::api_version_major(api) > 1 || vk::api_version_minor(api) >= 1;
         let has_size_control = v13 || has_device_extension(instance, pdev, ash::ext::subgroup_size_control::NAME);
         let has_maint4 = v13 || has_device_extension(instance, pdev, ash::khr::maintenance4::NAME);
         {
             let mut p2 = vk::PhysicalDeviceProperties2::default().push_next(&mut subgroup).push_next(&mut maint3);
+            if v11 {
+                p2 = p2.push_next(&mut ids);
+            }
             if v12 {
                 p2 = p2.push_next(&mut driver);
             }
@@ -564,6 +675,11 @@ pub(crate) fn query_caps(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> 
             driver: driver_name,
             driver_version: props.driver_version,
             vendor_id: props.vendor_id,
+            device_id: props.device_id,
+            device_uuid: hex(&ids.device_uuid),
+            driver_uuid: hex(&ids.driver_uuid),
+            pipeline_cache_uuid: hex(&props.pipeline_cache_uuid),
+            uuids: [ids.device_uuid, ids.driver_uuid, props.pipeline_cache_uuid],
             subgroup_size: subgroup.subgroup_size,
             min_subgroup_size: min_sg,
             max_subgroup_size: max_sg,
@@ -695,7 +811,11 @@ impl Context {
         // SAFETY: the physical device supports every enabled feature (checked by `missing`).
         let device = vk_check("vkCreateDevice", unsafe { instance.create_device(pdev, &info, None) })?;
         objects.device = Some((device.clone(), Ownership::Owned));
-        Self::finish(objects, &instance, device, pdev, family, 0, caps, messages)
+        let mut warnings = Vec::new();
+        let cache = own_pipeline_cache(&device, &caps, desc.pipeline_cache.as_deref(), &mut warnings)?;
+        objects.own_cache = Some(cache);
+        let cache = CacheSetup { cache, file: desc.pipeline_cache.clone(), warnings };
+        Self::finish(objects, &instance, device, pdev, family, 0, caps, messages, cache)
     }
 
     /// Wraps a host engine's device. The engine keeps ownership: dropping the context (and everything made from it)
@@ -711,6 +831,14 @@ impl Context {
     ///   from it.
     /// - The convenience submission paths ([`Context::submit_and_wait`]) submit to that queue: the engine must not
     ///   use the queue from another thread at the same time (Vulkan requires external synchronization of queues).
+    /// - `raw.pipeline_cache`, when not null, is a pipeline cache of `raw.device` that stays alive (the context
+    ///   never destroys it) as long as the context and every kernel made from it, and was not created with
+    ///   `VK_PIPELINE_CACHE_CREATE_EXTERNALLY_SYNCHRONIZED_BIT`: kernels may be created through it from any thread
+    ///   while the engine uses it too.
+    /// - `raw.allocation_callbacks`, when set, follow Vulkan's rules for `VkAllocationCallbacks` and may be called
+    ///   from any thread, concurrently, at any time until the context and everything made from it are dropped (they
+    ///   free what they allocated then); their `pUserData` stays valid all that time. Every object the context
+    ///   creates is created and destroyed with them (compatible callbacks, as Vulkan requires).
     pub unsafe fn from_raw(raw: RawDevice) -> Result<Self> {
         let caps = query_caps(&raw.instance, raw.physical_device);
         // The engine names its queue: what the device's own choice of compute queue lacks does not matter (the
@@ -738,7 +866,9 @@ impl Context {
         }
         let mut objects = Objects::default();
         objects.device = Some((raw.device.clone(), Ownership::Borrowed));
+        objects.host_alloc = HostAllocator(raw.allocation_callbacks);
         let messages = Arc::new(Mutex::new(Vec::new()));
+        let cache = CacheSetup { cache: raw.pipeline_cache, file: None, warnings: Vec::new() };
         Self::finish(
             objects,
             &raw.instance,
@@ -748,6 +878,7 @@ impl Context {
             raw.queue_index,
             caps,
             messages,
+            cache,
         )
     }
 
@@ -763,6 +894,7 @@ impl Context {
         queue_index: u32,
         caps: DeviceCaps,
         messages: Messages,
+        cache: CacheSetup,
     ) -> Result<Self> {
         // SAFETY: valid device and queue family/index (ours, or the engine's per from_raw's contract).
         let queue = unsafe { device.get_device_queue(family, queue_index) };
@@ -789,6 +921,9 @@ impl Context {
                 queue_family: family,
                 caps,
                 host_waits: std::sync::atomic::AtomicU64::new(0),
+                pipeline_cache: cache.cache,
+                cache_file: cache.file,
+                warnings: Mutex::new(cache.warnings),
                 messages,
                 objects,
             }),
@@ -820,6 +955,44 @@ impl Context {
         lock(&self.inner.messages).clone()
     }
 
+    /// What the context noticed and ignored, as text: a pipeline-cache file that was corrupted, truncated or
+    /// written for another device or driver ([`ContextDesc::pipeline_cache`]). The library prints nothing.
+    pub fn warnings(&self) -> Vec<String> {
+        lock(&self.inner.warnings).clone()
+    }
+
+    /// The pipeline cache every kernel is created through: the context's own ([`Context::new`]), the engine's
+    /// ([`RawDevice::pipeline_cache`]), or null.
+    pub fn pipeline_cache(&self) -> vk::PipelineCache {
+        self.inner.pipeline_cache
+    }
+
+    /// The data of [`Context::pipeline_cache`] (`vkGetPipelineCacheData`: the driver's header and whatever it
+    /// cached), empty when there is no cache.
+    pub fn pipeline_cache_data(&self) -> Result<Vec<u8>> {
+        if self.inner.pipeline_cache == vk::PipelineCache::null() {
+            return Ok(Vec::new());
+        }
+        // SAFETY: a pipeline cache of this device, alive as long as the context (ours, or the engine's per
+        // from_raw's contract), not externally synchronized.
+        vk_check("vkGetPipelineCacheData", unsafe {
+            self.inner.device.get_pipeline_cache_data(self.inner.pipeline_cache)
+        })
+    }
+
+    /// Writes the context's pipeline cache to the file of [`ContextDesc::pipeline_cache`], atomically (a
+    /// temporary file in the same directory, then a rename; the directory is created if needed), keyed by this
+    /// device and driver. Returns the file's size in bytes, or `None` when the context has no cache file (no
+    /// `pipeline_cache` path, or a host engine's device: the engine saves its own cache).
+    pub fn save_pipeline_cache(&self) -> Result<Option<usize>> {
+        let Some(path) = &self.inner.cache_file else { return Ok(None) };
+        let data = self.pipeline_cache_data()?;
+        let file = pipeline_cache::encode(&self.inner.caps.cache_key(), &data);
+        pipeline_cache::write_atomic(path, &file)
+            .map_err(|source| GpuError::PipelineCache { path: path.clone(), source })?;
+        Ok(Some(file.len()))
+    }
+
     /// How many times the context's convenience paths ([`Context::submit_and_wait`] and everything built on it)
     /// have waited on the host for the device. An engine counts the waits inside its frame with it: the recording
     /// paths never wait.
@@ -836,7 +1009,7 @@ impl Context {
             .queue_family_index(self.inner.queue_family)
             .flags(vk::CommandPoolCreateFlags::TRANSIENT);
         // SAFETY: valid device.
-        vk_check("vkCreateCommandPool", unsafe { self.inner.device.create_command_pool(&info, None) })
+        vk_check("vkCreateCommandPool", unsafe { self.inner.device.create_command_pool(&info, self.inner.alloc()) })
     }
 
     /// Returns a pool taken by [`Context::take_pool`], reset (none of its command buffers is pending).
@@ -848,7 +1021,7 @@ impl Context {
             lock(&self.inner.objects.pools).push(pool);
         } else {
             // SAFETY: as above; a pool that cannot be reset is not reused.
-            unsafe { self.inner.device.destroy_command_pool(pool, None) };
+            unsafe { self.inner.device.destroy_command_pool(pool, self.inner.alloc()) };
         }
     }
 
@@ -877,7 +1050,9 @@ impl Context {
             // SAFETY: recording state.
             vk_check("vkEndCommandBuffer", unsafe { dev.end_command_buffer(cmd) })?;
             // SAFETY: valid device.
-            let fence = vk_check("vkCreateFence", unsafe { dev.create_fence(&vk::FenceCreateInfo::default(), None) })?;
+            let fence_info = vk::FenceCreateInfo::default();
+            // SAFETY: valid device.
+            let fence = vk_check("vkCreateFence", unsafe { dev.create_fence(&fence_info, self.inner.alloc()) })?;
             let cmds = [cmd];
             let submit = [vk::SubmitInfo::default().command_buffers(&cmds)];
             let submitted = {
@@ -891,7 +1066,7 @@ impl Context {
                 vk_check("vkWaitForFences", unsafe { dev.wait_for_fences(&[fence], true, u64::MAX) })
             });
             // SAFETY: the fence is signalled or was never submitted.
-            unsafe { dev.destroy_fence(fence, None) };
+            unsafe { dev.destroy_fence(fence, self.inner.alloc()) };
             waited?;
             Ok(value)
         })();
@@ -899,6 +1074,49 @@ impl Context {
         self.put_pool(pool);
         result
     }
+}
+
+/// The pipeline cache of [`Context::new`] and how it came to be.
+struct CacheSetup {
+    /// The cache kernels are created through (null: none).
+    cache: vk::PipelineCache,
+    /// The file [`Context::save_pipeline_cache`] writes.
+    file: Option<PathBuf>,
+    /// Why a file's data was not used.
+    warnings: Vec<String>,
+}
+
+/// The context's own pipeline cache: `file`'s data when it holds a valid cache for this device and driver, else
+/// empty (with a warning saying why, unless the file does not exist).
+fn own_pipeline_cache(
+    device: &ash::Device,
+    caps: &DeviceCaps,
+    file: Option<&Path>,
+    warnings: &mut Vec<String>,
+) -> Result<vk::PipelineCache> {
+    let data = match file.map(|path| (path, pipeline_cache::load(path, &caps.cache_key()))) {
+        Some((_, Ok(data))) => data,
+        Some((path, Err(reason))) => {
+            warnings.push(format!("pipeline cache {}: {reason}; using an empty cache", path.display()));
+            Vec::new()
+        }
+        None => Vec::new(),
+    };
+    if let (Some(path), false) = (file, data.is_empty()) {
+        let info = vk::PipelineCacheCreateInfo::default().initial_data(&data);
+        // SAFETY: valid device; the data's Vulkan header names this device and its pipelineCacheUUID, and its
+        // checksum matches what this crate wrote from vkGetPipelineCacheData.
+        match unsafe { device.create_pipeline_cache(&info, None) } {
+            Ok(cache) => return Ok(cache),
+            Err(e) => warnings.push(format!(
+                "pipeline cache {}: the driver refused its data ({e}); using an empty cache",
+                path.display()
+            )),
+        }
+    }
+    let info = vk::PipelineCacheCreateInfo::default();
+    // SAFETY: valid device.
+    vk_check("vkCreatePipelineCache", unsafe { device.create_pipeline_cache(&info, None) })
 }
 
 pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {

@@ -53,7 +53,11 @@ impl<P: PushConstants> std::fmt::Debug for Kernel<P> {
 }
 
 impl<P: PushConstants> Kernel<P> {
-    /// Builds the pipeline.
+    /// Builds the pipeline, through the context's pipeline cache ([`Context::pipeline_cache`]) and with the
+    /// engine's allocation callbacks, if any.
+    ///
+    /// Some drivers compile a pipeline only at its first dispatch (lavapipe compiles with LLVM then): time a
+    /// kernel's work only after it ran once (see `VulkanBackend::warmup_ms`).
     pub fn new(ctx: &Context, desc: &KernelDesc) -> Result<Self> {
         let info = desc.shader;
         check_push_layout::<P>(info).map_err(GpuError::Layout)?;
@@ -94,9 +98,10 @@ impl<P: PushConstants> Kernel<P> {
             data.push(*value);
         }
         let dev = ctx.device();
+        let alloc = ctx.inner.alloc();
         let code_info = vk::ShaderModuleCreateInfo::default().code(info.spirv);
         // SAFETY: valid SPIR-V produced by shaderc at build time.
-        let module = vk_check("vkCreateShaderModule", unsafe { dev.create_shader_module(&code_info, None) })?;
+        let module = vk_check("vkCreateShaderModule", unsafe { dev.create_shader_module(&code_info, alloc) })?;
         let ranges = [vk::PushConstantRange::default()
             .stage_flags(vk::ShaderStageFlags::COMPUTE)
             .offset(0)
@@ -107,11 +112,11 @@ impl<P: PushConstants> Kernel<P> {
             vk::PipelineLayoutCreateInfo::default()
         };
         // SAFETY: valid device.
-        let layout = match unsafe { dev.create_pipeline_layout(&layout_info, None) } {
+        let layout = match unsafe { dev.create_pipeline_layout(&layout_info, alloc) } {
             Ok(l) => l,
             Err(result) => {
                 // SAFETY: module of ours, unused.
-                unsafe { dev.destroy_shader_module(module, None) };
+                unsafe { dev.destroy_shader_module(module, alloc) };
                 return Err(GpuError::Vk { call: "vkCreatePipelineLayout", result });
             }
         };
@@ -124,15 +129,16 @@ impl<P: PushConstants> Kernel<P> {
             .name(&entry)
             .specialization_info(&spec);
         let pinfo = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
-        // SAFETY: valid module and layout.
-        let pipeline = unsafe { dev.create_compute_pipelines(vk::PipelineCache::null(), &pinfo, None) };
+        // SAFETY: valid module and layout; the cache is the context's own or the engine's (alive and not externally
+        // synchronized, per `Context::from_raw`'s contract), or null.
+        let pipeline = unsafe { dev.create_compute_pipelines(ctx.inner.pipeline_cache, &pinfo, alloc) };
         // SAFETY: the module is no longer needed once the pipeline exists (or failed).
-        unsafe { dev.destroy_shader_module(module, None) };
+        unsafe { dev.destroy_shader_module(module, alloc) };
         let pipeline = match pipeline {
             Ok(p) => p[0],
             Err((_, result)) => {
                 // SAFETY: layout of ours, unused.
-                unsafe { dev.destroy_pipeline_layout(layout, None) };
+                unsafe { dev.destroy_pipeline_layout(layout, alloc) };
                 return Err(GpuError::Vk { call: "vkCreateComputePipelines", result });
             }
         };
@@ -154,8 +160,9 @@ impl<P: PushConstants> Drop for Kernel<P> {
     fn drop(&mut self) {
         // SAFETY: pipeline and layout of this device; callers wait for submissions before dropping kernels.
         unsafe {
-            self.ctx.device.destroy_pipeline(self.pipeline, None);
-            self.ctx.device.destroy_pipeline_layout(self.layout, None);
+            let alloc = self.ctx.alloc();
+            self.ctx.device.destroy_pipeline(self.pipeline, alloc);
+            self.ctx.device.destroy_pipeline_layout(self.layout, alloc);
         }
     }
 }

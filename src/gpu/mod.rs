@@ -18,6 +18,7 @@ mod context;
 mod geometry;
 mod kernel;
 mod mesh;
+mod pipeline_cache;
 mod record;
 pub mod shaders;
 pub mod sort;
@@ -99,6 +100,15 @@ pub enum GpuError {
     /// A buffer access outside its size, or a wrong kind of buffer.
     #[error("buffer misuse: {0}")]
     Buffer(String),
+    /// The pipeline-cache file could not be written ([`Context::save_pipeline_cache`]).
+    #[error("cannot write the pipeline cache {}: {source}", path.display())]
+    PipelineCache {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The I/O error.
+        #[source]
+        source: std::io::Error,
+    },
 }
 
 /// Result alias of this module.

@@ -227,7 +227,7 @@ impl Timer {
     pub fn new(ctx: &Context, capacity: u32) -> Result<Self> {
         let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(capacity);
         // SAFETY: valid device.
-        let pool = vk_check("vkCreateQueryPool", unsafe { ctx.device().create_query_pool(&info, None) })?;
+        let pool = vk_check("vkCreateQueryPool", unsafe { ctx.device().create_query_pool(&info, ctx.inner.alloc()) })?;
         Ok(Timer { ctx: ctx.inner.clone(), pool, capacity, names: Vec::new() })
     }
 
@@ -276,7 +276,7 @@ impl std::fmt::Debug for Timer {
 impl Drop for Timer {
     fn drop(&mut self) {
         // SAFETY: query pool of this device, not in use (callers wait before dropping).
-        unsafe { self.ctx.device.destroy_query_pool(self.pool, None) };
+        unsafe { self.ctx.device.destroy_query_pool(self.pool, self.ctx.alloc()) };
     }
 }
 

@@ -55,14 +55,19 @@ pub struct GpuFeatures {
 /// The feature pipelines and their buffers.
 pub struct FeaturesGpu {
     ctx: Context,
-    bounds: Kernel<FeatureBoundsPush>,
-    features: [Kernel<FeaturesPush>; 2],
+    kernels: std::sync::Arc<Kernels>,
     size_bins: u32,
     result: Buffer,
     readback: Buffer,
     timer: Timer,
     done: CompletionFlag,
     pending: bool,
+}
+
+/// The pipelines of the pass (shared by the [`FeaturesGpu::sharing_pipelines`] copies).
+struct Kernels {
+    bounds: Kernel<FeatureBoundsPush>,
+    features: [Kernel<FeaturesPush>; 2],
 }
 
 impl FeaturesGpu {
@@ -78,11 +83,18 @@ impl FeaturesGpu {
                     .constant("SIZE_BINS", size_bins),
             )
         };
+        let kernels = Kernels {
+            bounds: Kernel::new(ctx, &KernelDesc::new(&shaders::features_bounds::INFO).constant("ITEMS", ITEMS))?,
+            features: [mk(0)?, mk(1)?],
+        };
+        Self::with_kernels(ctx, std::sync::Arc::new(kernels), size_bins)
+    }
+
+    fn with_kernels(ctx: &Context, kernels: std::sync::Arc<Kernels>, size_bins: u32) -> Result<Self> {
         let bytes = Self::result_bytes(size_bins);
         Ok(FeaturesGpu {
             ctx: ctx.clone(),
-            bounds: Kernel::new(ctx, &KernelDesc::new(&shaders::features_bounds::INFO).constant("ITEMS", ITEMS))?,
-            features: [mk(0)?, mk(1)?],
+            kernels,
             size_bins,
             result: ctx.create_buffer("features result", bytes, MemoryKind::DeviceLocal)?,
             readback: ctx.create_buffer("features readback", bytes, MemoryKind::Readback)?,
@@ -90,6 +102,12 @@ impl FeaturesGpu {
             done: CompletionFlag::new(ctx)?,
             pending: false,
         })
+    }
+
+    /// A second pass object with buffers of its own and the same pipelines (already compiled and warmed when this
+    /// one is): one per run that may be in flight at once.
+    pub fn sharing_pipelines(&self) -> Result<Self> {
+        Self::with_kernels(&self.ctx, self.kernels.clone(), self.size_bins)
     }
 
     // Layout: mask words, then 6 bound words (+2 padding), then the histogram.
@@ -146,7 +164,7 @@ impl FeaturesGpu {
         }
         let (result, readback, timer) = (&self.result, &self.readback, &mut self.timer);
         let bytes = Self::result_bytes(self.size_bins);
-        let wg = self.bounds.workgroup_size() as u64;
+        let wg = self.kernels.bounds.workgroup_size() as u64;
         let per_group = wg * ITEMS as u64;
         let bounds_addr = result.address() + Self::off_bounds();
         rec.reset_timer(timer);
@@ -158,7 +176,7 @@ impl FeaturesGpu {
         rec.timestamp_start(timer);
         let push = geometry_push!(FeatureBoundsPush, view, { result: bounds_addr, count: n, stride: stride });
         // SAFETY: reads n sampled triangles of the view (checked above) and writes six words of the result buffer.
-        unsafe { rec.dispatch(&self.bounds, &push, rec.groups_for(n, per_group)) };
+        unsafe { rec.dispatch(&self.kernels.bounds, &push, rec.groups_for(n, per_group)) };
         rec.dependency(Pass::Compute, Pass::Compute);
         let push = geometry_push!(FeaturesPush, view, {
             codes: codes.address(),
@@ -172,7 +190,7 @@ impl FeaturesGpu {
         });
         // SAFETY: reads n triangles and n codes (the codes buffer holds them: checked above), writes the mask and
         // the size_bins + 1 histogram entries of the result buffer.
-        unsafe { rec.dispatch(&self.features[b63], &push, rec.groups_for(n, per_group)) };
+        unsafe { rec.dispatch(&self.kernels.features[b63], &push, rec.groups_for(n, per_group)) };
         rec.timestamp(timer, "features");
         rec.dependency(Pass::Compute, Pass::Transfer);
         rec.copy(result, 0, readback, 0, bytes);
