@@ -2,6 +2,7 @@
 //!
 //! `cargo run --release --example devices -- [--json]`
 
+use anyhow::Context as _;
 use clap::Parser;
 use cli::args::JsonArg;
 use meshchar::gpu::enumerate_devices;
@@ -27,7 +28,13 @@ fn main() -> ExitCode {
 
 fn run(args: Args) -> anyhow::Result<()> {
     let json = args.json.json;
-    let (list, selected) = enumerate_devices()?;
+    // A driver list that the Vulkan loader cannot use fails inside the loader, whose message does not say which
+    // list it was given: name it here.
+    let drivers = ["VK_DRIVER_FILES", "VK_ICD_FILENAMES"]
+        .into_iter()
+        .find_map(|var| std::env::var(var).ok().map(|v| format!(" of {var}={v}")));
+    let (list, selected) =
+        enumerate_devices().with_context(|| format!("listing the Vulkan devices{}", drivers.unwrap_or_default()))?;
     if json {
         let v = serde_json::json!({ "devices": list, "selected": selected });
         println!("{v}");

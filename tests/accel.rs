@@ -408,3 +408,76 @@ fn morton_63_bit_lbvh_and_hlbvh_agree_with_brute_force() {
         assert_eq!(meshchar::trace::count_disagreements(&trace(&lc, &rays), &want), 0, "{}", mesh.name);
     }
 }
+
+// ---------------------------------------------------------------------------------------------------------------
+// Degenerate input: every build does bounded work (counted in nodes, depth and references), or stops at its budget.
+
+/// Builds `name` on `mesh` and checks the work it did against `O(n)` nodes, `O(log n)` depth and the reference
+/// budgets; returns the statistics, or the budget error of a grid that cannot fit.
+fn bounded_build(mesh: &Mesh, name: StructureName) -> Result<meshchar::accel::AccelStats, String> {
+    use meshchar::accel::{grid::GridOptions, kdtree::KdOptions, AccelError};
+    let n = mesh.triangle_count();
+    let log2 = (n as f64).log2();
+    match meshchar::accel::build_structure(name, mesh) {
+        Ok(a) => {
+            let s = a.validate().unwrap_or_else(|e| panic!("{}: {name}: {e}", mesh.name));
+            let what = format!("{}: {name}: {s:?}", mesh.name);
+            match name {
+                StructureName::Grid => assert!(s.references <= GridOptions::default().reference_budget(n), "{what}"),
+                StructureName::KdTree => {
+                    assert!(s.references <= KdOptions::default().reference_budget(n), "{what}");
+                    // pbrt's depth limit, and O(n) nodes (empty-space cut-offs leave empty leaves: 7.8 nodes per
+                    // triangle on the zero-area points).
+                    assert!(s.max_depth as f64 <= (8.0 + 1.3 * log2).round(), "{what}");
+                    assert!(s.nodes <= 16 * n, "{what}");
+                }
+                _ => {
+                    assert_eq!(s.references, n, "{what}");
+                    assert!(s.nodes < 2 * n, "{what}");
+                    assert!(s.max_depth as f64 <= 64.0 + 2.0 * log2, "{what}");
+                }
+            }
+            Ok(s)
+        }
+        Err(AccelError::OverBudget { structure: "grid", what: "cell references", needed, budget, rule })
+            if name == StructureName::Grid =>
+        {
+            assert_eq!(budget, GridOptions::default().reference_budget(n), "{}", mesh.name);
+            assert!(needed > budget && rule.contains(&n.to_string()), "{}: {needed} {budget} {rule}", mesh.name);
+            Err(format!("needed {needed} > {budget}"))
+        }
+        Err(e) => panic!("{}: {name}: {e}", mesh.name),
+    }
+}
+
+#[test]
+fn degenerate_scenes_build_with_bounded_work() {
+    use meshchar::mesh::generate;
+    // Coincident copies (a fan of a polygon over three points, all-equal triangles) cannot fit a grid: every copy
+    // fills half its cells. The kd-tree's chains of splits that keep every reference on one side are cut (18
+    // references per triangle on the fan without the cut, 135 with zero-area triangles carried as boxes). The BIH
+    // stops halving towards the fan's zero-area legs (depth 164 before).
+    for (mesh, grid_fits) in [
+        (generate::fan_polygon(100_000), false),
+        (generate::all_equal(100_000), false),
+        (generate::collinear_centroids(30_000), true),
+        (generate::flat(30_000, 5), true),
+        (generate::zero_area(30_000, 13), true),
+    ] {
+        let n = mesh.triangle_count();
+        for name in StructureName::ALL {
+            let got = bounded_build(&mesh, name);
+            if name == StructureName::Grid {
+                assert_eq!(got.is_ok(), grid_fits, "{}: grid: {got:?}", mesh.name);
+            }
+            if mesh.name.starts_with("fan_polygon") {
+                let s = got.as_ref().ok();
+                match name {
+                    StructureName::KdTree => assert!(s.is_some_and(|s| s.references <= 8 * n), "{s:?}"),
+                    StructureName::Bih => assert!(s.is_some_and(|s| s.max_depth <= 64), "{s:?}"),
+                    _ => {}
+                }
+            }
+        }
+    }
+}

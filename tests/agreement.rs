@@ -1,7 +1,8 @@
 //! Every structure returns the same closest hit (triangle and `t` bits, under the tie rule of
 //! `geom::closer_hit`) and the same occlusion as the brute-force reference, on the failure study's degenerate scenes
 //! (flat, collinear, all equal, huge, tiny, slivers, overlapping, zero-area, duplicated), and the same as the
-//! binned-SAH BVH on every shared static mesh and a BART frame, for primary, shadow and diffuse rays.
+//! binned-SAH BVH on every shared static mesh and a BART frame, for primary, shadow and diffuse rays; and on the flat
+//! lattice with zero-area triangles along its diagonal, where the grid's cells and budget are put to the test.
 mod common;
 
 use meshchar::accel::{build_structure, AccelStructure, StructureName};
@@ -109,4 +110,33 @@ fn every_structure_equals_the_bvh_on_every_shared_mesh() {
         all.extend(bad);
     }
     assert!(all.is_empty(), "{} disagreements:\n{}", all.len(), all.join("\n"));
+}
+
+#[test]
+fn the_lattice_with_diagonal_zero_area_triangles_fits_the_grid_and_agrees_with_brute_force() {
+    use meshchar::accel::grid::{Grid, GridOptions};
+    use meshchar::accel::AccelError;
+    // 180,000 lattice triangles and 400 zero-area ones along the diagonal: stored in every cell of their bounding
+    // boxes, the 400 would need 400 references in each of the 804,609 cells (41.6 s and 1.1 GB to build).
+    let mesh = meshchar::mesh::generate::lattice_with_diagonal(300, 400);
+    let n = mesh.triangle_count();
+    assert_eq!((n, mesh.zero_area_count()), (180_400, 400));
+    let grid = Grid::build(&mesh).expect("grid");
+    let stats = grid.validate().expect("valid grid");
+    let cells = grid.resolution().iter().map(|&r| r as usize).product::<usize>();
+    assert!(stats.references < 16 * n && stats.references < cells * 3, "{stats:?}");
+    // With a budget below what it needs, the same build stops with an error that says so.
+    let tight = GridOptions { max_references_per_triangle: 4, min_reference_budget: 0, ..Default::default() };
+    match Grid::build_with(&mesh, &tight) {
+        Err(e @ AccelError::OverBudget { structure: "grid", .. }) => {
+            let msg = e.to_string();
+            assert!(msg.contains(&format!("budget of {}", 4 * n)) && msg.contains("cell references"), "{msg}");
+        }
+        other => panic!("a grid over a budget of 4 references per triangle: {:?}", other.map(|g| g.resolution())),
+    }
+    // Every structure builds, and agrees with brute force on the three workloads.
+    let brute = build_structure(StructureName::Brute, &mesh).expect("brute force");
+    let (bad, hits) = disagreements(&mesh, brute.as_ref(), 24);
+    assert!(hits > 0, "no ray hits the lattice");
+    assert!(bad.is_empty(), "{} disagreements:\n{}", bad.len(), bad.join("\n"));
 }

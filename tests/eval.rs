@@ -211,3 +211,27 @@ fn no_best_structure_is_named_when_the_reference_finds_no_hit() {
     assert!(e.oracle_best.is_some() && e.no_best_reason.is_none());
     assert!(!e.record().to_json_line().contains("no_best_reason"));
 }
+
+#[test]
+fn a_structure_over_its_budget_is_reported_failed_and_the_others_are_measured() {
+    // 3,000 copies of one triangle: each fills half the grid's 52,441 cells, far past the grid's reference budget.
+    let mesh = meshchar::mesh::generate::all_equal(3000);
+    let anim = Animation::new("all_equal", vec![mesh]).unwrap();
+    let config = OracleConfig { resolution: 16, repeats: 1, ..Default::default() };
+    let e = evaluate_scene(&anim, &config, Some(StructureName::Grid), &|_| {}).unwrap();
+    let grid = e.get(StructureName::Grid).unwrap();
+    let err = grid.error.as_deref().unwrap_or_default();
+    assert!(err.starts_with("grid: needs at least") && err.contains("over its budget of 33554432"), "{err}");
+    assert!(!grid.valid && !grid.hits_agree && grid.rays == 0, "{err}");
+    assert_eq!((grid.total_ms.median, grid.within_noise_of_best), (0.0, false));
+    // The selection failed to build: no regret is claimed for it.
+    assert_eq!((e.regret, e.regret_within_noise), (None, None));
+    for s in e.structures.iter().filter(|s| s.name != Some(StructureName::Grid)) {
+        assert!(s.valid && s.hits_agree && s.rays > 0, "{:?}: {:?}", s.name, s.error);
+    }
+    assert!(e.oracle_best.is_some_and(|b| b != StructureName::Grid), "{:?}", e.oracle_best);
+    let j = e.to_json();
+    let g = j["structures"].as_array().unwrap().iter().find(|s| s["name"] == "grid").unwrap();
+    assert_eq!(g["error"].as_str(), Some(err));
+    assert_eq!(g["valid"], false);
+}

@@ -1,7 +1,9 @@
 //! The example binaries' command lines (clap): `--help` exits 0 with the usage, an unknown flag and a bad value exit
 //! 2 with a message, `--json=false` never turns JSON on, a second positional where one is allowed exits 2,
 //! `--flag=value` works, a runtime failure exits 1 naming the file, and nothing but the output appears when standard
-//! error is not a terminal (no progress lines).
+//! error is not a terminal (no progress lines). Every example, on one bad input (a missing file, text named `.obj`,
+//! an empty file, a garbage JSON file), exits nonzero without panicking and names the file; on one small good input
+//! it exits 0 (tiny meshes and images, one repeat: seconds in all).
 //!
 //! The binaries are the built examples beside this test's directory (`target/<profile>/examples/<name>`): build
 //! them first with `cargo build --release --examples` (as `scripts/test` does; `cargo test --examples` builds
@@ -295,5 +297,168 @@ fn no_progress_output_without_a_terminal() {
         serde_json::from_str(&std::fs::read_to_string(out_dir.join("tradeoff.json")).expect("tradeoff.json"))
             .expect("JSON");
     assert_eq!(json["settings"].as_array().map(Vec::len), Some(2), "strides 1 and 2 on the CPU");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A fresh directory for one test, with the tetrahedron, text named `.obj`, an empty `.obj` and garbage JSON.
+fn inputs(dir_name: &str) -> PathBuf {
+    let (dir, _) = tetrahedron(dir_name);
+    std::fs::write(dir.join("text.obj"), "this is not a mesh\n").expect("text.obj");
+    std::fs::write(dir.join("empty.obj"), "").expect("empty.obj");
+    std::fs::write(dir.join("garbage.json"), "{ not json\n").expect("garbage.json");
+    dir
+}
+
+fn arg(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+#[test]
+fn every_example_refuses_a_bad_input_naming_it() {
+    let dir = inputs("bad");
+    let (text, empty, garbage) = (dir.join("text.obj"), dir.join("empty.obj"), dir.join("garbage.json"));
+    let (tet, missing, png) = (dir.join("tetrahedron.obj"), dir.join("no-such-mesh.obj"), dir.join("x.png"));
+    let out_dir = dir.join("tradeoff");
+    let cases: Vec<(&str, Vec<&str>, &Path)> = vec![
+        ("build_bvh", vec!["--backend", "cpu", arg(&text)], &text),
+        ("calibrate", vec!["--from-oracle", arg(&garbage), "--no-refit"], &garbage),
+        ("characterize", vec!["--backend", "cpu", arg(&empty)], &empty),
+        // devices reads no file but the Vulkan driver list (below).
+        ("evaluate", vec![arg(&empty), "--resolution", "8", "--repeats", "1"], &empty),
+        ("failure_study", vec!["--no-oracle", "--large-n-max", "0", "--conference", arg(&missing)], &missing),
+        ("render_classes", vec![arg(&text), "--out", arg(&png), "--backend", "cpu"], &text),
+        ("tradeoff", vec![arg(&tet), "--out", arg(&out_dir), "--oracle", arg(&garbage), "--backends", "cpu"], &garbage),
+    ];
+    let mut named: Vec<&str> = Vec::new();
+    for (name, args, file) in &cases {
+        let out = run(name, args);
+        assert_refused(name, &out, file);
+        named.push(name);
+    }
+    assert!(!png.exists(), "render_classes wrote a picture of text");
+    // devices: a driver list that is not one.
+    let out = Command::new(binary("devices"))
+        .env("VK_DRIVER_FILES", &garbage)
+        .env_remove("VK_ICD_FILENAMES")
+        .stdin(Stdio::null())
+        .output()
+        .expect("run devices");
+    assert_refused("devices", &out, &garbage);
+    named.push("devices");
+    named.sort_unstable();
+    assert_eq!(named, EXAMPLES, "every example on a bad input");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A failed run: nonzero exit, not a panic (101), a message on standard error prefixed by the command that names
+/// `file`.
+fn assert_refused(name: &str, out: &Output, file: &Path) {
+    let (stdout, stderr) = text(out);
+    let code = out.status.code();
+    assert!(code.is_some_and(|c| c != 0 && c != 101), "{name}: exit {code:?}\nstdout: {stdout}\nstderr: {stderr}");
+    assert!(!stderr.contains("panicked"), "{name}: {stderr}");
+    assert!(stderr.starts_with(&format!("{name}: ")), "{name}: {stderr:?}");
+    let file_name = file.file_name().and_then(|f| f.to_str()).expect("file name");
+    assert!(stderr.contains(file_name), "{name}: the message does not name {file_name}: {stderr:?}");
+}
+
+/// `n` small random triangles as OBJ text.
+fn soup_obj(path: &Path, n: usize, seed: u64) {
+    let mesh = meshchar::mesh::generate::random_soup(n, seed);
+    let mut text = String::new();
+    for p in &mesh.positions {
+        text.push_str(&format!("v {} {} {}\n", p[0], p[1], p[2]));
+    }
+    for t in &mesh.indices {
+        text.push_str(&format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1));
+    }
+    std::fs::write(path, text).expect("soup");
+}
+
+#[test]
+fn every_example_runs_on_a_small_input() {
+    let dir = inputs("good");
+    let tet = dir.join("tetrahedron.obj");
+    let m = arg(&tet);
+    let ok = |name: &str, args: &[&str]| -> String {
+        let out = run(name, args);
+        let (stdout, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(0), "{name} {args:?}\nstdout: {stdout}\nstderr: {stderr}");
+        stdout
+    };
+    let mut ran = Vec::new();
+    let stdout = ok("build_bvh", &["--backend", "cpu", "--json", m]);
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("build_bvh --json");
+    assert_eq!((v["triangles"].as_u64(), v["valid"].as_bool()), (Some(4), Some(true)), "{v}");
+    ran.push("build_bvh");
+    let stdout = ok("characterize", &["--backend", "cpu", "--json", m]);
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("characterize --json");
+    assert_eq!(v["triangles"], 4);
+    ran.push("characterize");
+    let stdout = ok("evaluate", &[m, "--resolution", "8", "--repeats", "1"]);
+    assert!(stdout.contains("oracle best"), "{stdout}");
+    ran.push("evaluate");
+    // calibrate fits on three cached oracle lines (soups of 20, 400 and 8,000 triangles: the build law needs sizes
+    // far apart), written by evaluate.
+    let lines = dir.join("oracle.jsonl");
+    let mut jsonl = String::new();
+    for (n, seed) in [(20, 1), (400, 2), (8000, 3)] {
+        let p = dir.join(format!("soup{n}.obj"));
+        soup_obj(&p, n, seed);
+        jsonl.push_str(&ok(
+            "evaluate",
+            &[arg(&p), "--json", "--resolution", "8", "--repeats", "1", "--structures", "bvh"],
+        ));
+    }
+    std::fs::write(&lines, jsonl).expect("oracle lines");
+    let model = dir.join("model.json");
+    let stdout = ok("calibrate", &["--from-oracle", arg(&lines), "--no-refit", "--out", arg(&model)]);
+    assert!(stdout.contains("wrote") && model.is_file(), "{stdout}");
+    ran.push("calibrate");
+    let out = run("devices", &["--json"]);
+    let (stdout, stderr) = text(&out);
+    if out.status.code() == Some(0) {
+        let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("devices --json");
+        assert!(v["devices"].is_array(), "{v}");
+    } else {
+        // No Vulkan loader or driver on this machine: a message, not a panic; REQUIRE_GPU=1 makes it a failure.
+        assert!(std::env::var("REQUIRE_GPU").map_or(true, |v| v != "1"), "devices: {stderr}");
+        assert!(out.status.code().is_some_and(|c| c != 101) && stderr.starts_with("devices: "), "{stderr}");
+    }
+    ran.push("devices");
+    let fs_dir = dir.join("failure-study");
+    let stdout = ok("failure_study", &["--no-oracle", "--large-n-max", "0", "--backend", "cpu", "--out", arg(&fs_dir)]);
+    assert!(stdout.contains("| all_equal |") && fs_dir.join("failure-study.json").is_file(), "{stdout}");
+    ran.push("failure_study");
+    let png = dir.join("classes.png");
+    ok("render_classes", &[m, "--out", arg(&png), "--resolution", "16", "--backend", "cpu"]);
+    assert!(png.is_file() && dir.join("classes.json").is_file(), "render_classes wrote no picture");
+    ran.push("render_classes");
+    let out_dir = dir.join("tradeoff");
+    let args = [
+        m,
+        "--out",
+        arg(&out_dir),
+        "--policy",
+        "thesis",
+        "--backends",
+        "cpu",
+        "--strides",
+        "1",
+        "--bits",
+        "30",
+        "--rules",
+        "doane",
+        "--repeats",
+        "1",
+        "--oracle-resolution",
+        "8",
+        "--oracle-repeats",
+        "1",
+    ];
+    assert!(ok("tradeoff", &args).contains("wrote:"));
+    ran.push("tradeoff");
+    ran.sort_unstable();
+    assert_eq!(ran, EXAMPLES, "every example on a good input");
     let _ = std::fs::remove_dir_all(&dir);
 }

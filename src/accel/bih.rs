@@ -12,7 +12,11 @@
 //! reach into the other half at all, a node cuts that empty space off (its other child is an empty leaf, its clip
 //! plane at the triangles' extent; the "empty space cutting" of Wächter and Keller). Leaves hold at
 //! most [`BihOptions::max_leaf`] triangles; where halving stops separating the triangles (all centres in one point,
-//! or 64 halvings without progress) the node is split at the object median instead. Subtrees over
+//! or 64 halvings without progress, counted across the empty-space cuts in between) the node is split at the object
+//! median instead, and so is every node below it: the count of halvings without progress only starts afresh below
+//! a halving that separates. A path thus has at most 64 nodes that separate nothing (zero-area triangles in a
+//! coordinate plane would otherwise be cut off again at every halving towards the plane, down to the smallest f32,
+//! after every object-median split: 165 levels on a fan of a polygon over three points). Subtrees over
 //! [`BihOptions::parallel_threshold`] triangles are built in parallel.
 //!
 //! # Layout ([`BihNode`], 12 bytes)
@@ -111,15 +115,19 @@ fn leaf_node(first: usize, count: usize) -> BihNode {
     BihNode { clip: [f32::from_bits(count as u32), 0.0], flags: LEAF | ((first as u32) << 2) }
 }
 
+/// Halvings of the candidate box without a separating split after which a node is split at the object median.
+const MAX_STALL: u32 = 64;
+
 /// Builds the subtree over `refs` (records `first ..`), candidate box `cand`, into `out` (root at `out[0]`; child
-/// indices relative to `out[0]`).
-fn build_rec(refs: &mut [BRef], first: usize, mut cand: Aabb, o: &BihOptions) -> Sub {
+/// indices relative to `out[0]`). `stall` counts the halvings since the last separating split above.
+fn build_rec(refs: &mut [BRef], first: usize, mut cand: Aabb, mut stall: u32, o: &BihOptions) -> Sub {
     let n = refs.len();
     if n <= o.max_leaf.max(1) {
         return Sub { nodes: vec![leaf_node(first, n)] };
     }
     let mut split = None;
-    for _ in 0..64 {
+    while stall < MAX_STALL {
+        stall += 1;
         let axis = cand.longest_axis();
         let p = (cand.min[axis] + cand.max[axis]) * 0.5;
         if !(p > cand.min[axis] && p < cand.max[axis]) {
@@ -136,25 +144,27 @@ fn build_rec(refs: &mut [BRef], first: usize, mut cand: Aabb, o: &BihOptions) ->
             cand.min[axis] = p;
             let lo = refs.iter().fold(f32::INFINITY, |a, r| a.min(r.min[axis]));
             if lo > p {
-                let r = build_rec(refs, first, cand, o);
+                let r = build_rec(refs, first, cand, stall, o);
                 return combine(axis, [f32::NEG_INFINITY, lo], Sub { nodes: vec![leaf_node(first, 0)] }, r);
             }
         } else {
             cand.max[axis] = p;
             let hi = refs.iter().fold(f32::NEG_INFINITY, |a, r| a.max(r.max[axis]));
             if hi < p {
-                let l = build_rec(refs, first, cand, o);
+                let l = build_rec(refs, first, cand, stall, o);
                 return combine(axis, [hi, f32::INFINITY], l, Sub { nodes: vec![leaf_node(first + n, 0)] });
             }
         }
     }
-    let (axis, m, lc, rc) = match split {
+    // A separating halving starts the children's count afresh; below an object-median split it goes on (the
+    // candidate box has stopped separating anything there).
+    let (axis, m, lc, rc, stall) = match split {
         Some((axis, m, p)) => {
             let mut lc = cand;
             lc.max[axis] = p;
             let mut rc = cand;
             rc.min[axis] = p;
-            (axis, m, lc, rc)
+            (axis, m, lc, rc, 0)
         }
         None => {
             // Object median along the longest axis of the centres.
@@ -170,16 +180,16 @@ fn build_rec(refs: &mut [BRef], first: usize, mut cand: Aabb, o: &BihOptions) ->
             lc.max[axis] = p.clamp(cand.min[axis], cand.max[axis]);
             let mut rc = cand;
             rc.min[axis] = lc.max[axis];
-            (axis, m, lc, rc)
+            (axis, m, lc, rc, stall)
         }
     };
     let (lr, rr) = refs.split_at_mut(m);
     let left_clip = lr.iter().fold(f32::NEG_INFINITY, |a, r| a.max(r.max[axis]));
     let right_clip = rr.iter().fold(f32::INFINITY, |a, r| a.min(r.min[axis]));
     let (l, r) = if n >= o.parallel_threshold {
-        rayon::join(|| build_rec(lr, first, lc, o), || build_rec(rr, first + m, rc, o))
+        rayon::join(|| build_rec(lr, first, lc, stall, o), || build_rec(rr, first + m, rc, stall, o))
     } else {
-        (build_rec(lr, first, lc, o), build_rec(rr, first + m, rc, o))
+        (build_rec(lr, first, lc, stall, o), build_rec(rr, first + m, rc, stall, o))
     };
     combine(axis, [left_clip, right_clip], l, r)
 }
@@ -216,7 +226,7 @@ impl Bih {
         let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
         let mut refs: Vec<BRef> =
             boxes.iter().enumerate().map(|(i, b)| BRef { min: b.min, idx: i as u32, max: b.max }).collect();
-        let sub = build_rec(&mut refs, 0, bounds, o);
+        let sub = build_rec(&mut refs, 0, bounds, 0, o);
         let ids: Vec<u32> = refs.iter().map(|r| r.idx).collect();
         let tris = ids.iter().map(|&i| tris[i as usize]).collect();
         Ok(Bih { nodes: sub.nodes, tris, ids, bounds })

@@ -11,10 +11,32 @@
 //!
 //! # Build
 //!
-//! A triangle is stored in every cell of its bounding box (widened by `1e-4` of a cell) that its plane passes
-//! through (plane-box overlap; zero-area triangles keep their whole box). Counting and filling run in parallel with
-//! atomic counters; each cell's list is then sorted, so the result is deterministic. Storage is compressed rows:
-//! `cell_start[c] .. cell_start[c + 1]` indexes the reference array.
+//! A triangle is stored in the cells it touches: every cell of its bounding box (widened by `1e-4` of a cell) whose
+//! box, widened by `w`, the triangle overlaps. The cells are found exactly, in f64, by clipping (Sutherland-Hodgman)
+//! the triangle to each slab of cells across the box's shortest side, then each clipped polygon to each row of cells
+//! within the slab, whose extent along the remaining axis gives a run of cells; so a long thin triangle costs the
+//! cells along it, not the cells of its box, and a triangle costs one clip per slab and per row it meets. The
+//! widening `w` is `1e-4` of a cell, eight f32 ulps of the scene's coordinates (the traversal computes cell
+//! boundaries in f32), and a pad for the f32 rounding of the ray-triangle test, which can report a hit slightly
+//! outside a thin triangle: `16 eps (|bounds| + extent) / sin(alpha)`, with `alpha` the angle of the record's edges
+//! at `v0` (a few millionths of the scene for a well-shaped triangle; the whole box when the f32 edges are
+//! parallel). A zero-area triangle, which is never hit, is stored once, in the cell of its box centre: it belongs to
+//! the grid and counts as a reference at no cost to traversal.
+//!
+//! Each triangle's cells are counted, then written in triangle order into one array (in parallel, every triangle in
+//! its own range), and a counting sort by cell turns that into the cells' lists, each in triangle order: no shared
+//! counters (which copies of one triangle would all contend for), and the same grid on every thread count. Storage
+//! is compressed rows: `cell_start[c] .. cell_start[c + 1]` indexes the reference array.
+//!
+//! # Budget
+//!
+//! The cell references are bounded by [`GridOptions::reference_budget`] (64 per triangle, at least `2^25`) and the
+//! grid's bytes by [`GridOptions::max_bytes`]: a scene of many large overlapping triangles (copies of one triangle,
+//! a fan of a polygon over three points) needs `O(n)` references per triangle, `O(n^2)` in all. When the sum of the
+//! triangles' box cells exceeds the budget, the triangles' exact cell counts are summed in index order (in parallel
+//! chunks, each count capped where it would cross the budget) and the build fails with [`AccelError::OverBudget`]
+//! at the first triangle that crosses it: the same error, with the same count, on every run and thread count. No
+//! shared mesh or BART frame comes within a tenth of it (at most 5.0 references per triangle, the teapot).
 //!
 //! # Traversal
 //!
@@ -29,9 +51,8 @@ use super::{bytes_of, invalid, prepare, AccelError, AccelStats, AccelStructure, 
 use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCounters};
 use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicU32, Ordering};
 
 /// Options of the grid.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -42,11 +63,51 @@ pub struct GridOptions {
     pub max_resolution: u32,
     /// Largest number of cells in all.
     pub max_cells: usize,
+    /// Cell references allowed per triangle (default 64; the shared meshes need at most 5.0): see
+    /// [`GridOptions::reference_budget`].
+    pub max_references_per_triangle: usize,
+    /// Cell references always allowed, however few the triangles (default `2^25`, 128 MiB of references): see
+    /// [`GridOptions::reference_budget`].
+    pub min_reference_budget: usize,
+    /// Largest size of the grid in bytes, as [`AccelStructure::memory_bytes`] counts it (cell starts, references,
+    /// triangle records); default 4 GiB. A larger grid fails with [`AccelError::OverBudget`] before its reference
+    /// array is allocated.
+    pub max_bytes: usize,
 }
 
 impl Default for GridOptions {
     fn default() -> Self {
-        GridOptions { density: 4.0, max_resolution: 1024, max_cells: 1 << 24 }
+        GridOptions {
+            density: 4.0,
+            max_resolution: 1024,
+            max_cells: 1 << 24,
+            max_references_per_triangle: 64,
+            min_reference_budget: 1 << 25,
+            max_bytes: 4 << 30,
+        }
+    }
+}
+
+impl GridOptions {
+    /// The most cell references a grid over `n` triangles may hold:
+    /// `max(max_references_per_triangle * n, min_reference_budget)` (saturating). A build that needs more fails
+    /// with [`AccelError::OverBudget`] (see the module docs).
+    pub fn reference_budget(&self, n: usize) -> usize {
+        self.max_references_per_triangle.saturating_mul(n).max(self.min_reference_budget)
+    }
+
+    /// The budget error of a grid over `n` triangles that needs at least `needed` cell references.
+    fn over_references(&self, n: usize, needed: usize) -> AccelError {
+        AccelError::OverBudget {
+            structure: "grid",
+            what: "cell references",
+            needed,
+            budget: self.reference_budget(n),
+            rule: format!(
+                "{} per triangle for {n} triangles, at least {}",
+                self.max_references_per_triangle, self.min_reference_budget
+            ),
+        }
     }
 }
 
@@ -64,6 +125,53 @@ pub struct Grid {
 }
 
 const WIDEN: f32 = 1e-4;
+
+/// A convex polygon of at most 8 corners in f64: a triangle clipped by up to four axis-aligned planes.
+#[derive(Clone, Copy)]
+struct Polygon {
+    v: [DVec3; 8],
+    len: usize,
+}
+
+impl Polygon {
+    /// The part of the polygon with `lo <= p[axis] <= hi` (Sutherland-Hodgman, one slab).
+    fn clip(&self, axis: usize, lo: f64, hi: f64) -> Polygon {
+        self.clip_half(axis, lo, 1.0).clip_half(axis, hi, -1.0)
+    }
+
+    /// The part with `sign * (p[axis] - c) >= 0`.
+    fn clip_half(&self, axis: usize, c: f64, sign: f64) -> Polygon {
+        let mut out = Polygon { v: [DVec3::ZERO; 8], len: 0 };
+        for k in 0..self.len {
+            let (p, q) = (self.v[k], self.v[(k + 1) % self.len]);
+            let (dp, dq) = (sign * (p[axis] - c), sign * (q[axis] - c));
+            if dp >= 0.0 {
+                out.push(p);
+            }
+            if (dp >= 0.0) != (dq >= 0.0) {
+                let mut x = p + (q - p) * (dp / (dp - dq));
+                x[axis] = c;
+                out.push(x);
+            }
+        }
+        out
+    }
+
+    fn push(&mut self, p: DVec3) {
+        if self.len < self.v.len() {
+            self.v[self.len] = p;
+            self.len += 1;
+        }
+    }
+
+    /// Smallest and largest coordinate along `axis` (`None` for an empty polygon).
+    fn range(&self, axis: usize) -> Option<(f64, f64)> {
+        let vs = &self.v[..self.len];
+        let lo = vs.iter().map(|p| p[axis]).reduce(f64::min)?;
+        let hi = vs.iter().map(|p| p[axis]).reduce(f64::max)?;
+        Some((lo, hi))
+    }
+}
 
 /// Resolution by the density heuristic, and the padded bounds.
 pub fn grid_resolution(bounds: &Aabb, n: usize, o: &GridOptions) -> (Aabb, [u32; 3]) {
@@ -129,18 +237,21 @@ impl Grid {
             boxes,
         };
         let ncells = res.iter().map(|&x| x as usize).product::<usize>();
-        let counts: Vec<AtomicU32> = (0..ncells).map(|_| AtomicU32::new(0)).collect();
-        let total: u64 = (0..n)
-            .into_par_iter()
-            .map(|i| {
-                let mut k = 0u64;
-                g.for_each_cell(i, |c| {
-                    counts[c].fetch_add(1, Ordering::Relaxed);
-                    k += 1;
-                });
-                k
-            })
-            .sum();
+        if ncells >= u32::MAX as usize {
+            let limit = u32::MAX as usize;
+            return Err(AccelError::TooLarge { structure: "grid", what: "cells", count: ncells, limit });
+        }
+        // Cells per triangle, then every triangle's cells in triangle order (no shared counters: copies of one
+        // triangle would all contend for the same ones), then a counting sort by cell, which leaves every cell's
+        // list in triangle order.
+        let counts = g.cell_counts(o)?;
+        let mut offsets = Vec::with_capacity(n + 1);
+        let mut total = 0u64;
+        for &c in &counts {
+            offsets.push(total as usize);
+            total += u64::from(c);
+        }
+        offsets.push(total as usize);
         if total >= u32::MAX as u64 {
             return Err(AccelError::TooLarge {
                 structure: "grid",
@@ -149,30 +260,51 @@ impl Grid {
                 limit: u32::MAX as usize,
             });
         }
-        let mut start = Vec::with_capacity(ncells + 1);
-        let mut acc = 0u32;
-        for c in &counts {
-            start.push(acc);
-            acc += c.load(Ordering::Relaxed);
-        }
-        start.push(acc);
-        let cursor: Vec<AtomicU32> = start[..ncells].iter().map(|&s| AtomicU32::new(s)).collect();
-        let slots: Vec<AtomicU32> = (0..acc).map(|_| AtomicU32::new(0)).collect();
-        (0..n).into_par_iter().for_each(|i| {
-            g.for_each_cell(i, |c| {
-                let pos = cursor[c].fetch_add(1, Ordering::Relaxed);
-                slots[pos as usize].store(i as u32, Ordering::Relaxed);
+        let total = total as usize;
+        let bytes = 4 * (ncells + 1) + 4 * total + bytes_of(&g.tris);
+        if bytes > o.max_bytes {
+            return Err(AccelError::OverBudget {
+                structure: "grid",
+                what: "bytes",
+                needed: bytes,
+                budget: o.max_bytes,
+                rule: format!("GridOptions::max_bytes, for {ncells} cells and {total} cell references"),
             });
-        });
-        let mut refs: Vec<u32> = slots.into_iter().map(AtomicU32::into_inner).collect();
-        let mut lists: Vec<&mut [u32]> = Vec::with_capacity(ncells);
-        let mut rest: &mut [u32] = &mut refs;
-        for c in 0..ncells {
-            let (a, b) = rest.split_at_mut((start[c + 1] - start[c]) as usize);
-            lists.push(a);
-            rest = b;
         }
-        lists.par_iter_mut().for_each(|l| l.sort_unstable());
+        let mut cells = vec![0u32; total];
+        {
+            let mut parts: Vec<(usize, &mut [u32])> = Vec::with_capacity(n);
+            let mut rest: &mut [u32] = &mut cells;
+            for i in 0..n {
+                let (a, b) = rest.split_at_mut(offsets[i + 1] - offsets[i]);
+                parts.push((i, a));
+                rest = b;
+            }
+            parts.into_par_iter().with_min_len(256).for_each(|(i, out)| {
+                let mut k = 0;
+                g.for_each_cell(i, |c| {
+                    out[k] = c as u32;
+                    k += 1;
+                    k < out.len()
+                });
+            });
+        }
+        let mut start = vec![0u32; ncells + 1];
+        for &c in &cells {
+            start[c as usize + 1] += 1;
+        }
+        for c in 0..ncells {
+            start[c + 1] += start[c];
+        }
+        let mut cursor = start[..ncells].to_vec();
+        let mut refs = vec![0u32; total];
+        for i in 0..n {
+            for &c in &cells[offsets[i]..offsets[i + 1]] {
+                let pos = &mut cursor[c as usize];
+                refs[*pos as usize] = i as u32;
+                *pos += 1;
+            }
+        }
         g.cell_start = start;
         g.refs = refs;
         Ok(g)
@@ -194,37 +326,146 @@ impl Grid {
         Aabb::new(lo, lo + self.cell_size)
     }
 
-    /// Calls `f` with every cell triangle `i` is stored in.
-    fn for_each_cell(&self, i: usize, mut f: impl FnMut(usize)) {
+    /// The cells of triangle `i`'s bounding box, widened by [`WIDEN`] of a cell: inclusive index ranges per axis.
+    fn box_cells(&self, i: usize) -> ([u32; 3], [u32; 3]) {
         let b = &self.boxes[i];
         let lo = ((b.min - self.bounds.min) * self.inv_cell - WIDEN).floor();
         let hi = ((b.max - self.bounds.min) * self.inv_cell + WIDEN).floor();
         let cl = |v: f32, a: usize| v.clamp(0.0, (self.res[a] - 1) as f32) as u32;
-        let (x0, y0, z0) = (cl(lo.x, 0), cl(lo.y, 1), cl(lo.z, 2));
-        let (x1, y1, z1) = (cl(hi.x, 0), cl(hi.y, 1), cl(hi.z, 2));
+        ([cl(lo.x, 0), cl(lo.y, 1), cl(lo.z, 2)], [cl(hi.x, 0), cl(hi.y, 1), cl(hi.z, 2)])
+    }
+
+    /// An upper bound of the cells triangle `i` is stored in: its box's cells (1 for a zero-area triangle).
+    fn box_cell_count(&self, i: usize) -> u64 {
+        if self.tris[i].is_degenerate() {
+            return 1;
+        }
+        let (lo, hi) = self.box_cells(i);
+        (0..3).map(|a| u64::from(hi[a] - lo[a] + 1)).product()
+    }
+
+    /// Calls `f` with every cell triangle `i` is stored in (the rule of the module docs), slab by slab, row by row,
+    /// until `f` returns `false`.
+    fn for_each_cell(&self, i: usize, mut f: impl FnMut(usize) -> bool) {
         let t = &self.tris[i];
-        let normal = t.e1.cross(t.e2);
-        let single = x0 == x1 && y0 == y1 && z0 == z1;
-        for z in z0..=z1 {
-            for y in y0..=y1 {
-                for x in x0..=x1 {
-                    if single || normal == Vec3::ZERO || self.plane_overlaps(t, normal, x, y, z) {
-                        f(self.cell_index(x, y, z));
+        let (lo, hi) = self.box_cells(i);
+        if t.is_degenerate() {
+            // Never hit: one cell, the one of the box centre.
+            f(self.centre_cell(i, lo, hi));
+            return;
+        }
+        let (v0, e1, e2) = (t.v0.as_dvec3(), t.e1.as_dvec3(), t.e2.as_dvec3());
+        let normal_len = e1.cross(e2).length();
+        let all = normal_len == 0.0;
+        // The widening of every cell: WIDEN of a cell, eight f32 ulps of the coordinates (the traversal computes cell
+        // boundaries in f32), and the pad: `16 eps (|bounds| + extent) / sin(alpha)`, with `1 / sin(alpha)` =
+        // `|e1| |e2| / |e1 x e2|`.
+        let (bmin, cs) = (self.bounds.min.as_dvec3(), self.cell_size.as_dvec3());
+        let mag = self.bounds.min.abs().max(self.bounds.max.abs()).as_dvec3();
+        let scale = mag.max_element() + self.bounds.extent().max_element() as f64;
+        let pad = if all { 0.0 } else { 16.0 * f32::EPSILON as f64 * scale * (e1.length() * e2.length() / normal_len) };
+        let w = cs * WIDEN as f64 + mag * (8.0 * f32::EPSILON as f64) + pad;
+        // The cells along `axis` whose widened extent meets `lo ..= hi`, within the box's cells.
+        let cells = |axis: usize, (l, h): (f64, f64)| -> Option<(u32, u32)> {
+            let from = ((l - w[axis] - bmin[axis]) / cs[axis]).floor().max(lo[axis] as f64);
+            let to = ((h + w[axis] - bmin[axis]) / cs[axis]).floor().min(hi[axis] as f64);
+            (from <= to).then_some((from as u32, to as u32))
+        };
+        let edge = |axis: usize, k: u32| bmin[axis] + k as f64 * cs[axis];
+        let tri = Polygon {
+            v: [v0, v0 + e1, v0 + e2, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO],
+            len: 3,
+        };
+        // Slabs across the box's shortest side, rows across the next, runs of cells along its longest side: the
+        // clipping costs one slab and one row each, the runs are as long as they can be.
+        let mut order = [0usize, 1, 2];
+        order.sort_by_key(|&a| hi[a] - lo[a]);
+        let [ao, am, ai] = order;
+        let cell = |o: u32, m: u32, k: u32| {
+            let mut c = [0u32; 3];
+            (c[ao], c[am], c[ai]) = (o, m, k);
+            self.cell_index(c[0], c[1], c[2])
+        };
+        let mut emitted = false;
+        for o in lo[ao]..=hi[ao] {
+            let slab = if all { tri } else { tri.clip(ao, edge(ao, o) - w[ao], edge(ao, o + 1) + w[ao]) };
+            let ms = if all { Some((lo[am], hi[am])) } else { slab.range(am).and_then(|r| cells(am, r)) };
+            let Some((m0, m1)) = ms else { continue };
+            for m in m0..=m1 {
+                let ks = if all {
+                    Some((lo[ai], hi[ai]))
+                } else {
+                    slab.clip(am, edge(am, m) - w[am], edge(am, m + 1) + w[am]).range(ai).and_then(|r| cells(ai, r))
+                };
+                let Some((k0, k1)) = ks else { continue };
+                for k in k0..=k1 {
+                    emitted = true;
+                    if !f(cell(o, m, k)) {
+                        return;
                     }
                 }
             }
         }
+        if !emitted {
+            // The triangle lies in its box's cells, so the clipping misses all of them only through rounding
+            // outside anything it was built for: the cell of the box centre keeps the triangle in the grid anyway.
+            f(self.centre_cell(i, lo, hi));
+        }
     }
 
-    /// Whether the triangle's plane passes through cell `(x, y, z)` widened by [`WIDEN`] of a cell.
-    #[inline]
-    fn plane_overlaps(&self, t: &Triangle, n: Vec3, x: u32, y: u32, z: u32) -> bool {
-        let cb = self.cell_box(x, y, z);
-        let h = (cb.max - cb.min) * (0.5 + WIDEN);
-        let c = cb.center();
-        let r = h.dot(n.abs());
-        let s = n.dot(c - t.v0);
-        s.abs() <= r * (1.0 + 1e-5)
+    /// The cell of the centre of triangle `i`'s box, clamped into its box's cells `lo ..= hi` (NaN and overflow
+    /// included).
+    fn centre_cell(&self, i: usize, lo: [u32; 3], hi: [u32; 3]) -> usize {
+        let c = ((self.boxes[i].center() - self.bounds.min) * self.inv_cell).floor();
+        let at = |a: usize| (c[a].max(0.0) as u32).clamp(lo[a], hi[a]);
+        self.cell_index(at(0), at(1), at(2))
+    }
+
+    /// The number of cells of every triangle, checked against [`GridOptions::reference_budget`] before anything
+    /// is allocated for the references (see the module docs): in one parallel pass when the triangles' box cells
+    /// fit the budget, else in index order, chunk by chunk, failing at the first triangle that crosses it.
+    fn cell_counts(&self, o: &GridOptions) -> Result<Vec<u32>, AccelError> {
+        let n = self.tris.len();
+        let budget = o.reference_budget(n) as u64;
+        let count = |i: usize, cap: u64| {
+            let mut c = 0u64;
+            self.for_each_cell(i, |_| {
+                c += 1;
+                c < cap
+            });
+            c
+        };
+        let upper: Vec<u64> = (0..n).into_par_iter().map(|i| self.box_cell_count(i)).collect();
+        if upper.iter().sum::<u64>() <= budget {
+            return Ok((0..n).into_par_iter().map(|i| count(i, u64::MAX) as u32).collect());
+        }
+        // A chunk holds triangles whose box cells, each capped at what would cross the budget, sum to no more than
+        // that, so no chunk counts much past the budget; a count stops at the cap, where it crosses anyway.
+        let mut counts = Vec::with_capacity(n);
+        let mut prefix = 0u64;
+        let mut i = 0;
+        while i < n {
+            let cap = budget + 1 - prefix;
+            let (mut j, mut acc) = (i, 0u64);
+            while j < n && j - i < 65_536 {
+                let u = upper[j].min(cap);
+                if j > i && acc + u > cap {
+                    break;
+                }
+                acc += u;
+                j += 1;
+            }
+            let chunk: Vec<u64> = (i..j).into_par_iter().map(|k| count(k, cap)).collect();
+            for c in chunk {
+                prefix += c;
+                if prefix > budget {
+                    return Err(o.over_references(n, prefix as usize));
+                }
+                counts.push(c as u32);
+            }
+            i = j;
+        }
+        Ok(counts)
     }
 
     fn traverse(&self, ray: &Ray, any: bool, c: &mut TraceCounters) -> Option<Hit> {
@@ -364,6 +605,7 @@ impl AccelStructure for Grid {
                 if list.binary_search(&(i as u32)).is_err() {
                     lost = Some(c);
                 }
+                true
             });
             if let Some(c) = lost {
                 return Err(invalid("grid", format!("triangle {i} lost from cell {c}")));

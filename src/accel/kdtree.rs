@@ -3,7 +3,9 @@
 //!
 //! # Build
 //!
-//! Each reference carries the triangle's bounding box clipped to the current voxel. Per axis, candidate planes are
+//! Each reference carries the triangle's bounding box clipped to the current voxel; a zero-area triangle, which is
+//! never hit, carries the centre of its box instead and lands in one leaf (400 collinear ones across a flat lattice
+//! would otherwise sit in every leaf). Per axis, candidate planes are
 //! the boundaries of [`KdOptions::bins`] equal bins of the voxel, plus the two planes that cut off the empty space
 //! on either side of the references (exactly at their smallest minimum and largest maximum). The count estimates
 //! `N_L`, `N_R` come from per-bin start and end counts. The cost of a plane is
@@ -11,9 +13,26 @@
 //! ([`KdOptions::empty_bonus`]) when one side is empty (Wald and Havran 2006). A node becomes a leaf when no plane
 //! beats `K_I * N`, or at the depth limit `8 + 1.3 log2(N)` (the rule of pbrt, Pharr et al.).
 //!
+//! A plane that leaves one child with every reference of the node (and the other with some) duplicates all the
+//! other child's references. One such split is often worth it (a wall spanning the node), but on degenerate input
+//! they chain: on a fan of a polygon over three points (coincident copies of one triangle, and zero-area triangles
+//! whose points lie on the sides of every voxel), every level keeps everything on the thin side down to the depth
+//! limit, 18 references per triangle (135 while zero-area triangles were carried as boxes). So a node at the end of
+//! [`KdOptions::max_keep_all_chain`] (6) such splits in a row, each child holding every reference of its parent,
+//! gets no such plane: 5.3 references per triangle on the fan, while on the shared meshes the SAH cost moves by at
+//! most 0.26% (kitchen) and the references shrink by up to 6%.
+//!
 //! Partition rule at plane `p` on axis `a` (reproduced exactly by `validate()`): a reference goes left when its box
 //! has `min[a] < p`, right when `max[a] > p`, both when it straddles; a box lying in the plane (`min = max = p`)
 //! goes left. Subtrees over [`KdOptions::parallel_threshold`] references are built in parallel.
+//!
+//! # Budget
+//!
+//! The references of the leaves are bounded by [`KdOptions::reference_budget`] (64 per triangle, at least `2^25`):
+//! many large overlapping triangles duplicate on every level, and the build fails with [`AccelError::OverBudget`]
+//! as soon as the leaves built so far hold more, instead of running for minutes or exhausting memory. Whether it
+//! fails does not depend on the thread count (the tree does not); the count in the error does. No shared mesh or
+//! BART frame comes within a quarter of it (at most 14.4 references per triangle, sponza).
 //!
 //! # Layout ([`KdNode`], 8 bytes)
 //!
@@ -36,6 +55,7 @@ use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCou
 use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
 use glam::{Vec3, Vec3A};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// One kd-tree node (see the module docs).
 #[repr(C)]
@@ -83,11 +103,38 @@ pub struct KdOptions {
     pub empty_bonus: f32,
     /// Subtrees with at least this many references are built in parallel.
     pub parallel_threshold: usize,
+    /// Longest chain of splits each leaving a child with every reference of its parent, after which such planes
+    /// are no candidates (default 6; see the module docs). 0 allows none.
+    pub max_keep_all_chain: u32,
+    /// Leaf references allowed per triangle (default 64; the shared meshes need at most 14.4): see
+    /// [`KdOptions::reference_budget`].
+    pub max_references_per_triangle: usize,
+    /// Leaf references always allowed, however few the triangles (default `2^25`): see
+    /// [`KdOptions::reference_budget`].
+    pub min_reference_budget: usize,
 }
 
 impl Default for KdOptions {
     fn default() -> Self {
-        KdOptions { bins: 32, traversal_cost: 1.0, intersection_cost: 1.5, empty_bonus: 0.2, parallel_threshold: 8192 }
+        KdOptions {
+            bins: 32,
+            traversal_cost: 1.0,
+            intersection_cost: 1.5,
+            empty_bonus: 0.2,
+            parallel_threshold: 8192,
+            max_keep_all_chain: 6,
+            max_references_per_triangle: 64,
+            min_reference_budget: 1 << 25,
+        }
+    }
+}
+
+impl KdOptions {
+    /// The most leaf references a kd-tree over `n` triangles may hold:
+    /// `max(max_references_per_triangle * n, min_reference_budget)` (saturating). A build that needs more fails
+    /// with [`AccelError::OverBudget`] (see the module docs).
+    pub fn reference_budget(&self, n: usize) -> usize {
+        self.max_references_per_triangle.saturating_mul(n).max(self.min_reference_budget)
     }
 }
 
@@ -111,7 +158,9 @@ pub struct KdTree {
 
 const MAX_BINS: usize = 64;
 
-fn find_split(refs: &[KRef], voxel: &Aabb, o: &KdOptions) -> Option<(usize, f32, f32)> {
+/// The best plane of a node over `refs` in `voxel`, `(axis, plane, cost)`; `keep_all`: whether a plane that leaves
+/// one side with every reference (and the other with some) is a candidate.
+fn find_split(refs: &[KRef], voxel: &Aabb, o: &KdOptions, keep_all: bool) -> Option<(usize, f32, f32)> {
     let sa = voxel.half_area();
     if sa.is_nan() || sa <= 0.0 {
         return None;
@@ -127,7 +176,9 @@ fn find_split(refs: &[KRef], voxel: &Aabb, o: &KdOptions) -> Option<(usize, f32,
     let sums = [ext.y + ext.z, ext.x + ext.z, ext.x + ext.y];
     let crosses = [ext.y * ext.z, ext.x * ext.z, ext.x * ext.y];
     let mut consider = |axis: usize, p: f32, nl: usize, nr: usize| {
-        if !(p > voxel.min[axis] && p < voxel.max[axis]) {
+        // A plane that keeps every reference on one side and some on the other, at the end of a chain of them.
+        let duplicates = !keep_all && ((nl == n && nr > 0) || (nr == n && nl > 0));
+        if !(p > voxel.min[axis] && p < voxel.max[axis]) || duplicates {
             return;
         }
         let al = (p - voxel.min[axis]) * sums[axis] + crosses[axis];
@@ -177,6 +228,15 @@ fn find_split(refs: &[KRef], voxel: &Aabb, o: &KdOptions) -> Option<(usize, f32,
     best
 }
 
+/// The box a triangle's reference starts from: its bounding box, or the centre of it for a zero-area triangle.
+fn reference_box(t: &Triangle, b: &Aabb) -> Aabb {
+    if t.is_degenerate() {
+        Aabb::new(b.center(), b.center())
+    } else {
+        *b
+    }
+}
+
 #[inline]
 fn goes_left(min: f32, max: f32, p: f32) -> bool {
     min < p || (min == p && max == p)
@@ -200,10 +260,34 @@ fn leaf(out: &mut Built, refs: &[KRef]) {
     out.nodes.push(KdNode { split_or_count: refs.len() as u32, flags: LEAF | (first << 2) });
 }
 
-fn build_rec(refs: Vec<KRef>, voxel: Aabb, depth: u32, max_depth: u32, o: &KdOptions, out: &mut Built) {
+/// What every subtree of one build shares: the options, the depth limit, and the leaf references made so far
+/// against the budget.
+struct Build<'a> {
+    o: &'a KdOptions,
+    max_depth: u32,
+    budget: usize,
+    references: AtomicUsize,
+}
+
+impl Build<'_> {
+    /// Whether the leaves made so far exceed the budget (the build then stops).
+    fn over(&self) -> bool {
+        self.references.load(Ordering::Relaxed) > self.budget
+    }
+}
+
+/// Builds the subtree over `refs` in `voxel` at `depth` into `out`; `chain` counts the splits in a row above that
+/// each gave their child every reference of its parent.
+fn build_rec(refs: Vec<KRef>, voxel: Aabb, depth: u32, chain: u32, b: &Build, out: &mut Built) {
     let n = refs.len();
-    let split = if depth < max_depth && n > 0 { find_split(&refs, &voxel, o) } else { None };
+    if b.over() {
+        return;
+    }
+    let o = b.o;
+    let keep_all = chain < o.max_keep_all_chain;
+    let split = if depth < b.max_depth && n > 0 { find_split(&refs, &voxel, o, keep_all) } else { None };
     let Some((axis, p, cost)) = split.filter(|&(_, _, c)| c < o.intersection_cost * n as f32) else {
+        b.references.fetch_add(n, Ordering::Relaxed);
         leaf(out, &refs);
         return;
     };
@@ -223,6 +307,7 @@ fn build_rec(refs: Vec<KRef>, voxel: Aabb, depth: u32, max_depth: u32, o: &KdOpt
         }
     }
     drop(refs);
+    let (nl_all, nr_all) = (left.len() == n, right.len() == n);
     let mut lv = voxel;
     lv.max[axis] = p;
     let mut rv = voxel;
@@ -230,25 +315,25 @@ fn build_rec(refs: Vec<KRef>, voxel: Aabb, depth: u32, max_depth: u32, o: &KdOpt
     let here = out.nodes.len();
     out.nodes.push(KdNode { split_or_count: p.to_bits(), flags: axis as u32 });
     if n >= o.parallel_threshold {
-        let (a, b) = rayon::join(
+        let (l, r) = rayon::join(
             || {
                 let mut a = Built { nodes: Vec::new(), refs: Vec::new() };
-                build_rec(left, lv, depth + 1, max_depth, o, &mut a);
+                build_rec(left, lv, depth + 1, if nl_all { chain + 1 } else { 0 }, b, &mut a);
                 a
             },
             || {
-                let mut b = Built { nodes: Vec::new(), refs: Vec::new() };
-                build_rec(right, rv, depth + 1, max_depth, o, &mut b);
-                b
+                let mut r = Built { nodes: Vec::new(), refs: Vec::new() };
+                build_rec(right, rv, depth + 1, if nr_all { chain + 1 } else { 0 }, b, &mut r);
+                r
             },
         );
-        append(out, a);
+        append(out, l);
         out.nodes[here].flags |= ((out.nodes.len() - here) as u32) << 2;
-        append(out, b);
+        append(out, r);
     } else {
-        build_rec(left, lv, depth + 1, max_depth, o, out);
+        build_rec(left, lv, depth + 1, if nl_all { chain + 1 } else { 0 }, b, out);
         out.nodes[here].flags |= ((out.nodes.len() - here) as u32) << 2;
-        build_rec(right, rv, depth + 1, max_depth, o, out);
+        build_rec(right, rv, depth + 1, if nr_all { chain + 1 } else { 0 }, b, out);
     }
 }
 
@@ -272,11 +357,29 @@ impl KdTree {
             return Ok(KdTree::default());
         }
         let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
-        let refs: Vec<KRef> =
-            boxes.iter().enumerate().map(|(i, b)| KRef { min: b.min, idx: i as u32, max: b.max }).collect();
+        let refs: Vec<KRef> = (0..n)
+            .map(|i| {
+                let b = reference_box(&tris[i], &boxes[i]);
+                KRef { min: b.min, idx: i as u32, max: b.max }
+            })
+            .collect();
         let max_depth = (8.0 + 1.3 * (n as f64).log2()).round() as u32;
         let mut out = Built { nodes: Vec::new(), refs: Vec::new() };
-        build_rec(refs, bounds, 0, max_depth, o, &mut out);
+        let budget = o.reference_budget(n);
+        let b = Build { o, max_depth, budget, references: AtomicUsize::new(0) };
+        build_rec(refs, bounds, 0, 0, &b, &mut out);
+        if b.over() {
+            return Err(AccelError::OverBudget {
+                structure: "kdtree",
+                what: "references",
+                needed: b.references.into_inner(),
+                budget,
+                rule: format!(
+                    "{} per triangle for {n} triangles, at least {}",
+                    o.max_references_per_triangle, o.min_reference_budget
+                ),
+            });
+        }
         if out.refs.len() > MAX_INDEX || out.nodes.len() > MAX_INDEX {
             return Err(AccelError::TooLarge {
                 structure: "kdtree",
@@ -399,7 +502,7 @@ impl KdTree {
 
     /// Descends with triangle `i`'s box by the partition rule and checks that every leaf reached references it.
     fn check_reference(&self, i: usize) -> Result<usize, AccelError> {
-        let b = &self.boxes[i];
+        let b = &reference_box(&self.tris[i], &self.boxes[i]);
         let mut stack = vec![0usize];
         let mut leaves = 0;
         while let Some(k) = stack.pop() {

@@ -25,7 +25,13 @@
 //! * **Errors**: non-finite coordinates or out-of-range indices ([`AccelError::Mesh`]), more triangles than the node
 //!   encodings can address ([`AccelError::TooLarge`]), coordinates too far apart for f32 extents
 //!   ([`AccelError::CoordinateRange`]: the Morton keys of the LBVH and HLBVH, the grid's cells), centroid keys that
-//!   overflow f32 ([`AccelError::KeyOverflow`], LBVH and HLBVH). Building never panics on input.
+//!   overflow f32 ([`AccelError::KeyOverflow`], LBVH and HLBVH), more references than the grid's or the kd-tree's
+//!   budget ([`AccelError::OverBudget`]). Building never panics on input.
+//! * **Degenerate input** (coincident, collinear, coplanar triangles, fans of polygons over a few points): every
+//!   build stays within `O(n log n)` work, or, for the grid and the kd-tree, whose references can grow faster
+//!   than `n` on any input, within its reference budget ([`grid::GridOptions::reference_budget`],
+//!   [`kdtree::KdOptions::reference_budget`]); past it the build fails with [`AccelError::OverBudget`]. Tracing
+//!   is another matter: under the tie rule every ray that hits `k` coincident triangles tests all `k` of them.
 //! * **SAH cost** ([`sah_cost`]): `C = K_T * sum_internal SA(n)/SA(root) + K_I * sum_leaf SA(n)/SA(root) * refs(n)`
 //!   with `K_T = 1`, `K_I = 1` ([`SAH_TRAVERSAL_COST`], [`SAH_INTERSECTION_COST`]), the expected-cost model of
 //!   MacDonald and Booth 1990 used by Wald 2007. For the kd-tree and BIH the node regions (voxels, clipped
@@ -116,6 +122,25 @@ pub enum AccelError {
         triangle: usize,
         /// The key as computed.
         key: [f32; 3],
+    },
+    /// The build needs more than its budget: grid cell references or bytes ([`grid::GridOptions`]), kd-tree
+    /// references ([`kdtree::KdOptions`]). On degenerate input (many large overlapping or coincident triangles) these
+    /// structures duplicate references without bound; the build stops as soon as the budget is exceeded instead of
+    /// running for minutes or exhausting memory. The oracle reports such a structure as failed for the scene, with
+    /// this message, and measures the others.
+    #[error("{structure}: needs at least {needed} {what}, over its budget of {budget} ({rule})")]
+    OverBudget {
+        /// Which structure.
+        structure: &'static str,
+        /// What ran over (`cell references`, `bytes`, `references`).
+        what: &'static str,
+        /// How many were needed, at least: the count when the build stopped (the grid's is deterministic; the
+        /// kd-tree's, counted by parallel subtrees, is only known to exceed the budget).
+        needed: usize,
+        /// The budget.
+        budget: usize,
+        /// How the budget follows from the options (`64 per triangle for 300000 triangles, at least 33554432`).
+        rule: String,
     },
     /// `validate()` found a broken invariant.
     #[error("{structure}: invalid: {reason}")]

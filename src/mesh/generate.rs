@@ -347,6 +347,62 @@ pub fn zero_area(n: usize, seed: u64) -> Mesh {
     soup(format!("zero_area(n={n}, seed={seed})"), tris)
 }
 
+/// The `n` triangles that the loaders' fan rule makes of one polygon whose `n + 2` corners cycle over the three
+/// points `p0 = (0,0,0)`, `p1 = (1,0,0)`, `p2 = (0,1,0)`: triangle `i - 1` is `(p0, p[i mod 3], p[(i + 1) mod 3])` for
+/// `i` in `1 ..= n`, over three shared vertices. Triangles `0, 3, 6, ...` are the unit triangle; the others have
+/// two equal corners (zero area: the legs `p0 p2` and `p0 p1`). So `ceil(n / 3)` coincident copies of one triangle
+/// with zero-area segments on two sides of its box, the degenerate case of a polygon face written by a careless
+/// exporter (an OBJ face `f 1 2 3 1 2 3 ...` loads to exactly this).
+///
+/// # Panics
+///
+/// If `n > MAX_SOUP_TRIANGLES` (the same limit as the soups, for one rule).
+pub fn fan_polygon(n: usize) -> Mesh {
+    check_count(n);
+    let positions = UNIT_TRIANGLE.to_vec();
+    let indices = (1..=n as u32).map(|i| [0, i % 3, (i + 1) % 3]).collect();
+    Mesh { name: format!("fan_polygon(n={n})"), positions, indices, object_ids: None }
+}
+
+/// A flat lattice with zero-area triangles along its diagonal: `k x k` squares of side `1 / k` in the plane `z = 0`,
+/// each split into two triangles (`2 k^2` triangles over shared vertices), followed by `m` collinear zero-area
+/// triangles `(0,0,0), (t,t,0), (1,1,0)` with `t = (i + 1) / (m + 1)` for `i` in `0 .. m` (exactly collinear: the
+/// cross product of their edges is exactly zero). With `k = 300` and `m = 400`, the 180,400-triangle scene on which
+/// a grid that stores a triangle in every cell of its bounding box needs 400 references per cell.
+///
+/// # Panics
+///
+/// If the `(k + 1)^2 + 3 m` vertices are more than `u32` indices address.
+pub fn lattice_with_diagonal(k: usize, m: usize) -> Mesh {
+    let vertices = (k + 1).checked_mul(k + 1).and_then(|v| v.checked_add(m.checked_mul(3)?));
+    assert!(
+        vertices.is_some_and(|v| v <= u32::MAX as usize),
+        "lattice_with_diagonal(k={k}, m={m}): more vertices than u32 indices address"
+    );
+    let mut positions = Vec::with_capacity(vertices.unwrap_or(0));
+    for y in 0..=k {
+        for x in 0..=k {
+            positions.push([(x as f64 / k.max(1) as f64) as f32, (y as f64 / k.max(1) as f64) as f32, 0.0]);
+        }
+    }
+    let w = (k + 1) as u32;
+    let mut indices = Vec::with_capacity(2 * k * k + m);
+    for y in 0..k as u32 {
+        for x in 0..k as u32 {
+            let a = y * w + x;
+            indices.push([a, a + 1, a + w]);
+            indices.push([a + 1, a + w + 1, a + w]);
+        }
+    }
+    for i in 0..m {
+        let t = ((i + 1) as f64 / (m + 1) as f64) as f32;
+        let base = positions.len() as u32;
+        positions.extend([[0.0, 0.0, 0.0], [t, t, 0.0], [1.0, 1.0, 0.0]]);
+        indices.push([base, base + 1, base + 2]);
+    }
+    Mesh { name: format!("lattice_with_diagonal(k={k}, m={m})"), positions, indices, object_ids: None }
+}
+
 /// Splits every triangle into 4 through its edge midpoints, `levels` times: `4^levels` times as many triangles, for
 /// scaling studies beyond the largest real mesh. Triangle `(a, b, c)` with midpoints `ab`, `bc`, `ca` becomes
 /// `(a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca)` (winding kept), in that order, in place of its parent.
