@@ -1,7 +1,10 @@
 //! The CPU paths of `docs/spec.md`: [`naive`], a single-threaded transcription of the steps (the reference, and the
-//! thesis's "naive implementation" of Table 5.3), and [`fast`], chunked over rayon with fixed-width integer
-//! accumulators. Both take keys, bounds and codes from [`crate::keys`] (the definitions the LBVH and the feature
-//! pass use too) and finish with [`super::finalize`]. Both produce the same [`Characterization`] bit for bit (timings, backend and device aside).
+//! thesis's "naive implementation" of Table 5.3), and [`fast`], over rayon in three passes (the bounds; the codes
+//! with their exact power sums; the histogram over the stored codes) with fixed-width integer accumulators. [`naive`]
+//! takes keys, bounds and codes from [`crate::keys`] (the definitions the LBVH and the feature pass use too); [`fast`]
+//! computes the same values in vectorizable forms whose equality with those definitions its tests check. Both finish
+//! with [`super::finalize`] and produce the same [`Characterization`] bit for bit (timings, backend and device
+//! aside). [`fast_previous`], the rayon path that [`fast`] replaced, is kept for the benchmark's speed-up figure.
 
 use super::finalize::{self, class_from_thresholds, class_thresholds};
 use super::{Backend, CharError, Characterization, CodeStats, Exact, Params, PassTime, PerTriangle};
@@ -318,7 +321,7 @@ const TASK: usize = 1 << 14;
 /// the vectorized loops then read.
 const BLOCK: usize = 256;
 
-// The fixed-width sums of a task are exact for tasks of up to 2^32 codes (see `sums30`, `sums63`), and a task's
+// The fixed-width sums of a task are exact for tasks of up to 2^32 codes (see `Sums30`, `Sums63`), and a task's
 // histogram counts are `u32`.
 const _: () = assert!(TASK <= 1 << 32 && TASK % BLOCK == 0);
 
@@ -397,11 +400,49 @@ fn ordered(x: f32) -> u32 {
     b ^ ((((b as i32) >> 31) as u32) | 0x8000_0000)
 }
 
-/// Minimum and maximum of `ordered(v)` over `v`.
+/// Minimum and maximum of `ordered(x)` over `x` in `v` (finite or infinite keys), merged into `lo` and `hi`.
+///
+/// In the f32 order, with the lanes of vector `minps` and `maxps` (the comparison form of the minimum is that
+/// instruction), noting apart whether `-0.0` and `+0.0` occur: the f32 minimum is the total-order minimum except
+/// that `-0.0` and `+0.0` compare equal, so when it is a zero it is `-0.0` if `-0.0` occurs and `+0.0` otherwise;
+/// likewise the maximum, a zero, is `+0.0` if `+0.0` occurs.
 #[inline(always)]
 fn ordered_range(v: &[f32], lo: &mut u32, hi: &mut u32) {
-    let (l, h) = v.iter().fold((u32::MAX, 0u32), |(l, h), &x| (l.min(ordered(x)), h.max(ordered(x))));
-    (*lo, *hi) = ((*lo).min(l), (*hi).max(h));
+    const L: usize = 8;
+    let (mut l, mut h) = ([f32::INFINITY; L], [f32::NEG_INFINITY; L]);
+    let mut chunks = v.chunks_exact(L);
+    for c in &mut chunks {
+        let Ok(c) = <&[f32; L]>::try_from(c) else { continue }; // always a full chunk
+        for i in 0..L {
+            l[i] = if c[i] < l[i] { c[i] } else { l[i] };
+            h[i] = if c[i] > h[i] { c[i] } else { h[i] };
+        }
+    }
+    for &x in chunks.remainder() {
+        l[0] = if x < l[0] { x } else { l[0] };
+        h[0] = if x > h[0] { x } else { h[0] };
+    }
+    let (neg0, pos0) = v
+        .iter()
+        .fold((0u32, 0u32), |(n, p), &x| (n | u32::from(x.to_bits() == 0x8000_0000), p | u32::from(x.to_bits() == 0)));
+    let (neg0, pos0) = (neg0 != 0, pos0 != 0);
+    let min = l.iter().fold(f32::INFINITY, |a, &b| if b < a { b } else { a });
+    let max = h.iter().fold(f32::NEG_INFINITY, |a, &b| if b > a { b } else { a });
+    let min = if min == 0.0 && neg0 {
+        -0.0
+    } else if min == 0.0 {
+        0.0
+    } else {
+        min
+    };
+    let max = if max == 0.0 && pos0 {
+        0.0
+    } else if max == 0.0 {
+        -0.0
+    } else {
+        max
+    };
+    (*lo, *hi) = ((*lo).min(ordered(min)), (*hi).max(ordered(max)));
 }
 
 /// What pass 1 of [`fast`] learns from one task.
@@ -607,7 +648,7 @@ struct TaskSums {
     s3_hi: U256,
 }
 
-/// Power sums of 30-bit codes, added block by block.
+/// The range and the power sums of a task's 30-bit codes, added one code at a time.
 ///
 /// Exact for up to 2^32 codes: `m < 2^30`, so `m^2 < 2^60`, `m^3 < 2^90`, and with `L <= 2^32` codes `S1 < 2^62`
 /// fits `u64`, `S2 < 2^92` and `S3 < 2^122` fit `u128`. One 64 x 64 -> 128-bit product per code.
@@ -649,7 +690,7 @@ impl Sums30 {
     }
 }
 
-/// Power sums of 63-bit codes, added block by block.
+/// The range and the power sums of a task's 63-bit codes, added one code at a time.
 ///
 /// Exact for up to 2^32 codes: `S1 < 2^95` fits `u128`; `m^2 < 2^126` is added to a `u128` whose carries are counted
 /// (at most one per code), so `S2 = s2 + 2^128 c2`; `m^3 = p0 + 2^64 p1` with `p0 = lo64(m^2) m < 2^127` and
@@ -916,10 +957,11 @@ fn sample_histogram<C: Offset>(codes: &[C], stats: &CodeStats, k: u32, classes: 
     }
 }
 
-/// The rayon path, in three passes over the sample after a vectorized validation: the key bounds; then, fused,
-/// the codes (stored, `u32` where they fit), their range and their power sums, per task of [`TASK`] triangles in
-/// fixed-width integers that are folded into big integers once per task; then the classes and the histogram over
-/// the stored codes alone, with an `f64` estimate corrected by exact thresholds instead of a division. The same
+/// The rayon path, in three passes over the sample, each in tasks of [`TASK`] sampled triangles: the validation of
+/// the mesh and the key bounds; then, fused, the codes (stored, `u32` where they fit), their range and their power
+/// sums, in fixed-width integers that are folded into big integers once per task; then the classes and the histogram
+/// over the stored codes alone, from an `f32` estimate corrected by the exact thresholds (no division). The inner
+/// loops are written so that the compiler vectorizes them with the baseline x86-64 instruction set (SSE2). The same
 /// result as [`naive`] bit for bit (timings, backend and device aside).
 ///
 /// Same errors as [`naive`]; the same triangle is named when several keys overflow (the first one).
@@ -935,7 +977,7 @@ pub fn fast(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError>
     let bits = params.morton_bits;
     let mut timings = Vec::new();
 
-    // Steps 1 and 2, and step 3's host part.
+    // Validation; steps 1 and 2, and step 3's host part.
     let t = Instant::now();
     let q = sample_quantizer(mesh, stride, n, bits)?;
     timings.push(pass("keys_bounds", t));
@@ -1006,4 +1048,256 @@ pub fn zero_area_triangles(mesh: &Mesh, sample_stride: u32) -> u64 {
             (b - a).cross(c - a).length_squared() == 0.0
         })
         .count() as u64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::characterize::ClassRule;
+    use crate::mesh::generate;
+    use crate::rng::SplitMix64 as Rng;
+
+    /// Floats of every kind but NaN: zeros of both signs, subnormals, normals, infinities, random bit patterns.
+    fn floats(g: &mut Rng, count: usize) -> Vec<f32> {
+        let mut v = vec![0.0, -0.0, f32::MIN_POSITIVE, -f32::MIN_POSITIVE, 1e-45, -1e-45, 1.0, -1.0, f32::MAX];
+        v.extend([f32::MIN, f32::INFINITY, f32::NEG_INFINITY]);
+        while v.len() < count {
+            let x = f32::from_bits(g.next_u64() as u32);
+            if !x.is_nan() {
+                v.push(x);
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn ordered_is_ordered_bits() {
+        let mut g = Rng(1);
+        for x in floats(&mut g, 100_000) {
+            assert_eq!(ordered(x), keys::ordered_bits(x), "{x:e}");
+        }
+    }
+
+    #[test]
+    fn ordered_range_is_the_total_order_range() {
+        let mut g = Rng(2);
+        let all = floats(&mut g, 4000);
+        let zeros = [0.0f32, -0.0];
+        let mut sets: Vec<Vec<f32>> =
+            vec![vec![0.0], vec![-0.0], vec![0.0, -0.0], vec![-0.0, 0.0, 1.0], vec![-1.0, -0.0]];
+        sets.push(vec![-1.0, 0.0, -0.0, -3.0]);
+        for len in [1usize, 2, 7, 8, 9, 17, 255, 256] {
+            for s in 0..20u64 {
+                let mut v: Vec<f32> = (0..len).map(|_| all[g.below(all.len() as u64) as usize]).collect();
+                if s % 3 == 0 {
+                    // Mostly zeros of both signs, with small values of either sign.
+                    for x in v.iter_mut() {
+                        *x = match g.below(4) {
+                            0 => 1e-3,
+                            1 => -1e-3,
+                            z => zeros[(z & 1) as usize],
+                        };
+                    }
+                }
+                sets.push(v);
+            }
+        }
+        for v in sets {
+            let (mut lo, mut hi) = (u32::MAX, 0);
+            ordered_range(&v, &mut lo, &mut hi);
+            let want =
+                v.iter().fold((u32::MAX, 0), |(l, h), &x| (l.min(keys::ordered_bits(x)), h.max(keys::ordered_bits(x))));
+            assert_eq!((lo, hi), want, "{v:?}");
+        }
+    }
+
+    #[test]
+    fn spread_table_is_the_definition() {
+        for v in 0..1u32 << 10 {
+            assert_eq!(spread10(v), keys::spread10(v));
+        }
+        for v in 0..1u32 << 21 {
+            assert_eq!(spread21(v), keys::spread21(v), "{v}");
+        }
+    }
+
+    #[test]
+    fn cells_are_keys_quantize() {
+        let mut g = Rng(3);
+        let mut checked = 0;
+        for bits in [MortonBits::Bits30, MortonBits::Bits63] {
+            for case in 0..200 {
+                // Keys on a random box (sometimes flat on one axis, sometimes straddling 0, sometimes tiny).
+                let scale = [1e-30f32, 1e-3, 1.0, 1e3, 1e30][case % 5];
+                let mut keys: Vec<[f32; 3]> = (0..64)
+                    .map(|_| std::array::from_fn(|a| if case % 7 == a { 2.5 } else { (g.next_f32() - 0.3) * scale }))
+                    .collect();
+                keys.push([-0.0, 0.0, -0.0]);
+                let Ok(q) = Quantizer::of_slice(&keys, bits) else { continue };
+                let cells = Cells::of(&q);
+                // The keys, the bounds and their neighbours within the box.
+                let mut probe = keys.clone();
+                probe.push(q.lo());
+                probe.push(q.hi());
+                probe.push(std::array::from_fn(|a| f32::from_bits(q.hi()[a].to_bits().wrapping_sub(1)).max(q.lo()[a])));
+                for k in probe {
+                    let want = keys::quantize(k, q.lo(), q.scale(), bits);
+                    let got: [u32; 3] = std::array::from_fn(|a| cells.cell(k[a], a));
+                    assert_eq!(got, want, "{k:?} in {:?} {:?} ({bits:?})", q.lo(), q.hi());
+                }
+                checked += 1;
+            }
+        }
+        assert!(checked >= 390, "{checked} boxes");
+    }
+
+    #[test]
+    fn classifier_is_class_of() {
+        let mut g = Rng(4);
+        let mut cases: Vec<(u64, u64, u32)> = vec![(0, 1, 2), (5, 6, 4096), (0, 1023, 4096), (0, (1 << 30) - 1, 4096)];
+        cases.extend([(7, (1 << 63) - 1, 4096), (0, (1 << 63) - 1, 2), (1 << 62, (1 << 62) + 3, 7), (0, 4095, 4096)]);
+        for _ in 0..300 {
+            let width = [3u32, 10, 20, 30, 40, 63][g.below(6) as usize];
+            let a = g.next_u64() >> (64 - width);
+            let b = g.next_u64() >> (64 - width);
+            let k = [2u32, 3, 23, 100, 4095, 4096][g.below(6) as usize];
+            if a != b {
+                cases.push((a.min(b), a.max(b), k));
+            }
+        }
+        for (lo, hi, k) in cases {
+            let cl = Classifier::new(lo, hi, k);
+            let d = hi - lo;
+            let mut xs: Vec<u64> = vec![0, d, d / 2, d.saturating_sub(1)];
+            for t in class_thresholds(lo, hi, k) {
+                xs.extend([t.saturating_sub(1), t, (t + 1).min(d)]);
+            }
+            xs.extend((0..200).map(|_| g.next_u64() % (d + 1)));
+            for x in xs {
+                let m = lo + x;
+                let want = finalize::class_of(m, lo, hi, k);
+                let e = m.offset_f32(lo);
+                if hi < 1 << 30 {
+                    assert_eq!((m as u32).offset_f32(lo), e);
+                }
+                assert_eq!(Classifier::class(&cl.e, x, cl.estimate(e)), want, "m {m} in [{lo}, {hi}], k {k}");
+            }
+        }
+    }
+
+    /// The exact sums of `codes`.
+    fn big_sums(codes: &[u64]) -> (BigUint, BigUint, BigUint) {
+        let mut s = (BigUint::zero(), BigUint::zero(), BigUint::zero());
+        for &m in codes {
+            let m = BigUint::from(m);
+            s.0 += &m;
+            s.1 += &m * &m;
+            s.2 += &m * &m * &m;
+        }
+        s
+    }
+
+    #[test]
+    fn task_sums_are_exact_at_the_largest_codes() {
+        let mut g = Rng(5);
+        let top30 = (1u64 << 30) - 1;
+        let top63 = (1u64 << 63) - 1;
+        for codes in [vec![top30; TASK], (0..TASK).map(|_| g.next_u64() >> 34).collect()] {
+            let mut s = Sums30::new();
+            for &m in &codes {
+                s.add(m as u32);
+            }
+            let st = fold_sums(codes.len(), vec![s.finish()]);
+            assert_eq!((st.s1, st.s2, st.s3), big_sums(&codes));
+        }
+        for codes in [vec![top63; TASK], (0..TASK).map(|_| g.next_u64() >> 1).collect(), vec![top63, 0, 1, top63 - 1]] {
+            let mut s = Sums63::new();
+            for &m in &codes {
+                s.add(m);
+            }
+            let st = fold_sums(codes.len(), vec![s.finish()]);
+            assert_eq!((st.code_min, st.code_max), (*codes.iter().min().unwrap(), *codes.iter().max().unwrap()));
+            assert_eq!((st.s1, st.s2, st.s3), big_sums(&codes));
+        }
+    }
+
+    /// `fast`, `fast_previous` and `naive` give the same result (timings aside), with and without per-triangle data.
+    fn assert_same(mesh: &Mesh, p: &Params) {
+        let strip = |mut c: Characterization| {
+            c.timings.clear();
+            c.backend.clear();
+            c.device.clear();
+            c
+        };
+        let a = strip(fast(mesh, p).unwrap_or_else(|e| panic!("{}: {e}", mesh.name)));
+        let b = strip(fast_previous(mesh, p).unwrap());
+        assert_eq!(a, b, "{} {p:?}", mesh.name);
+        let kept = Params { keep_per_triangle: !p.keep_per_triangle, ..p.clone() };
+        let c = strip(fast(mesh, &kept).unwrap());
+        assert_eq!((&a.code_stats, &a.histogram, a.classes), (&c.code_stats, &c.histogram, c.classes));
+        if mesh.triangle_count() <= 5000 {
+            assert_eq!(a, strip(naive(mesh, p).unwrap()), "{} {p:?}", mesh.name);
+        }
+    }
+
+    #[test]
+    fn fast_equals_the_previous_path_and_naive() {
+        let big = generate::random_soup(2 * TASK + 77, 6);
+        let meshes = [
+            generate::random_soup(3000, 7),
+            generate::clustered(5000, 4, 8),
+            generate::flat(999, 9),
+            generate::all_equal(300),
+            generate::single_triangle(),
+            generate::two_triangles(),
+            generate::collinear_centroids(257),
+            generate::zero_area(600, 10),
+            generate::random_soup(TASK, 11),
+            big,
+        ];
+        let rules =
+            [ClassRule::Doane, ClassRule::Sturges, ClassRule::Sqrt, ClassRule::Fixed(4096), ClassRule::Fixed(2)];
+        for mesh in &meshes {
+            for bits in [MortonBits::Bits30, MortonBits::Bits63] {
+                for (i, stride) in [1u32, 2, 3, 7].into_iter().enumerate() {
+                    let p = Params {
+                        morton_bits: bits,
+                        sample_stride: stride,
+                        class_rule: rules[(i + bits.total() as usize) % rules.len()],
+                        keep_per_triangle: i % 2 == 1,
+                        ..Params::default()
+                    };
+                    assert_same(mesh, &p);
+                }
+            }
+            assert_same(mesh, &Params { class_rule: ClassRule::Fixed(4096), ..Params::default() });
+        }
+    }
+
+    #[test]
+    fn invalid_meshes_give_the_validation_error() {
+        let good = generate::random_soup(3 * TASK, 12);
+        let mut bad_vertex = good.clone();
+        bad_vertex.positions.push([0.0, f32::NAN, 0.0]); // no triangle uses it
+        let mut bad_index = good.clone();
+        bad_index.indices[2 * TASK + 1][2] = bad_index.positions.len() as u32; // not sampled with stride 2
+        let mut bad_ids = good.clone();
+        bad_ids.object_ids = Some(vec![0; 5]);
+        let mut both = bad_index.clone();
+        both.positions[7][0] = f32::INFINITY;
+        for mesh in [&bad_vertex, &bad_index, &bad_ids, &both] {
+            let want = mesh.validate().unwrap_err().to_string();
+            for stride in [1, 2, 5] {
+                let p = Params { sample_stride: stride, ..Params::default() };
+                let e = fast(mesh, &p).unwrap_err();
+                assert!(matches!(e, CharError::Mesh(_)), "{e}");
+                assert_eq!(e.to_string(), want);
+            }
+        }
+        let mut empty = good.clone();
+        empty.indices.clear();
+        assert!(matches!(fast(&empty, &Params::default()), Err(CharError::Empty { .. })));
+        empty.positions[0][1] = f32::NAN;
+        assert!(matches!(fast(&empty, &Params::default()), Err(CharError::Mesh(_))));
+    }
 }
