@@ -232,7 +232,13 @@ fn speed(crit: &mut Criterion) {
     if !selected("speed") {
         return;
     }
-    let rounds: usize = std::env::var("MESHCHAR_BENCH_ROUNDS").ok().and_then(|v| v.parse().ok()).unwrap_or(30);
+    // `--list` only names the benchmarks: no rounds then.
+    let listing = std::env::args().any(|a| a == "--list");
+    let rounds: usize = if listing {
+        0
+    } else {
+        std::env::var("MESHCHAR_BENCH_ROUNDS").ok().and_then(|v| v.parse().ok()).unwrap_or(30)
+    };
     let meshes = [
         ("bunny", "stanford-bunny/bun_zipper.ply"),
         ("dragon", "stanford-dragon/dragon_vrip.ply"),
@@ -283,8 +289,10 @@ fn speed(crit: &mut Criterion) {
                 prev.push(ms(t));
                 assert_eq!((a.code_stats, a.histogram), (b.code_stats, b.histogram), "{name}: the two paths differ");
             }
-            let (c1, cn, f, p) = (median(&mut copy1), median(&mut copy_n), median(&mut fast), median(&mut prev));
-            rows.push((name, *setting, mesh.triangle_count(), bytes, c1, cn, f, p));
+            if rounds > 0 {
+                let (c1, cn, f, p) = (median(&mut copy1), median(&mut copy_n), median(&mut fast), median(&mut prev));
+                rows.push((name, *setting, mesh.triangle_count(), bytes, c1, cn, f, p));
+            }
         }
         let mut group = crit.benchmark_group(format!("speed/{name}"));
         group.sample_size(10).measurement_time(Duration::from_secs(2)).warm_up_time(Duration::from_millis(200));
@@ -300,6 +308,9 @@ fn speed(crit: &mut Criterion) {
         group.bench_function("cpu", |b| b.iter(|| cpu::fast(&mesh, &params).expect("cpu")));
         group.bench_function("cpu_previous", |b| b.iter(|| cpu::fast_previous(&mesh, &params).expect("cpu")));
         group.finish();
+    }
+    if rows.is_empty() {
+        return;
     }
     let gbs = |ms: f64, bytes: usize| bytes as f64 / (ms * 1e-3) / 1e9;
     println!(
