@@ -3,19 +3,35 @@
 //! (the dragon subdivided). GPU figures are sums of the passes' timestamps (`iter_custom`), so they exclude the
 //! host round trips between passes, which are reported separately as wall time.
 //!
-//! `cargo bench --bench characterize` (all), `-- whole` (only the meshes), `-- scaling` (only the scaling run).
-//! Set `MESHCHAR_BENCH_NAIVE=0` to skip the slow naive path.
+//! The `speed` group measures the rayon CPU path against the memory system: for each mesh, in interleaved rounds of
+//! one run, a single-threaded copy of the mesh's input bytes (positions and index triples, into buffers allocated
+//! and touched beforehand), the same copy on every rayon thread, [`cpu::fast`] and the implementation it replaced
+//! ([`cpu::fast_previous`]); it prints the medians, the bytes per second each achieves, the ratio of the
+//! characterization's time to the copy's, and the speed-up over the previous implementation.
+//!
+//! `cargo bench --bench characterize` (all), `-- whole` (only the meshes), `-- scaling` (only the scaling run),
+//! `-- speed` (only the bandwidth comparison). Set `MESHCHAR_BENCH_NAIVE=0` to skip the slow naive path and
+//! `MESHCHAR_BENCH_ROUNDS=N` to change the rounds of `speed` (default 30).
 
 mod common;
 
 use common::load_shared as load;
 use criterion::{criterion_group, criterion_main, Criterion};
 use meshchar::characterize::vulkan::VulkanBackend;
-use meshchar::characterize::{cpu, Characterization, Params};
+use meshchar::characterize::{cpu, Characterization, MortonBits, Params};
 use meshchar::gpu::{Context, ContextDesc};
 use meshchar::mesh::{generate, Mesh};
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
+
+/// Whether the group `name` (`whole`, `scaling`, `speed`) runs: the command line names no filter, or a filter that
+/// begins with the group's name, or one that begins with no group's name (criterion then matches it against every
+/// benchmark's id).
+fn selected(name: &str) -> bool {
+    const GROUPS: [&str; 3] = ["whole", "scaling", "speed"];
+    let filters: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with('-')).collect();
+    filters.is_empty() || filters.iter().any(|f| f.starts_with(name) || !GROUPS.iter().any(|g| f.starts_with(g)))
+}
 
 fn median(v: &mut [f64]) -> f64 {
     if v.is_empty() {
@@ -45,6 +61,9 @@ fn gpu_ms(c: &Characterization) -> f64 {
 }
 
 fn whole(crit: &mut Criterion) {
+    if !selected("whole") {
+        return;
+    }
     let ctx = Context::new(&ContextDesc::default()).ok();
     let mut vk = ctx.as_ref().and_then(|c| VulkanBackend::new(c).ok());
     let naive = std::env::var("MESHCHAR_BENCH_NAIVE").map(|v| v != "0").unwrap_or(true);
@@ -58,7 +77,7 @@ fn whole(crit: &mut Criterion) {
     let mut table = Vec::new();
     for (name, rel) in meshes {
         let mesh = load(rel);
-        let mut group = crit.benchmark_group(format!("characterize/{name}"));
+        let mut group = crit.benchmark_group(format!("whole/{name}"));
         group.sample_size(10).measurement_time(Duration::from_secs(4)).warm_up_time(Duration::from_millis(500));
         let mut logs: BTreeMap<&str, PassLog> = BTreeMap::new();
         if naive {
@@ -143,6 +162,9 @@ fn whole(crit: &mut Criterion) {
 }
 
 fn scaling(crit: &mut Criterion) {
+    if !selected("scaling") {
+        return;
+    }
     let ctx = Context::new(&ContextDesc::default()).ok();
     let mut vk = ctx.as_ref().and_then(|c| VulkanBackend::new(c).ok());
     let params = Params::default();
@@ -195,5 +217,126 @@ fn scaling(crit: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, whole, scaling);
+/// Copies `src` into `dst` (of equal length) on every rayon thread, one contiguous piece each.
+fn par_copy<T: Copy + Send + Sync>(dst: &mut [T], src: &[T]) {
+    use rayon::prelude::*;
+    let piece = src.len().div_ceil(rayon::current_num_threads()).max(1);
+    dst.par_chunks_mut(piece).zip(src.par_chunks(piece)).for_each(|(d, s)| d.copy_from_slice(s));
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+fn speed(crit: &mut Criterion) {
+    if !selected("speed") {
+        return;
+    }
+    // `--list` only names the benchmarks: no rounds then.
+    let listing = std::env::args().any(|a| a == "--list");
+    let rounds: usize = if listing {
+        0
+    } else {
+        std::env::var("MESHCHAR_BENCH_ROUNDS").ok().and_then(|v| v.parse().ok()).unwrap_or(30)
+    };
+    let meshes = [
+        ("bunny", "stanford-bunny/bun_zipper.ply"),
+        ("dragon", "stanford-dragon/dragon_vrip.ply"),
+        ("sponza", "dabrovic-sponza/sponza.obj"),
+    ];
+    let settings = [
+        ("30-bit", Params::default()),
+        (
+            "63-bit 1:3 sturges",
+            Params {
+                morton_bits: MortonBits::Bits63,
+                sample_stride: 3,
+                class_rule: meshchar::characterize::ClassRule::Sturges,
+                ..Params::default()
+            },
+        ),
+        ("30-bit kept", Params { keep_per_triangle: true, ..Params::default() }),
+    ];
+    let mut rows = Vec::new();
+    for (name, rel) in meshes {
+        let mesh = load(rel);
+        let bytes = std::mem::size_of_val(&mesh.positions[..]) + std::mem::size_of_val(&mesh.indices[..]);
+        // Destinations allocated and written once, so that the copies measure the copy and not page faults.
+        let mut pos = mesh.positions.clone();
+        let mut idx = mesh.indices.clone();
+        for (setting, params) in &settings {
+            if name != "dragon" && *setting != "30-bit" {
+                continue;
+            }
+            let (mut copy1, mut copy_n, mut fast, mut prev) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+            // Interleaved rounds: a change of load moves all four figures alike.
+            for _ in 0..rounds {
+                let t = Instant::now();
+                pos.copy_from_slice(&mesh.positions);
+                idx.copy_from_slice(&mesh.indices);
+                std::hint::black_box((&pos, &idx));
+                copy1.push(ms(t));
+                let t = Instant::now();
+                par_copy(&mut pos, &mesh.positions);
+                par_copy(&mut idx, &mesh.indices);
+                std::hint::black_box((&pos, &idx));
+                copy_n.push(ms(t));
+                let t = Instant::now();
+                let a = cpu::fast(&mesh, params).expect("cpu");
+                fast.push(ms(t));
+                let t = Instant::now();
+                let b = cpu::fast_previous(&mesh, params).expect("cpu previous");
+                prev.push(ms(t));
+                assert_eq!((a.code_stats, a.histogram), (b.code_stats, b.histogram), "{name}: the two paths differ");
+            }
+            if rounds > 0 {
+                let (c1, cn, f, p) = (median(&mut copy1), median(&mut copy_n), median(&mut fast), median(&mut prev));
+                rows.push((name, *setting, mesh.triangle_count(), bytes, c1, cn, f, p));
+            }
+        }
+        let mut group = crit.benchmark_group(format!("speed/{name}"));
+        group.sample_size(10).measurement_time(Duration::from_secs(2)).warm_up_time(Duration::from_millis(200));
+        group.throughput(criterion::Throughput::Bytes(bytes as u64));
+        group.bench_function("copy", |b| {
+            b.iter(|| {
+                pos.copy_from_slice(&mesh.positions);
+                idx.copy_from_slice(&mesh.indices);
+                std::hint::black_box((&pos, &idx));
+            })
+        });
+        let params = Params::default();
+        group.bench_function("cpu", |b| b.iter(|| cpu::fast(&mesh, &params).expect("cpu")));
+        group.bench_function("cpu_previous", |b| b.iter(|| cpu::fast_previous(&mesh, &params).expect("cpu")));
+        group.finish();
+    }
+    if rows.is_empty() {
+        return;
+    }
+    let gbs = |ms: f64, bytes: usize| bytes as f64 / (ms * 1e-3) / 1e9;
+    println!(
+        "\ninput bandwidth of the CPU path ({}; medians of {rounds} interleaved rounds; input = positions + index \
+         triples)",
+        cpu::cpu_device_name(rayon::current_num_threads())
+    );
+    println!(
+        "| mesh | setting | triangles | input MB | copy 1 thread ms (GB/s) | copy {} threads ms (GB/s) | cpu ms (GB/s) | \
+         cpu / copy 1 thread | previous ms | speed-up |",
+        rayon::current_num_threads()
+    );
+    println!("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for (name, setting, n, bytes, c1, cn, f, p) in rows {
+        println!(
+            "| {name} | {setting} | {n} | {:.1} | {c1:.3} ({:.1}) | {cn:.3} ({:.1}) | {f:.3} ({:.2}) | {:.1}x | {p:.3} | \
+             {:.2}x |",
+            bytes as f64 / 1e6,
+            gbs(c1, bytes),
+            gbs(cn, bytes),
+            gbs(f, bytes),
+            f / c1,
+            p / f
+        );
+    }
+}
+
+criterion_group!(benches, speed, whole, scaling);
 criterion_main!(benches);
