@@ -12,8 +12,17 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
-const EXAMPLES: [&str; 8] =
-    ["build_bvh", "calibrate", "characterize", "devices", "evaluate", "failure_study", "render_classes", "tradeoff"];
+const EXAMPLES: [&str; 9] = [
+    "build_bvh",
+    "calibrate",
+    "characterize",
+    "devices",
+    "engine_frame",
+    "evaluate",
+    "failure_study",
+    "render_classes",
+    "tradeoff",
+];
 
 /// The example binary `name`: `current_exe()` is `target/<profile>/deps/examples_cli-<hash>`.
 fn binary(name: &str) -> PathBuf {
@@ -28,7 +37,7 @@ fn binary(name: &str) -> PathBuf {
     );
     let built = std::fs::metadata(&path).and_then(|m| m.modified()).expect("the binary's time");
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    if let Some(newer) = newest_source(&[root.join("examples"), root.join("src"), root.join("Cargo.toml")], built) {
+    if let Some(newer) = newest_source(&[root.join("examples"), root.join("src")], built) {
         panic!(
             "example binary {} is older than {}: rebuild the examples (`cargo build --release --examples`)",
             path.display(),
@@ -324,6 +333,7 @@ fn every_example_refuses_a_bad_input_naming_it() {
         ("calibrate", vec!["--from-oracle", arg(&garbage), "--no-refit"], &garbage),
         ("characterize", vec!["--backend", "cpu", arg(&empty)], &empty),
         // devices reads no file but the Vulkan driver list (below).
+        ("engine_frame", vec!["--frames", "1", "--mesh", arg(&text)], &text),
         ("evaluate", vec![arg(&empty), "--resolution", "8", "--repeats", "1"], &empty),
         ("failure_study", vec!["--no-oracle", "--large-n-max", "0", "--conference", arg(&missing)], &missing),
         ("render_classes", vec![arg(&text), "--out", arg(&png), "--backend", "cpu"], &text),
@@ -458,6 +468,8 @@ fn every_example_runs_on_a_small_input() {
     ];
     assert!(ok("tradeoff", &args).contains("wrote:"));
     ran.push("tradeoff");
+    assert!(ok("engine_frame", &["--frames", "2", "--subdivide", "0", "--json"]).contains("\"summary\""));
+    ran.push("engine_frame");
     ran.sort_unstable();
     assert_eq!(ran, EXAMPLES, "every example on a good input");
     let _ = std::fs::remove_dir_all(&dir);
