@@ -1,6 +1,7 @@
 //! GPU LBVH and HLBVH against the CPU references, node for node, on every static shared mesh and on degenerate
 //! meshes, with and without the SAH leaf collapse; the HLBVH's SAH cost against the CPU binned-SAH BVH; refit after
-//! a BART frame change against a fresh fit.
+//! a BART frame change against a fresh fit; recorded HLBVH builds (the top level on the device) in command buffers of
+//! the test's own, alone and beside recorded LBVH builds; the top level's correctly rounded division.
 //!
 //! Nodes are compared field by field with floats compared as values (so `-0.0 == +0.0`: `min` of signed zeros may
 //! pick either on the device), and the triangle id order exactly. The collapse decisions compare f32 costs that
@@ -10,14 +11,16 @@
 mod common;
 mod gpu_support;
 
+use ash::vk;
+use glam::Vec3;
 use meshchar::accel::bvh::{Bvh, BvhNode, BvhTree};
-use meshchar::accel::gpu::{BvhBuilder, GpuBvhKind};
+use meshchar::accel::gpu::{BvhBuilder, GpuBvh, GpuBvhKind};
 use meshchar::accel::hlbvh::{Hlbvh, HlbvhOptions};
 use meshchar::accel::lbvh::{Lbvh, LbvhOptions};
 use meshchar::accel::AccelStructure;
 use meshchar::gpu::MeshBuffers;
-use meshchar::gpu::{shaders, Context};
-use meshchar::keys::MortonBits;
+use meshchar::gpu::{shaders, Context, Recorder};
+use meshchar::keys::{centroid_key, MortonBits, Quantizer};
 use meshchar::mesh::{generate, load::load_mesh, Mesh};
 
 fn same_nodes(what: &str, gpu: &[BvhNode], cpu: &[BvhNode]) {
@@ -84,7 +87,12 @@ fn static_meshes() -> Vec<&'static str> {
 
 #[test]
 fn glsl_node_mirrors_rust_node() {
-    for info in [&shaders::bvh_leaves::INFO, &shaders::lbvh_karras::INFO, &shaders::hlbvh_roots::INFO] {
+    for info in [
+        &shaders::bvh_leaves::INFO,
+        &shaders::lbvh_karras::INFO,
+        &shaders::hlbvh_roots::INFO,
+        &shaders::hlbvh_top::INFO,
+    ] {
         meshchar::gpu::check_struct_layout::<BvhNode>(info, "BvhNode").unwrap();
     }
 }
@@ -264,4 +272,245 @@ fn fresh_fit(mesh: &Mesh, topology: &[BvhNode], ids: &[u32]) -> Vec<BvhNode> {
     }
     fit(0, &mut out, mesh, ids);
     out
+}
+
+/// Records `record` into a command buffer of the test's own (its own pool, the context's queue 0 of its family, as
+/// an engine would), submits it and waits for it; barriers before and after make the uploads visible to the build
+/// and the build's writes to the reads that follow.
+fn record_own<T>(ctx: &Context, record: impl FnOnce(&mut Recorder<'_>) -> T) -> T {
+    let dev = ctx.device();
+    let pool_info = vk::CommandPoolCreateInfo::default().queue_family_index(ctx.queue_family());
+    // SAFETY: valid device; the pool is destroyed below, after the fence wait.
+    let pool = unsafe { dev.create_command_pool(&pool_info, None) }.expect("command pool");
+    let alloc = vk::CommandBufferAllocateInfo::default()
+        .command_pool(pool)
+        .level(vk::CommandBufferLevel::PRIMARY)
+        .command_buffer_count(1);
+    // SAFETY: the pool is this test's.
+    let cmd = unsafe { dev.allocate_command_buffers(&alloc) }.expect("command buffer")[0];
+    let begin = vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+    // SAFETY: a fresh command buffer of our pool.
+    unsafe { dev.begin_command_buffer(cmd, &begin) }.expect("begin");
+    // SAFETY: `cmd` is recording, from a pool of the context's compute family that only this thread uses; the
+    // buffers, views and trees recorded stay alive in the caller until after the fence wait below.
+    let mut rec = unsafe { Recorder::new(ctx, cmd) };
+    rec.barrier();
+    let value = record(&mut rec);
+    rec.barrier();
+    // SAFETY: recording state.
+    unsafe { dev.end_command_buffer(cmd) }.expect("end");
+    // SAFETY: valid device; queue 0 of the context's family (Context::new creates one queue there), used by no
+    // other thread of this test.
+    let queue = unsafe { dev.get_device_queue(ctx.queue_family(), 0) };
+    // SAFETY: valid device.
+    let fence = unsafe { dev.create_fence(&vk::FenceCreateInfo::default(), None) }.expect("fence");
+    let cmds = [cmd];
+    let submit = [vk::SubmitInfo::default().command_buffers(&cmds)];
+    // SAFETY: executable command buffer; fence unsignalled; the queue is externally synchronized (this thread).
+    unsafe { dev.queue_submit(queue, &submit, fence) }.expect("submit");
+    // SAFETY: the fence was submitted above.
+    unsafe { dev.wait_for_fences(&[fence], true, u64::MAX) }.expect("wait");
+    // SAFETY: the command buffer has completed; nothing of the pool is pending.
+    unsafe {
+        dev.destroy_fence(fence, None);
+        dev.destroy_command_pool(pool, None);
+    }
+    value
+}
+
+/// The quantizer of the mesh's own centroid bounds (what the staged builds compute on the device).
+fn own_quantizer(mesh: &Mesh, bits: MortonBits) -> Quantizer {
+    let key = |i: usize| {
+        let [a, b, c] = mesh.indices[i];
+        let p = |k: u32| mesh.positions[k as usize];
+        centroid_key(p(a), p(b), p(c))
+    };
+    Quantizer::of_keys(mesh.triangle_count(), key, bits).unwrap()
+}
+
+/// A finished recorded HLBVH against the CPU reference: kind, node for node, ids, validity.
+fn check_recorded_hlbvh(
+    ctx: &Context,
+    what: &str,
+    mut bvh: GpuBvh,
+    buffers: &MeshBuffers,
+    mesh: &Mesh,
+    o: &HlbvhOptions,
+) {
+    assert!(bvh.is_pending(), "{what}: pending before finish");
+    bvh.finish().unwrap_or_else(|e| panic!("{what}: finish: {e}"));
+    let cpu = Hlbvh::build_with(mesh, o).unwrap();
+    assert_eq!(bvh.kind(), GpuBvhKind::Hlbvh { clusters: cpu.cluster_count() as u32 }, "{what}");
+    let tree = bvh.read_back(ctx, buffers).unwrap();
+    same_tree(what, &tree, cpu.tree());
+    tree.validate("hlbvh").unwrap();
+    cpu.validate().unwrap();
+    assert!(bvh.timings().iter().any(|(n, _)| n == "top_rounds"), "{what}: {:?}", bvh.timings());
+}
+
+/// Triangles whose boxes all have the centre (0, 1.5, 0) exactly (x in [-1, 1], y in [1.5 - h, 1.5 + h], dyadic
+/// coordinates), with centroids spread in x and y: every cluster root box has that centre, so every top node splits
+/// its list in the middle (the fallback of step 4), on the workgroups' path (more clusters than a serial task
+/// takes) and the serial one.
+fn coincident_centres(pairs: usize) -> Mesh {
+    let mut tris = Vec::new();
+    for k in 1..=pairs {
+        let h = k as f32 / 1024.0;
+        let (lo, hi) = (1.5 - h, 1.5 + h);
+        let t = ((k * 37) % 1024) as f32 / 512.0 - 1.0;
+        let u = ((k * 101) % 1024) as f32 / 512.0 - 1.0;
+        tris.push([Vec3::new(-1.0, lo, 0.0), Vec3::new(1.0, lo, 0.0), Vec3::new(t, hi, 0.0)]);
+        tris.push([Vec3::new(-1.0, hi, 0.0), Vec3::new(1.0, hi, 0.0), Vec3::new(u, lo, 0.0)]);
+    }
+    Mesh::from_triangles(format!("coincident_centres({pairs})"), &tris).unwrap()
+}
+
+#[test]
+fn recorded_hlbvh_equals_cpu_hlbvh() {
+    let Some(ctx) = gpu_support::context() else { return };
+    let mut builder = BvhBuilder::new(&ctx).unwrap();
+    let d = HlbvhOptions::default();
+    let bunny = load_mesh(&common::shared_mesh("stanford-bunny/bun_zipper.ply")).unwrap();
+    let bunny4 = load_mesh(&common::shared_mesh("stanford-bunny/bun_zipper_res4.ply")).unwrap();
+    let sponza = load_mesh(&common::shared_mesh("dabrovic-sponza/sponza.obj")).unwrap();
+    let cases: Vec<(Mesh, Vec<HlbvhOptions>)> = vec![
+        (bunny, vec![d]),
+        (sponza, vec![d]),
+        (
+            bunny4,
+            vec![
+                d,
+                HlbvhOptions { max_leaf: 1, ..d },
+                HlbvhOptions { bins: 64, ..d },
+                HlbvhOptions { bins: 2, ..d },
+                HlbvhOptions { bits: MortonBits::Bits63, ..d },
+            ],
+        ),
+        (generate::random_soup(70_000, 11), vec![d]),
+        (generate::random_soup(3000, 12), vec![d, HlbvhOptions { bins: 64, max_leaf: 1, ..d }]),
+        // One cluster (no top node), two clusters (one top node).
+        (
+            generate::random_soup(500, 13),
+            vec![HlbvhOptions { cluster_bits: 0, ..d }, HlbvhOptions { cluster_bits: 1, ..d }],
+        ),
+        (generate::all_equal(1000), vec![d]),
+        (generate::collinear_centroids(2000), vec![d, HlbvhOptions { max_leaf: 1, ..d }]),
+        (generate::flat(5000, 3), vec![d]),
+        (generate::zero_area(3000, 4), vec![d]),
+        (generate::single_triangle(), vec![d]),
+        (generate::two_triangles(), vec![d]),
+        (coincident_centres(400), vec![HlbvhOptions { max_leaf: 1, ..d }]),
+    ];
+    for (mesh, options) in &cases {
+        let buffers = MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).unwrap();
+        for o in options {
+            let what = format!("{} {o:?}", mesh.name);
+            let q = own_quantizer(mesh, o.bits);
+            let bvh = record_own(&ctx, |rec| builder.record_hlbvh(rec, &buffers.view(), &q, o)).unwrap();
+            check_recorded_hlbvh(&ctx, &what, bvh, &buffers, mesh, o);
+        }
+    }
+    let clusters = Hlbvh::build_with(&cases[12].0, &cases[12].1[0]).unwrap().cluster_count();
+    assert!(clusters > 128, "coincident_centres: {clusters} clusters do not reach the workgroups' path");
+    // Errors, not panics: the quantizer's width, too many cluster bits, no triangles.
+    let mesh = &cases[4].0;
+    let buffers = MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).unwrap();
+    let q30 = own_quantizer(mesh, MortonBits::Bits30);
+    let o63 = HlbvhOptions { bits: MortonBits::Bits63, ..d };
+    let wide = HlbvhOptions { bits: MortonBits::Bits63, cluster_bits: 25, ..d };
+    let q63 = own_quantizer(mesh, MortonBits::Bits63);
+    let empty = MeshBuffers::upload(&ctx, &[], &[]).unwrap();
+    record_own(&ctx, |rec| {
+        assert!(builder.record_hlbvh(rec, &buffers.view(), &q30, &o63).is_err());
+        assert!(builder.record_hlbvh(rec, &buffers.view(), &q63, &wide).is_err());
+        assert!(builder.record_hlbvh(rec, &empty.view(), &q30, &d).is_err());
+    });
+    gpu_support::assert_no_validation_messages(&ctx);
+}
+
+/// One command buffer: the LBVH and the HLBVH of one mesh and the HLBVH of a larger one (the builder moves to larger
+/// scratch buffers; the first trees keep theirs), each equal to its CPU reference.
+#[test]
+fn recorded_hlbvh_and_lbvh_share_one_command_buffer() {
+    let Some(ctx) = gpu_support::context() else { return };
+    let mut builder = BvhBuilder::new(&ctx).unwrap();
+    let small = load_mesh(&common::shared_mesh("stanford-bunny/bun_zipper_res3.ply")).unwrap();
+    let large = generate::random_soup(40_000, 21);
+    let a = MeshBuffers::upload(&ctx, &small.positions, &small.indices).unwrap();
+    let b = MeshBuffers::upload(&ctx, &large.positions, &large.indices).unwrap();
+    let lo = LbvhOptions { max_leaf: 4, ..Default::default() };
+    let ho = HlbvhOptions::default();
+    let ho1 = HlbvhOptions { max_leaf: 1, ..ho };
+    let (qa, qb) = (own_quantizer(&small, MortonBits::Bits30), own_quantizer(&large, MortonBits::Bits30));
+    let (mut lbvh, hl_a, hl_b) = record_own(&ctx, |rec| {
+        let l = builder.record_lbvh(rec, &a.view(), &qa, &lo).unwrap();
+        let h = builder.record_hlbvh(rec, &a.view(), &qa, &ho).unwrap();
+        let h2 = builder.record_hlbvh(rec, &b.view(), &qb, &ho1).unwrap();
+        (l, h, h2)
+    });
+    lbvh.finish().unwrap();
+    same_tree("recorded lbvh", &lbvh.read_back(&ctx, &a).unwrap(), Lbvh::build_with(&small, &lo).unwrap().tree());
+    check_recorded_hlbvh(&ctx, "recorded hlbvh (small)", hl_a, &a, &small, &ho);
+    check_recorded_hlbvh(&ctx, "recorded hlbvh (large)", hl_b, &b, &large, &ho1);
+    gpu_support::assert_no_validation_messages(&ctx);
+}
+
+/// The top level's division is the host's `/`, bit for bit: normal, subnormal and infinite divisors, quotients that
+/// overflow, underflow into the subnormals or to zero, and ties.
+#[test]
+fn top_level_division_is_correctly_rounded() {
+    let Some(ctx) = gpu_support::context() else { return };
+    let builder = BvhBuilder::new(&ctx).unwrap();
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    let positive = |bits: u32| f32::from_bits(bits & 0x7fff_ffff);
+    let mut pairs = Vec::new();
+    for _ in 0..200_000 {
+        let r = next();
+        let (a, b) = (positive(r as u32), positive((r >> 32) as u32));
+        if a > 0.0 && a.is_finite() && b > 0.0 && !b.is_nan() {
+            pairs.push((a, b));
+        }
+    }
+    // The top level's own numerators over extents of every size, and edge cases.
+    for bins in [2usize, 16, 64] {
+        let factor = bins as f32 * (1.0 - 1e-6);
+        for _ in 0..20_000 {
+            let e = f32::from_bits((next() as u32 % 0x7f80_0000).max(1));
+            pairs.push((factor, e));
+        }
+    }
+    let min_sub = f32::from_bits(1);
+    pairs.extend([
+        (1.0, 3.0),
+        (f32::MAX, min_sub),
+        (min_sub, f32::MAX),
+        (min_sub, 2.0),
+        (min_sub, 1.5),
+        (f32::from_bits(3), 2.0),
+        (f32::MIN_POSITIVE, 3.0),
+        (1.0, f32::INFINITY),
+        (min_sub, min_sub),
+        (f32::MAX, 0.5),
+        (15.99998, 1e-38),
+    ]);
+    let q = builder.device_divide(&pairs).unwrap();
+    let bad: Vec<String> = pairs
+        .iter()
+        .zip(&q)
+        .filter(|(&(a, b), &g)| (a / b).to_bits() != g.to_bits())
+        .take(10)
+        .map(|(&(a, b), &g)| {
+            format!("{a:e} / {b:e}: device {g:e} ({:#x}), host {:e} ({:#x})", g.to_bits(), a / b, (a / b).to_bits())
+        })
+        .collect();
+    assert!(bad.is_empty(), "{} of {} quotients differ:\n{}", bad.len(), pairs.len(), bad.join("\n"));
+    assert!(builder.device_divide(&[(0.0, 1.0)]).is_err());
+    assert!(builder.device_divide(&[(1.0, f32::NAN)]).is_err());
+    gpu_support::assert_no_validation_messages(&ctx);
 }

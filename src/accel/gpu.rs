@@ -16,9 +16,10 @@
 //! 6. `leaves` (`glsl/bvh_leaves.comp`): every leaf's box from the mesh vertices.
 //! 7. `fit` (`glsl/bvh_fit.comp`): internal boxes bottom-up with one atomic arrival counter per node; the second
 //!    arrival computes the union, nobody waits.
-//! 8. HLBVH only: `hlbvh_roots` gathers the cluster roots; the host builds the binned-SAH top over them (at most
-//!    `2^cluster_bits` clusters, at most n) and uploads those `C - 1` nodes, whose parent links
-//!    `bvh_parents` then writes so refit walks through the top as well.
+//! 8. HLBVH only: `hlbvh_roots` gathers the cluster roots (at most `2^cluster_bits` clusters, at most n); the
+//!    binned-SAH top over them, `C - 1` nodes with the parent links of their children (so refit walks through the
+//!    top as well), is built either on the host ([`BvhBuilder::build_hlbvh`]: readback, the CPU reference's
+//!    function, upload, `bvh_parents`) or on the device ([`BvhBuilder::record_hlbvh`]: `hlbvh_top`, below).
 //! 9. With the SAH leaf collapse (`max_leaf > 1`: the HLBVH's default, an option of the LBVH; defined in
 //!    [`crate::accel::lbvh`], step 7): `collapse_cost` (`glsl/bvh_collapse_cost.comp`), bottom-up with the arrival
 //!    counters of `fit`, computes every node's record range, cost, kept size and collapse flag; `compact`
@@ -26,11 +27,31 @@
 //!    index, and writes the collapsed tree and its parent links (O(depth) per node, no invocation waits). The host
 //!    reads back the kept node count.
 //!
-//! The top level of the HLBVH runs on the host: it is the same function as the CPU reference's, over the cluster
-//! boxes (tens of thousands with the default 21 cluster bits on meshes of 10^5 triangles); its cost is reported in
-//! [`GpuBvh::timings`] as `top_cpu` (with the readback of the cluster roots and the upload of the top nodes) beside
-//! the GPU passes. A GPU top level (the binned SAH over clusters of Garanzha et al. 2011) is not written yet: the
-//! host top is the measured status quo, not a measured win (see `docs/bvh-builders.md`).
+//! # The HLBVH's top level
+//!
+//! [`BvhBuilder::build_hlbvh`] (two submissions and a third after the host step) builds the top level on the host
+//! with the CPU reference's function over the cluster boxes (tens of thousands with the default 21 cluster bits on
+//! meshes of 10^5 triangles); its cost is reported in [`GpuBvh::timings`] as `top_cpu` (with the readback of the
+//! cluster roots and the upload of the top nodes) beside the GPU passes.
+//!
+//! [`BvhBuilder::record_hlbvh`] records the whole build, the top level included, into one command buffer:
+//! `hlbvh_top` (`glsl/hlbvh_top.comp`) runs the same binned SAH with the same f32 operations in the same order
+//! (`precise`, the bin scale's quotient correctly rounded in integer arithmetic), so its nodes are bit for bit the
+//! reference's. Ranges of at least `task_min` clusters (128 with 16 bins) are split by whole workgroups in rounds
+//! (a workgroup goes on with the larger child, so about `log2(C / task_min)` rounds reach every range); smaller
+//! subtrees are built serially, one invocation each. Its passes are timed as `top_rounds` and `top_tasks`.
+//!
+//! Measured on lavapipe (Mesa 22.3, two shared cores, load average 2.4, three runs): the device top
+//! (`top_rounds` + `top_tasks`) costs 125 to 135 ms for 19,892 clusters (a soup of 20,000 triangles), 215 ms for
+//! 20,888 (sponza), 340 to 360 ms for 45,056 (bunny), 610 to 780 ms for 72,263 (dragon res2) and 670 to 710 ms for
+//! 97,655 (a soup of 100,000), against 11 to 14, 18 to 42, 24 to 45, 43 to 125 and 53 to 56 ms of `top_cpu` for the
+//! host top with its transfers: lavapipe runs the kernel on the same two cores, a workgroup barrier switches
+//! between all its invocations, and each serial subtree is one SIMD lane. The staged build therefore keeps the
+//! host top. No discrete GPU was available to measure the device top on one.
+//!
+//! lavapipe also stops every loop of an invocation after 65,535 iterations in all (gallivm's loop limiter); the
+//! kernel keeps its loops far below that up to about 2^21 clusters and reports a cut loop as an error
+//! ([`GpuBvh::finish`]), never a wrong tree.
 //!
 //! # Result
 //!
@@ -100,6 +121,7 @@ pub use crate::gpu::shaders::bvh_parents::Push as ParentsPush;
 pub use crate::gpu::shaders::hlbvh_heads::Push as HeadsPush;
 pub use crate::gpu::shaders::hlbvh_roots::Push as RootsPush;
 pub use crate::gpu::shaders::hlbvh_scan::Push as ScanPush;
+pub use crate::gpu::shaders::hlbvh_top::Push as TopPush;
 pub use crate::gpu::shaders::lbvh_codes::Push as CodesPush;
 pub use crate::gpu::shaders::lbvh_karras::Push as KarrasPush;
 
@@ -130,19 +152,23 @@ pub struct GpuBvh {
     pending: Option<PendingBuild>,
 }
 
-/// What a recorded build keeps until [`GpuBvh::finish`]: its timer, the readback of the collapsed node count, and
-/// the builder's scratch buffers it used (alive until the tree is finished or dropped, even if the builder moves on
-/// to larger ones).
+/// What a recorded build keeps until [`GpuBvh::finish`]: its timer, the readback of the collapsed node count (and
+/// of an HLBVH's cluster count), the builder's scratch buffers it used, and the build's other buffers (alive until
+/// the tree is finished or dropped, even if the builder moves on to larger ones).
 #[derive(Debug)]
 struct PendingBuild {
     timer: Timer,
     done: CompletionFlag,
     collapsed_count: Option<Buffer>,
+    /// HLBVH: the readback of the cluster count and the top level's error flags, and the largest cluster count.
+    clusters: Option<(Buffer, u64)>,
     _scratch: Arc<Scratch>,
+    /// The other buffers of the build the command buffer uses (see [`BvhBuilder::record_lbvh`]).
+    _buffers: Vec<Buffer>,
 }
 
 impl GpuBvh {
-    /// LBVH or HLBVH.
+    /// LBVH or HLBVH (a recorded HLBVH says 0 clusters until [`GpuBvh::finish`] has read the count).
     pub fn kind(&self) -> GpuBvhKind {
         self.kind
     }
@@ -161,14 +187,20 @@ impl GpuBvh {
         self.pending.is_some()
     }
 
-    /// Completes a recorded build ([`BvhBuilder::record_lbvh`]) once its command buffer has completed and the
-    /// caller has seen it complete: reads the pass times and, after the SAH collapse, the node count.
-    /// [`GpuError::NotReady`] (the build stays pending) before the command buffer has completed.
-    /// Finishing a tree that is not pending does nothing.
+    /// Completes a recorded build ([`BvhBuilder::record_lbvh`], [`BvhBuilder::record_hlbvh`]) once its command
+    /// buffer has completed and the caller has seen it complete: reads the pass times, after the SAH collapse the
+    /// node count, and for an HLBVH the cluster count ([`GpuBvh::kind`]) and the top level's error flags.
+    /// [`GpuError::NotReady`] (the build stays pending) before the command buffer has completed;
+    /// [`GpuError::Buffer`] (the build stays pending) when a count read back is out of range or the top level
+    /// reports an error. Finishing a tree that is not pending does nothing.
     pub fn finish(&mut self) -> Result<()> {
         let Some(p) = &self.pending else { return Ok(()) };
         p.done.check("recorded BVH build")?;
         let timings = p.timer.try_read()?;
+        let kind = match &p.clusters {
+            Some((readback, limit)) => GpuBvhKind::Hlbvh { clusters: read_top_status(readback, *limit)? as u32 },
+            None => self.kind,
+        };
         if let Some(readback) = &p.collapsed_count {
             let size: Vec<u32> = readback.read(0, 1)?;
             let size = size[0] as u64;
@@ -177,6 +209,7 @@ impl GpuBvh {
             }
             self.node_count = size;
         }
+        self.kind = kind;
         self.timings = timings;
         self.pending = None;
         Ok(())
@@ -261,7 +294,62 @@ struct BuildBuffers {
     table: Buffer,
     starts: Buffer,
     roots: Buffer,
+    /// HLBVH with the device top level: the scratch of `glsl/hlbvh_top.comp` (one word otherwise).
+    top_work: Buffer,
+    /// Whether the top level runs on the device (`hlbvh_top`) or on the host (the staged build's choice).
+    device_top: bool,
     readback: Buffer,
+}
+
+/// The device top level's plan for at most `l` clusters and `nb` bins per axis: subtrees of fewer than `task_min`
+/// clusters are built serially by one invocation each, larger ranges by workgroups over `rounds` rounds of `groups`
+/// workgroups (see `glsl/hlbvh_top.comp`).
+///
+/// Serial subtrees stay small enough that one invocation runs well under 2^16 loop iterations (lavapipe stops every
+/// loop of an invocation after 65,535 iterations in all; the kernel reports a cut loop as an error): about
+/// `6 m log2 m + 9 nb m` for `m` clusters, so `task_min` is 2048 / `nb` within 16 ..= 128. Without chain stops,
+/// `ceil(log2(l / task_min)) + 1` rounds reach every range; 8 more absorb the stops of unbalanced trees, and what is
+/// left after the last round is built serially too.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct TopPlan {
+    task_min: u32,
+    rounds: u32,
+    groups: u32,
+}
+
+impl TopPlan {
+    fn new(l: u64, nb: usize, cpu: bool) -> Self {
+        let task_min = (2048 / nb.max(1) as u32).clamp(16, 128);
+        let big = l.div_ceil(task_min as u64).max(1);
+        let rounds = 64 - (big - 1).leading_zeros() + 1 + 8;
+        let groups = if cpu { big.div_ceil(128).clamp(2, 128) } else { big.min(128) };
+        TopPlan { task_min, rounds, groups: groups as u32 }
+    }
+}
+
+/// Words of the device top level's scratch for at most `l` clusters (list, partition scratch, stack, header, tasks
+/// and three queues: the layout of `glsl/hlbvh_top.comp`).
+fn top_work_words(l: u64) -> u64 {
+    5 * l + 8 + 12 * (l / 2 + 1)
+}
+
+/// Word of the top level's error flags in its scratch.
+fn top_error_word(l: u64) -> u64 {
+    5 * l + 1
+}
+
+/// The cluster count and the top level's error flags, copied to `readback` at the end of an HLBVH build with the
+/// device top level: the count, or [`GpuError::Buffer`] when the flags are set or the count is out of range.
+fn read_top_status(readback: &Buffer, limit: u64) -> Result<u64> {
+    let w: Vec<u32> = readback.read(0, 2)?;
+    if w[1] != 0 {
+        return Err(GpuError::Buffer(format!("hlbvh top level: error flags {:#x}", w[1])));
+    }
+    let c = w[0] as u64;
+    if c == 0 || c > limit {
+        return Err(GpuError::Buffer(format!("hlbvh: {c} clusters read back")));
+    }
+    Ok(c)
 }
 
 /// The LBVH and HLBVH pipelines of one device, with scratch buffers reused across builds.
@@ -276,6 +364,7 @@ pub struct BvhBuilder {
     heads: [Kernel<HeadsPush>; 2],
     scan: Kernel<ScanPush>,
     roots: Kernel<RootsPush>,
+    top: Kernel<TopPush>,
     collapse_cost: Kernel<CollapseCostPush>,
     compact: Kernel<CompactPush>,
     sort: RadixSort,
@@ -300,6 +389,9 @@ impl BvhBuilder {
         let mut scan_desc = KernelDesc::new(&shaders::hlbvh_scan::INFO);
         // The scan kernel keeps one shared counter per invocation, 1,024 at most.
         scan_desc.workgroup_size = Some(ctx.caps().workgroup_size().min(1024));
+        // The top level's workgroups keep one shared prefix-sum slot per invocation, 1,024 at most.
+        let mut top_desc = KernelDesc::new(&shaders::hlbvh_top::INFO);
+        top_desc.workgroup_size = Some(ctx.caps().workgroup_size().min(1024));
         Ok(BvhBuilder {
             ctx: ctx.clone(),
             keys: Kernel::new(ctx, &items(&shaders::keys_bounds::INFO))?,
@@ -316,6 +408,7 @@ impl BvhBuilder {
             heads: [heads(0)?, heads(1)?],
             scan: Kernel::new(ctx, &scan_desc)?,
             roots: Kernel::new(ctx, &KernelDesc::new(&shaders::hlbvh_roots::INFO))?,
+            top: Kernel::new(ctx, &top_desc)?,
             collapse_cost: Kernel::new(
                 ctx,
                 &KernelDesc::new(&shaders::bvh_collapse_cost::INFO)
@@ -351,16 +444,33 @@ impl BvhBuilder {
     /// Builds the HLBVH of the geometry: everything but the top level over the clusters on the device (see the
     /// module docs). `cluster_bits` above [`MAX_GPU_CLUSTER_BITS`] gives [`GpuError::Limit`].
     pub fn build_hlbvh(&mut self, mesh: &GeometryView<'_>, o: &HlbvhOptions) -> std::result::Result<GpuBvh, RunError> {
-        let cb = o.cluster_bits.min(o.bits.total());
-        if cb > MAX_GPU_CLUSTER_BITS {
-            return Err(GpuError::Limit {
-                what: "HLBVH cluster bits on the GPU".into(),
-                requested: cb as u64,
-                limit: MAX_GPU_CLUSTER_BITS as u64,
-            }
-            .into());
-        }
+        let cb = gpu_cluster_bits(o)?;
         self.build(mesh, o.bits, Some((cb, o.bins)), o.max_leaf)
+    }
+
+    /// Records a whole HLBVH build into `rec` with a quantizer given in advance: keys, codes, sort, clusters, the
+    /// cluster trees and their boxes, the cluster roots, the top level on the device (`glsl/hlbvh_top.comp`, the
+    /// binned SAH of the CPU reference, node for node), the parent links and the SAH collapse, with no host
+    /// round trip; then [`GpuBvh::finish`] once the command buffer has completed (it reads the cluster count into
+    /// [`GpuBvh::kind`], which says 0 clusters before). With the quantizer of the geometry's own bounds the tree
+    /// equals [`BvhBuilder::build_hlbvh`]'s and the CPU reference's ([`crate::accel::hlbvh::Hlbvh::build_with`]).
+    ///
+    /// The recording contract is [`BvhBuilder::record_lbvh`]'s (the first geometry access a compute-shader read,
+    /// the last accesses compute-shader writes to the tree's buffers and transfer writes to readback buffers of the
+    /// tree's own; the caller records a barrier before reading the tree; tree and builder alive until the command
+    /// buffer completes). Errors: [`InputError::Plan`] when the quantizer's code width is not the options',
+    /// [`GpuError::Limit`] above [`MAX_GPU_CLUSTER_BITS`], [`InputError::Empty`] for no triangles.
+    pub fn record_hlbvh(
+        &mut self,
+        rec: &mut Recorder<'_>,
+        mesh: &GeometryView<'_>,
+        quantizer: &Quantizer,
+        o: &HlbvhOptions,
+    ) -> std::result::Result<GpuBvh, RunError> {
+        check_quantizer(quantizer, o.bits)?;
+        let cb = gpu_cluster_bits(o)?;
+        let b = self.prepare(mesh, o.bits, Some((cb, o.bins)), o.max_leaf, true)?;
+        self.record_pending(rec, mesh, quantizer, b)
     }
 
     /// Records an LBVH build into `rec` with a quantizer given in advance (no host round trip: in an animation, the
@@ -382,15 +492,19 @@ impl BvhBuilder {
         quantizer: &Quantizer,
         o: &LbvhOptions,
     ) -> std::result::Result<GpuBvh, RunError> {
-        if quantizer.bits() != o.bits {
-            return Err(InputError::Plan(format!(
-                "the quantizer has {}-bit codes, the options ask for {}",
-                quantizer.bits().total(),
-                o.bits.total()
-            ))
-            .into());
-        }
-        let mut b = self.prepare(mesh, o.bits, None, o.max_leaf)?;
+        check_quantizer(quantizer, o.bits)?;
+        let b = self.prepare(mesh, o.bits, None, o.max_leaf, false)?;
+        self.record_pending(rec, mesh, quantizer, b)
+    }
+
+    /// Records the build of `b` (keys, then the tree) and returns the pending tree.
+    fn record_pending(
+        &mut self,
+        rec: &mut Recorder<'_>,
+        mesh: &GeometryView<'_>,
+        quantizer: &Quantizer,
+        mut b: BuildBuffers,
+    ) -> std::result::Result<GpuBvh, RunError> {
         let ctx = self.ctx.clone();
         let mut timer = Timer::new(&ctx, 32)?;
         rec.reset_timer(&mut timer);
@@ -401,13 +515,25 @@ impl BvhBuilder {
         let mut done = CompletionFlag::new(&ctx)?;
         done.record(rec)?;
         let scratch = b.scratch.clone();
-        let collapsed_count = b.collapsed.take().map(|(out_nodes, out_parents, _, readback)| {
-            b.bvh_nodes = out_nodes;
-            b.parents = out_parents;
+        // Every buffer the command buffer uses stays alive until the build is finished or dropped: the tree's own,
+        // and the rest here (the tree before the collapse, the collapse records, the cluster table, starts and
+        // roots, the top level's scratch).
+        let mut keep = vec![b.table, b.starts, b.roots, b.top_work];
+        let collapsed_count = b.collapsed.take().map(|(out_nodes, out_parents, info, readback)| {
+            keep.push(std::mem::replace(&mut b.bvh_nodes, out_nodes));
+            keep.push(std::mem::replace(&mut b.parents, out_parents));
+            keep.push(info);
             readback
         });
+        let (kind, clusters) = match b.hl {
+            Some(_) => (GpuBvhKind::Hlbvh { clusters: 0 }, Some((b.readback, b.max_clusters))),
+            None => {
+                keep.push(b.readback);
+                (GpuBvhKind::Lbvh, None)
+            }
+        };
         Ok(GpuBvh {
-            kind: GpuBvhKind::Lbvh,
+            kind,
             triangles: b.n,
             node_count: b.total,
             nodes: b.bvh_nodes,
@@ -415,8 +541,40 @@ impl BvhBuilder {
             parents: b.parents,
             counters: b.counters,
             timings: Vec::new(),
-            pending: Some(PendingBuild { timer, done, collapsed_count, _scratch: scratch }),
+            pending: Some(PendingBuild { timer, done, collapsed_count, clusters, _scratch: scratch, _buffers: keep }),
         })
+    }
+
+    /// Divides `a / b` for every pair on the device with the correctly rounded division of the HLBVH's top level
+    /// (`div_rn` in `glsl/hlbvh_top.comp`, integer arithmetic, round to nearest even), which gives the bin scales
+    /// their host values: a check of the kernel's arithmetic against the host's `/`. Every `a` is positive and
+    /// finite, every `b` positive (finite, subnormal or infinite); other pairs, or more than 2^28 of them, give
+    /// [`GpuError::Buffer`].
+    pub fn device_divide(&self, pairs: &[(f32, f32)]) -> Result<Vec<f32>> {
+        if pairs.is_empty() {
+            return Ok(Vec::new());
+        }
+        if pairs.len() > 1 << 28 {
+            return Err(GpuError::Buffer(format!("device_divide: {} pairs (at most 2^28)", pairs.len())));
+        }
+        if let Some(&(a, b)) = pairs.iter().find(|&&(a, b)| !(a > 0.0 && a.is_finite() && b > 0.0)) {
+            return Err(GpuError::Buffer(format!("device_divide: {a} / {b} is outside the division's domain")));
+        }
+        let l = pairs.len() as u64;
+        let mut words: Vec<u32> = pairs.iter().flat_map(|&(a, b)| [a.to_bits(), b.to_bits()]).collect();
+        words.resize(3 * pairs.len(), 0);
+        let work = self.ctx.upload("hlbvh top division", &words)?;
+        let push = TopPush { work: work.address(), limit: l as u32, bins: 2, phase: 3, ..TopPush::default() };
+        self.ctx.submit_and_wait(|rec| {
+            rec.barrier();
+            // SAFETY: phase 3 reads 2 l words of `work` and writes l more after them (3 l in all); it touches no
+            // other address.
+            unsafe { rec.dispatch(&self.top, &push, rec.groups_for(l, self.top.workgroup_size() as u64)) };
+            rec.barrier();
+            Ok(())
+        })?;
+        let q: Vec<u32> = self.ctx.read_buffer(&work, 8 * l, pairs.len())?;
+        Ok(q.into_iter().map(f32::from_bits).collect())
     }
 
     /// The buffers of one build of `n` triangles.
@@ -426,7 +584,9 @@ impl BvhBuilder {
         bits: MortonBits,
         hl: Option<(u32, usize)>,
         max_leaf: u32,
+        device_top: bool,
     ) -> std::result::Result<BuildBuffers, RunError> {
+        let device_top = device_top && hl.is_some();
         let max_leaf = max_leaf.min(MAX_COLLAPSE_LEAF);
         let collapse = max_leaf > 1;
         let n = mesh.triangle_count();
@@ -472,9 +632,15 @@ impl BvhBuilder {
             table: ctx.create_buffer("hlbvh table", 4 * table_entries, dl)?,
             starts: ctx.create_buffer("hlbvh starts", 4 * (max_clusters + 2), dl)?,
             roots: ctx.create_buffer("hlbvh roots", 32 * max_clusters, dl)?,
+            top_work: ctx.create_buffer(
+                "hlbvh top work",
+                if device_top { 4 * top_work_words(max_clusters) } else { 4 },
+                dl,
+            )?,
+            device_top,
             readback: ctx.create_buffer(
                 "hlbvh readback",
-                if hl.is_some() { 4 * (max_clusters + 2) + 32 * max_clusters } else { 4 },
+                if hl.is_some() && !device_top { 4 * (max_clusters + 2) + 32 * max_clusters } else { 8 },
                 MemoryKind::Readback,
             )?,
             scratch,
@@ -508,7 +674,7 @@ impl BvhBuilder {
         hl: Option<(u32, usize)>,
         max_leaf: u32,
     ) -> std::result::Result<GpuBvh, RunError> {
-        let b = self.prepare(mesh, bits, hl, max_leaf)?;
+        let b = self.prepare(mesh, bits, hl, max_leaf, false)?;
         let ctx = self.ctx.clone();
         let mut timer_owned = Timer::new(&ctx, 32)?;
         let timer = &mut timer_owned;
@@ -649,6 +815,8 @@ impl BvhBuilder {
             ref table,
             ref starts,
             ref roots,
+            ref top_work,
+            device_top,
             ref readback,
         } = *b;
         let per_group = self.keys.workgroup_size() as u64 * ITEMS as u64;
@@ -746,11 +914,63 @@ impl BvhBuilder {
             };
             rec.timestamp(timer, "roots");
             rec.barrier();
-            rec.copy(starts, 0, readback, 0, 4 * (max_clusters + 2));
-            rec.copy(roots, 0, readback, 4 * (max_clusters + 2), 32 * max_clusters);
-            rec.host_read_barrier();
+            if device_top {
+                self.record_top(rec, b, timer);
+                if let Some(cl) = &collapsed {
+                    self.record_collapse(rec, bvh_nodes, parents, counters, total, cl, max_leaf, timer);
+                }
+                rec.barrier();
+                rec.copy(starts, 0, readback, 0, 4);
+                rec.copy(top_work, 4 * top_error_word(max_clusters), readback, 4, 4);
+                rec.host_read_barrier();
+            } else {
+                rec.copy(starts, 0, readback, 0, 4 * (max_clusters + 2));
+                rec.copy(roots, 0, readback, 4 * (max_clusters + 2), 32 * max_clusters);
+                rec.host_read_barrier();
+            }
         }
         Ok(())
+    }
+
+    /// Records the device top level of an HLBVH (`glsl/hlbvh_top.comp`: its phase 0, the rounds of phase 1, phase 2
+    /// over the serial subtrees), which writes the `C - 1` top nodes and their children's parent links. Begins after
+    /// the barrier that follows `hlbvh_roots`; ends with the shader writes of phase 2 and no barrier after them.
+    fn record_top(&self, rec: &mut Recorder<'_>, b: &BuildBuffers, timer: &mut Timer) {
+        let bins = b.hl.map_or(2, |(_, bins)| bins);
+        let (nb, factor) = crate::accel::hlbvh::top_bins(bins);
+        let plan = TopPlan::new(b.max_clusters, nb, self.ctx.caps().device_type == DeviceType::Cpu);
+        let wg = self.top.workgroup_size() as u64;
+        let mut push = TopPush {
+            starts: b.starts.address(),
+            roots: b.roots.address(),
+            nodes: b.bvh_nodes.address(),
+            parents: b.parents.address(),
+            work: b.top_work.address(),
+            limit: b.max_clusters as u32,
+            bins: nb as u32,
+            factor,
+            task_min: plan.task_min,
+            phase: 0,
+            round: 0,
+        };
+        // SAFETY: starts holds max_clusters + 2 words and roots max_clusters nodes (written by hlbvh_scan and
+        // hlbvh_roots), nodes and parents 2n - 1 entries (the top nodes and every cluster root are among them), and
+        // the work buffer top_work_words(max_clusters) words, the layout the kernel indexes with `limit`.
+        unsafe { rec.dispatch(&self.top, &push, rec.groups_for(b.max_clusters, wg)) };
+        rec.barrier();
+        push.phase = 1;
+        for round in 0..plan.rounds {
+            push.round = round;
+            // SAFETY: as above.
+            unsafe { rec.dispatch(&self.top, &push, plan.groups) };
+            rec.barrier();
+        }
+        rec.timestamp(timer, "top_rounds");
+        push.phase = 2;
+        push.round = plan.rounds;
+        // SAFETY: as above.
+        unsafe { rec.dispatch(&self.top, &push, rec.groups_for(b.max_clusters / 2 + 1, wg)) };
+        rec.timestamp(timer, "top_tasks");
     }
 
     /// Records the SAH collapse (`bvh_collapse_cost`, `bvh_compact`) of the `count` nodes of a fitted tree with
@@ -879,6 +1099,31 @@ impl BvhBuilder {
         bvh.timings = timer.read()?;
         Ok(())
     }
+}
+
+/// The cluster width of an HLBVH build on the device: [`GpuError::Limit`] above [`MAX_GPU_CLUSTER_BITS`].
+fn gpu_cluster_bits(o: &HlbvhOptions) -> Result<u32> {
+    let cb = o.cluster_bits.min(o.bits.total());
+    if cb > MAX_GPU_CLUSTER_BITS {
+        return Err(GpuError::Limit {
+            what: "HLBVH cluster bits on the GPU".into(),
+            requested: cb as u64,
+            limit: MAX_GPU_CLUSTER_BITS as u64,
+        });
+    }
+    Ok(cb)
+}
+
+/// A recorded build's quantizer has the options' code width ([`InputError::Plan`] otherwise).
+fn check_quantizer(quantizer: &Quantizer, bits: MortonBits) -> std::result::Result<(), InputError> {
+    if quantizer.bits() != bits {
+        return Err(InputError::Plan(format!(
+            "the quantizer has {}-bit codes, the options ask for {}",
+            quantizer.bits().total(),
+            bits.total()
+        )));
+    }
+    Ok(())
 }
 
 /// A refit needs the tree's triangles, and a finished tree (a recorded build's node count is known only then).

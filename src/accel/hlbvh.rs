@@ -85,6 +85,14 @@ impl SplitScratch {
     }
 }
 
+/// The bins per axis of the top level for the option `bins` (clamped to `2 ..= 64`) and the numerator of every
+/// axis' bin scale, `nb as f32 * (1.0 - 1e-6)` (the scale is that divided by the axis' centroid extent), shared
+/// with the GPU top level (`glsl/hlbvh_top.comp`).
+pub(crate) fn top_bins(bins: usize) -> (usize, f32) {
+    let nb = bins.clamp(2, MAX_TOP_BINS);
+    (nb, nb as f32 * (1.0 - 1e-6))
+}
+
 /// Split position of a top node's cluster list (reordered in place, stable on each side) by the binned SAH of
 /// step 4 (the sweep of the binned-SAH builder, [`sweep_bins`]); `centers` are the cluster boxes' centres
 /// (`Aabb::center`), `scratch` is reused storage.
@@ -93,10 +101,10 @@ fn top_split(list: &mut [u32], boxes: &[Aabb], centers: &[Vec3], bins: usize, sc
     for &c in list.iter() {
         cb.grow(centers[c as usize]);
     }
-    let nb = bins.clamp(2, MAX_TOP_BINS);
+    let (nb, factor) = top_bins(bins);
     let ext = cb.max - cb.min;
     // The scale of every axis, evaluated as the definition writes it (the same f32 operations in the same order).
-    let scale: [f32; 3] = std::array::from_fn(|a| nb as f32 * (1.0 - 1e-6) / ext[a]);
+    let scale: [f32; 3] = std::array::from_fn(|a| factor / ext[a]);
     let bin_of = |c: u32, a: usize| -> usize {
         let x = (centers[c as usize][a] - cb.min[a]) * scale[a];
         (x as usize).min(nb - 1)
