@@ -93,8 +93,8 @@ mod compile {
     use std::path::Path;
 
     /// Include files whose integer `#define`s are generated as Rust constants (`gpu::shaders::layout`).
-    const LAYOUT_INCLUDES: [&str; 3] =
-        ["glsl/include/bvh.glsl", "glsl/include/layout.glsl", "glsl/include/geometry.glsl"];
+    const LAYOUT_INCLUDES: [&str; 4] =
+        ["glsl/include/bvh.glsl", "glsl/include/layout.glsl", "glsl/include/geometry.glsl", "glsl/include/trace.glsl"];
 
     pub fn run(root: &Path) {
         let sources = glsl_sources(root);

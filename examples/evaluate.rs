@@ -6,7 +6,7 @@
 //! cargo run --release --example evaluate -- [FILE|DIR ...] [--json] [--workload primary|shadow|diffuse]
 //!     [--resolution N] [--frames F] [--repeats R] [--rebuild once|frame] [--structures bvh,kdtree,...]
 //!     [--camera EX,EY,EZ,TX,TY,TZ[,FOV]] [--charts DIR] [--policy thesis|calibrated] [--cost-model FILE]
-//!     [--tie-margin X] [--oracle-cache FILE] [--help]
+//!     [--tie-margin X] [--oracle-cache FILE] [--trace-backend cpu|vulkan] [--help]
 //! cargo run --release --example evaluate -- --compare-policies FILE.jsonl ... [--charts DIR] [--json]
 //! ```
 //!
@@ -24,8 +24,9 @@ use meshchar::characterize::{Characterizer, Params};
 use meshchar::cost::{CostModel, Prediction};
 use meshchar::eval::chart::BarChart;
 use meshchar::eval::compare::compare;
+use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, TraceBackend};
 use meshchar::eval::record::load_samples as load_oracle_samples;
-use meshchar::eval::{evaluate_scene, OracleConfig, Rebuild, SceneEvaluation};
+use meshchar::eval::{OracleConfig, Rebuild, SceneEvaluation};
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::Animation;
 use meshchar::select::{select_for_scene, PolicyChoice, TargetWorkload};
@@ -92,6 +93,16 @@ struct Args {
     /// paths for their features)
     #[arg(long, value_name = "FILE")]
     compare_policies: Vec<PathBuf>,
+    /// Where the rays are traced: `cpu` (the counting CPU tracer, host wall time) or `vulkan` (the device traversal
+    /// kernel on the Vulkan device, GPU timestamps; structures are built on the host and uploaded, the upload
+    /// timed apart; every ray's hit is checked against the CPU reference). MESHCHAR_DEVICE picks the device
+    #[arg(long, value_name = "cpu|vulkan", default_value = "cpu", value_parser = trace_backend)]
+    trace_backend: TraceBackend,
+}
+
+/// `--trace-backend`: `cpu` or `vulkan`.
+fn trace_backend(s: &str) -> Result<TraceBackend, String> {
+    s.parse()
 }
 
 impl Args {
@@ -211,6 +222,13 @@ fn print_table(e: &SceneEvaluation) {
         }
     );
     println!("  reference hits: {} rays over {} frame(s)", e.reference_hits, e.frames_measured);
+    if let Some(d) = &e.device {
+        println!(
+            "  traced on the device: {} ({}, {}); trace ms are GPU timestamps; build ms are host builds plus the \
+             upload; every ray's hit checked against the CPU reference",
+            d.name, d.device_type, d.driver
+        );
+    }
     if let Some(why) = &e.no_best_reason {
         println!("  no best structure: {why}");
     }
@@ -370,12 +388,14 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
 
 /// One scene: loaded, selected by the policy, measured by the oracle, printed (and appended to the oracle cache).
 /// `None` after a failure of this scene, printed.
+#[allow(clippy::too_many_arguments)]
 fn scene(
     args: &Args,
     i: usize,
     input: &Path,
     engine: &mut Characterizer,
     model: &CostModel,
+    device: Option<&DeviceOracle<'_>>,
     bar: &Progress,
     failed: &mut bool,
 ) -> Option<SceneEvaluation> {
@@ -416,7 +436,7 @@ fn scene(
             return None;
         }
     };
-    let e = match evaluate_scene(&scene, &config, Some(selected), &|m| bar.step(m)) {
+    let e = match evaluate_scene_on(&scene, &config, Some(selected), &|m| bar.step(m), device) {
         Ok(e) => e,
         Err(e) => {
             fail(e.to_string());
@@ -452,11 +472,22 @@ fn run(args: Args) -> anyhow::Result<()> {
     }
     let model = args.policy.cost_model()?;
     let mut engine = Characterizer::new(None)?;
+    let ctx = match args.trace_backend {
+        TraceBackend::Cpu => None,
+        TraceBackend::Vulkan => Some(
+            meshchar::gpu::Context::new(&meshchar::gpu::ContextDesc::default())
+                .context("--trace-backend vulkan needs a Vulkan device")?,
+        ),
+    };
+    let device = match &ctx {
+        Some(c) => Some(DeviceOracle::new(c).context("device traversal")?),
+        None => None,
+    };
     let mut evals = Vec::new();
     let mut failed = false;
     let bar = Progress::new("evaluate", Some(args.inputs.len()), args.json.json);
     for (i, input) in args.inputs.iter().enumerate() {
-        if let Some(e) = scene(&args, i, input, &mut engine, &model, &bar, &mut failed) {
+        if let Some(e) = scene(&args, i, input, &mut engine, &model, device.as_ref(), &bar, &mut failed) {
             evals.push(e);
         }
     }

@@ -41,15 +41,9 @@ use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
 use glam::Vec3;
 
-/// One BIH node (see the module docs).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct BihNode {
-    /// `[left child max, right child min]` along the axis (internal); `count` bits in `clip[0]` (leaf).
-    pub clip: [f32; 2],
-    /// `axis | children << 2` (internal) or `3 | first << 2` (leaf).
-    pub flags: u32,
-}
+/// One BIH node (see the module docs): generated from `struct BihNode` of `glsl/include/trace.glsl`, its one
+/// definition, which the device traversal reads; the methods are here.
+pub use crate::gpu::shaders::BihNode;
 
 const _: () = assert!(std::mem::size_of::<BihNode>() == 12);
 
@@ -235,6 +229,16 @@ impl Bih {
     /// The nodes (root first).
     pub fn nodes(&self) -> &[BihNode] {
         &self.nodes
+    }
+
+    /// The arrays the device traversal reads (see [`crate::accel::device`]).
+    pub fn device_layout(&self) -> crate::accel::device::DeviceLayout<'_> {
+        crate::accel::device::DeviceLayout::Bih {
+            nodes: &self.nodes,
+            tris: &self.tris,
+            ids: &self.ids,
+            bounds: self.bounds,
+        }
     }
 
     fn traverse(&self, ray: &Ray, any: bool, c: &mut TraceCounters) -> Option<Hit> {

@@ -468,6 +468,19 @@ impl Grid {
         Ok(counts)
     }
 
+    /// The arrays the device traversal reads (see [`crate::accel::device`]).
+    pub fn device_layout(&self) -> crate::accel::device::DeviceLayout<'_> {
+        crate::accel::device::DeviceLayout::Grid {
+            bounds: self.bounds,
+            res: self.res,
+            cell_size: self.cell_size,
+            inv_cell: self.inv_cell,
+            cell_start: &self.cell_start,
+            refs: &self.refs,
+            tris: &self.tris,
+        }
+    }
+
     fn traverse(&self, ray: &Ray, any: bool, c: &mut TraceCounters) -> Option<Hit> {
         if self.tris.is_empty() {
             return None;

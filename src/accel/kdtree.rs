@@ -57,15 +57,9 @@ use crate::mesh::Mesh;
 use glam::{Vec3, Vec3A};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-/// One kd-tree node (see the module docs).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct KdNode {
-    /// f32 bits of the split plane (internal) or reference count (leaf).
-    pub split_or_count: u32,
-    /// `axis | right_offset << 2` (internal) or `3 | first << 2` (leaf).
-    pub flags: u32,
-}
+/// One kd-tree node (see the module docs): generated from `struct KdNode` of `glsl/include/trace.glsl`, its one
+/// definition, which the device traversal reads; the methods are here.
+pub use crate::gpu::shaders::KdNode;
 
 const _: () = assert!(std::mem::size_of::<KdNode>() == 8);
 
@@ -411,6 +405,17 @@ impl KdTree {
     /// Mesh index of every triangle record (records are numbered in order of first use by the leaves).
     pub fn triangle_ids(&self) -> &[u32] {
         &self.ids
+    }
+
+    /// The arrays the device traversal reads (see [`crate::accel::device`]).
+    pub fn device_layout(&self) -> crate::accel::device::DeviceLayout<'_> {
+        crate::accel::device::DeviceLayout::KdTree {
+            nodes: &self.nodes,
+            refs: &self.refs,
+            tris: &self.tris,
+            ids: &self.ids,
+            bounds: self.bounds,
+        }
     }
 
     fn traverse(&self, ray: &Ray, any: bool, c: &mut TraceCounters) -> Option<Hit> {

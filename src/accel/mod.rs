@@ -40,7 +40,8 @@
 //!   each) for the kd-tree and BIH, and cells visited for the grid; `prim_tests` counts ray-triangle tests.
 
 /// The [`AccelStructure`] methods every structure that keeps its triangle records in `tris` and traverses with
-/// `traverse(ray, any, counters) -> Option<Hit>` shares: triangle count, closest hit, any hit. The optional field
+/// `traverse(ray, any, counters) -> Option<Hit>` and lays itself out with `device_layout()` shares: triangle count,
+/// closest hit, any hit, the device layout. The optional field
 /// path says where those live (`traversal_methods!(tree)` for the BVH family's [`bvh::BvhTree`]).
 macro_rules! traversal_methods {
     ($($field:ident).*) => {
@@ -53,6 +54,9 @@ macro_rules! traversal_methods {
         fn occluded(&self, ray: &$crate::geom::Ray, c: &mut $crate::geom::TraceCounters) -> bool {
             self$(.$field)*.traverse(ray, true, c).is_some()
         }
+        fn device_layout(&self) -> Option<$crate::accel::device::DeviceLayout<'_>> {
+            Some(self$(.$field)*.device_layout())
+        }
     };
 }
 
@@ -61,6 +65,7 @@ pub mod bih;
 #[cfg(feature = "eval")]
 pub mod brute;
 pub mod bvh;
+pub mod device;
 pub mod gpu;
 #[cfg(feature = "eval")]
 pub mod grid;
@@ -291,6 +296,11 @@ pub trait AccelStructure: Send + Sync {
     fn memory_bytes(&self) -> usize;
     /// SAH cost with the constants of [`SAH_TRAVERSAL_COST`] and [`SAH_INTERSECTION_COST`], where it applies.
     fn sah_cost(&self) -> Option<f64>;
+    /// The arrays the device traversal reads ([`device::DeviceStructure::upload`]); `None` for a structure without
+    /// one (the brute-force reference).
+    fn device_layout(&self) -> Option<device::DeviceLayout<'_>> {
+        None
+    }
 }
 
 /// Builds the named structure with default options, behind a trait object.

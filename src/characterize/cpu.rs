@@ -957,7 +957,7 @@ fn sample_histogram<C: Offset>(codes: &[C], stats: &CodeStats, k: u32, classes: 
     }
 }
 
-/// The rayon path, in three passes over the sample, each in tasks of [`TASK`] sampled triangles: the validation of
+/// The rayon path, in three passes over the sample, each in tasks of `TASK` sampled triangles: the validation of
 /// the mesh and the key bounds; then, fused, the codes (stored, `u32` where they fit), their range and their power
 /// sums, in fixed-width integers that are folded into big integers once per task; then the classes and the histogram
 /// over the stored codes alone, from an `f32` estimate corrected by the exact thresholds (no division). The inner

@@ -39,6 +39,7 @@
 //! `oracle_cheapest_within_noise` instead.
 
 use super::record::{OracleRecord, StructureRecord};
+use crate::accel::device::{DeviceStructure, DeviceTraceError, DeviceTracer, TraceRay};
 use crate::accel::{build_structure, AccelStats, AccelStructure, StructureName};
 use crate::geom::WorkloadKind;
 use crate::mesh::{Animation, Mesh};
@@ -54,6 +55,119 @@ pub enum Rebuild {
     PerFrame,
     /// Built once (static scenes only).
     Once,
+}
+
+/// Where the oracle traces its rays.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TraceBackend {
+    /// The counting CPU tracer ([`crate::trace::trace`], rayon over rays); trace time is host wall time.
+    #[default]
+    Cpu,
+    /// The device traversal kernel ([`crate::accel::device`]); trace time is the kernel's GPU timestamps.
+    Vulkan,
+}
+
+impl TraceBackend {
+    /// `cpu` or `vulkan`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            TraceBackend::Cpu => "cpu",
+            TraceBackend::Vulkan => "vulkan",
+        }
+    }
+}
+
+impl std::str::FromStr for TraceBackend {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "cpu" => Ok(TraceBackend::Cpu),
+            "vulkan" => Ok(TraceBackend::Vulkan),
+            other => Err(format!("unknown trace backend {other:?} (cpu, vulkan)")),
+        }
+    }
+}
+
+/// The device a device oracle ran on, as its records name it.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DeviceRecord {
+    /// Device name.
+    pub name: String,
+    /// Device type (`cpu`, `discrete`, ...).
+    #[serde(default)]
+    pub device_type: String,
+    /// Driver name and version.
+    #[serde(default)]
+    pub driver: String,
+    /// Raw driver version.
+    #[serde(default)]
+    pub driver_version: u32,
+    /// `deviceUUID`, 32 hex digits.
+    #[serde(default)]
+    pub device_uuid: String,
+}
+
+impl DeviceRecord {
+    /// The record of a context's device.
+    pub fn of(ctx: &crate::gpu::Context) -> Self {
+        let c = ctx.caps();
+        DeviceRecord {
+            name: c.name.clone(),
+            device_type: c.device_type.as_str().to_string(),
+            driver: c.driver.clone(),
+            driver_version: c.driver_version,
+            device_uuid: c.device_uuid.clone(),
+        }
+    }
+}
+
+/// The device side of the oracle: a context and the traversal kernel, its four pipelines already run once (some
+/// drivers compile a pipeline at its first dispatch, inside the timestamps: lavapipe does, with LLVM).
+pub struct DeviceOracle<'a> {
+    ctx: &'a crate::gpu::Context,
+    tracer: DeviceTracer,
+}
+
+impl<'a> DeviceOracle<'a> {
+    /// Builds the kernel and warms it on a one-triangle scene of every structure.
+    ///
+    /// # Errors
+    ///
+    /// The device lacks what the kernel needs ([`DeviceTracer::new`]), or a warm-up failed.
+    pub fn new(ctx: &'a crate::gpu::Context) -> Result<Self, DeviceTraceError> {
+        let tracer = DeviceTracer::new(ctx)?;
+        let mesh = crate::mesh::generate::single_triangle();
+        let ray = [TraceRay::from(&crate::geom::Ray::new(glam::Vec3::new(0.2, 0.2, -1.0), glam::Vec3::Z))];
+        for name in StructureName::ALL {
+            let s = build_structure(name, &mesh)?;
+            let layout = s.device_layout().ok_or(DeviceTraceError::NoLayout(name))?;
+            let mut d = DeviceStructure::upload(ctx, &layout)?;
+            tracer.trace(ctx, &mut d, &ray, false)?;
+        }
+        Ok(DeviceOracle { ctx, tracer })
+    }
+
+    /// The context.
+    pub fn context(&self) -> &crate::gpu::Context {
+        self.ctx
+    }
+
+    /// Uploads `s` (timed, ms) and traces `rays` through it: the outcome (trace time from the GPU timestamps).
+    fn run(&self, s: &dyn AccelStructure, rays: &RaySet) -> Result<(f64, TraceOutcome), DeviceTraceError> {
+        let layout = s.device_layout().ok_or(DeviceTraceError::NoLayout(s.name()))?;
+        let mut d = DeviceStructure::upload(self.ctx, &layout)?;
+        let dev_rays: Vec<TraceRay> = rays.rays.iter().map(TraceRay::from).collect();
+        let out = self.tracer.trace(self.ctx, &mut d, &dev_rays, rays.any_hit)?;
+        let counters = out.counters();
+        let mut o = TraceOutcome { counters, seconds: out.gpu_ms * 1e-3, ..Default::default() };
+        if rays.any_hit {
+            o.occluded = out.hits.iter().map(|h| h.hit().is_some()).collect();
+        } else {
+            o.hits = out.hits.iter().map(|h| h.hit()).collect();
+        }
+        Ok((d.upload_seconds() * 1e3, o))
+    }
 }
 
 /// A workload for the oracle.
@@ -146,8 +260,10 @@ impl Measurement {
 pub struct StructureResult {
     /// Which structure.
     pub name: Option<StructureName>,
-    /// Build time over the run (all builds of all frames), ms.
+    /// Build time over the run (all builds of all frames), ms; with the device backend, host build plus upload.
     pub build_ms: Measurement,
+    /// Upload to the device over the run (device backend; part of `build_ms`), ms.
+    pub upload_ms: Option<Measurement>,
     /// Trace time over the run (all frames), ms.
     pub trace_ms: Measurement,
     /// Total (see the module docs), ms.
@@ -218,6 +334,10 @@ pub struct SceneEvaluation {
     /// Why no best structure is named, when none is (the reference finds no hit: every structure's trace is a miss
     /// and measures no intersection work, so the totals cannot rank structures for this workload).
     pub no_best_reason: Option<String>,
+    /// Where the rays were traced.
+    pub trace_backend: TraceBackend,
+    /// The device (device backend).
+    pub device: Option<DeviceRecord>,
     /// Per structure.
     pub structures: Vec<StructureResult>,
 }
@@ -258,6 +378,8 @@ impl SceneEvaluation {
                     box_tests_per_ray: s.box_tests_per_ray,
                     build_ms: s.build_ms.median,
                     build_ms_range: [s.build_ms.min, s.build_ms.max],
+                    build_backend: (self.trace_backend == TraceBackend::Vulkan).then(|| "host".to_string()),
+                    upload_ms: s.upload_ms.as_ref().map(|m| m.median),
                     disagreements: s.disagreements,
                     error: s.error.clone(),
                     hits_agree: s.hits_agree,
@@ -275,6 +397,10 @@ impl SceneEvaluation {
                     within_noise_of_best: s.within_noise_of_best,
                 })
                 .collect(),
+            trace_backend: self.trace_backend,
+            device: self.device.clone(),
+            hits_checked: (self.trace_backend == TraceBackend::Vulkan)
+                .then(|| "every ray against the CPU reference (triangle and t bits)".to_string()),
             triangles: self.triangles,
             workload: self.workload,
         }
@@ -294,6 +420,7 @@ fn ms(t: Instant) -> f64 {
 #[derive(Clone, Default)]
 struct Acc {
     build: Vec<f64>,
+    upload: Vec<f64>,
     trace: Vec<f64>,
     rays: u64,
     box_tests: u64,
@@ -313,6 +440,20 @@ pub fn evaluate_scene(
     config: &OracleConfig,
     selected: Option<StructureName>,
     progress: &dyn Fn(&str),
+) -> Result<SceneEvaluation, EvalError> {
+    evaluate_scene_on(scene, config, selected, progress, None)
+}
+
+/// [`evaluate_scene`] with the rays traced on the device when `device` is given (`trace_backend` `vulkan`): every
+/// structure is built on the host (timed), uploaded (timed, reported apart as `upload_ms` and counted in the build
+/// time) and traced by the device kernel (timed by GPU timestamps); every ray's hit is compared with the CPU
+/// reference. Without `device`, exactly [`evaluate_scene`].
+pub fn evaluate_scene_on(
+    scene: &Animation,
+    config: &OracleConfig,
+    selected: Option<StructureName>,
+    progress: &dyn Fn(&str),
+    device: Option<&DeviceOracle<'_>>,
 ) -> Result<SceneEvaluation, EvalError> {
     let first = scene.frames.first().ok_or_else(|| EvalError::NoFrames(scene.name.clone()))?;
     let animated = scene.frames.len() > 1;
@@ -338,6 +479,7 @@ pub fn evaluate_scene(
     let mut acc: Vec<Acc> = vec![Acc { valid: true, ..Default::default() }; names.len()];
     for a in acc.iter_mut() {
         a.build = vec![0.0; repeats];
+        a.upload = vec![0.0; repeats];
         a.trace = vec![0.0; repeats];
     }
     let mut rays_per_frame = 0;
@@ -380,8 +522,19 @@ pub fn evaluate_scene(
                         continue;
                     }
                 };
-                let out = trace(s.as_ref(), &rays);
-                a.build[r] += build_ms;
+                let (upload_ms, out) = match device {
+                    None => (0.0, trace(s.as_ref(), &rays)),
+                    Some(d) => match d.run(s.as_ref(), &rays) {
+                        Ok(x) => x,
+                        Err(e) => {
+                            a.error = Some(format!("device trace: {e}"));
+                            a.valid = false;
+                            continue;
+                        }
+                    },
+                };
+                a.build[r] += build_ms + upload_ms;
+                a.upload[r] += upload_ms;
                 a.trace[r] += out.seconds * 1e3;
                 if r == 0 {
                     a.rays += out.rays() as u64;
@@ -433,6 +586,10 @@ pub fn evaluate_scene(
             StructureResult {
                 name: Some(name),
                 build_ms: if measured_ok { Measurement::of(&builds) } else { Measurement::default() },
+                upload_ms: device.map(|_| {
+                    let uploads: Vec<f64> = a.upload.iter().map(|u| u * build_factor).collect();
+                    Measurement::of(&uploads)
+                }),
                 trace_ms: if measured_ok { Measurement::of(&traces) } else { Measurement::default() },
                 total_ms: if measured_ok { Measurement::of(&totals) } else { Measurement::default() },
                 rays: a.rays,
@@ -499,6 +656,8 @@ pub fn evaluate_scene(
         regret_within_noise,
         reference_hits,
         no_best_reason,
+        trace_backend: if device.is_some() { TraceBackend::Vulkan } else { TraceBackend::Cpu },
+        device: device.map(|d| DeviceRecord::of(d.ctx)),
         structures: results,
     })
 }

@@ -74,6 +74,13 @@ pub struct StructureRecord {
     /// Smallest and largest build time over the repeats, ms.
     #[serde(default, deserialize_with = "nan_pair_if_null")]
     pub build_ms_range: [f64; 2],
+    /// Where the structure was built: `host` (CPU builder; with `--trace-backend vulkan` its `build_ms` includes
+    /// the upload, `upload_ms`) or `device` (device passes, timestamps). Absent in CPU-only records.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub build_backend: Option<String>,
+    /// Median upload of a host-built structure to the device (checks, staging, copies), ms; part of `build_ms`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub upload_ms: Option<f64>,
     /// Rays that disagreed with the reference.
     #[serde(default)]
     pub disagreements: usize,
@@ -195,6 +202,16 @@ pub struct OracleRecord {
     pub selected: Option<StructureName>,
     /// Per structure, in the order measured.
     pub structures: Vec<StructureRecord>,
+    /// Where the rays were traced: `cpu` (the counting CPU tracer, rayon) or `vulkan` (the device traversal
+    /// kernel, GPU timestamps). Records written before the field existed are `cpu`.
+    #[serde(default)]
+    pub trace_backend: super::oracle::TraceBackend,
+    /// The device that traced (`--trace-backend vulkan`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub device: Option<super::oracle::DeviceRecord>,
+    /// How the device's hits were checked against the CPU reference (`--trace-backend vulkan`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hits_checked: Option<String>,
     /// Triangles per frame.
     #[serde(default)]
     pub triangles: usize,

@@ -17,5 +17,7 @@ mod triangle;
 
 pub use aabb::Aabb;
 pub(crate) use ray::RayInv;
+#[cfg(test)]
+pub(crate) use ray::SLAB_ROBUST;
 pub use ray::{Hit, Ray, TraceCounters, WorkloadKind};
 pub use triangle::{closer_hit, cull_bound, hits_agree, intersect_triangle, tie_margin, Triangle};

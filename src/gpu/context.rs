@@ -175,7 +175,8 @@ pub struct DeviceCaps {
     pub max_buffer_size: Option<u64>,
     /// `maxPushConstantsSize` in bytes.
     pub max_push_constants_size: u32,
-    /// `shaderFloat64`.
+    /// `shaderFloat64`, supported and enabled (an owned context enables it where supported; see
+    /// [`RawDevice::float64_enabled`]).
     pub float64: bool,
     /// `shaderInt64`.
     pub int64: bool,
@@ -284,6 +285,10 @@ pub struct RawDevice {
     /// (pipelines, pipeline layouts, shader modules, query pools, command pools, fences, buffers); `None`: the
     /// driver's allocator. Device memory is allocated by gpu-allocator, which takes no callbacks.
     pub allocation_callbacks: Option<vk::AllocationCallbacks<'static>>,
+    /// Whether `device` was created with `shaderFloat64` enabled (default `false`): the device traversal
+    /// ([`crate::accel::device::DeviceTracer`]) needs it; nothing else does. [`DeviceCaps::float64`] of the context
+    /// is true only when this is.
+    pub float64_enabled: bool,
 }
 
 impl RawDevice {
@@ -303,6 +308,7 @@ impl RawDevice {
             queue_index,
             pipeline_cache: vk::PipelineCache::null(),
             allocation_callbacks: None,
+            float64_enabled: false,
         }
     }
 }
@@ -802,6 +808,8 @@ impl Context {
         let mut core = vk::PhysicalDeviceFeatures::default();
         let mut v12 = vk::PhysicalDeviceVulkan12Features::default();
         required_device_features(&mut core, &mut v12);
+        // Optional: the device traversal's exact division needs it, nothing else does.
+        core.shader_float64 = caps.float64 as vk::Bool32;
         let mut f2 = vk::PhysicalDeviceFeatures2::default().features(core).push_next(&mut v12);
         let ext_names: Vec<*const std::ffi::c_char> = required_device_extensions().iter().map(|e| e.as_ptr()).collect();
         let info = vk::DeviceCreateInfo::default()
@@ -854,6 +862,7 @@ impl Context {
         }
         let mut caps = caps;
         caps.queue_family = Some(raw.queue_family_index);
+        caps.float64 &= raw.float64_enabled;
         // SAFETY: per this function's contract.
         let families = unsafe { raw.instance.get_physical_device_queue_family_properties(raw.physical_device) };
         caps.timestamp_valid_bits =

@@ -199,6 +199,11 @@ impl BvhTree {
         bytes_of(&self.nodes) + bytes_of(&self.tris) + bytes_of(&self.ids)
     }
 
+    /// The arrays the device traversal reads (see [`crate::accel::device`]).
+    pub fn device_layout(&self) -> crate::accel::device::DeviceLayout<'_> {
+        crate::accel::device::DeviceLayout::Bvh { nodes: &self.nodes, tris: &self.tris, ids: &self.ids }
+    }
+
     /// Closest hit (or any hit when `any`), counting box and triangle tests.
     #[inline]
     pub(crate) fn traverse(&self, ray: &Ray, any: bool, c: &mut TraceCounters) -> Option<Hit> {
