@@ -224,8 +224,9 @@ fn print_table(e: &SceneEvaluation) {
     println!("  reference hits: {} rays over {} frame(s)", e.reference_hits, e.frames_measured);
     if let Some(d) = &e.device {
         println!(
-            "  traced on the device: {} ({}, {}); trace ms are GPU timestamps; build ms are host builds plus the \
-             upload; every ray's hit checked against the CPU reference",
+            "  traced on the device: {} ({}, {}); trace ms are GPU timestamps; build ms: lbvh and hlbvh built on \
+             the device (timestamps), the others on the host plus the upload; every ray's hit checked against the \
+             CPU reference",
             d.name, d.device_type, d.driver
         );
     }

@@ -285,3 +285,50 @@ fn malformed_layouts_are_refused() {
     assert!(DeviceStructure::upload(&ctx, &grid(&[0, 1], &[1])).is_ok(), "a good grid");
     gpu_support::assert_no_validation_messages(&ctx);
 }
+
+/// LBVH and HLBVH built on the device and traced there without a read-back ([`DeviceTracer::structure_of`]): every
+/// ray equals the CPU tree's traversal (the device trees equal the CPU builders' node for node), counts included.
+#[test]
+fn device_built_trees_trace_like_the_cpu_trees() {
+    use meshchar::accel::gpu::BvhBuilder;
+    use meshchar::accel::hlbvh::Hlbvh;
+    use meshchar::accel::lbvh::Lbvh;
+    let Some(ctx) = gpu_support::context() else { return };
+    let tracer = DeviceTracer::new(&ctx).expect("tracer");
+    let mut builder = BvhBuilder::new(&ctx).expect("builder");
+    for rel in ["stanford-bunny/bun_zipper.ply", "dabrovic-sponza/sponza.obj", "small/fandisk.obj"] {
+        let mesh = load_mesh(&common::shared_mesh(rel)).unwrap();
+        let buffers = meshchar::gpu::MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).unwrap();
+        let view = buffers.view();
+        let cpu_l = Lbvh::build(&mesh).unwrap();
+        let cpu_h = Hlbvh::build(&mesh).unwrap();
+        let gpu_l = builder.build_lbvh(&view, &Default::default()).unwrap();
+        let gpu_h = builder.build_hlbvh(&view, &Default::default()).unwrap();
+        let mut rays = workloads(&mesh, 48);
+        rays.push((WorkloadKind::Primary, random_rays(&mesh, 1024, 11), false));
+        for (what, cpu, gpu) in [("lbvh", &cpu_l as &dyn AccelStructure, &gpu_l), ("hlbvh", &cpu_h, &gpu_h)] {
+            let (mut s, ms) = tracer.structure_of(&ctx, gpu, &view).unwrap();
+            assert!(ms >= 0.0);
+            for (k, rays, any) in &rays {
+                let dev: Vec<TraceRay> = rays.iter().map(TraceRay::from).collect();
+                let out = tracer.trace(&ctx, &mut s, &dev, *any).unwrap();
+                for (i, (r, g)) in rays.iter().zip(&out.hits).enumerate() {
+                    let mut c = TraceCounters::default();
+                    let want = if *any {
+                        cpu.occluded(r, &mut c).then_some(u32::MAX)
+                    } else {
+                        cpu.intersect(r, &mut c).map(|h| h.triangle)
+                    };
+                    let got = g.hit().map(|h| if *any { u32::MAX } else { h.triangle });
+                    assert_eq!(want, got, "{rel} {what} {k:?} ray {i}");
+                    assert_eq!(
+                        (c.box_tests, c.prim_tests),
+                        (g.box_tests as u64, g.prim_tests as u64),
+                        "{rel} {what} {k:?} ray {i}"
+                    );
+                }
+            }
+        }
+    }
+    gpu_support::assert_no_validation_messages(&ctx);
+}

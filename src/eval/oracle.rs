@@ -124,9 +124,14 @@ impl DeviceRecord {
 
 /// The device side of the oracle: a context and the traversal kernel, its four pipelines already run once (some
 /// drivers compile a pipeline at its first dispatch, inside the timestamps: lavapipe does, with LLVM).
+///
+/// The LBVH and the HLBVH are built on the device ([`crate::accel::gpu::BvhBuilder`], default options, the trees
+/// of the CPU builders node for node) and traced without a read-back; the other structures are built on the host
+/// and uploaded.
 pub struct DeviceOracle<'a> {
     ctx: &'a crate::gpu::Context,
     tracer: DeviceTracer,
+    builder: std::cell::RefCell<crate::accel::gpu::BvhBuilder>,
 }
 
 impl<'a> DeviceOracle<'a> {
@@ -145,7 +150,62 @@ impl<'a> DeviceOracle<'a> {
             let mut d = DeviceStructure::upload(ctx, &layout)?;
             tracer.trace(ctx, &mut d, &ray, false)?;
         }
-        Ok(DeviceOracle { ctx, tracer })
+        let builder = std::cell::RefCell::new(crate::accel::gpu::BvhBuilder::new(ctx)?);
+        let o = DeviceOracle { ctx, tracer, builder };
+        // The device builders' pipelines run once too.
+        let buffers = crate::gpu::MeshBuffers::upload(ctx, &mesh.positions, &mesh.indices)?;
+        for name in [StructureName::Lbvh, StructureName::Hlbvh] {
+            o.run_device_built(name, &buffers, &RaySet { kind: WorkloadKind::Primary, rays: vec![], any_hit: false })?;
+        }
+        Ok(o)
+    }
+
+    /// Whether the oracle builds `name` on the device (the LBVH and the HLBVH).
+    pub fn builds_on_device(name: StructureName) -> bool {
+        matches!(name, StructureName::Lbvh | StructureName::Hlbvh)
+    }
+
+    /// Builds `name` (LBVH or HLBVH) on the device from `mesh` and traces `rays` through it: the build's GPU
+    /// milliseconds (its passes' timestamps, the HLBVH's host top level included, plus the triangle-records pass)
+    /// and the outcome.
+    fn run_device_built(
+        &self,
+        name: StructureName,
+        mesh: &crate::gpu::MeshBuffers,
+        rays: &RaySet,
+    ) -> Result<(f64, TraceOutcome), DeviceTraceError> {
+        let view = mesh.view();
+        let run = |e: crate::gpu::RunError| match e {
+            crate::gpu::RunError::Gpu(g) => DeviceTraceError::Gpu(g),
+            other => DeviceTraceError::Layout(crate::accel::AccelError::Invalid {
+                structure: name.as_str(),
+                reason: other.to_string(),
+            }),
+        };
+        let bvh = {
+            let mut b = self.builder.borrow_mut();
+            match name {
+                StructureName::Hlbvh => b.build_hlbvh(&view, &Default::default()).map_err(run)?,
+                _ => b.build_lbvh(&view, &Default::default()).map_err(run)?,
+            }
+        };
+        let build_ms: f64 = bvh.timings().iter().map(|(_, ms)| ms).sum();
+        let (mut d, records_ms) = self.tracer.structure_of(self.ctx, &bvh, &view)?;
+        let out = self.trace_on(&mut d, rays)?;
+        Ok((build_ms + records_ms, out))
+    }
+
+    fn trace_on(&self, d: &mut DeviceStructure, rays: &RaySet) -> Result<TraceOutcome, DeviceTraceError> {
+        let dev_rays: Vec<TraceRay> = rays.rays.iter().map(TraceRay::from).collect();
+        let out = self.tracer.trace(self.ctx, d, &dev_rays, rays.any_hit)?;
+        let counters = out.counters();
+        let mut o = TraceOutcome { counters, seconds: out.gpu_ms * 1e-3, ..Default::default() };
+        if rays.any_hit {
+            o.occluded = out.hits.iter().map(|h| h.hit().is_some()).collect();
+        } else {
+            o.hits = out.hits.iter().map(|h| h.hit()).collect();
+        }
+        Ok(o)
     }
 
     /// The context.
@@ -157,15 +217,7 @@ impl<'a> DeviceOracle<'a> {
     fn run(&self, s: &dyn AccelStructure, rays: &RaySet) -> Result<(f64, TraceOutcome), DeviceTraceError> {
         let layout = s.device_layout().ok_or(DeviceTraceError::NoLayout(s.name()))?;
         let mut d = DeviceStructure::upload(self.ctx, &layout)?;
-        let dev_rays: Vec<TraceRay> = rays.rays.iter().map(TraceRay::from).collect();
-        let out = self.tracer.trace(self.ctx, &mut d, &dev_rays, rays.any_hit)?;
-        let counters = out.counters();
-        let mut o = TraceOutcome { counters, seconds: out.gpu_ms * 1e-3, ..Default::default() };
-        if rays.any_hit {
-            o.occluded = out.hits.iter().map(|h| h.hit().is_some()).collect();
-        } else {
-            o.hits = out.hits.iter().map(|h| h.hit()).collect();
-        }
+        let o = self.trace_on(&mut d, rays)?;
         Ok((d.upload_seconds() * 1e3, o))
     }
 }
@@ -221,6 +273,9 @@ pub enum EvalError {
     /// The reference structure could not be built.
     #[error(transparent)]
     Accel(#[from] crate::accel::AccelError),
+    /// The device failed outside any one structure (the frame's upload).
+    #[error("device: {0}")]
+    Device(String),
 }
 
 /// Median and range of repeated measurements, in milliseconds.
@@ -262,8 +317,10 @@ pub struct StructureResult {
     pub name: Option<StructureName>,
     /// Build time over the run (all builds of all frames), ms; with the device backend, host build plus upload.
     pub build_ms: Measurement,
-    /// Upload to the device over the run (device backend; part of `build_ms`), ms.
+    /// Upload to the device over the run (device backend, host-built structures; part of `build_ms`), ms.
     pub upload_ms: Option<Measurement>,
+    /// Where it was built with the device backend: `host` (then uploaded) or `device`; `None` on the CPU backend.
+    pub build_backend: Option<&'static str>,
     /// Trace time over the run (all frames), ms.
     pub trace_ms: Measurement,
     /// Total (see the module docs), ms.
@@ -378,7 +435,7 @@ impl SceneEvaluation {
                     box_tests_per_ray: s.box_tests_per_ray,
                     build_ms: s.build_ms.median,
                     build_ms_range: [s.build_ms.min, s.build_ms.max],
-                    build_backend: (self.trace_backend == TraceBackend::Vulkan).then(|| "host".to_string()),
+                    build_backend: s.build_backend.map(str::to_string),
                     upload_ms: s.upload_ms.as_ref().map(|m| m.median),
                     disagreements: s.disagreements,
                     error: s.error.clone(),
@@ -497,6 +554,14 @@ pub fn evaluate_scene_on(
         reference_hits +=
             (want.hits.iter().filter(|h| h.is_some()).count() + want.occluded.iter().filter(|&&o| o).count()) as u64;
         rays_total += rays.rays.len() as u64;
+        // The device builders read the frame from device memory, where an engine's geometry already is (untimed).
+        let mesh_buffers = match device {
+            Some(d) if names.iter().any(|&n| DeviceOracle::builds_on_device(n)) => Some(
+                crate::gpu::MeshBuffers::upload(d.ctx, &mesh.positions, &mesh.indices)
+                    .map_err(|e| EvalError::Device(e.to_string()))?,
+            ),
+            _ => None,
+        };
         for r in 0..repeats {
             for (si, &name) in names.iter().enumerate() {
                 let a = &mut acc[si];
@@ -522,18 +587,22 @@ pub fn evaluate_scene_on(
                         continue;
                     }
                 };
-                let (upload_ms, out) = match device {
-                    None => (0.0, trace(s.as_ref(), &rays)),
-                    Some(d) => match d.run(s.as_ref(), &rays) {
-                        Ok(x) => x,
-                        Err(e) => {
-                            a.error = Some(format!("device trace: {e}"));
-                            a.valid = false;
-                            continue;
-                        }
-                    },
+                let run = match (device, &mesh_buffers) {
+                    (None, _) => Ok((build_ms, 0.0, trace(s.as_ref(), &rays))),
+                    (Some(d), Some(m)) if DeviceOracle::builds_on_device(name) => {
+                        d.run_device_built(name, m, &rays).map(|(b, o)| (b, 0.0, o))
+                    }
+                    (Some(d), _) => d.run(s.as_ref(), &rays).map(|(u, o)| (build_ms + u, u, o)),
                 };
-                a.build[r] += build_ms + upload_ms;
+                let (build_ms, upload_ms, out) = match run {
+                    Ok(x) => x,
+                    Err(e) => {
+                        a.error = Some(format!("device: {e}"));
+                        a.valid = false;
+                        continue;
+                    }
+                };
+                a.build[r] += build_ms;
                 a.upload[r] += upload_ms;
                 a.trace[r] += out.seconds * 1e3;
                 if r == 0 {
@@ -586,7 +655,8 @@ pub fn evaluate_scene_on(
             StructureResult {
                 name: Some(name),
                 build_ms: if measured_ok { Measurement::of(&builds) } else { Measurement::default() },
-                upload_ms: device.map(|_| {
+                build_backend: device.map(|_| if DeviceOracle::builds_on_device(name) { "device" } else { "host" }),
+                upload_ms: device.filter(|_| !DeviceOracle::builds_on_device(name)).map(|_| {
                     let uploads: Vec<f64> = a.upload.iter().map(|u| u * build_factor).collect();
                     Measurement::of(&uploads)
                 }),
