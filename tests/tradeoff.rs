@@ -90,7 +90,7 @@ impl Policy for CountPolicy {
     }
     fn select(&self, scene: &SceneSummary<'_>) -> Selection {
         let n = scene.frames.first().map_or(0, |f| f.triangles);
-        Selection { structure: if n >= self.min { Structure::Grid } else { Structure::Bvh }, reasons: Vec::new() }
+        Selection::new(if n >= self.min { Structure::Grid } else { Structure::Bvh }, Vec::new())
     }
 }
 

@@ -1,5 +1,8 @@
 //! Synthetic scenes for tests, benchmarks and the failure study.
 //!
+//! Scenes of a family (interiors, cities, vegetation, terrains, particle soups, engineering models, teapots in a
+//! stadium) at a requested triangle count are [`generate`]d by [`super::families`], re-exported here.
+//!
 //! Every generator is deterministic: the same arguments (and seed) give the same mesh, bit for bit, on every machine
 //! (a SplitMix64 generator drives them and all arithmetic is plain IEEE f64 rounded once to f32). Every mesh they
 //! return has finite coordinates and indices in range. Generators that build a triangle soup give every triangle its
@@ -11,6 +14,8 @@
 
 use super::{Animation, Mesh, MeshError};
 use crate::rng::SplitMix64;
+
+pub use super::families::{generate, Family, MAX_FAMILY_TRIANGLES};
 use std::collections::HashMap;
 
 /// Largest triangle count a soup generator accepts: its `3 n` vertices must be addressable by `u32` indices.

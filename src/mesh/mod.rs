@@ -2,11 +2,13 @@
 //!
 //! A [`Mesh`] is a list of f32 vertex positions and a list of `u32` index triples, with an optional object id per
 //! triangle (kept when an OBJ file with several objects is merged). An [`Animation`] is an ordered list of frames that
-//! share one topology. Loaders live in [`load`]; synthetic scenes in [`generate`]; [`default_scene`] and
-//! [`default_teapot`] are compiled into the crate.
+//! share one topology. Loaders live in [`load`]; synthetic scenes in [`generate`], whole scenes of a kind
+//! (interiors, cities, ...) in [`families`] (re-exported by [`generate`]); [`default_scene`] and [`default_teapot`]
+//! are compiled into the crate.
 
 mod embedded;
 mod error;
+pub mod families;
 pub mod generate;
 pub mod load;
 

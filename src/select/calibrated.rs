@@ -214,6 +214,10 @@ impl Policy for CalibratedPolicy {
             return s;
         };
         let w = self.workload(scene.features.len());
+        let excluded = scene.exclusions();
+        let all = preds;
+        let preds: Vec<Prediction> =
+            all.iter().filter(|p| !excluded.iter().any(|e| e.structure == p.structure)).copied().collect();
         let Some(choice) = choose(&preds, self.tie_margin) else {
             let mut s = ThesisPolicy::default().select(scene);
             s.reasons.insert(0, "calibrated policy: the model predicts nothing, the thesis policy decides".into());
@@ -236,7 +240,10 @@ impl Policy for CalibratedPolicy {
                 String::new()
             }
         )];
-        let mut sorted = preds.clone();
+        for e in &excluded {
+            reasons.push(format!("excluded before choosing: {}", e.reason));
+        }
+        let mut sorted = all.clone();
         sorted.sort_by(|a, b| a.total_ms.total_cmp(&b.total_ms));
         for p in &sorted {
             reasons.push(format!(
@@ -266,7 +273,7 @@ impl Policy for CalibratedPolicy {
                     .join(", ")
             ));
         }
-        Selection { structure: choice, reasons }
+        Selection { structure: choice, reasons, excluded }
     }
 }
 

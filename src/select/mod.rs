@@ -6,11 +6,18 @@
 //! the seed thesis (section 3.1.3 and the outcomes of chapter 5) with explicit thresholds; [`CalibratedPolicy`]
 //! predicts every structure's build and trace time with a fitted [`crate::cost::CostModel`] and takes the cheapest.
 //! [`Report`] is the JSON and text report of one characterized mesh or frame with its selection.
+//!
+//! Before either policy chooses, the structures whose build would blow up are taken out of its candidates:
+//! [`BuildBounds`] bounds the grid's and the kd-tree's references from the mesh or its features, and a structure
+//! whose bound exceeds the scene's [`Budget`] is excluded, with the reason recorded in [`Selection::excluded`] (see
+//! [`budget`]).
 
+pub mod budget;
 mod calibrated;
 mod report;
 mod thesis;
 
+pub use budget::{Budget, BuildBounds, Exclusion};
 pub use calibrated::{choose, plan_frames, CalibratedPolicy, FrameAction, FrameDecision, FrameRule};
 pub use report::{Bounds, Report, Timings};
 pub use thesis::ThesisPolicy;
@@ -77,6 +84,13 @@ pub struct SceneSummary<'a> {
     /// Cost-model features of every frame ([`crate::characterize::features`]); empty unless set with
     /// [`SceneSummary::with_features`]. [`ThesisPolicy`] ignores them; the calibrated policy needs them.
     pub features: &'a [Features],
+    /// Bounds on the grid's and the kd-tree's references, from the mesh ([`BuildBounds::of_mesh`], set with
+    /// [`SceneSummary::with_build_bounds`]); `None`: the policies bound them from [`SceneSummary::features`] (the
+    /// largest over the frames), or exclude nothing without features.
+    pub build_bounds: Option<BuildBounds>,
+    /// The budget a structure's bound must fit to be a candidate ([`Budget::default`] unless set with
+    /// [`SceneSummary::with_budget`]).
+    pub budget: Budget,
 }
 
 fn diagonal(lo: [f32; 3], hi: [f32; 3]) -> f64 {
@@ -130,7 +144,35 @@ impl<'a> SceneSummary<'a> {
             hi,
             change,
             features: &[],
+            build_bounds: None,
+            budget: Budget::default(),
         }
+    }
+
+    /// The summary with bounds computed from the mesh (exact box-cell counts, tighter than the features').
+    pub fn with_build_bounds(mut self, bounds: BuildBounds) -> Self {
+        self.build_bounds = Some(bounds);
+        self
+    }
+
+    /// The summary with another budget ([`Budget::UNLIMITED`] turns the exclusions off).
+    pub fn with_budget(mut self, budget: Budget) -> Self {
+        self.budget = budget;
+        self
+    }
+
+    /// The bounds the policies use: [`SceneSummary::build_bounds`], else the largest of the frames' bounds from
+    /// their features, else `None`.
+    pub fn bounds(&self) -> Option<BuildBounds> {
+        self.build_bounds
+            .clone()
+            .or_else(|| self.features.iter().map(BuildBounds::of_features).reduce(|a, b| a.max(&b)))
+    }
+
+    /// The structures whose bound exceeds the budget ([`Budget::check`] on [`SceneSummary::bounds`]): the policies
+    /// never select them.
+    pub fn exclusions(&self) -> Vec<Exclusion> {
+        self.bounds().map(|b| self.budget.check(&b)).unwrap_or_default()
     }
 
     /// The summary with the cost-model features of every frame.
@@ -162,6 +204,17 @@ pub struct Selection {
     pub structure: Structure,
     /// The rules that fired, each with the numbers that made it fire.
     pub reasons: Vec<String>,
+    /// The structures that were no candidates because their bound exceeds the budget, with the numbers (see
+    /// [`budget`]); empty when none was excluded.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub excluded: Vec<Exclusion>,
+}
+
+impl Selection {
+    /// A selection of `structure` for `reasons`, excluding nothing.
+    pub fn new(structure: Structure, reasons: Vec<String>) -> Self {
+        Selection { structure, reasons, excluded: Vec::new() }
+    }
 }
 
 /// A rule set that picks a structure for a scene.
@@ -228,6 +281,9 @@ pub struct SceneSelection {
 /// The thesis policy reads every frame. The calibrated policy reads the frames the run covers: the first frame of a
 /// static scene, or the first `animation_frames` frames of an animation (all when `None`), at least one and no more
 /// than there are characterizations and features.
+///
+/// Structures over the default [`Budget`] by the bounds from the features are no candidates
+/// ([`select_for_scene_within`] takes the mesh's bounds and another budget).
 pub fn select_for_scene(
     name: &str,
     frames: &[Characterization],
@@ -235,10 +291,31 @@ pub fn select_for_scene(
     policy: PolicyChoice<'_>,
     workload: &TargetWorkload,
 ) -> SceneSelection {
+    select_for_scene_within(name, frames, features, policy, workload, None, Budget::default())
+}
+
+/// [`select_for_scene`] with the mesh's [`BuildBounds`] (`None`: from the features) and a [`Budget`]: no structure
+/// whose bound exceeds the budget is selected, and the excluded ones are listed in [`Selection::excluded`].
+pub fn select_for_scene_within(
+    name: &str,
+    frames: &[Characterization],
+    features: &[Features],
+    policy: PolicyChoice<'_>,
+    workload: &TargetWorkload,
+    bounds: Option<BuildBounds>,
+    budget: Budget,
+) -> SceneSelection {
     let kind = if frames.len() > 1 { SceneKind::Dynamic } else { SceneKind::Static };
+    fn bounded<'a>(s: SceneSummary<'a>, bounds: &Option<BuildBounds>, budget: Budget) -> SceneSummary<'a> {
+        let s = s.with_budget(budget);
+        match bounds.clone() {
+            Some(b) => s.with_build_bounds(b),
+            None => s,
+        }
+    }
     match policy {
         PolicyChoice::Thesis => {
-            let summary = SceneSummary::new(name, frames).with_features(features);
+            let summary = bounded(SceneSummary::new(name, frames).with_features(features), &bounds, budget);
             SceneSelection {
                 policy: "thesis",
                 kind,
@@ -251,7 +328,8 @@ pub fn select_for_scene(
             p.tie_margin = tie_margin;
             let used = if frames.len() > 1 { workload.animation_frames.unwrap_or(frames.len()) } else { 1 };
             let used = used.clamp(1, frames.len().min(features.len()).max(1)).min(frames.len()).min(features.len());
-            let summary = SceneSummary::new(name, &frames[..used]).with_features(&features[..used]);
+            let summary =
+                bounded(SceneSummary::new(name, &frames[..used]).with_features(&features[..used]), &bounds, budget);
             let predicted = p.predictions(&summary);
             SceneSelection { policy: "calibrated", kind, selection: p.select(&summary), predicted }
         }

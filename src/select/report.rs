@@ -100,6 +100,9 @@ pub struct Report {
     /// The calibrated policy's predicted costs per structure (absent for the thesis policy).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub predicted: Option<Vec<crate::cost::Prediction>>,
+    /// The structures the policy did not consider because their reference or byte bound exceeds the budget
+    /// ([`super::budget`]), each with `structure`, `what`, `needed`, `budget`, `bound` and `reason`; empty when none.
+    pub excluded: Vec<super::Exclusion>,
     /// The scene features of this frame the calibrated policy read (see [`crate::characterize::features`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub features: Option<Features>,
@@ -155,6 +158,7 @@ impl Report {
             policy: String::new(),
             reasons: Vec::new(),
             predicted: None,
+            excluded: Vec::new(),
             features: None,
             backend: c.backend.clone(),
             device: c.device.clone(),
@@ -169,12 +173,13 @@ impl Report {
         self
     }
 
-    /// Sets the scene kind, the policy's name and its selection.
+    /// Sets the scene kind, the policy's name and its selection (structure, reasons, exclusions).
     pub fn selection(mut self, kind: SceneKind, policy: &str, sel: &Selection) -> Report {
         self.kind = kind;
         self.policy = policy.to_string();
         self.selected = sel.structure;
         self.reasons = sel.reasons.clone();
+        self.excluded = sel.excluded.clone();
         self
     }
 
@@ -284,6 +289,9 @@ impl Report {
         writeln!(o, "  selected       {} (policy {})", self.selected, self.policy)?;
         for r in &self.reasons {
             writeln!(o, "    - {r}")?;
+        }
+        for e in &self.excluded {
+            writeln!(o, "  excluded       {}", e.reason)?;
         }
         let t: Vec<String> = self.timings_ms.0.iter().map(|p| format!("{} {:.3}", p.name, p.ms)).collect();
         writeln!(o, "  timings (ms)   {} [{} on {}]", t.join(", "), self.backend, self.device)

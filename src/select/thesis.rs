@@ -158,10 +158,27 @@ impl Policy for ThesisPolicy {
     }
 
     fn select(&self, scene: &SceneSummary<'_>) -> Selection {
+        let excluded = scene.exclusions();
+        let mut sel = self.rules(scene, &excluded);
+        for e in &excluded {
+            if !sel.reasons.iter().any(|r| r.contains(&e.reason)) {
+                sel.reasons.push(format!("excluded before choosing: {}", e.reason));
+            }
+        }
+        sel.excluded = excluded;
+        sel
+    }
+}
+
+impl ThesisPolicy {
+    /// The rules of the type's docs, skipping the structures in `excluded` (a rule that points to one falls
+    /// through to the next, and says so).
+    fn rules(&self, scene: &SceneSummary<'_>, excluded: &[super::Exclusion]) -> Selection {
+        let out = |s: Structure| excluded.iter().find(|e| e.structure == s);
         let mut reasons = Vec::new();
         if scene.frames.is_empty() {
             reasons.push("no characterized frame: default to a BVH, which suits any geometry".to_string());
-            return Selection { structure: Structure::Bvh, reasons };
+            return Selection::new(Structure::Bvh, reasons);
         }
 
         // Rule 1: distribution (and empty classes) -> grid.
@@ -190,7 +207,12 @@ impl Policy for ThesisPolicy {
             }
             uniform_reasons.push(format!("distribution: {}{why}", Self::frame_label(scene, i)));
         }
-        if all_uniform && grid_ok {
+        let grid_out = out(Structure::Grid).filter(|_| all_uniform && grid_ok);
+        if let Some(e) = grid_out {
+            reasons.extend(uniform_reasons.drain(..).take(1));
+            reasons.push(format!("the distribution points to a grid, but it is excluded: {}", e.reason));
+        }
+        if all_uniform && grid_ok && grid_out.is_none() {
             if scene.frames.len() > 3 {
                 let n = uniform_reasons.len();
                 uniform_reasons.truncate(1);
@@ -208,7 +230,7 @@ impl Policy for ThesisPolicy {
                     scene.frames.len()
                 ));
             }
-            return Selection { structure: Structure::Grid, reasons };
+            return Selection::new(Structure::Grid, reasons);
         }
 
         let (wi, worst) = worst_frame(scene.frames);
@@ -230,7 +252,7 @@ impl Policy for ThesisPolicy {
                  its animated scene (Table 5.2)"
                     .to_string(),
             );
-            return Selection { structure: Structure::Bvh, reasons };
+            return Selection::new(Structure::Bvh, reasons);
         }
 
         // Static from here on: a single frame.
@@ -239,7 +261,13 @@ impl Policy for ThesisPolicy {
         reasons.push(format!("concentration: {}", Self::concentration(c)));
 
         // Rule 3: spread-out architectural geometry -> kd-tree.
-        if s.empty_classes == 0 && s.cramers_v > self.near_uniform_v && s.cramers_v <= self.spread_max_v {
+        let spread = s.empty_classes == 0 && s.cramers_v > self.near_uniform_v && s.cramers_v <= self.spread_max_v;
+        if let Some(e) = out(Structure::KdTree).filter(|_| spread) {
+            reasons.push(format!(
+                "spread out (no empty class, Cramér's V = {:.4}): the rule points to a kd-tree, but it is excluded: {}",
+                s.cramers_v, e.reason
+            ));
+        } else if spread {
             reasons.push(format!(
                 "spread out: no empty class and Cramér's V = {:.4} in ({}, {}] (bounds aspect {:.2}): geometry \
                  lines the whole bounds like an architectural interior, which spatial splits cut well: a kd-tree \
@@ -249,7 +277,7 @@ impl Policy for ThesisPolicy {
                 self.spread_max_v,
                 scene.aspect()
             ));
-            return Selection { structure: Structure::KdTree, reasons };
+            return Selection::new(Structure::KdTree, reasons);
         }
 
         // Rule 4: concentration / empty classes -> BVH.
@@ -271,7 +299,7 @@ impl Policy for ThesisPolicy {
              nodes: a BVH (thesis 3.1.3; Table 5.1 selects a BVH for its scanned objects)",
             why.join(", ")
         ));
-        Selection { structure: Structure::Bvh, reasons }
+        Selection::new(Structure::Bvh, reasons)
     }
 }
 

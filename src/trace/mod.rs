@@ -3,6 +3,7 @@
 //! Rays, hits, the ray-triangle and slab tests live in [`crate::geom`].
 
 pub mod camera;
+pub mod views;
 pub mod workload;
 
 pub use camera::Camera;

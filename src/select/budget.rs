@@ -1,0 +1,568 @@
+//! No catastrophe: bounds on what the grid and the kd-tree would store, computed before anything is built, and a
+//! [`Budget`] that takes a structure out of a policy's candidates when its bound exceeds it.
+//!
+//! The grid and the kd-tree store a triangle once per cell or leaf it overlaps, so their references (and their build
+//! time, which is proportional to them) grow faster than `n` on degenerate input: copies of one large triangle, a
+//! fan over three points, many large overlapping triangles. The builders stop at their own budgets
+//! ([`AccelError::OverBudget`](crate::accel::AccelError::OverBudget)), but a policy that picks such a structure has
+//! already lost: the build runs up to the budget and fails, or succeeds after seconds where a BVH takes
+//! milliseconds. So the policies look at [`BuildBounds`] first.
+//!
+//! # The grid's bound
+//!
+//! [`BuildBounds::of_mesh`] applies the grid's own rules (`accel::grid`, with its default options; see
+//! [`GridRule`]): the resolution from the triangle count and the scene's bounds; a triangle's cells within the cells
+//! of its bounding box widened by `1e-4` of a cell (the same f32 arithmetic), clipped slab by slab across the box's
+//! shortest side with the grid's own widening and Sutherland-Hodgman clipping; a zero-area triangle counts one
+//! cell, as the grid stores it. Per slab the bound is the product of the clipped polygon's cells along the two
+//! other axes, where the grid clips once more per row, so the sum is an **upper bound** of the grid's references,
+//! exact for a triangle one slab thick and one row wide; it costs one clip per slab a triangle meets (one or two for
+//! a small triangle), not one per row and cell as the build's count does. The bytes follow as the grid counts them
+//! (cell starts, references, triangle records).
+//!
+//! [`BuildBounds::of_features`] bounds the same from the [`Features`] alone (when no mesh is at hand): a triangle
+//! of size bin `k` has a largest extent below `2^(e(S) - k + 1)`, so at most that many cells (plus two) along each
+//! axis; triangles of zero or subnormal extent count 8 cells. The size histogram tells neither zero-area triangles
+//! nor slivers from others, so this bound is far larger than the mesh's where zero-area triangles or long slivers
+//! span the scene (400 collinear ones across a lattice count as 400 full rows of cells). It is an upper bound when
+//! the features cover every triangle (`sample_stride` 1; the triangle count is scaled from the sample otherwise, an
+//! estimate).
+//!
+//! # The kd-tree's estimate
+//!
+//! The kd-tree's duplication depends on the SAH's choices and has no cheap exact bound; the **estimate** is
+//! [`KD_FACTOR`] (2) times the grid's bound over the triangles of non-zero area, plus one per zero-area triangle
+//! (the kd-tree carries them as points). Where the SAH keeps splitting, its leaves are smaller than the grid's cells
+//! and it duplicates more than the grid: on the generated scenes of `tests/budget.rs` (4,000 triangles) the actual
+//! references are 0.9 to 1.0 times the estimate on the flat lattice and the terrain, 0.3 to 0.5 on interiors,
+//! cities and vegetation, but **3.2 times** on the engineering model (fans of slivers: 51 references per triangle
+//! against an estimate of 16), so the estimate is no bound and the kd-tree's own budget stays the backstop. Where
+//! coincident or large overlapping triangles make every split useless, the SAH stops and the estimate is far too
+//! large (copies of one triangle: 1 reference per triangle against an estimate of about 10^5).
+//!
+//! # The budget
+//!
+//! A [`Budget`] allows `max(references_per_triangle * n, min_references)` references and `max_bytes` bytes per
+//! structure. [`Budget::default`] is 16 references per triangle (three times the most the grid needs on a shared
+//! mesh, 5.0 on the teapot, and a quarter of the builders' 64), at least `2^22`, and 4 GiB: below the builders' own budgets
+//! ([`Budget::BUILDERS`]), so a structure the policy keeps never fails its build with `OverBudget`.
+//! [`Budget::check`] lists the structures whose bound exceeds the budget as [`Exclusion`]s, with the numbers.
+
+use super::Structure;
+use crate::characterize::features::{exponent, SIZE_BINS};
+use crate::characterize::Features;
+use crate::geom::{Aabb, Triangle};
+use crate::mesh::{Mesh, MeshError};
+use glam::{DVec3, Vec3};
+
+/// The grid's resolution rule and cell mapping (`accel::grid`): its default options, so that the bound follows the
+/// grid the oracle and the engine build.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct GridRule {
+    /// Cells per triangle (`GridOptions::density`, default 4).
+    pub density: f32,
+    /// Largest cells along one axis (`GridOptions::max_resolution`, default 1024).
+    pub max_resolution: u32,
+    /// Largest cells in all (`GridOptions::max_cells`, default `2^24`).
+    pub max_cells: usize,
+}
+
+impl Default for GridRule {
+    fn default() -> Self {
+        GridRule { density: 4.0, max_resolution: 1024, max_cells: 1 << 24 }
+    }
+}
+
+#[cfg(feature = "eval")]
+impl From<&crate::accel::grid::GridOptions> for GridRule {
+    fn from(o: &crate::accel::grid::GridOptions) -> Self {
+        GridRule { density: o.density, max_resolution: o.max_resolution, max_cells: o.max_cells }
+    }
+}
+
+/// The grid's cell widening, a fraction of a cell (`accel::grid`'s `WIDEN`).
+const WIDEN: f32 = 1e-4;
+
+/// The kd-tree's estimate is this many times the grid's bound (see the module docs).
+pub const KD_FACTOR: u64 = 2;
+
+/// Bytes of one triangle record ([`Triangle`]) as the structures count them.
+const TRIANGLE_BYTES: u64 = std::mem::size_of::<Triangle>() as u64;
+
+impl GridRule {
+    /// The padded bounds and the resolution of a grid over `n` triangles in `bounds`: `accel::grid::grid_resolution`
+    /// (the density rule of Cleary and Wyvill; a zero extent padded to `1e-3` of the largest, to 1 for a point).
+    pub fn resolution(&self, bounds: &Aabb, n: usize) -> (Aabb, [u32; 3]) {
+        let mut b = *bounds;
+        let ext = b.extent();
+        let m = ext.max_element();
+        let floor = if m > 0.0 { m * 1e-3 } else { 1.0 };
+        for a in 0..3 {
+            if ext[a] < floor {
+                let c = (b.min[a] + b.max[a]) * 0.5;
+                b.min[a] = c - floor * 0.5;
+                b.max[a] = c + floor * 0.5;
+            }
+        }
+        let e = (b.max - b.min).as_dvec3();
+        let vol = e.x * e.y * e.z;
+        let mut density = (self.density.max(1e-6) as f64) * n.max(1) as f64;
+        loop {
+            let s = (density / vol).cbrt();
+            let r = |x: f64| {
+                let v = (x * s).round();
+                if v.is_finite() {
+                    v.clamp(1.0, self.max_resolution.max(1) as f64) as u32
+                } else {
+                    1
+                }
+            };
+            let res = [r(e.x), r(e.y), r(e.z)];
+            let cells = res.iter().map(|&x| x as usize).product::<usize>();
+            if cells <= self.max_cells.max(1) || res == [1, 1, 1] {
+                return (b, res);
+            }
+            density *= 0.8 * self.max_cells as f64 / cells as f64;
+        }
+    }
+}
+
+/// A grid's frame: padded bounds, resolution, cell size and its inverse, as the grid computes them in f32.
+struct Cells {
+    bounds: Aabb,
+    res: [u32; 3],
+    cell: Vec3,
+    inv: Vec3,
+}
+
+impl Cells {
+    fn new(rule: &GridRule, scene: &Aabb, n: usize) -> Cells {
+        let (bounds, res) = rule.resolution(scene, n);
+        let cell = (bounds.max - bounds.min) / Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
+        Cells { bounds, res, cell, inv: Vec3::ONE / cell }
+    }
+
+    fn count(&self) -> u64 {
+        self.res.iter().map(|&r| u64::from(r)).product()
+    }
+
+    /// An upper bound of the cells the grid stores triangle `t` (box `b`) in: slab by slab across the box's
+    /// shortest side, as the grid clips it (`Grid::for_each_cell`: the same widening, the same Sutherland-Hodgman
+    /// clipping in f64), the product of the clipped polygon's cells along the two other axes. The grid's rows
+    /// within a slab are parts of that polygon, so their runs lie within that product; a zero-area triangle counts
+    /// one cell, a triangle whose f32 edges are parallel its whole box.
+    fn triangle_cells(&self, t: &Triangle, b: &Aabb) -> u64 {
+        if t.is_degenerate() {
+            return 1;
+        }
+        let lo = ((b.min - self.bounds.min) * self.inv - WIDEN).floor();
+        let hi = ((b.max - self.bounds.min) * self.inv + WIDEN).floor();
+        let cl = |v: f32, a: usize| v.clamp(0.0, (self.res[a] - 1) as f32) as u32;
+        let (lo, hi) = ([cl(lo.x, 0), cl(lo.y, 1), cl(lo.z, 2)], [cl(hi.x, 0), cl(hi.y, 1), cl(hi.z, 2)]);
+        let boxed: u64 = (0..3).map(|a| u64::from(hi[a].saturating_sub(lo[a]) + 1)).product();
+        let (v0, e1, e2) = (t.v0.as_dvec3(), t.e1.as_dvec3(), t.e2.as_dvec3());
+        let normal_len = e1.cross(e2).length();
+        if normal_len == 0.0 || boxed <= 1 {
+            return boxed;
+        }
+        let (bmin, cs) = (self.bounds.min.as_dvec3(), self.cell.as_dvec3());
+        let mag = self.bounds.min.abs().max(self.bounds.max.abs()).as_dvec3();
+        let scale = mag.max_element() + self.bounds.extent().max_element() as f64;
+        let pad = 16.0 * f32::EPSILON as f64 * scale * (e1.length() * e2.length() / normal_len);
+        let w = cs * WIDEN as f64 + mag * (8.0 * f32::EPSILON as f64) + pad;
+        let cells = |axis: usize, (l, h): (f64, f64)| -> u64 {
+            let from = ((l - w[axis] - bmin[axis]) / cs[axis]).floor().max(lo[axis] as f64);
+            let to = ((h + w[axis] - bmin[axis]) / cs[axis]).floor().min(hi[axis] as f64);
+            if from <= to {
+                (to - from) as u64 + 1
+            } else {
+                0
+            }
+        };
+        let edge = |axis: usize, k: u32| bmin[axis] + k as f64 * cs[axis];
+        let tri = Polygon {
+            v: [v0, v0 + e1, v0 + e2, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO],
+            len: 3,
+        };
+        let mut order = [0usize, 1, 2];
+        order.sort_by_key(|&a| hi[a] - lo[a]);
+        let [ao, am, ai] = order;
+        let mut total = 0u64;
+        for o in lo[ao]..=hi[ao] {
+            let slab = tri.clip(ao, edge(ao, o) - w[ao], edge(ao, o + 1) + w[ao]);
+            let (Some(rm), Some(ri)) = (slab.range(am), slab.range(ai)) else { continue };
+            total = total.saturating_add(cells(am, rm).saturating_mul(cells(ai, ri)));
+        }
+        // The grid stores a triangle its clipping misses in one cell anyway.
+        total.clamp(1, boxed)
+    }
+
+    /// At most how many cells along axis `a` a box of extent below `t` covers (f32 rounding included).
+    fn span_cells(&self, t: f64, a: usize) -> u64 {
+        let c = f64::from(self.cell[a]);
+        let k = if c > 0.0 { (t / c * (1.0 + 1e-5) + 1e-3).floor() } else { f64::INFINITY };
+        let k = if k.is_finite() { k as u64 + 2 } else { u64::MAX };
+        k.min(u64::from(self.res[a]))
+    }
+}
+
+/// A convex polygon of at most 8 corners in f64: a triangle clipped by up to four axis-aligned planes (the grid's
+/// own clipping, `accel::grid`).
+#[derive(Clone, Copy)]
+struct Polygon {
+    v: [DVec3; 8],
+    len: usize,
+}
+
+impl Polygon {
+    /// The part of the polygon with `lo <= p[axis] <= hi` (Sutherland-Hodgman, one slab).
+    fn clip(&self, axis: usize, lo: f64, hi: f64) -> Polygon {
+        self.clip_half(axis, lo, 1.0).clip_half(axis, hi, -1.0)
+    }
+
+    /// The part with `sign * (p[axis] - c) >= 0`.
+    fn clip_half(&self, axis: usize, c: f64, sign: f64) -> Polygon {
+        let mut out = Polygon { v: [DVec3::ZERO; 8], len: 0 };
+        for k in 0..self.len {
+            let (p, q) = (self.v[k], self.v[(k + 1) % self.len]);
+            let (dp, dq) = (sign * (p[axis] - c), sign * (q[axis] - c));
+            if dp >= 0.0 {
+                out.push(p);
+            }
+            if (dp >= 0.0) != (dq >= 0.0) {
+                let mut x = p + (q - p) * (dp / (dp - dq));
+                x[axis] = c;
+                out.push(x);
+            }
+        }
+        out
+    }
+
+    fn push(&mut self, p: DVec3) {
+        if self.len < self.v.len() {
+            self.v[self.len] = p;
+            self.len += 1;
+        }
+    }
+
+    /// Smallest and largest coordinate along `axis` (`None` for an empty polygon).
+    fn range(&self, axis: usize) -> Option<(f64, f64)> {
+        let vs = &self.v[..self.len];
+        let lo = vs.iter().map(|p| p[axis]).reduce(f64::min)?;
+        let hi = vs.iter().map(|p| p[axis]).reduce(f64::max)?;
+        Some((lo, hi))
+    }
+}
+/// Whether a [`BuildBounds`] figure is an upper bound or an estimate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Bound {
+    /// Never below the structure's actual count.
+    Upper,
+    /// A prediction that can be below the actual count.
+    Estimate,
+}
+
+/// Bounds on what the grid and the kd-tree would store for a scene, computed without building them (see the
+/// module docs).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct BuildBounds {
+    /// Triangles of the scene.
+    pub triangles: u64,
+    /// Where the bounds come from: `mesh` ([`BuildBounds::of_mesh`]) or `features` ([`BuildBounds::of_features`]).
+    pub source: &'static str,
+    /// The grid's resolution (cells along x, y, z).
+    pub grid_resolution: [u32; 3],
+    /// The grid's cell references: an upper bound (from the mesh, or from complete features) or an estimate.
+    pub grid_references: u64,
+    /// Whether [`BuildBounds::grid_references`] is an upper bound.
+    pub grid_bound: Bound,
+    /// The grid's bytes (cell starts, references, triangle records) at [`BuildBounds::grid_references`].
+    pub grid_bytes: u64,
+    /// The kd-tree's leaf references: an estimate.
+    pub kdtree_references: u64,
+    /// The kd-tree's bytes at [`BuildBounds::kdtree_references`]: nodes (about one per reference), references,
+    /// triangle records, boxes and ids; an estimate.
+    pub kdtree_bytes: u64,
+}
+
+impl BuildBounds {
+    /// The bounds of a mesh (see the module docs), with the grid's default rule: one O(n) pass.
+    ///
+    /// Fails when the mesh is invalid (a non-finite coordinate, an index out of range).
+    pub fn of_mesh(mesh: &Mesh) -> Result<BuildBounds, MeshError> {
+        BuildBounds::of_mesh_with(mesh, &GridRule::default())
+    }
+
+    /// [`BuildBounds::of_mesh`] under a given grid rule.
+    pub fn of_mesh_with(mesh: &Mesh, rule: &GridRule) -> Result<BuildBounds, MeshError> {
+        mesh.validate()?;
+        let n = mesh.triangle_count();
+        let mut scene = Aabb::EMPTY;
+        let records: Vec<(Triangle, Aabb)> = (0..n)
+            .map(|i| {
+                let v = mesh.triangle(i);
+                let b = Aabb::of_triangle(&v);
+                scene = scene.union(&b);
+                (Triangle::new(&v), b)
+            })
+            .collect();
+        if n == 0 || !(scene.max - scene.min).is_finite() {
+            // Empty, or too wide for the grid (it refuses such bounds itself): nothing to bound.
+            return Ok(BuildBounds::empty(n as u64, "mesh"));
+        }
+        let grid = Cells::new(rule, &scene, n);
+        let (mut g, mut k) = (0u64, 0u64);
+        for (t, b) in &records {
+            let c = grid.triangle_cells(t, b);
+            g = g.saturating_add(c);
+            k = k.saturating_add(if t.is_degenerate() { 1 } else { c.saturating_mul(KD_FACTOR) });
+        }
+        Ok(BuildBounds::finish(n as u64, "mesh", &grid, g, Bound::Upper, k))
+    }
+
+    /// The bounds from a scene's features alone (see the module docs), with the grid's default rule.
+    pub fn of_features(f: &Features) -> BuildBounds {
+        BuildBounds::of_features_with(f, &GridRule::default())
+    }
+
+    /// [`BuildBounds::of_features`] under a given grid rule.
+    pub fn of_features_with(f: &Features, rule: &GridRule) -> BuildBounds {
+        let n = f.total_triangles.max(f.triangles);
+        let scene = Aabb::new(Vec3::from_array(f.lo), Vec3::from_array(f.hi));
+        if n == 0 || f.triangles == 0 || scene.is_empty() || !(scene.max - scene.min).is_finite() {
+            return BuildBounds::empty(n, "features");
+        }
+        let nu = usize::try_from(n).unwrap_or(usize::MAX);
+        let grid = Cells::new(rule, &scene, nu);
+        let s = scene.extent().max_element();
+        let scale = n as f64 / f.triangles as f64;
+        let bound = |cells: &Cells| -> u64 {
+            let mut total = 8.0 * f.zero_extent as f64;
+            if let Some(es) = exponent(s) {
+                for (k, &count) in f.size_histogram.iter().enumerate().take(SIZE_BINS) {
+                    if count == 0 {
+                        continue;
+                    }
+                    // Largest extent below 2^(e(S) - k + 1) (the last bin holds everything smaller).
+                    let t = 2f64.powi(es - k as i32 + 1);
+                    let per: f64 = (0..3)
+                        .map(|a| {
+                            let e = f64::from(scene.max[a] - scene.min[a]);
+                            cells.span_cells(t.min(e), a) as f64
+                        })
+                        .product();
+                    total += count as f64 * per;
+                }
+            }
+            let v = (total * scale).ceil();
+            if v >= u64::MAX as f64 {
+                u64::MAX
+            } else {
+                v as u64
+            }
+        };
+        let g = bound(&grid);
+        let k = g.saturating_mul(KD_FACTOR);
+        let kind = if f.triangles >= n { Bound::Upper } else { Bound::Estimate };
+        BuildBounds::finish(n, "features", &grid, g, kind, k)
+    }
+
+    fn empty(n: u64, source: &'static str) -> BuildBounds {
+        BuildBounds {
+            triangles: n,
+            source,
+            grid_resolution: [0; 3],
+            grid_references: 0,
+            grid_bound: Bound::Upper,
+            grid_bytes: 0,
+            kdtree_references: 0,
+            kdtree_bytes: 0,
+        }
+    }
+
+    fn finish(n: u64, source: &'static str, grid: &Cells, g: u64, kind: Bound, k: u64) -> BuildBounds {
+        let tri = n.saturating_mul(TRIANGLE_BYTES);
+        BuildBounds {
+            triangles: n,
+            source,
+            grid_resolution: grid.res,
+            grid_references: g,
+            grid_bound: kind,
+            grid_bytes: grid
+                .count()
+                .saturating_add(1)
+                .saturating_mul(4)
+                .saturating_add(g.saturating_mul(4))
+                .saturating_add(tri),
+            kdtree_references: k,
+            // Nodes of 8 bytes (about one per reference), 4-byte references, records, 24-byte boxes, 4-byte ids.
+            kdtree_bytes: k.saturating_mul(12).saturating_add(tri).saturating_add(n.saturating_mul(28)),
+        }
+    }
+
+    /// The references and bytes bounded for `structure`, `None` for the structures that store every triangle once
+    /// (the BVH family and the BIH: `n` references, no duplication).
+    pub fn of(&self, structure: Structure) -> Option<(u64, u64)> {
+        match structure {
+            Structure::Grid => Some((self.grid_references, self.grid_bytes)),
+            Structure::KdTree => Some((self.kdtree_references, self.kdtree_bytes)),
+            _ => None,
+        }
+    }
+
+    /// The larger of two bounds, figure by figure (the frames of an animation: a structure rebuilt every frame must
+    /// fit every frame).
+    pub fn max(self, o: &BuildBounds) -> BuildBounds {
+        let pick = |a: u64, b: u64| a.max(b);
+        BuildBounds {
+            triangles: self.triangles.max(o.triangles),
+            source: self.source,
+            grid_resolution: if o.grid_references > self.grid_references {
+                o.grid_resolution
+            } else {
+                self.grid_resolution
+            },
+            grid_references: pick(self.grid_references, o.grid_references),
+            grid_bound: if self.grid_bound == Bound::Upper && o.grid_bound == Bound::Upper {
+                Bound::Upper
+            } else {
+                Bound::Estimate
+            },
+            grid_bytes: pick(self.grid_bytes, o.grid_bytes),
+            kdtree_references: pick(self.kdtree_references, o.kdtree_references),
+            kdtree_bytes: pick(self.kdtree_bytes, o.kdtree_bytes),
+        }
+    }
+}
+
+/// How many references and bytes a policy lets a structure have (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Budget {
+    /// References allowed per triangle.
+    pub references_per_triangle: f64,
+    /// References always allowed, however few the triangles.
+    pub min_references: u64,
+    /// Bytes allowed per structure.
+    pub max_bytes: u64,
+}
+
+impl Default for Budget {
+    fn default() -> Self {
+        Budget { references_per_triangle: 16.0, min_references: 1 << 22, max_bytes: 4 << 30 }
+    }
+}
+
+impl Budget {
+    /// The builders' own budgets (`GridOptions`, `KdOptions` defaults: 64 per triangle, at least `2^25`, 4 GiB):
+    /// the loosest budget under which a kept grid never fails its build with `OverBudget`.
+    pub const BUILDERS: Budget = Budget { references_per_triangle: 64.0, min_references: 1 << 25, max_bytes: 4 << 30 };
+
+    /// No limit: nothing is ever excluded.
+    pub const UNLIMITED: Budget =
+        Budget { references_per_triangle: f64::INFINITY, min_references: u64::MAX, max_bytes: u64::MAX };
+
+    /// The references allowed for `n` triangles: `max(references_per_triangle * n, min_references)`.
+    pub fn references(&self, n: u64) -> u64 {
+        let per = self.references_per_triangle.max(0.0) * n as f64;
+        let per = if per >= u64::MAX as f64 || per.is_nan() { u64::MAX } else { per as u64 };
+        per.max(self.min_references)
+    }
+
+    /// The structures whose bounds exceed this budget, grid first.
+    pub fn check(&self, bounds: &BuildBounds) -> Vec<Exclusion> {
+        let allowed = self.references(bounds.triangles);
+        let mut out = Vec::new();
+        for s in [Structure::Grid, Structure::KdTree] {
+            let Some((refs, bytes)) = bounds.of(s) else { continue };
+            let kind = if s == Structure::Grid { bounds.grid_bound } else { Bound::Estimate };
+            let word = if kind == Bound::Upper { "at most" } else { "an estimated" };
+            let per = refs as f64 / bounds.triangles.max(1) as f64;
+            if refs > allowed {
+                out.push(Exclusion {
+                    structure: s,
+                    what: "references",
+                    needed: refs,
+                    budget: allowed,
+                    bound: kind,
+                    reason: format!(
+                        "{s}: {word} {refs} references ({per:.1} per triangle, from the {}) exceed the budget of \
+                         {allowed} ({} per triangle for {} triangles, at least {})",
+                        bounds.source, self.references_per_triangle, bounds.triangles, self.min_references
+                    ),
+                });
+            } else if bytes > self.max_bytes {
+                out.push(Exclusion {
+                    structure: s,
+                    what: "bytes",
+                    needed: bytes,
+                    budget: self.max_bytes,
+                    bound: kind,
+                    reason: format!(
+                        "{s}: {word} {bytes} bytes (from the {}) exceed the budget of {} bytes",
+                        bounds.source, self.max_bytes
+                    ),
+                });
+            }
+        }
+        out
+    }
+}
+
+/// A structure a policy did not consider because its bound exceeds the budget.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Exclusion {
+    /// The structure.
+    pub structure: Structure,
+    /// What exceeds the budget: `references` or `bytes`.
+    pub what: &'static str,
+    /// The bound (or estimate).
+    pub needed: u64,
+    /// The budget.
+    pub budget: u64,
+    /// Whether `needed` is an upper bound or an estimate.
+    pub bound: Bound,
+    /// The sentence for reports.
+    pub reason: String,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::generate;
+
+    #[test]
+    fn budget_arithmetic() {
+        let b = Budget::default();
+        assert_eq!(b.references(0), 1 << 22);
+        assert_eq!(b.references(1_000_000), 16_000_000);
+        assert_eq!(Budget::UNLIMITED.references(u64::MAX), u64::MAX);
+        assert_eq!(Budget::BUILDERS.references(1 << 20), 1 << 26);
+    }
+
+    #[test]
+    fn empty_and_tiny_meshes_bound_to_nothing_or_little() {
+        let empty = Mesh::default();
+        let b = BuildBounds::of_mesh(&empty).expect("empty mesh");
+        assert_eq!((b.grid_references, b.kdtree_references), (0, 0));
+        assert!(Budget::default().check(&b).is_empty());
+        let one = generate::single_triangle();
+        let b = BuildBounds::of_mesh(&one).expect("one triangle");
+        // One triangle in a flat grid of 16 x 16 cells: at least one, at most every cell, nothing excluded.
+        let cells: u64 = b.grid_resolution.iter().map(|&r| u64::from(r)).product();
+        assert_eq!(b.grid_resolution[2], 1, "{b:?}");
+        assert!(b.grid_references >= 1 && b.grid_references <= cells, "{b:?}");
+        assert!(Budget::default().check(&b).is_empty());
+    }
+
+    #[test]
+    fn coincident_copies_are_excluded_and_the_reason_says_why() {
+        // 30,000 copies of one triangle: the grid puts every copy in every cell along its hypotenuse.
+        let m = generate::all_equal(30_000);
+        let b = BuildBounds::of_mesh(&m).expect("bounds");
+        let ex = Budget::default().check(&b);
+        assert!(ex.iter().any(|e| e.structure == Structure::Grid && e.what == "references"), "{b:?} {ex:?}");
+        assert!(ex[0].reason.contains("exceed the budget"), "{}", ex[0].reason);
+        assert!(Budget::UNLIMITED.check(&b).is_empty());
+    }
+}

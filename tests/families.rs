@@ -1,0 +1,115 @@
+//! Scene families (`mesh::families`) and camera presets (`trace::views`): determinism, counts, validity, bounds and
+//! cameras.
+
+use meshchar::mesh::generate::{generate, Family, MAX_FAMILY_TRIANGLES};
+use meshchar::mesh::Mesh;
+use meshchar::trace::views::{presets, View};
+use meshchar::trace::workload::mesh_bounds;
+
+fn bits(m: &Mesh) -> (Vec<[u32; 3]>, &[[u32; 3]]) {
+    (m.positions.iter().map(|p| p.map(f32::to_bits)).collect(), &m.indices)
+}
+
+fn check(family: Family, n: usize, seed: u64) -> Mesh {
+    let m = generate(family, n, seed).unwrap_or_else(|e| panic!("{family} {n}: {e}"));
+    m.validate().unwrap_or_else(|e| panic!("{family} {n}: {e}"));
+    let got = m.triangle_count();
+    assert!(got.abs_diff(n) * 10 <= n, "{family}: {got} triangles for {n} requested");
+    let b = mesh_bounds(&m);
+    assert!(b.min.is_finite() && b.max.is_finite() && !b.is_empty(), "{family} {n}: bounds {b:?}");
+    assert!(b.extent().max_element() > 0.0, "{family} {n}: a point");
+    for (v, c) in presets(&b) {
+        assert!(c.eye.is_finite() && c.forward.is_finite() && c.right.is_finite(), "{family} {n} {v}: {c:?}");
+        if v == View::Inside {
+            assert!(c.eye.cmpge(b.min).all() && c.eye.cmple(b.max).all(), "{family} {n}: eye {} outside {b:?}", c.eye);
+        }
+        if v == View::Framing {
+            assert_eq!(c, meshchar::trace::Camera::frame(&b), "{family}: framing is Camera::frame");
+        }
+    }
+    m
+}
+
+#[test]
+fn every_family_is_deterministic_and_seeds_differ() {
+    for family in Family::ALL {
+        let a = check(family, 3000, 7);
+        let b = generate(family, 3000, 7).expect("same request");
+        assert_eq!(bits(&a), bits(&b), "{family}: same seed, same bits");
+        assert_eq!(a.name, b.name);
+        let c = generate(family, 3000, 8).expect("other seed");
+        assert_ne!(bits(&a), bits(&c), "{family}: another seed, another scene");
+    }
+}
+
+#[test]
+fn counts_are_as_requested_at_1k_10k_100k() {
+    for family in Family::ALL {
+        for n in [1_000, 10_000, 100_000] {
+            let m = check(family, n, 1);
+            // The generators cut the last object short, so the count is exact.
+            assert_eq!(m.triangle_count(), n, "{family}");
+        }
+    }
+}
+
+#[test]
+fn tiny_and_absurd_requests() {
+    for family in Family::ALL {
+        let empty = generate(family, 0, 3).expect("0 triangles");
+        assert_eq!(empty.triangle_count(), 0, "{family}");
+        for n in [1, 2, 5, 13] {
+            let m = generate(family, n, 3).expect("a few triangles");
+            m.validate().expect("valid");
+            assert_eq!(m.triangle_count(), n, "{family}");
+        }
+        let err = generate(family, MAX_FAMILY_TRIANGLES + 1, 3).expect_err("too many");
+        assert!(err.to_string().contains("67108864"), "{family}: {err}");
+    }
+}
+
+#[test]
+fn families_have_their_character() {
+    // Interiors: the eye of `inside` is within a room and the walls are large: some triangle spans a room's side.
+    let m = generate(Family::Interior, 20_000, 2).expect("interior");
+    let largest = (0..m.triangle_count())
+        .map(|i| {
+            let [a, b, c] = m.triangle(i);
+            (b - a).max(c - a).max(b - c).abs().max_element()
+        })
+        .fold(0.0f32, f32::max);
+    assert!(largest >= 3.0, "interior: largest triangle {largest} m");
+    // Vegetation and particles: small triangles almost everywhere (median longest edge under 1% of the scene).
+    for family in [Family::Vegetation, Family::Particles] {
+        let m = generate(family, 20_000, 2).expect("soup");
+        let diag = mesh_bounds(&m).extent().length();
+        let mut edges: Vec<f32> = (0..m.triangle_count())
+            .map(|i| {
+                let [a, b, c] = m.triangle(i);
+                (b - a).length().max((c - a).length()).max((c - b).length())
+            })
+            .collect();
+        edges.sort_by(f32::total_cmp);
+        assert!(edges[edges.len() / 2] < 0.01 * diag, "{family}: median edge {} of {diag}", edges[edges.len() / 2]);
+    }
+    // Engineering: slivers, triangles whose longest edge is 20 times their height.
+    let m = generate(Family::Engineering, 20_000, 2).expect("engineering");
+    let slivers = (0..m.triangle_count())
+        .filter(|&i| {
+            let [a, b, c] = m.triangle(i).map(|v| v.as_dvec3());
+            let longest = (b - a).length().max((c - a).length()).max((c - b).length());
+            let area2 = (b - a).cross(c - a).length();
+            longest > 0.0 && area2 / longest < longest / 20.0
+        })
+        .count();
+    assert!(slivers * 4 > m.triangle_count(), "engineering: {slivers} slivers of {}", m.triangle_count());
+}
+
+#[test]
+#[ignore = "2M triangles per family: 1.5 s for all seven in release, much longer in debug"]
+fn counts_at_2m() {
+    for family in Family::ALL {
+        let m = check(family, 2_000_000, 1);
+        assert_eq!(m.triangle_count(), 2_000_000, "{family}");
+    }
+}
