@@ -332,3 +332,47 @@ fn device_built_trees_trace_like_the_cpu_trees() {
     }
     gpu_support::assert_no_validation_messages(&ctx);
 }
+
+/// Primary rays made on the device equal `Camera::ray` bit for bit (origin, direction, tmin, tmax), for framing
+/// cameras of several scenes, explicit cameras, square and non-square images and a one-pixel image; traced from the
+/// device buffer they give the CPU tracer's hits and counts.
+#[test]
+fn primary_rays_on_the_device_equal_the_host_rays() {
+    use meshchar::accel::device::Pinhole;
+    use meshchar::trace::workload::primary_rays;
+    let Some(ctx) = gpu_support::context() else { return };
+    let tracer = DeviceTracer::new(&ctx).expect("tracer");
+    let bunny = load_mesh(&common::shared_mesh("stanford-bunny/bun_zipper.ply")).unwrap();
+    let mut cams =
+        vec![Camera::frame(&mesh_bounds(&bunny)), Camera::frame(&mesh_bounds(&generate::teapot_in_stadium(2)))];
+    cams.push(Camera::look_at(Vec3::new(1e4, -3.0, 0.25), Vec3::new(-2.0, 5.0, 1e-3), Vec3::Y, 97.0).unwrap());
+    cams.push(Camera::look_at(Vec3::new(0.0, 0.1, 0.3), Vec3::ZERO, Vec3::Z, 5.0).unwrap());
+    for (ci, cam) in cams.iter().enumerate() {
+        for (w, h) in [(64u32, 64u32), (97, 31), (1, 1), (3, 200)] {
+            let host = primary_rays(cam, w, h);
+            let buf = tracer.primary_rays(&ctx, &Pinhole::from(cam), w, h).unwrap();
+            let dev: Vec<TraceRay> = ctx.read_buffer(&buf, 0, host.len()).unwrap();
+            for (i, (a, b)) in host.iter().zip(&dev).enumerate() {
+                let bits = |v: [f32; 3]| v.map(f32::to_bits);
+                assert_eq!(
+                    (bits(a.origin.to_array()), bits(a.dir.to_array()), a.tmin.to_bits(), a.tmax.to_bits()),
+                    (bits(b.origin), bits(b.dir), b.tmin.to_bits(), b.tmax.to_bits()),
+                    "camera {ci} {w}x{h} pixel {i}"
+                );
+            }
+        }
+    }
+    // Traced straight from the device buffer.
+    let accel = build_structure(StructureName::Bvh, &bunny).unwrap();
+    let mut s = DeviceStructure::upload(&ctx, &accel.device_layout().unwrap()).unwrap();
+    let host = primary_rays(&cams[0], 40, 40);
+    let buf = tracer.primary_rays(&ctx, &Pinhole::from(&cams[0]), 40, 40).unwrap();
+    let out = tracer.trace_buffer(&ctx, &mut s, &buf, host.len() as u64, false).unwrap();
+    for (i, (r, g)) in host.iter().zip(&out.hits).enumerate() {
+        let mut c = TraceCounters::default();
+        let h = accel.intersect(r, &mut c);
+        assert_eq!(h.map(|h| (h.triangle, h.t.to_bits())), g.hit().map(|h| (h.triangle, h.t.to_bits())), "ray {i}");
+        assert_eq!((c.box_tests, c.prim_tests), (g.box_tests as u64, g.prim_tests as u64), "ray {i}");
+    }
+    gpu_support::assert_no_validation_messages(&ctx);
+}

@@ -38,6 +38,7 @@ use crate::gpu::{shaders, Buffer, Context, GpuError, Kernel, KernelDesc, MemoryK
 use glam::Vec3;
 
 pub use crate::gpu::shaders::trace::Push as TracePush;
+pub use crate::gpu::shaders::trace_rays::Push as TraceRaysPush;
 pub use crate::gpu::shaders::trace_records::Push as TraceRecordsPush;
 pub use crate::gpu::shaders::{BihNode, BvhNode, KdNode, TraceHit, TraceRay, TraceScene, TriRecord};
 
@@ -461,6 +462,7 @@ impl DeviceStructure {
 pub struct DeviceTracer {
     kernels: Vec<Kernel<TracePush>>,
     records: Kernel<TraceRecordsPush>,
+    rays: Kernel<TraceRaysPush>,
 }
 
 /// Items per invocation of the records kernel.
@@ -531,7 +533,8 @@ impl DeviceTracer {
             .collect::<Result<Vec<_>, _>>()?;
         let records =
             Kernel::new(ctx, &KernelDesc::new(&shaders::trace_records::INFO).constant("ITEMS", RECORD_ITEMS))?;
-        Ok(DeviceTracer { kernels, records })
+        let rays = Kernel::new(ctx, &KernelDesc::new(&shaders::trace_rays::INFO))?;
+        Ok(DeviceTracer { kernels, records, rays })
     }
 
     /// A device-built LBVH or HLBVH ([`crate::accel::gpu::BvhBuilder`]) made traceable on the device, without a
@@ -699,12 +702,51 @@ impl DeviceTracer {
         rays: &[TraceRay],
         any_hit: bool,
     ) -> Result<DeviceTrace, DeviceTraceError> {
-        let count = rays.len() as u64;
+        if rays.is_empty() {
+            return Ok(DeviceTrace { hits: Vec::new(), gpu_ms: 0.0, invocations: 0 });
+        }
+        let ray_buf = ctx.upload("trace rays", rays)?;
+        self.trace_buffer_once(ctx, s, &ray_buf, rays.len() as u64, any_hit)
+    }
+
+    /// [`DeviceTracer::trace`] of `count` rays already on the device (`rays`, [`TraceRay`]s: made by
+    /// [`DeviceTracer::record_primary_rays`], or an engine's own).
+    ///
+    /// # Errors
+    ///
+    /// As [`DeviceTracer::trace`]; [`GpuError::Buffer`] when `rays` is smaller than `count` rays.
+    pub fn trace_buffer(
+        &self,
+        ctx: &Context,
+        s: &mut DeviceStructure,
+        rays: &Buffer,
+        count: u64,
+        any_hit: bool,
+    ) -> Result<DeviceTrace, DeviceTraceError> {
+        loop {
+            match self.trace_buffer_once(ctx, s, rays, count, any_hit) {
+                Err(DeviceTraceError::Incomplete { status: TraceStatus::StackFull, .. })
+                    if s.stack_entries < (1 << 20) =>
+                {
+                    s.stack_entries *= 2;
+                }
+                other => return other,
+            }
+        }
+    }
+
+    fn trace_buffer_once(
+        &self,
+        ctx: &Context,
+        s: &DeviceStructure,
+        ray_buf: &Buffer,
+        count: u64,
+        any_hit: bool,
+    ) -> Result<DeviceTrace, DeviceTraceError> {
         if count == 0 {
             return Ok(DeviceTrace { hits: Vec::new(), gpu_ms: 0.0, invocations: 0 });
         }
         let (invocations, stack_bytes) = self.stack_layout(ctx, s, count);
-        let ray_buf = ctx.upload("trace rays", rays)?;
         let hit_bytes = count * std::mem::size_of::<TraceHit>() as u64;
         let hits = ctx.create_buffer("trace hits", hit_bytes, MemoryKind::DeviceLocal)?;
         let stack = ctx.create_buffer("trace stacks", stack_bytes, MemoryKind::DeviceLocal)?;
@@ -713,14 +755,14 @@ impl DeviceTracer {
         ctx.submit_and_wait(|rec| {
             rec.reset_timer(&mut timer);
             rec.timestamp_start(&mut timer);
-            self.record(rec, s, &TraceBuffers { rays: &ray_buf, count, hits: &hits, stack: &stack }, any_hit)?;
+            self.record(rec, s, &TraceBuffers { rays: ray_buf, count, hits: &hits, stack: &stack }, any_hit)?;
             rec.timestamp(&mut timer, "trace");
             rec.dependency(Pass::Compute, Pass::Transfer);
             rec.copy(&hits, 0, &readback, 0, hit_bytes);
             rec.host_read_barrier();
             Ok(())
         })?;
-        let out: Vec<TraceHit> = readback.read(0, rays.len())?;
+        let out: Vec<TraceHit> = readback.read(0, count as usize)?;
         let gpu_ms = timer.read()?.iter().map(|(_, ms)| ms).sum();
         let bad: Vec<usize> = out.iter().enumerate().filter(|(_, h)| h.status != TRACE_OK).map(|(i, _)| i).collect();
         if let Some(&first) = bad.first() {
@@ -728,6 +770,76 @@ impl DeviceTracer {
         }
         Ok(DeviceTrace { hits: out, gpu_ms, invocations })
     }
+
+    /// Records the primary rays of a pinhole camera for a `width x height` image into `rays` (at least
+    /// `width * height` [`TraceRay`]s, row by row): bit for bit the rays of `trace::Camera::ray`, so a primary
+    /// workload never crosses the bus. No barrier before or after (the caller orders the trace after it).
+    ///
+    /// # Errors
+    ///
+    /// [`GpuError::Buffer`] when `rays` is too small.
+    pub fn record_primary_rays(
+        &self,
+        rec: &mut Recorder<'_>,
+        camera: &Pinhole,
+        width: u32,
+        height: u32,
+        rays: &Buffer,
+    ) -> Result<(), GpuError> {
+        let count = width as u64 * height as u64;
+        let bytes = count * std::mem::size_of::<TraceRay>() as u64;
+        if rays.size() < bytes {
+            return Err(GpuError::Buffer(format!("primary rays: {width}x{height} need {bytes} bytes")));
+        }
+        if count == 0 {
+            return Ok(());
+        }
+        let v4 = |v: Vec3, w: f32| [v.x, v.y, v.z, w];
+        let push = TraceRaysPush {
+            eye: v4(camera.eye, camera.tan_half_fov),
+            forward: v4(camera.forward, 0.0),
+            right: v4(camera.right, 0.0),
+            up: v4(camera.up, 0.0),
+            rays: rays.address(),
+            width,
+            height,
+            ..bytemuck::Zeroable::zeroed()
+        };
+        let groups = rec.groups_for(count, self.rays.workgroup_size() as u64);
+        // SAFETY: writes `count` rays into a buffer of at least that many (checked above).
+        unsafe { rec.dispatch(&self.rays, &push, groups) };
+        Ok(())
+    }
+
+    /// The primary rays of `camera` made on the device (submits and waits): a buffer of `width * height`
+    /// [`TraceRay`]s for [`DeviceTracer::trace_buffer`].
+    ///
+    /// # Errors
+    ///
+    /// A device error.
+    pub fn primary_rays(&self, ctx: &Context, camera: &Pinhole, width: u32, height: u32) -> Result<Buffer, GpuError> {
+        let bytes = width as u64 * height as u64 * std::mem::size_of::<TraceRay>() as u64;
+        let rays = ctx.create_buffer("primary rays", bytes, MemoryKind::DeviceLocal)?;
+        ctx.submit_and_wait(|rec| self.record_primary_rays(rec, camera, width, height, &rays))?;
+        Ok(rays)
+    }
+}
+
+/// A pinhole camera as the primary-ray kernel takes it (the fields of `trace::Camera`, which converts into it):
+/// pixel `(x, y)` of a `w x h` image looks along `forward + right * sx + up * sy`, normalized, with
+/// `sx = ((x + 0.5) / w * 2 - 1) * tan_half_fov * w / h` and `sy = (1 - (y + 0.5) / h * 2) * tan_half_fov`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pinhole {
+    /// Eye position.
+    pub eye: Vec3,
+    /// Unit viewing direction.
+    pub forward: Vec3,
+    /// Unit right vector.
+    pub right: Vec3,
+    /// Unit up vector.
+    pub up: Vec3,
+    /// `tan(fov_y / 2)`.
+    pub tan_half_fov: f32,
 }
 
 #[cfg(test)]

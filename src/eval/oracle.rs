@@ -155,9 +155,27 @@ impl<'a> DeviceOracle<'a> {
         // The device builders' pipelines run once too.
         let buffers = crate::gpu::MeshBuffers::upload(ctx, &mesh.positions, &mesh.indices)?;
         for name in [StructureName::Lbvh, StructureName::Hlbvh] {
-            o.run_device_built(name, &buffers, &RaySet { kind: WorkloadKind::Primary, rays: vec![], any_hit: false })?;
+            o.run_device_built(
+                name,
+                &buffers,
+                &RaySet { kind: WorkloadKind::Primary, rays: vec![], any_hit: false },
+                None,
+            )?;
         }
         Ok(o)
+    }
+
+    /// The primary rays of `camera` at `res x res` made on the device, checked against the host's `want`.
+    fn primary_rays(&self, camera: &Camera, res: u32, want: &[crate::geom::Ray]) -> Result<crate::gpu::Buffer, String> {
+        let pin = crate::accel::device::Pinhole::from(camera);
+        let buf = self.tracer.primary_rays(self.ctx, &pin, res, res).map_err(|e| e.to_string())?;
+        let got: Vec<TraceRay> = self.ctx.read_buffer(&buf, 0, want.len()).map_err(|e| e.to_string())?;
+        if let Some(i) =
+            want.iter().zip(&got).position(|(a, b)| bytemuck::bytes_of(&TraceRay::from(a)) != bytemuck::bytes_of(b))
+        {
+            return Err(format!("device primary ray {i} differs from the host's: {:?} vs {:?}", got[i], want[i]));
+        }
+        Ok(buf)
     }
 
     /// Whether the oracle builds `name` on the device (the LBVH and the HLBVH).
@@ -173,6 +191,7 @@ impl<'a> DeviceOracle<'a> {
         name: StructureName,
         mesh: &crate::gpu::MeshBuffers,
         rays: &RaySet,
+        on_device: Option<&crate::gpu::Buffer>,
     ) -> Result<(f64, TraceOutcome), DeviceTraceError> {
         let view = mesh.view();
         let run = |e: crate::gpu::RunError| match e {
@@ -191,13 +210,23 @@ impl<'a> DeviceOracle<'a> {
         };
         let build_ms: f64 = bvh.timings().iter().map(|(_, ms)| ms).sum();
         let (mut d, records_ms) = self.tracer.structure_of(self.ctx, &bvh, &view)?;
-        let out = self.trace_on(&mut d, rays)?;
+        let out = self.trace_on(&mut d, rays, on_device)?;
         Ok((build_ms + records_ms, out))
     }
 
-    fn trace_on(&self, d: &mut DeviceStructure, rays: &RaySet) -> Result<TraceOutcome, DeviceTraceError> {
-        let dev_rays: Vec<TraceRay> = rays.rays.iter().map(TraceRay::from).collect();
-        let out = self.tracer.trace(self.ctx, d, &dev_rays, rays.any_hit)?;
+    fn trace_on(
+        &self,
+        d: &mut DeviceStructure,
+        rays: &RaySet,
+        on_device: Option<&crate::gpu::Buffer>,
+    ) -> Result<TraceOutcome, DeviceTraceError> {
+        let out = match on_device {
+            Some(buf) => self.tracer.trace_buffer(self.ctx, d, buf, rays.rays.len() as u64, rays.any_hit)?,
+            None => {
+                let dev_rays: Vec<TraceRay> = rays.rays.iter().map(TraceRay::from).collect();
+                self.tracer.trace(self.ctx, d, &dev_rays, rays.any_hit)?
+            }
+        };
         let counters = out.counters();
         let mut o = TraceOutcome { counters, seconds: out.gpu_ms * 1e-3, ..Default::default() };
         if rays.any_hit {
@@ -214,10 +243,15 @@ impl<'a> DeviceOracle<'a> {
     }
 
     /// Uploads `s` (timed, ms) and traces `rays` through it: the outcome (trace time from the GPU timestamps).
-    fn run(&self, s: &dyn AccelStructure, rays: &RaySet) -> Result<(f64, TraceOutcome), DeviceTraceError> {
+    fn run(
+        &self,
+        s: &dyn AccelStructure,
+        rays: &RaySet,
+        on_device: Option<&crate::gpu::Buffer>,
+    ) -> Result<(f64, TraceOutcome), DeviceTraceError> {
         let layout = s.device_layout().ok_or(DeviceTraceError::NoLayout(s.name()))?;
         let mut d = DeviceStructure::upload(self.ctx, &layout)?;
-        let o = self.trace_on(&mut d, rays)?;
+        let o = self.trace_on(&mut d, rays, on_device)?;
         Ok((d.upload_seconds() * 1e3, o))
     }
 }
@@ -458,6 +492,8 @@ impl SceneEvaluation {
             device: self.device.clone(),
             hits_checked: (self.trace_backend == TraceBackend::Vulkan)
                 .then(|| "every ray against the CPU reference (triangle and t bits)".to_string()),
+            ray_generation: (self.trace_backend == TraceBackend::Vulkan)
+                .then(|| if self.workload == WorkloadKind::Primary { "device" } else { "host, uploaded" }.to_string()),
             triangles: self.triangles,
             workload: self.workload,
         }
@@ -562,6 +598,13 @@ pub fn evaluate_scene_on(
             ),
             _ => None,
         };
+        // Primary rays are made on the device (never uploaded), checked once against the host's, bit for bit.
+        let device_rays = match device {
+            Some(d) if config.workload == WorkloadKind::Primary => {
+                Some(d.primary_rays(&camera, config.resolution, &rays.rays).map_err(EvalError::Device)?)
+            }
+            _ => None,
+        };
         for r in 0..repeats {
             for (si, &name) in names.iter().enumerate() {
                 let a = &mut acc[si];
@@ -590,9 +633,9 @@ pub fn evaluate_scene_on(
                 let run = match (device, &mesh_buffers) {
                     (None, _) => Ok((build_ms, 0.0, trace(s.as_ref(), &rays))),
                     (Some(d), Some(m)) if DeviceOracle::builds_on_device(name) => {
-                        d.run_device_built(name, m, &rays).map(|(b, o)| (b, 0.0, o))
+                        d.run_device_built(name, m, &rays, device_rays.as_ref()).map(|(b, o)| (b, 0.0, o))
                     }
-                    (Some(d), _) => d.run(s.as_ref(), &rays).map(|(u, o)| (build_ms + u, u, o)),
+                    (Some(d), _) => d.run(s.as_ref(), &rays, device_rays.as_ref()).map(|(u, o)| (build_ms + u, u, o)),
                 };
                 let (build_ms, upload_ms, out) = match run {
                     Ok(x) => x,

@@ -79,3 +79,15 @@ impl Camera {
         Ray::new(self.eye, dir)
     }
 }
+
+impl From<&Camera> for crate::accel::device::Pinhole {
+    fn from(c: &Camera) -> Self {
+        crate::accel::device::Pinhole {
+            eye: c.eye,
+            forward: c.forward,
+            right: c.right,
+            up: c.up,
+            tan_half_fov: c.tan_half_fov,
+        }
+    }
+}
