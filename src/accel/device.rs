@@ -803,7 +803,6 @@ impl DeviceTracer {
             rays: rays.address(),
             width,
             height,
-            ..bytemuck::Zeroable::zeroed()
         };
         let groups = rec.groups_for(count, self.rays.workgroup_size() as u64);
         // SAFETY: writes `count` rays into a buffer of at least that many (checked above).
