@@ -239,6 +239,17 @@ fn deep_chain_bvh_uses_a_stack_sized_from_its_depth() {
         let want = if i % 2 == 0 { 0 } else { depth as u32 };
         assert_eq!(h.hit().map(|h| h.triangle), Some(want), "ray {i}");
     }
+    // A stack far too small (as a device-built tree of unknown depth may start with) fills, and the trace grows it
+    // and runs again: the same hits and counts.
+    s.set_stack_entries(4);
+    let again = tracer.trace(&ctx, &mut s, &rays, false).expect("trace with a growing stack");
+    assert!(s.stack_entries() > depth as u32, "stack grew to {}", s.stack_entries());
+    for (a, b) in out.hits.iter().zip(&again.hits) {
+        assert_eq!(
+            (a.triangle, a.t.to_bits(), a.box_tests, a.prim_tests),
+            (b.triangle, b.t.to_bits(), b.box_tests, b.prim_tests)
+        );
+    }
     gpu_support::assert_no_validation_messages(&ctx);
 }
 

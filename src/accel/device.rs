@@ -447,6 +447,12 @@ impl DeviceStructure {
     pub fn stack_entries(&self) -> u32 {
         self.stack_entries
     }
+    /// Sets the stack entries per invocation (at least 1). Fewer than the tree needs is safe: a trace that fills
+    /// the stack is run again with twice as many ([`DeviceTracer::trace`]), which is how a device-built tree of
+    /// unknown depth finds its size; more than it needs costs memory only.
+    pub fn set_stack_entries(&mut self, entries: u32) {
+        self.stack_entries = entries.max(1);
+    }
     /// Device bytes of its buffers.
     pub fn bytes(&self) -> u64 {
         self.bytes
@@ -682,31 +688,11 @@ impl DeviceTracer {
         rays: &[TraceRay],
         any_hit: bool,
     ) -> Result<DeviceTrace, DeviceTraceError> {
-        loop {
-            match self.trace_once(ctx, s, rays, any_hit) {
-                // Only a tree whose depth was not known (a device-built one) can fill its stack: grow it and retry.
-                Err(DeviceTraceError::Incomplete { status: TraceStatus::StackFull, .. })
-                    if s.stack_entries < (1 << 20) =>
-                {
-                    s.stack_entries *= 2;
-                }
-                other => return other,
-            }
-        }
-    }
-
-    fn trace_once(
-        &self,
-        ctx: &Context,
-        s: &DeviceStructure,
-        rays: &[TraceRay],
-        any_hit: bool,
-    ) -> Result<DeviceTrace, DeviceTraceError> {
         if rays.is_empty() {
             return Ok(DeviceTrace { hits: Vec::new(), gpu_ms: 0.0, invocations: 0 });
         }
         let ray_buf = ctx.upload("trace rays", rays)?;
-        self.trace_buffer_once(ctx, s, &ray_buf, rays.len() as u64, any_hit)
+        self.trace_buffer(ctx, s, &ray_buf, rays.len() as u64, any_hit)
     }
 
     /// [`DeviceTracer::trace`] of `count` rays already on the device (`rays`, [`TraceRay`]s: made by
@@ -725,6 +711,7 @@ impl DeviceTracer {
     ) -> Result<DeviceTrace, DeviceTraceError> {
         loop {
             match self.trace_buffer_once(ctx, s, rays, count, any_hit) {
+                // Only a tree whose depth was not known (a device-built one) can fill its stack: grow it and retry.
                 Err(DeviceTraceError::Incomplete { status: TraceStatus::StackFull, .. })
                     if s.stack_entries < (1 << 20) =>
                 {
