@@ -19,7 +19,9 @@ use meshchar::characterize::Features;
 use meshchar::characterize::{cpu, Characterization, Characterizer, ClassRule, Params};
 use meshchar::cost::CostModel;
 use meshchar::mesh::Animation;
-use meshchar::select::{select_for_scene, CalibratedPolicy, PolicyChoice, Report, TargetWorkload};
+use meshchar::select::{
+    select_for_scene_within, Budget, BuildBounds, CalibratedPolicy, PolicyChoice, Report, TargetWorkload,
+};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -107,7 +109,11 @@ fn process(
         frames: args.frames,
         animation_frames: None,
     };
-    let chosen = select_for_scene(&scene.name, &results, &features, policy, &workload);
+    // The build bounds from the meshes themselves (tighter than the features'): no structure whose grid or kd-tree
+    // references would exceed the default budget is a candidate.
+    let bounds = BuildBounds::of_frames(&scene.frames)?;
+    let chosen =
+        select_for_scene_within(&scene.name, &results, &features, policy, &workload, bounds, Budget::default());
     let dynamic = scene.frames.len() > 1;
     for (i, (frame, c)) in scene.frames.iter().zip(&results).enumerate() {
         let mut report = Report::new(if dynamic { scene.name.clone() } else { frame.name.clone() }, c)

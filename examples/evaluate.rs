@@ -29,7 +29,7 @@ use meshchar::eval::record::load_samples as load_oracle_samples;
 use meshchar::eval::{OracleConfig, Rebuild, SceneEvaluation};
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::Animation;
-use meshchar::select::{select_for_scene, PolicyChoice, TargetWorkload};
+use meshchar::select::{select_for_scene_within, Budget, BuildBounds, PolicyChoice, TargetWorkload};
 use meshchar::trace::workload::{build_workload, mesh_bounds};
 use meshchar::trace::Camera;
 use std::io::Write;
@@ -169,7 +169,9 @@ fn select(
         frames: config.frames.unwrap_or(1) as u64,
         animation_frames: config.frames,
     };
-    let chosen = select_for_scene(&scene.name, &chars, &features, choice, &workload);
+    // The build bounds from the meshes (tighter than the features'): over-budget structures are no candidates.
+    let bounds = BuildBounds::of_frames(&scene.frames)?;
+    let chosen = select_for_scene_within(&scene.name, &chars, &features, choice, &workload, bounds, Budget::default());
     let (sel, preds) = (chosen.selection, chosen.predicted);
     let name = sel.structure;
     Ok((name, sel.reasons, preds))

@@ -246,3 +246,16 @@ fn the_report_lists_the_exclusions() {
     assert!(v.get("reasons").is_some() && v.get("selected").is_some());
     assert!(r.to_text().contains("excluded"));
 }
+
+/// The bounds of an animation are the largest over its frames; no frame, no bounds.
+#[test]
+fn bounds_of_frames_are_the_largest_frame_bounds() {
+    let a = generate::fan_polygon(300);
+    let b = generate::random_soup(2000, 3);
+    let both = meshchar::select::BuildBounds::of_frames(&[a.clone(), b.clone()]).unwrap().unwrap();
+    let want =
+        meshchar::select::BuildBounds::of_mesh(&a).unwrap().max(&meshchar::select::BuildBounds::of_mesh(&b).unwrap());
+    assert_eq!(both, want);
+    assert!(both.grid_references >= meshchar::select::BuildBounds::of_mesh(&a).unwrap().grid_references);
+    assert_eq!(meshchar::select::BuildBounds::of_frames(&[]).unwrap(), None);
+}

@@ -294,6 +294,20 @@ impl BuildBounds {
         BuildBounds::of_mesh_with(mesh, &GridRule::default())
     }
 
+    /// The largest bounds over the frames of a scene ([`BuildBounds::of_mesh`] of each, [`BuildBounds::max`]);
+    /// `None` for no frame.
+    pub fn of_frames(frames: &[Mesh]) -> Result<Option<BuildBounds>, MeshError> {
+        let mut out: Option<BuildBounds> = None;
+        for f in frames {
+            let b = BuildBounds::of_mesh(f)?;
+            out = Some(match out {
+                Some(o) => o.max(&b),
+                None => b,
+            });
+        }
+        Ok(out)
+    }
+
     /// [`BuildBounds::of_mesh`] under a given grid rule.
     pub fn of_mesh_with(mesh: &Mesh, rule: &GridRule) -> Result<BuildBounds, MeshError> {
         mesh.validate()?;
