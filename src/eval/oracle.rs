@@ -178,6 +178,64 @@ impl<'a> DeviceOracle<'a> {
         Ok(buf)
     }
 
+    /// The shadow workload of `camera` at `res x res` over `mesh` made on the device (primary rays, their closest
+    /// hits in a binned-SAH BVH, the shadow rays, in one submission), checked against the host's `want`.
+    fn shadow_rays(
+        &self,
+        camera: &Camera,
+        res: u32,
+        mesh: &Mesh,
+        want: &[crate::geom::Ray],
+    ) -> Result<crate::gpu::Buffer, String> {
+        use crate::accel::device::{ShadowInputs, TraceBuffers, TraceHit};
+        use crate::gpu::MemoryKind;
+        let e = |x: &dyn std::fmt::Display| x.to_string();
+        let ctx = self.ctx;
+        let reference = crate::accel::bvh::Bvh::build(mesh).map_err(|x| e(&x))?;
+        let layout = reference.device_layout().ok_or("no device layout for the reference BVH")?;
+        let s = DeviceStructure::upload(ctx, &layout).map_err(|x| e(&x))?;
+        let n = res as u64 * res as u64;
+        let bounds = mesh_bounds(mesh);
+        let buffers = crate::gpu::MeshBuffers::upload(ctx, &mesh.positions, &mesh.indices).map_err(|x| e(&x))?;
+        let view = buffers.view();
+        let mk = |name: &str, bytes: u64| ctx.create_buffer(name, bytes, MemoryKind::DeviceLocal).map_err(|x| e(&x));
+        let primary = mk("primary rays", n * std::mem::size_of::<TraceRay>() as u64)?;
+        let hits = mk("primary hits", n * std::mem::size_of::<TraceHit>() as u64)?;
+        let (_, stack_bytes) = self.tracer.stack_layout(ctx, &s, n);
+        let stack = mk("stacks", stack_bytes)?;
+        let out = mk("shadow rays", n * std::mem::size_of::<TraceRay>() as u64)?;
+        let counts = mk("shadow counts", DeviceTracer::shadow_counts_bytes(n))?;
+        let pin = crate::accel::device::Pinhole::from(camera);
+        let inputs = ShadowInputs {
+            view: &view,
+            primary: &primary,
+            hits: &hits,
+            count: n,
+            light: crate::trace::workload::default_light(&bounds),
+            bounds,
+        };
+        ctx.submit_and_wait(|rec| {
+            self.tracer.record_primary_rays(rec, &pin, res, res, &primary)?;
+            rec.dependency(crate::gpu::Pass::Compute, crate::gpu::Pass::Compute);
+            let io = TraceBuffers { rays: &primary, count: n, hits: &hits, stack: &stack };
+            self.tracer.record(rec, &s, &io, false)?;
+            rec.dependency(crate::gpu::Pass::Compute, crate::gpu::Pass::Compute);
+            self.tracer.record_shadow_rays(rec, &inputs, &out, &counts)
+        })
+        .map_err(|x| e(&x))?;
+        let total: Vec<u32> = ctx.read_buffer(&counts, DeviceTracer::shadow_total_offset(n), 1).map_err(|x| e(&x))?;
+        if total[0] as usize != want.len() {
+            return Err(format!("the device made {} shadow rays, the host {}", total[0], want.len()));
+        }
+        let got: Vec<TraceRay> = ctx.read_buffer(&out, 0, want.len()).map_err(|x| e(&x))?;
+        if let Some(i) =
+            want.iter().zip(&got).position(|(a, b)| bytemuck::bytes_of(&TraceRay::from(a)) != bytemuck::bytes_of(b))
+        {
+            return Err(format!("device shadow ray {i} differs from the host's: {:?} vs {:?}", got[i], want[i]));
+        }
+        Ok(out)
+    }
+
     /// Whether the oracle builds `name` on the device (the LBVH and the HLBVH).
     pub fn builds_on_device(name: StructureName) -> bool {
         matches!(name, StructureName::Lbvh | StructureName::Hlbvh)
@@ -493,7 +551,7 @@ impl SceneEvaluation {
             hits_checked: (self.trace_backend == TraceBackend::Vulkan)
                 .then(|| "every ray against the CPU reference (triangle and t bits)".to_string()),
             ray_generation: (self.trace_backend == TraceBackend::Vulkan)
-                .then(|| if self.workload == WorkloadKind::Primary { "device" } else { "host, uploaded" }.to_string()),
+                .then(|| if self.workload == WorkloadKind::Diffuse { "host, uploaded" } else { "device" }.to_string()),
             triangles: self.triangles,
             workload: self.workload,
         }
@@ -598,10 +656,14 @@ pub fn evaluate_scene_on(
             ),
             _ => None,
         };
-        // Primary rays are made on the device (never uploaded), checked once against the host's, bit for bit.
-        let device_rays = match device {
-            Some(d) if config.workload == WorkloadKind::Primary => {
+        // Primary and shadow rays are made on the device (never uploaded), checked once against the host's, bit
+        // for bit.
+        let device_rays = match (device, config.workload) {
+            (Some(d), WorkloadKind::Primary) => {
                 Some(d.primary_rays(&camera, config.resolution, &rays.rays).map_err(EvalError::Device)?)
+            }
+            (Some(d), WorkloadKind::Shadow) => {
+                Some(d.shadow_rays(&camera, config.resolution, mesh, &rays.rays).map_err(EvalError::Device)?)
             }
             _ => None,
         };
