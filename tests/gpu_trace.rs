@@ -388,12 +388,12 @@ fn primary_rays_on_the_device_equal_the_host_rays() {
     gpu_support::assert_no_validation_messages(&ctx);
 }
 
-/// Shadow rays made on the device from the primary hits equal `secondary_rays(Shadow, ...)` bit for bit and in
+/// Shadow and diffuse rays made on the device from the primary hits equal `secondary_rays` bit for bit and in
 /// order (misses spawn none), on a scan, a teapot in a stadium, and a zero-area scene (no hit, no ray).
 #[test]
-fn shadow_rays_on_the_device_equal_the_host_rays() {
-    use meshchar::accel::device::{Pinhole, ShadowInputs};
-    use meshchar::trace::workload::{default_light, primary_rays, secondary_rays};
+fn secondary_rays_on_the_device_equal_the_host_rays() {
+    use meshchar::accel::device::{Pinhole, SecondaryInputs};
+    use meshchar::trace::workload::{default_light, primary_rays, secondary_rays, WORKLOAD_SEED};
     let Some(ctx) = gpu_support::context() else { return };
     let tracer = DeviceTracer::new(&ctx).expect("tracer");
     let bunny = load_mesh(&common::shared_mesh("stanford-bunny/bun_zipper_res3.ply")).unwrap();
@@ -407,34 +407,38 @@ fn shadow_rays_on_the_device_equal_the_host_rays() {
         let bvh = build_structure(StructureName::Bvh, &mesh).unwrap();
         let cpu_hits: Vec<_> = primary.iter().map(|r| bvh.intersect(r, &mut TraceCounters::default())).collect();
         let light = default_light(&bounds);
-        let want = secondary_rays(WorkloadKind::Shadow, &mesh, &primary, &cpu_hits, light, 0);
-        let mut s = DeviceStructure::upload(&ctx, &bvh.device_layout().unwrap()).unwrap();
-        let prim_buf = tracer.primary_rays(&ctx, &Pinhole::from(&cam), w, h).unwrap();
-        let traced = tracer.trace_buffer(&ctx, &mut s, &prim_buf, primary.len() as u64, false).unwrap();
-        let hits_buf = ctx.upload("hits", &traced.hits).unwrap();
-        let mb = meshchar::gpu::MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).unwrap();
-        let view = mb.view();
-        let inputs = ShadowInputs {
-            view: &view,
-            primary: &prim_buf,
-            hits: &hits_buf,
-            count: primary.len() as u64,
-            light,
-            bounds,
-        };
-        let (buf, n) = tracer.shadow_rays(&ctx, &inputs).unwrap();
-        assert_eq!(n as usize, want.rays.len(), "{name}: shadow ray count");
-        // The zero-area scene is never hit: no shadow ray at all; the others have hits and misses.
-        if name != "zero area" {
-            assert!(n > 0 && (n as usize) < primary.len(), "{name}: {n} of {} (hits and misses)", primary.len());
-        }
-        let got: Vec<TraceRay> = ctx.read_buffer(&buf, 0, n as usize).unwrap();
-        for (i, (a, b)) in want.rays.iter().zip(&got).enumerate() {
-            assert_eq!(
-                bytemuck::bytes_of(&TraceRay::from(a)),
-                bytemuck::bytes_of(b),
-                "{name}: shadow ray {i}: {a:?} vs {b:?}"
-            );
+        for kind in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
+            let want = secondary_rays(kind, &mesh, &primary, &cpu_hits, light, WORKLOAD_SEED);
+            let mut s = DeviceStructure::upload(&ctx, &bvh.device_layout().unwrap()).unwrap();
+            let prim_buf = tracer.primary_rays(&ctx, &Pinhole::from(&cam), w, h).unwrap();
+            let traced = tracer.trace_buffer(&ctx, &mut s, &prim_buf, primary.len() as u64, false).unwrap();
+            let hits_buf = ctx.upload("hits", &traced.hits).unwrap();
+            let mb = meshchar::gpu::MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).unwrap();
+            let view = mb.view();
+            let inputs = SecondaryInputs {
+                kind,
+                seed: WORKLOAD_SEED,
+                view: &view,
+                primary: &prim_buf,
+                hits: &hits_buf,
+                count: primary.len() as u64,
+                light,
+                bounds,
+            };
+            let (buf, n) = tracer.secondary_rays(&ctx, &inputs).unwrap();
+            assert_eq!(n as usize, want.rays.len(), "{name} {kind:?}: ray count");
+            // The zero-area scene is never hit: no shadow ray at all; the others have hits and misses.
+            if name != "zero area" {
+                assert!(n > 0 && (n as usize) < primary.len(), "{name}: {n} of {} (hits and misses)", primary.len());
+            }
+            let got: Vec<TraceRay> = ctx.read_buffer(&buf, 0, n as usize).unwrap();
+            for (i, (a, b)) in want.rays.iter().zip(&got).enumerate() {
+                assert_eq!(
+                    bytemuck::bytes_of(&TraceRay::from(a)),
+                    bytemuck::bytes_of(b),
+                    "{name} {kind:?}: ray {i}: {a:?} vs {b:?}"
+                );
+            }
         }
     }
     gpu_support::assert_no_validation_messages(&ctx);

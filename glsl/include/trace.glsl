@@ -81,6 +81,21 @@ struct TraceHit {
 #define TRACE_GRID_WIDEN_BITS 0x3727c5acu  // 1e-5f: relative margin of the grid's cull test.
 #define TRACE_FLT_EPSILON_BITS 0x34000000u // f32::EPSILON = 2^-23.
 
+// Coefficients of turn_sin_cos (trace::workload::turn_sin_cos on the host reads these same constants): pi / 2 and
+// the Taylor coefficients of sin and cos on [0, pi / 2), as f32 bits.
+#define TRACE_HALF_PI_BITS 0x3fc90fdbu // pi / 2.
+#define TRACE_SIN3_BITS 0xbe2aaaabu    // -1 / 3!.
+#define TRACE_SIN5_BITS 0x3c088889u    // 1 / 5!.
+#define TRACE_SIN7_BITS 0xb9500d01u    // -1 / 7!.
+#define TRACE_SIN9_BITS 0x3638ef1du    // 1 / 9!.
+#define TRACE_SIN11_BITS 0xb2d7322bu   // -1 / 11!.
+#define TRACE_COS2_BITS 0xbf000000u    // -1 / 2!.
+#define TRACE_COS4_BITS 0x3d2aaaabu    // 1 / 4!.
+#define TRACE_COS6_BITS 0xbab60b61u    // -1 / 6!.
+#define TRACE_COS8_BITS 0x37d00d01u    // 1 / 8!.
+#define TRACE_COS10_BITS 0xb493f27eu   // -1 / 10!.
+#define TRACE_COS12_BITS 0x310f76c7u   // 1 / 12!.
+
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer TriRecordRef { TriRecord rec; };
 layout(buffer_reference, std430, buffer_reference_align = 8) readonly buffer KdNodeRef { KdNode node; };
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer BihNodeRef { BihNode node; };
@@ -245,6 +260,33 @@ bool closer_hit(TriRecord tri, vec3 o, vec3 d, float tmin, inout TraceState st) 
     st.best_u = tuv.y;
     st.best_v = tuv.z;
     return true;
+}
+
+// sin and cos of 2 pi u for u in [0, 1), from additions and multiplications only (the host's turn_sin_cos, to the
+// bit): the quadrant from 4u, then Taylor polynomials of degree 11 and 12 on [0, pi / 2) (error below 1e-7).
+vec2 turn_sin_cos(float u) {
+    float t = f_mul(u, 4.0);
+    float q = floor(t);
+    float x = f_mul(f_sub(t, q), uintBitsToFloat(TRACE_HALF_PI_BITS));
+    float x2 = f_mul(x, x);
+    float sp = uintBitsToFloat(TRACE_SIN11_BITS);
+    sp = f_add(uintBitsToFloat(TRACE_SIN9_BITS), f_mul(x2, sp));
+    sp = f_add(uintBitsToFloat(TRACE_SIN7_BITS), f_mul(x2, sp));
+    sp = f_add(uintBitsToFloat(TRACE_SIN5_BITS), f_mul(x2, sp));
+    sp = f_add(uintBitsToFloat(TRACE_SIN3_BITS), f_mul(x2, sp));
+    float sn = f_mul(x, f_add(1.0, f_mul(x2, sp)));
+    float cp = uintBitsToFloat(TRACE_COS12_BITS);
+    cp = f_add(uintBitsToFloat(TRACE_COS10_BITS), f_mul(x2, cp));
+    cp = f_add(uintBitsToFloat(TRACE_COS8_BITS), f_mul(x2, cp));
+    cp = f_add(uintBitsToFloat(TRACE_COS6_BITS), f_mul(x2, cp));
+    cp = f_add(uintBitsToFloat(TRACE_COS4_BITS), f_mul(x2, cp));
+    cp = f_add(uintBitsToFloat(TRACE_COS2_BITS), f_mul(x2, cp));
+    float cs = f_add(1.0, f_mul(x2, cp));
+    uint k = uint(int(q)) & 3u;
+    if (k == 0u) return vec2(sn, cs);
+    if (k == 1u) return vec2(cs, -sn);
+    if (k == 2u) return vec2(-sn, -cs);
+    return vec2(-cs, sn);
 }
 
 TriRecord tri_record(uint64_t base, uint i) { return TriRecordRef(base + 48ul * uint64_t(i)).rec; }

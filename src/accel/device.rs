@@ -40,7 +40,7 @@ use glam::Vec3;
 pub use crate::gpu::shaders::trace::Push as TracePush;
 pub use crate::gpu::shaders::trace_rays::Push as TraceRaysPush;
 pub use crate::gpu::shaders::trace_records::Push as TraceRecordsPush;
-pub use crate::gpu::shaders::trace_shadow::Push as TraceShadowPush;
+pub use crate::gpu::shaders::trace_secondary::Push as TraceSecondaryPush;
 pub use crate::gpu::shaders::{BihNode, BvhNode, KdNode, TraceHit, TraceRay, TraceScene, TriRecord};
 
 /// The most bytes of traversal stacks one dispatch uses (all invocations together): 64 MiB, or less where the
@@ -470,15 +470,19 @@ pub struct DeviceTracer {
     kernels: Vec<Kernel<TracePush>>,
     records: Kernel<TraceRecordsPush>,
     rays: Kernel<TraceRaysPush>,
-    shadow: Kernel<TraceShadowPush>,
+    secondary: Kernel<TraceSecondaryPush>,
 }
 
-/// Primary rays per invocation of the shadow-ray kernel.
-const SHADOW_CHUNK: u32 = 64;
+/// Primary rays per invocation of the secondary-ray kernel.
+const SECONDARY_CHUNK: u32 = 64;
 
-/// What the shadow rays of a primary pass are made from ([`DeviceTracer::record_shadow_rays`]).
+/// What the secondary rays of a primary pass are made from ([`DeviceTracer::record_secondary_rays`]).
 #[derive(Clone, Copy, Debug)]
-pub struct ShadowInputs<'a> {
+pub struct SecondaryInputs<'a> {
+    /// Shadow or diffuse rays (`Primary` is refused).
+    pub kind: crate::geom::WorkloadKind,
+    /// Seed of the diffuse rays' generator (`trace::workload::build_workload` uses `0x6d65_7368_6368_6172`).
+    pub seed: u64,
     /// The mesh the hits refer to.
     pub view: &'a crate::gpu::GeometryView<'a>,
     /// The primary rays ([`TraceRay`]s).
@@ -563,8 +567,8 @@ impl DeviceTracer {
         let records =
             Kernel::new(ctx, &KernelDesc::new(&shaders::trace_records::INFO).constant("ITEMS", RECORD_ITEMS))?;
         let rays = Kernel::new(ctx, &KernelDesc::new(&shaders::trace_rays::INFO))?;
-        let shadow = Kernel::new(ctx, &KernelDesc::new(&shaders::trace_shadow::INFO))?;
-        Ok(DeviceTracer { kernels, records, rays, shadow })
+        let secondary = Kernel::new(ctx, &KernelDesc::new(&shaders::trace_secondary::INFO))?;
+        Ok(DeviceTracer { kernels, records, rays, secondary })
     }
 
     /// A device-built LBVH or HLBVH ([`crate::accel::gpu::BvhBuilder`]) made traceable on the device, without a
@@ -836,30 +840,31 @@ impl DeviceTracer {
 }
 
 impl DeviceTracer {
-    /// Bytes of the counts buffer [`DeviceTracer::record_shadow_rays`] needs for `count` primary rays.
-    pub fn shadow_counts_bytes(count: u64) -> u64 {
-        Self::shadow_total_offset(count) + 4
+    /// Bytes of the counts buffer [`DeviceTracer::record_secondary_rays`] needs for `count` primary rays.
+    pub fn secondary_counts_bytes(count: u64) -> u64 {
+        Self::secondary_total_offset(count) + 4
     }
 
-    /// Byte offset, in the counts buffer of [`DeviceTracer::record_shadow_rays`], of the word that holds the number
+    /// Byte offset, in the counts buffer of [`DeviceTracer::record_secondary_rays`], of the word that holds the number
     /// of shadow rays made from `count` primary rays.
-    pub fn shadow_total_offset(count: u64) -> u64 {
-        4 * count.div_ceil(SHADOW_CHUNK as u64)
+    pub fn secondary_total_offset(count: u64) -> u64 {
+        4 * count.div_ceil(SECONDARY_CHUNK as u64)
     }
 
-    /// Records the shadow rays of a primary pass into `out` (room for `inputs.count` rays): from every closest hit,
-    /// the ray of `trace::workload::secondary_rays` for shadows, bit for bit and in the same order (misses and
-    /// zero-area triangles spawn none), so a shadow workload never crosses the bus. `counts` (at least
-    /// [`DeviceTracer::shadow_counts_bytes`]) ends with the number of rays made in its last word. Three dispatches
+    /// Records the shadow or diffuse rays of a primary pass into `out` (room for `inputs.count` rays): from every
+    /// closest hit, the ray of `trace::workload::secondary_rays`, bit for bit and in the same order (misses and
+    /// zero-area triangles spawn none; diffuse directions from the same SplitMix64 stream per primary ray), so a
+    /// secondary workload never crosses the bus. `counts` (at least
+    /// [`DeviceTracer::secondary_counts_bytes`]) ends with the number of rays made in its last word. Three dispatches
     /// with barriers between them; none before (the caller orders the primary trace's writes before it) or after.
     ///
     /// # Errors
     ///
     /// [`GpuError::Buffer`] when a buffer is too small.
-    pub fn record_shadow_rays(
+    pub fn record_secondary_rays(
         &self,
         rec: &mut Recorder<'_>,
-        inputs: &ShadowInputs<'_>,
+        inputs: &SecondaryInputs<'_>,
         out: &Buffer,
         counts: &Buffer,
     ) -> Result<(), GpuError> {
@@ -868,15 +873,22 @@ impl DeviceTracer {
         if inputs.primary.size() < ray_bytes
             || inputs.hits.size() < n * std::mem::size_of::<TraceHit>() as u64
             || out.size() < ray_bytes
-            || counts.size() < Self::shadow_counts_bytes(n)
+            || counts.size() < Self::secondary_counts_bytes(n)
         {
-            return Err(GpuError::Buffer(format!("shadow rays: buffers too small for {n} primary rays")));
+            return Err(GpuError::Buffer(format!("secondary rays: buffers too small for {n} primary rays")));
         }
-        let chunks = n.div_ceil(SHADOW_CHUNK as u64);
+        let kind = match inputs.kind {
+            crate::geom::WorkloadKind::Shadow => 0,
+            crate::geom::WorkloadKind::Diffuse => 1,
+            crate::geom::WorkloadKind::Primary => {
+                return Err(GpuError::Buffer("secondary rays: primary is not a secondary workload".into()))
+            }
+        };
+        let chunks = n.div_ceil(SECONDARY_CHUNK as u64);
         let offset = 1e-5 * inputs.bounds.extent().length();
         let l = inputs.light;
         let push = |phase: u32| {
-            crate::gpu::geometry_push!(TraceShadowPush, inputs.view, {
+            crate::gpu::geometry_push!(TraceSecondaryPush, inputs.view, {
                 light_x: l.x,
                 light_y: l.y,
                 light_z: l.z,
@@ -887,22 +899,23 @@ impl DeviceTracer {
                 out_rays: out.address(),
                 count: n,
                 triangles: inputs.view.triangle_count(),
-                chunk: SHADOW_CHUNK,
+                chunk: SECONDARY_CHUNK,
                 phase: phase,
                 tmax_scale: 1.0 - 1e-5,
-                pad: 0,
+                kind: kind,
+                seed: inputs.seed,
             })
         };
-        let groups = rec.groups_for(chunks, self.shadow.workgroup_size() as u64);
+        let groups = rec.groups_for(chunks, self.secondary.workgroup_size() as u64);
         // SAFETY: reads `n` primary rays and hits and the view's triangles by index (checked against its count in
         // the kernel), writes at most `n` rays and `chunks + 1` counts, all inside the buffers checked above.
-        unsafe { rec.dispatch(&self.shadow, &push(0), groups) };
+        unsafe { rec.dispatch(&self.secondary, &push(0), groups) };
         rec.dependency(Pass::Compute, Pass::Compute);
         // SAFETY: as above (one invocation scans the counts).
-        unsafe { rec.dispatch(&self.shadow, &push(1), 1) };
+        unsafe { rec.dispatch(&self.secondary, &push(1), 1) };
         rec.dependency(Pass::Compute, Pass::Compute);
         // SAFETY: as above.
-        unsafe { rec.dispatch(&self.shadow, &push(2), groups) };
+        unsafe { rec.dispatch(&self.secondary, &push(2), groups) };
         Ok(())
     }
 
@@ -911,17 +924,17 @@ impl DeviceTracer {
     ///
     /// # Errors
     ///
-    /// A device error, or [`GpuError::Buffer`] as [`DeviceTracer::record_shadow_rays`].
-    pub fn shadow_rays(&self, ctx: &Context, inputs: &ShadowInputs<'_>) -> Result<(Buffer, u64), GpuError> {
+    /// A device error, or [`GpuError::Buffer`] as [`DeviceTracer::record_secondary_rays`].
+    pub fn secondary_rays(&self, ctx: &Context, inputs: &SecondaryInputs<'_>) -> Result<(Buffer, u64), GpuError> {
         let n = inputs.count;
         let out =
             ctx.create_buffer("shadow rays", n * std::mem::size_of::<TraceRay>() as u64, MemoryKind::DeviceLocal)?;
-        let counts = ctx.create_buffer("shadow counts", Self::shadow_counts_bytes(n), MemoryKind::DeviceLocal)?;
+        let counts = ctx.create_buffer("shadow counts", Self::secondary_counts_bytes(n), MemoryKind::DeviceLocal)?;
         if n == 0 {
             return Ok((out, 0));
         }
-        ctx.submit_and_wait(|rec| self.record_shadow_rays(rec, inputs, &out, &counts))?;
-        let total: Vec<u32> = ctx.read_buffer(&counts, Self::shadow_total_offset(n), 1)?;
+        ctx.submit_and_wait(|rec| self.record_secondary_rays(rec, inputs, &out, &counts))?;
+        let total: Vec<u32> = ctx.read_buffer(&counts, Self::secondary_total_offset(n), 1)?;
         Ok((out, total[0] as u64))
     }
 }

@@ -178,16 +178,17 @@ impl<'a> DeviceOracle<'a> {
         Ok(buf)
     }
 
-    /// The shadow workload of `camera` at `res x res` over `mesh` made on the device (primary rays, their closest
-    /// hits in a binned-SAH BVH, the shadow rays, in one submission), checked against the host's `want`.
-    fn shadow_rays(
+    /// The shadow or diffuse workload of `camera` at `res x res` over `mesh` made on the device (primary rays, their
+    /// closest hits in a binned-SAH BVH, the secondary rays, in one submission), checked against the host's `want`.
+    fn secondary_rays(
         &self,
+        kind: WorkloadKind,
         camera: &Camera,
         res: u32,
         mesh: &Mesh,
         want: &[crate::geom::Ray],
     ) -> Result<crate::gpu::Buffer, String> {
-        use crate::accel::device::{ShadowInputs, TraceBuffers, TraceHit};
+        use crate::accel::device::{SecondaryInputs, TraceBuffers, TraceHit};
         use crate::gpu::MemoryKind;
         let e = |x: &dyn std::fmt::Display| x.to_string();
         let ctx = self.ctx;
@@ -204,9 +205,11 @@ impl<'a> DeviceOracle<'a> {
         let (_, stack_bytes) = self.tracer.stack_layout(ctx, &s, n);
         let stack = mk("stacks", stack_bytes)?;
         let out = mk("shadow rays", n * std::mem::size_of::<TraceRay>() as u64)?;
-        let counts = mk("shadow counts", DeviceTracer::shadow_counts_bytes(n))?;
+        let counts = mk("shadow counts", DeviceTracer::secondary_counts_bytes(n))?;
         let pin = crate::accel::device::Pinhole::from(camera);
-        let inputs = ShadowInputs {
+        let inputs = SecondaryInputs {
+            kind,
+            seed: crate::trace::workload::WORKLOAD_SEED,
             view: &view,
             primary: &primary,
             hits: &hits,
@@ -220,18 +223,19 @@ impl<'a> DeviceOracle<'a> {
             let io = TraceBuffers { rays: &primary, count: n, hits: &hits, stack: &stack };
             self.tracer.record(rec, &s, &io, false)?;
             rec.dependency(crate::gpu::Pass::Compute, crate::gpu::Pass::Compute);
-            self.tracer.record_shadow_rays(rec, &inputs, &out, &counts)
+            self.tracer.record_secondary_rays(rec, &inputs, &out, &counts)
         })
         .map_err(|x| e(&x))?;
-        let total: Vec<u32> = ctx.read_buffer(&counts, DeviceTracer::shadow_total_offset(n), 1).map_err(|x| e(&x))?;
+        let total: Vec<u32> =
+            ctx.read_buffer(&counts, DeviceTracer::secondary_total_offset(n), 1).map_err(|x| e(&x))?;
         if total[0] as usize != want.len() {
-            return Err(format!("the device made {} shadow rays, the host {}", total[0], want.len()));
+            return Err(format!("the device made {} secondary rays, the host {}", total[0], want.len()));
         }
         let got: Vec<TraceRay> = ctx.read_buffer(&out, 0, want.len()).map_err(|x| e(&x))?;
         if let Some(i) =
             want.iter().zip(&got).position(|(a, b)| bytemuck::bytes_of(&TraceRay::from(a)) != bytemuck::bytes_of(b))
         {
-            return Err(format!("device shadow ray {i} differs from the host's: {:?} vs {:?}", got[i], want[i]));
+            return Err(format!("device secondary ray {i} differs from the host's: {:?} vs {:?}", got[i], want[i]));
         }
         Ok(out)
     }
@@ -550,8 +554,7 @@ impl SceneEvaluation {
             device: self.device.clone(),
             hits_checked: (self.trace_backend == TraceBackend::Vulkan)
                 .then(|| "every ray against the CPU reference (triangle and t bits)".to_string()),
-            ray_generation: (self.trace_backend == TraceBackend::Vulkan)
-                .then(|| if self.workload == WorkloadKind::Diffuse { "host, uploaded" } else { "device" }.to_string()),
+            ray_generation: (self.trace_backend == TraceBackend::Vulkan).then(|| "device".to_string()),
             triangles: self.triangles,
             workload: self.workload,
         }
@@ -662,10 +665,10 @@ pub fn evaluate_scene_on(
             (Some(d), WorkloadKind::Primary) => {
                 Some(d.primary_rays(&camera, config.resolution, &rays.rays).map_err(EvalError::Device)?)
             }
-            (Some(d), WorkloadKind::Shadow) => {
-                Some(d.shadow_rays(&camera, config.resolution, mesh, &rays.rays).map_err(EvalError::Device)?)
+            (Some(d), kind) => {
+                Some(d.secondary_rays(kind, &camera, config.resolution, mesh, &rays.rays).map_err(EvalError::Device)?)
             }
-            _ => None,
+            (None, _) => None,
         };
         for r in 0..repeats {
             for (si, &name) in names.iter().enumerate() {

@@ -212,8 +212,8 @@ pub struct OracleRecord {
     /// How the device's hits were checked against the CPU reference (`--trace-backend vulkan`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub hits_checked: Option<String>,
-    /// Where the rays were made (`--trace-backend vulkan`): `device` (primary and shadow rays, checked bit for bit
-    /// against the host's once per frame) or `host, uploaded` (diffuse rays).
+    /// Where the rays were made (`--trace-backend vulkan`): `device` (every workload's rays, checked bit for bit
+    /// against the host's once per frame).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ray_generation: Option<String>,
     /// Triangles per frame.

@@ -73,13 +73,42 @@ fn facing_normal(mesh: &Mesh, hit: &Hit, dir: Vec3) -> Option<Vec3> {
 
 pub use crate::rng::SplitMix64;
 
+/// `(sin, cos)` of `2 pi u` for `u` in `[0, 1)`, from additions and multiplications only, so that a device
+/// reproduces it to the bit (`turn_sin_cos` of `glsl/include/trace.glsl`, with the same constants): the quadrant
+/// from `4u`, then Taylor polynomials of degree 11 and 12 in Horner form on `[0, pi / 2)` (error below `1e-7`).
+/// The library `sin` and `cos` differ between platforms in the last bit.
+pub fn turn_sin_cos(u: f32) -> (f32, f32) {
+    use crate::gpu::shaders::layout as l;
+    let c = f32::from_bits;
+    let t = u * 4.0;
+    let q = t.floor();
+    let x = (t - q) * c(l::TRACE_HALF_PI_BITS);
+    let x2 = x * x;
+    let mut sp = c(l::TRACE_SIN11_BITS);
+    for k in [l::TRACE_SIN9_BITS, l::TRACE_SIN7_BITS, l::TRACE_SIN5_BITS, l::TRACE_SIN3_BITS] {
+        sp = c(k) + x2 * sp;
+    }
+    let sn = x * (1.0 + x2 * sp);
+    let mut cp = c(l::TRACE_COS12_BITS);
+    for k in [l::TRACE_COS10_BITS, l::TRACE_COS8_BITS, l::TRACE_COS6_BITS, l::TRACE_COS4_BITS, l::TRACE_COS2_BITS] {
+        cp = c(k) + x2 * cp;
+    }
+    let cs = 1.0 + x2 * cp;
+    match (q as i32) & 3 {
+        0 => (sn, cs),
+        1 => (cs, -sn),
+        2 => (-sn, -cs),
+        _ => (-cs, sn),
+    }
+}
+
 /// Cosine-distributed unit direction about the unit normal `n`.
 fn cosine_direction(n: Vec3, rng: &mut SplitMix64) -> Vec3 {
     let u1 = rng.next_f32();
     let u2 = rng.next_f32();
     let r = u1.sqrt();
-    let phi = 2.0 * std::f32::consts::PI * u2;
-    let (x, y) = (r * phi.cos(), r * phi.sin());
+    let (sn, cs) = turn_sin_cos(u2);
+    let (x, y) = (r * cs, r * sn);
     let z = (1.0 - u1).max(0.0).sqrt();
     let (t, b) = n.any_orthonormal_pair();
     (t * x + b * y + n * z).try_normalize().unwrap_or(n)
@@ -122,6 +151,9 @@ pub fn secondary_rays(
     RaySet { kind, rays, any_hit: kind == WorkloadKind::Shadow }
 }
 
+/// Seed of the diffuse rays of [`build_workload`] (the device makes the same rays from it).
+pub const WORKLOAD_SEED: u64 = 0x6d65_7368_6368_6172;
+
 /// The rays of a workload for one frame: primary rays of `camera` at `resolution x resolution`, or secondary rays
 /// from their hits in `reference` (traced here, before any timing).
 pub fn build_workload(
@@ -138,5 +170,22 @@ pub fn build_workload(
     }
     let out = trace(reference, &primary);
     let light = default_light(&mesh_bounds(mesh));
-    secondary_rays(kind, mesh, &primary.rays, &out.hits, light, 0x6d65_7368_6368_6172)
+    secondary_rays(kind, mesh, &primary.rays, &out.hits, light, WORKLOAD_SEED)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::turn_sin_cos;
+
+    #[test]
+    fn turn_sin_cos_is_close_to_the_library() {
+        for i in 0..=4096 {
+            let u = (i as f32 / 4096.0).min(1.0 - f32::EPSILON / 2.0);
+            let (s, c) = turn_sin_cos(u);
+            let phi = std::f64::consts::TAU * u as f64;
+            assert!((s as f64 - phi.sin()).abs() < 2e-7 && (c as f64 - phi.cos()).abs() < 2e-7, "{u}: {s} {c}");
+        }
+        assert_eq!(turn_sin_cos(0.0), (0.0, 1.0));
+        assert_eq!(turn_sin_cos(0.25).0, 1.0);
+    }
 }

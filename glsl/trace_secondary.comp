@@ -1,7 +1,8 @@
 #version 460
-// Shadow rays on the device: from the closest hits of primary rays, the rays of trace::workload::secondary_rays
-// (Shadow), bit for bit and in the same order (a primary ray that misses, or hits a zero-area triangle, spawns
-// nothing), so a shadow workload is never uploaded. Three dispatches of this kernel, PHASE in the push constants:
+// Secondary rays on the device: from the closest hits of primary rays, the shadow rays (KIND 0) or diffuse rays
+// (KIND 1) of trace::workload::secondary_rays, bit for bit and in the same order (a primary ray that misses, or hits a
+// zero-area triangle, spawns nothing), so a secondary workload is never uploaded. Diffuse directions come from the
+// same SplitMix64 stream per primary ray as on the host and the host's turn_sin_cos. Three dispatches of this kernel, PHASE in the push constants:
 //   0: invocation c counts the rays spawned by primary rays c * CHUNK .. (c + 1) * CHUNK into counts[c];
 //   1: one invocation turns counts into exclusive offsets (counts[chunks] = the total);
 //   2: invocation c writes its chunk's rays at counts[c] onward.
@@ -33,7 +34,8 @@ layout(push_constant) uniform Push {
     uint chunk;            // Primary rays per invocation (CHUNK).
     uint phase;            // 0 count, 1 scan, 2 write.
     float tmax_scale;      // 1 - 1e-5 as the host computes it in f32.
-    uint pad;              // Padding.
+    uint kind;             // 0: shadow rays; 1: diffuse rays.
+    uint64_t seed;         // Seed of the diffuse rays' generator (the stream of primary ray k is seeded seed ^ k * M).
 } pc;
 
 #include "geometry.glsl"
@@ -42,7 +44,37 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Ra
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer HitIn { TraceHit hit; };
 layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer RayOut { TraceRay ray; };
 
-// The shadow ray of primary ray k, or false.
+// SplitMix64 (rng::SplitMix64 on the host).
+uint64_t splitmix_next(inout uint64_t state) {
+    state += 0x9e3779b97f4a7c15ul;
+    uint64_t z = state;
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ul;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebul;
+    return z ^ (z >> 31);
+}
+float splitmix_f32(inout uint64_t state) { return f_mul(float(splitmix_next(state) >> 40), uintBitsToFloat(0x33800000u)); }
+
+// A cosine-distributed unit direction about the unit normal n (cosine_direction on the host, glam's
+// any_orthonormal_pair for the tangents).
+vec3 cosine_direction(vec3 n, inout uint64_t state) {
+    float u1 = splitmix_f32(state);
+    float u2 = splitmix_f32(state);
+    float r = sqrt_rn(u1);
+    vec2 sc = turn_sin_cos(u2);
+    float x = f_mul(r, sc.y);
+    float y = f_mul(r, sc.x);
+    float z = sqrt_rn(max(f_sub(1.0, u1), 0.0));
+    float sgn = (floatBitsToUint(n.z) & 0x80000000u) != 0u ? -1.0 : 1.0;
+    float a = div_rn(-1.0, f_add(sgn, n.z));
+    float b = f_mul(f_mul(n.x, n.y), a);
+    vec3 t = vec3(f_add(1.0, f_mul(f_mul(f_mul(sgn, n.x), n.x), a)), f_mul(sgn, b), f_mul(-sgn, n.x));
+    vec3 bt = vec3(b, f_add(sgn, f_mul(f_mul(n.y, n.y), a)), -n.y);
+    vec3 d = v_add(v_add(v_scale(t, x), v_scale(bt, y)), v_scale(n, z));
+    float rcp = div_rn(1.0, sqrt_rn(dot3(d, d)));
+    return (is_finite_f32(rcp) && rcp > 0.0) ? v_scale(d, rcp) : n;
+}
+
+// The secondary ray of primary ray k, or false.
 bool shadow_ray(uint64_t k, out TraceRay s) {
     s.origin = vec3(0.0);
     s.tmin = 0.0;
@@ -63,6 +95,13 @@ bool shadow_ray(uint64_t k, out TraceRay s) {
     vec3 p = v_add(r.origin, v_scale(r.dir, h.t));
     float off = f_add(pc.offset, f_mul(uintBitsToFloat(0x358637bdu), max3(abs(p)))); // 1e-6f
     vec3 o = v_add(p, v_scale(n, off));
+    if (pc.kind == 1u) {
+        uint64_t state = pc.seed ^ (k * 0x2545f4914f6cdd1dul);
+        s.origin = o;
+        s.dir = cosine_direction(n, state);
+        s.tmax = uintBitsToFloat(0x7f800000u);
+        return true;
+    }
     vec3 to = v_sub(vec3(pc.light_x, pc.light_y, pc.light_z), o);
     float dist = sqrt_rn(dot3(to, to));
     if (!(dist > 0.0 && is_finite_f32(dist))) return false;
