@@ -12,10 +12,12 @@
 //! of `f32::MAX` instead of infinity, so that no slab test ever computes `0 * inf`.
 
 mod aabb;
+mod clip;
 mod ray;
 mod triangle;
 
 pub use aabb::Aabb;
+pub(crate) use clip::Polygon;
 pub(crate) use ray::RayInv;
 #[cfg(test)]
 pub(crate) use ray::SLAB_ROBUST;
