@@ -526,3 +526,50 @@ fn every_example_runs_on_a_small_input() {
     assert_eq!(ran, EXAMPLES, "every example on a good input");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// An oracle record of `docs/data/oracle-shadow.jsonl` (a CPU record), retraced as `backend` on `uuid` when given.
+fn oracle_line(device_uuid: Option<&str>) -> String {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("docs/data/oracle-shadow.jsonl")).expect("the CPU oracle file");
+    let mut v: serde_json::Value = serde_json::from_str(text.lines().next().expect("a record")).expect("a record");
+    if let Some(uuid) = device_uuid {
+        v["trace_backend"] = serde_json::json!("vulkan");
+        v["device"] = serde_json::json!({
+            "name": "llvmpipe (LLVM 15.0.6, 256 bits)",
+            "device_type": "cpu",
+            "driver": "llvmpipe Mesa 22.3.6 (LLVM 15.0.6)",
+            "driver_version": 1,
+            "device_uuid": uuid,
+        });
+    }
+    v.to_string() + "\n"
+}
+
+/// `calibrate --from-oracle` and `evaluate --compare-policies` refuse records of two tracers (a CPU and a device
+/// record; two devices), exit 1 and name both records; `--trace-backend vulkan` refuses CPU records.
+#[test]
+fn one_fit_reads_the_records_of_one_tracer() {
+    let dir = inputs("mixed-tracers");
+    let cpu = dir.join("cpu.jsonl");
+    let lavapipe = dir.join("lavapipe.jsonl");
+    let other = dir.join("other-device.jsonl");
+    std::fs::write(&cpu, oracle_line(None)).unwrap();
+    std::fs::write(&lavapipe, oracle_line(Some("6d65736132322e332e36000000000000"))).unwrap();
+    std::fs::write(&other, oracle_line(Some("00112233445566778899aabbccddeeff"))).unwrap();
+    for (a, b, found) in [(&cpu, &lavapipe, ": traced with vulkan on llvmpipe"), (&lavapipe, &other, "UUID 0011")] {
+        for (name, flag) in [("calibrate", "--from-oracle"), ("evaluate", "--compare-policies")] {
+            let out = run(name, &[flag, arg(a), flag, arg(b), "--no-refit"][..if name == "calibrate" { 5 } else { 4 }]);
+            let (stdout, stderr) = text(&out);
+            assert_eq!(out.status.code(), Some(1), "{name}: {stdout}\n{stderr}");
+            assert!(stderr.contains(&format!("{}:1: traced with", b.display())), "{name}: {stderr}");
+            assert!(stderr.contains(found), "{name}: {stderr}");
+            assert!(stderr.contains(&format!("{}:1 with", a.display())), "{name}: {stderr}");
+            assert!(stderr.contains("apart"), "{name}: {stderr}");
+        }
+    }
+    let out = run("calibrate", &["--from-oracle", arg(&cpu), "--trace-backend", "vulkan", "--no-refit"]);
+    let (_, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("--trace-backend vulkan, but the --from-oracle records were traced with cpu"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
