@@ -7,6 +7,7 @@ mod common;
 use meshchar::accel::StructureName;
 use meshchar::cost::{
     registry, CostError, CostModel, TraceTarget, COST_MODEL_VERSION, FEATURE_NAMES, PRICE_NAMES, SHIPPED_CPU,
+    SHIPPED_MODELS,
 };
 use meshchar::eval::oracle::{DeviceRecord, TraceBackend};
 use serde_json::{json, Value};
@@ -448,4 +449,38 @@ fn the_shipped_models_are_chosen_by_tracer_and_an_explicit_file_wins() {
     assert_eq!(CostModel { chosen_as: None, ..m }, shipped());
     let missing = common::temp_dir("cost-file").join("no-such-model.json");
     assert!(matches!(CostModel::for_trace_target(Some(&missing), TraceTarget::Cpu), Err(CostError::Io { .. })));
+}
+
+#[test]
+fn the_shipped_lavapipe_file_is_canonical_and_chosen_on_lavapipe_only() {
+    let models = CostModel::shipped_models().expect("every shipped file is valid");
+    assert_eq!(models.len(), SHIPPED_MODELS.len());
+    for (m, s) in models.iter().zip(SHIPPED_MODELS) {
+        assert_eq!(m.to_json() + "\n", s.text, "{} is what to_json writes", s.file);
+    }
+    let lavapipe = &models[1];
+    assert_eq!(SHIPPED_MODELS[1].file, "assets/cost-model-lavapipe.json");
+    assert_eq!(lavapipe.trace_backend, TraceBackend::Vulkan);
+    let recorded = lavapipe.trace_device.clone().expect("the lavapipe file names its device");
+    assert_eq!(registry::device_family(&recorded), "lavapipe", "{recorded:?}");
+    let names: Vec<StructureName> = lavapipe.structures.iter().map(|s| s.structure).collect();
+    assert_eq!(names, StructureName::ALL, "the lavapipe file covers every structure once");
+    // The same device: by UUID. Another lavapipe (another Mesa, another UUID): by name.
+    for (device, how) in [
+        (recorded.clone(), "the device UUID"),
+        (lavapipe_record("0123456789abcdef0123456789abcdef"), "lavapipe, matched by name"),
+        (DeviceRecord { name: "llvmpipe (LLVM 17.0.6, 128 bits)".into(), ..lavapipe_record("") }, "by name"),
+    ] {
+        let m = CostModel::for_trace_target(None, TraceTarget::Device(&device)).unwrap();
+        let said = m.chosen_as.clone().unwrap();
+        assert!(said.starts_with("assets/cost-model-lavapipe.json: ") && said.contains(how), "{said}");
+        assert_eq!(CostModel { chosen_as: None, ..m }, *lavapipe);
+    }
+    // Any other device, and the CPU tracer: the CPU file.
+    let gpu = DeviceRecord { name: "NVIDIA H200".into(), driver: "NVIDIA 550".into(), ..lavapipe_record("ab") };
+    let m = CostModel::for_trace_target(None, TraceTarget::Device(&gpu)).unwrap();
+    assert!(m.chosen_as.as_deref().unwrap().starts_with("assets/cost-model-cpu.json: no calibration of NVIDIA H200"));
+    assert_eq!(CostModel { chosen_as: None, ..m }, shipped());
+    let m = CostModel::for_trace_target(None, TraceTarget::Cpu).unwrap();
+    assert_eq!(CostModel { chosen_as: None, ..m }, shipped());
 }

@@ -40,8 +40,9 @@
 //! `vulkan`; `cpu` when absent, as in files written before it existed) and, for `vulkan`, `trace_device` (the
 //! device's name, type, driver, driver version and UUID); no other key. [`CostModel::load`] with a path reads that
 //! file and fails when it is missing, unreadable or invalid; without a path it returns the shipped CPU default
-//! (`assets/cost-model-cpu.json`, fitted on this project's CPU oracle on the build machine). The shipped calibrations
-//! are [`SHIPPED_MODELS`]; [`CostModel::for_trace_target`] picks the one for the tracer at hand ([`registry`]: the CPU's
+//! (`assets/cost-model-cpu.json`, fitted on this project's CPU oracle on the build machine). Two calibrations ship
+//! ([`SHIPPED_MODELS`]): the CPU tracer's and lavapipe's (`assets/cost-model-lavapipe.json`, the device oracle on
+//! the same machine); [`CostModel::for_trace_target`] picks the one for the tracer at hand ([`registry`]: the CPU's
 //! for the CPU tracer, the device's by UUID, then by name) and records which in [`CostModel::chosen_as`]. A file
 //! that was asked for is never silently replaced by another.
 //!
@@ -105,6 +106,10 @@ pub const COST_MODEL_VERSION: u32 = 1;
 
 /// The shipped default calibration (CPU oracle on the project's build machine).
 pub const SHIPPED_CPU: &str = include_str!("../../assets/cost-model-cpu.json");
+
+/// The shipped calibration of lavapipe (Mesa's CPU Vulkan driver, `llvmpipe` in its device name): the device
+/// oracle (`evaluate --trace-backend vulkan`) on the project's build machine.
+pub const SHIPPED_LAVAPIPE: &str = include_str!("../../assets/cost-model-lavapipe.json");
 
 /// Names of the columns of `phi` (see the module docs).
 pub const FEATURE_NAMES: [&str; 10] = [

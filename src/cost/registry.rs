@@ -19,7 +19,7 @@
 //! Whatever chooses records which file it used and why in [`CostModel::chosen_as`], which the calibrated policy
 //! puts in its first reason.
 
-use super::{CostError, CostModel, SHIPPED_CPU};
+use super::{CostError, CostModel, SHIPPED_CPU, SHIPPED_LAVAPIPE};
 use crate::eval::oracle::{DeviceRecord, TraceBackend};
 use std::path::Path;
 
@@ -32,8 +32,11 @@ pub struct ShippedModel {
     pub text: &'static str,
 }
 
-/// The shipped calibrations: the CPU tracer's first (the fallback).
-pub const SHIPPED_MODELS: [ShippedModel; 1] = [ShippedModel { file: "assets/cost-model-cpu.json", text: SHIPPED_CPU }];
+/// The shipped calibrations: the CPU tracer's first (the fallback), then lavapipe's.
+pub const SHIPPED_MODELS: [ShippedModel; 2] = [
+    ShippedModel { file: "assets/cost-model-cpu.json", text: SHIPPED_CPU },
+    ShippedModel { file: "assets/cost-model-lavapipe.json", text: SHIPPED_LAVAPIPE },
+];
 
 /// Where the rays of the workload will be traced, for choosing a calibration.
 #[derive(Clone, Copy, Debug, PartialEq)]
