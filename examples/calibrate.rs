@@ -4,20 +4,26 @@
 //!
 //! ```text
 //! cargo run --release --example calibrate -- [--out FILE] [--from-oracle FILE.jsonl ...] [--scene PATH ...]
-//!     [--resolution N] [--repeats R] [--refit DIR ...] [--device NAME] [--help]
+//!     [--resolution N] [--repeats R] [--refit DIR ...] [--device NAME] [--trace-backend cpu|vulkan] [--help]
 //! ```
+//!
+//! With `--trace-backend vulkan` the oracle traces on the Vulkan device (`evaluate_scene_on` with a
+//! `DeviceOracle`) and the file records the device (name, type, driver, driver version, UUID), which the calibrated
+//! policy matches to choose it. `--from-oracle` files carry their tracer (`trace_backend`, `device`): records of
+//! different backends or devices in one fit are refused.
 
 use anyhow::Context as _;
 use clap::Parser;
-use cli::args;
+use cli::args::{self, TraceBackendArg};
 use cli::Progress;
 use meshchar::accel::lbvh::Lbvh;
 use meshchar::accel::AccelStructure;
 use meshchar::characterize::{features_cpu, Features, Params};
 use meshchar::cost::drift;
 use meshchar::cost::{CostModel, RefitModel, Sample};
-use meshchar::eval::record::load_samples as load_oracle_samples;
-use meshchar::eval::{evaluate_scene, OracleConfig, Rebuild};
+use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, DeviceRecord, TraceBackend};
+use meshchar::eval::record::{load_samples as load_oracle_samples, tracer_of};
+use meshchar::eval::{OracleConfig, Rebuild};
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::{generate, Animation};
 use std::path::PathBuf;
@@ -59,9 +65,12 @@ struct Args {
     /// Do not fit the refit model
     #[arg(long)]
     no_refit: bool,
-    /// Device name stored in the file [default: the CPU]
+    /// Device name stored in the file [default: the CPU, or the Vulkan device with --trace-backend vulkan]
     #[arg(long, value_name = "NAME")]
     device: Option<String>,
+    /// With --from-oracle the records' own tracer is used (vulkan here refuses CPU records)
+    #[command(flatten)]
+    trace_backend: TraceBackendArg,
 }
 
 fn shared() -> PathBuf {
@@ -77,7 +86,7 @@ fn samples_from_oracle(files: &[PathBuf]) -> anyhow::Result<Vec<Sample>> {
     Ok(samples)
 }
 
-fn measure(args: &Args) -> anyhow::Result<Vec<Sample>> {
+fn measure(args: &Args, device: Option<&DeviceOracle<'_>>) -> anyhow::Result<Vec<Sample>> {
     let mut scenes: Vec<Animation> = vec![
         Animation { name: "synthetic:random-soup-20k".into(), frames: vec![generate::random_soup(20_000, 1)] },
         Animation { name: "synthetic:clustered-20k".into(), frames: vec![generate::clustered(20_000, 8, 2)] },
@@ -110,7 +119,7 @@ fn measure(args: &Args) -> anyhow::Result<Vec<Sample>> {
             // Steps: per frame the reference and every structure at every repeat.
             bar.item(i * kinds.len() + j, scene.frames.len() * (1 + config.repeats * config.structures.len()), "");
             let t = Instant::now();
-            let e = evaluate_scene(scene, &config, None, &|m| bar.step(&format!("{} {m}", kind.as_str())))?;
+            let e = evaluate_scene_on(scene, &config, None, &|m| bar.step(&format!("{} {m}", kind.as_str())), device)?;
             bar.eprintln(&format!("calibrate: {} {}: {:.1} s", scene.name, kind.as_str(), t.elapsed().as_secs_f64()));
             out.push(e.record().sample(f.clone(), None));
         }
@@ -172,18 +181,41 @@ fn fit_refit(dirs: &[PathBuf]) -> anyhow::Result<Option<RefitModel>> {
 fn run(args: Args) -> anyhow::Result<()> {
     let args = &args;
     let t = Instant::now();
-    let samples = if args.oracle.is_empty() { measure(args)? } else { samples_from_oracle(&args.oracle)? };
-    let device = args
-        .device
-        .clone()
-        .unwrap_or_else(|| meshchar::characterize::cpu::cpu_device_name(rayon::current_num_threads()));
+    // The tracer of the calibration: the records' (one backend and device for all of them), or this machine's.
+    let (backend, record, samples): (TraceBackend, Option<DeviceRecord>, Vec<Sample>) = if args.oracle.is_empty() {
+        let ctx = args.trace_backend.context()?;
+        let oracle = match &ctx {
+            Some(c) => Some(DeviceOracle::new(c).context("device traversal")?),
+            None => None,
+        };
+        let samples = measure(args, oracle.as_ref())?;
+        (args.trace_backend.trace_backend, args::device_record(ctx.as_ref()), samples)
+    } else {
+        let tracer = tracer_of(&args.oracle)?.context("--from-oracle: the files hold no record")?;
+        if args.trace_backend.trace_backend == TraceBackend::Vulkan && tracer.backend != TraceBackend::Vulkan {
+            anyhow::bail!(
+                "--trace-backend vulkan, but the --from-oracle records were traced with {}",
+                tracer.describe()
+            );
+        }
+        if tracer.backend == TraceBackend::Vulkan && tracer.device.is_none() {
+            anyhow::bail!("--from-oracle: the records were traced with vulkan but name no device");
+        }
+        let samples = samples_from_oracle(&args.oracle)?;
+        (tracer.backend, tracer.device, samples)
+    };
+    let device = args.device.clone().unwrap_or_else(|| match &record {
+        Some(d) => d.name.clone(),
+        None => meshchar::characterize::cpu::cpu_device_name(rayon::current_num_threads()),
+    });
     let source = if args.oracle.is_empty() {
         format!(
-            "calibrate: oracle at {}x{}, {} repeat(s), {} samples",
+            "calibrate: oracle at {}x{}, {} repeat(s), {} samples, traced with {}",
             args.resolution,
             args.resolution,
             args.repeats,
-            samples.len()
+            samples.len(),
+            backend.as_str()
         )
     } else {
         format!(
@@ -192,6 +224,9 @@ fn run(args: Args) -> anyhow::Result<()> {
         )
     };
     let mut model = CostModel::fit(&samples, &device, &source)?;
+    model.trace_backend = backend;
+    model.trace_device = record;
+    model.validate()?;
     if !args.no_refit {
         let mut dirs = args.refit.clone();
         if dirs.is_empty() && shared().join("bart").is_dir() {
@@ -232,6 +267,18 @@ fn run(args: Args) -> anyhow::Result<()> {
             s.fit.trace,
             s.fit.total
         );
+    }
+    match &model.trace_device {
+        Some(d) => println!(
+            "traced with {} on {} ({}, {}, driver version {}, UUID {})",
+            model.trace_backend.as_str(),
+            d.name,
+            d.device_type,
+            d.driver,
+            d.driver_version,
+            d.device_uuid
+        ),
+        None => println!("traced with {}", model.trace_backend.as_str()),
     }
     if let Some(r) = &model.refit {
         println!(

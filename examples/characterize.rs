@@ -4,7 +4,7 @@
 //! cargo run --release --example characterize -- [FILE|DIR ...] [--json] [--backend vulkan|cpu|naive]
 //!     [--morton-bits 30|63] [--alpha A] [--sample-stride S] [--class-rule doane|sturges|sqrt|N]
 //!     [--policy thesis|calibrated] [--cost-model FILE] [--workload primary|shadow|diffuse] [--resolution N]
-//!     [--frames F]
+//!     [--frames F] [--trace-backend cpu|vulkan]
 //! ```
 //!
 //! A FILE is a static mesh (.obj or .ply); a DIR holds the frames of an animation (one report per frame, `kind`
@@ -13,7 +13,7 @@
 
 use anyhow::Context as _;
 use clap::Parser;
-use cli::args::{self, BackendArg, JsonArg, MortonBitsArg, Policy, PolicyArgs, WorkloadArgs};
+use cli::args::{self, BackendArg, JsonArg, MortonBitsArg, Policy, PolicyArgs, TraceBackendArg, WorkloadArgs};
 use cli::Progress;
 use meshchar::characterize::Features;
 use meshchar::characterize::{cpu, Characterization, Characterizer, ClassRule, Params};
@@ -62,6 +62,8 @@ struct Args {
     class_rule: ClassRule,
     #[command(flatten)]
     policy: PolicyArgs,
+    #[command(flatten)]
+    trace_backend: TraceBackendArg,
     #[command(flatten)]
     workload: WorkloadArgs,
     /// Calibrated policy: frames rendered with one build of a static scene
@@ -142,7 +144,14 @@ fn run(args: Args) -> anyhow::Result<()> {
     if let Some(note) = engine.note() {
         eprintln!("characterize: {note}");
     }
-    let model = args.policy.cost_model()?;
+    // The calibrated policy predicts for the tracer of --trace-backend: the CPU's calibration, or the device's.
+    let ctx = args.trace_backend.context()?;
+    let record = args::device_record(ctx.as_ref());
+    let model = args.policy.cost_model_for(args::trace_target(record.as_ref()))?;
+    drop(ctx);
+    if args.policy.policy == Policy::Calibrated && !args.json.json {
+        println!("calibrated policy: cost model {}", model.chosen_as.as_deref().unwrap_or("?"));
+    }
     let bar = Progress::new("characterize", Some(args.paths.len().max(1)), args.json.json);
     if args.paths.is_empty() {
         bar.item(0, 1, "the default scene");

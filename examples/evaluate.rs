@@ -25,7 +25,7 @@ use meshchar::cost::{CostModel, Prediction};
 use meshchar::eval::chart::BarChart;
 use meshchar::eval::compare::compare;
 use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, TraceBackend};
-use meshchar::eval::record::load_samples as load_oracle_samples;
+use meshchar::eval::record::{load_samples as load_oracle_samples, tracer_of};
 use meshchar::eval::{OracleConfig, Rebuild, SceneEvaluation};
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::Animation;
@@ -304,10 +304,22 @@ fn pct(x: Option<f64>) -> String {
 /// oracle results.
 fn compare_policies(args: &Args) -> anyhow::Result<()> {
     let bar = Progress::new("compare-policies", None, args.json.json);
+    // One tracer per comparison: the calibrated policy is fitted on these records, so they must describe one
+    // backend and one device.
+    let tracer = tracer_of(&args.compare_policies)?;
     let samples =
         load_oracle_samples(&args.compare_policies, &Params::default(), &|m| bar.step(&format!("features of {m}")))?;
     bar.finish();
-    let device = meshchar::characterize::cpu::cpu_device_name(rayon::current_num_threads());
+    let device = match tracer.as_ref().and_then(|t| t.device.as_ref()) {
+        Some(d) => d.name.clone(),
+        None => meshchar::characterize::cpu::cpu_device_name(rayon::current_num_threads()),
+    };
+    if !args.json.json {
+        println!(
+            "records traced with {}",
+            tracer.as_ref().map_or_else(|| "nothing (no records)".into(), |t| t.describe())
+        );
+    }
     let c = compare(&samples, args.tie_margin.tie_margin, &device)?;
     if args.json.json {
         println!("{}", serde_json::json!(c));
@@ -448,6 +460,9 @@ fn scene(
     };
     let mut json = e.to_json();
     json["policy"] = serde_json::json!(policy.as_str());
+    if policy == Policy::Calibrated {
+        json["cost_model"] = serde_json::json!(model.chosen_as);
+    }
     if let Some(p) = &predictions {
         json["predicted"] = serde_json::json!(p);
     }
@@ -473,7 +488,6 @@ fn run(args: Args) -> anyhow::Result<()> {
     if !args.compare_policies.is_empty() {
         return compare_policies(&args);
     }
-    let model = args.policy.cost_model()?;
     let mut engine = Characterizer::new(None)?;
     let ctx = match args.trace_backend {
         TraceBackend::Cpu => None,
@@ -482,6 +496,12 @@ fn run(args: Args) -> anyhow::Result<()> {
                 .context("--trace-backend vulkan needs a Vulkan device")?,
         ),
     };
+    // The calibration of the tracer that the oracle measures: the CPU's, or the device's.
+    let record = args::device_record(ctx.as_ref());
+    let model = args.policy.cost_model_for(args::trace_target(record.as_ref()))?;
+    if args.policy.policy == Policy::Calibrated && !args.json.json {
+        println!("calibrated policy: cost model {}", model.chosen_as.as_deref().unwrap_or("?"));
+    }
     let device = match &ctx {
         Some(c) => Some(DeviceOracle::new(c).context("device traversal")?),
         None => None,

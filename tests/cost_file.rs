@@ -5,7 +5,11 @@
 mod common;
 
 use meshchar::accel::StructureName;
-use meshchar::cost::{CostError, CostModel, COST_MODEL_VERSION, FEATURE_NAMES, PRICE_NAMES, SHIPPED_CPU};
+use meshchar::cost::{
+    registry, CostError, CostModel, TraceTarget, COST_MODEL_VERSION, FEATURE_NAMES, PRICE_NAMES, SHIPPED_CPU,
+    SHIPPED_MODELS,
+};
+use meshchar::eval::oracle::{DeviceRecord, TraceBackend};
 use serde_json::{json, Value};
 use std::path::PathBuf;
 
@@ -330,4 +334,153 @@ fn refit_model_fields_are_in_range() {
     assert_eq!(CostModel::from_json(&v.to_string()).unwrap().refit, None);
     v["refit"] = Value::Null;
     assert_eq!(CostModel::from_json(&v.to_string()).unwrap().refit, None);
+}
+
+/// lavapipe's device record as `evaluate --trace-backend vulkan` writes it on the build machine, with another UUID
+/// when `uuid` is given.
+fn lavapipe_record(uuid: &str) -> DeviceRecord {
+    DeviceRecord {
+        name: "llvmpipe (LLVM 15.0.6, 256 bits)".into(),
+        device_type: "cpu".into(),
+        driver: "llvmpipe Mesa 22.3.6 (LLVM 15.0.6)".into(),
+        driver_version: 1,
+        device_uuid: uuid.into(),
+    }
+}
+
+/// The shipped CPU model turned into a device calibration of `device`.
+fn device_model(device: DeviceRecord) -> CostModel {
+    CostModel {
+        device: device.name.clone(),
+        trace_backend: TraceBackend::Vulkan,
+        trace_device: Some(device),
+        ..shipped()
+    }
+}
+
+#[test]
+fn a_file_without_the_tracer_fields_is_a_cpu_calibration() {
+    let mut v = shipped_json();
+    let obj = v.as_object_mut().unwrap();
+    assert_eq!(obj.remove("trace_backend"), Some(json!("cpu")), "the shipped CPU file says cpu");
+    assert!(!obj.contains_key("trace_device"), "a CPU file names no device");
+    let m = CostModel::from_json(&v.to_string()).expect("a file written before the fields existed loads");
+    assert_eq!((m.trace_backend, m.trace_device), (TraceBackend::Cpu, None));
+}
+
+#[test]
+fn a_device_calibration_round_trips_its_device_fields() {
+    let m = device_model(lavapipe_record("6d65736132322e332e36000000000000"));
+    let text = m.to_json();
+    let v: Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(v["trace_backend"], "vulkan");
+    assert_eq!(v["trace_device"]["name"], "llvmpipe (LLVM 15.0.6, 256 bits)");
+    assert_eq!(v["trace_device"]["driver"], "llvmpipe Mesa 22.3.6 (LLVM 15.0.6)");
+    assert_eq!(v["trace_device"]["driver_version"], 1);
+    assert_eq!(v["trace_device"]["device_uuid"], "6d65736132322e332e36000000000000");
+    assert!(v.get("chosen_as").is_none(), "how a model was chosen is not part of the file: {v}");
+    assert_eq!(CostModel::from_json(&text).unwrap(), m);
+    let path = common::temp_dir("cost-file").join("device.json");
+    m.save(&path).unwrap();
+    assert_eq!(CostModel::load(Some(&path)).unwrap(), m);
+}
+
+#[test]
+fn the_tracer_fields_are_validated() {
+    let e = refused(|v| v["trace_backend"] = json!("vulkan"));
+    assert_invalid(&e, "trace_device", None);
+    let record = serde_json::to_value(lavapipe_record("")).unwrap();
+    let e = refused(|v| v["trace_device"] = record.clone());
+    assert_invalid(&e, "trace_device", None);
+    let e = refused(|v| {
+        v["trace_backend"] = json!("vulkan");
+        v["trace_device"] = json!({"name": " "});
+    });
+    assert_invalid(&e, "trace_device.name", None);
+    assert!(matches!(refused(|v| v["trace_backend"] = json!("metal")), CostError::Invalid { .. }));
+}
+
+#[test]
+fn the_registry_picks_by_uuid_then_by_name_then_falls_back_to_the_cpu() {
+    let lavapipe_uuid = "6d65736132322e332e36000000000000";
+    let gpu = DeviceRecord {
+        name: "Some Discrete GPU".into(),
+        device_type: "discrete".into(),
+        driver: "vendor 1.2".into(),
+        driver_version: 7,
+        device_uuid: "00112233445566778899aabbccddeeff".into(),
+    };
+    let candidates = [shipped(), device_model(lavapipe_record(lavapipe_uuid)), device_model(gpu.clone())];
+    assert_eq!(registry::choose(&candidates, TraceTarget::Cpu).map(|c| c.index), Some(0));
+    // lavapipe of the same Mesa: the UUID matches.
+    let same = lavapipe_record(lavapipe_uuid);
+    let c = registry::choose(&candidates, TraceTarget::Device(&same)).unwrap();
+    assert_eq!(c.index, 1);
+    assert!(c.reason.contains("UUID"), "{}", c.reason);
+    // Another lavapipe build: another UUID and driver, matched by name, the driver said.
+    let other = DeviceRecord { driver: "llvmpipe Mesa 23.1".into(), driver_version: 2, ..lavapipe_record("ff") };
+    let c = registry::choose(&candidates, TraceTarget::Device(&other)).unwrap();
+    assert_eq!(c.index, 1);
+    assert!(c.reason.contains("lavapipe, matched by name") && c.reason.contains("Mesa 23.1"), "{}", c.reason);
+    // The UUID first: a record with the GPU's UUID under another name is the GPU.
+    let renamed = DeviceRecord { name: "renamed".into(), ..gpu.clone() };
+    assert_eq!(registry::choose(&candidates, TraceTarget::Device(&renamed)).unwrap().index, 2);
+    // A device with no calibration: the CPU's, and the reason says so.
+    let unknown = DeviceRecord { name: "Unknown GPU".into(), device_uuid: "aa".into(), ..gpu };
+    let c = registry::choose(&candidates, TraceTarget::Device(&unknown)).unwrap();
+    assert_eq!(c.index, 0);
+    assert!(c.reason.contains("no calibration of Unknown GPU"), "{}", c.reason);
+    // No CPU calibration to fall back on: none.
+    assert_eq!(registry::choose(&candidates[1..], TraceTarget::Device(&unknown)), None);
+}
+
+#[test]
+fn the_shipped_models_are_chosen_by_tracer_and_an_explicit_file_wins() {
+    let cpu = CostModel::for_trace_target(None, TraceTarget::Cpu).unwrap();
+    assert_eq!(cpu.trace_backend, TraceBackend::Cpu);
+    let said = cpu.chosen_as.clone().unwrap();
+    assert!(said.starts_with("assets/cost-model-cpu.json: "), "{said}");
+    let path = common::temp_dir("cost-file").join("explicit.json");
+    shipped().save(&path).unwrap();
+    let device = lavapipe_record("6d65736132322e332e36000000000000");
+    let m = CostModel::for_trace_target(Some(&path), TraceTarget::Device(&device)).unwrap();
+    let said = m.chosen_as.clone().unwrap();
+    assert!(said.starts_with(&format!("{}: --cost-model, measured with cpu", path.display())), "{said}");
+    assert_eq!(CostModel { chosen_as: None, ..m }, shipped());
+    let missing = common::temp_dir("cost-file").join("no-such-model.json");
+    assert!(matches!(CostModel::for_trace_target(Some(&missing), TraceTarget::Cpu), Err(CostError::Io { .. })));
+}
+
+#[test]
+fn the_shipped_lavapipe_file_is_canonical_and_chosen_on_lavapipe_only() {
+    let models = CostModel::shipped_models().expect("every shipped file is valid");
+    assert_eq!(models.len(), SHIPPED_MODELS.len());
+    for (m, s) in models.iter().zip(SHIPPED_MODELS) {
+        assert_eq!(m.to_json() + "\n", s.text, "{} is what to_json writes", s.file);
+    }
+    let lavapipe = &models[1];
+    assert_eq!(SHIPPED_MODELS[1].file, "assets/cost-model-lavapipe.json");
+    assert_eq!(lavapipe.trace_backend, TraceBackend::Vulkan);
+    let recorded = lavapipe.trace_device.clone().expect("the lavapipe file names its device");
+    assert_eq!(registry::device_family(&recorded), "lavapipe", "{recorded:?}");
+    let names: Vec<StructureName> = lavapipe.structures.iter().map(|s| s.structure).collect();
+    assert_eq!(names, StructureName::ALL, "the lavapipe file covers every structure once");
+    // The same device: by UUID. Another lavapipe (another Mesa, another UUID): by name.
+    for (device, how) in [
+        (recorded.clone(), "the device UUID"),
+        (lavapipe_record("0123456789abcdef0123456789abcdef"), "lavapipe, matched by name"),
+        (DeviceRecord { name: "llvmpipe (LLVM 17.0.6, 128 bits)".into(), ..lavapipe_record("") }, "by name"),
+    ] {
+        let m = CostModel::for_trace_target(None, TraceTarget::Device(&device)).unwrap();
+        let said = m.chosen_as.clone().unwrap();
+        assert!(said.starts_with("assets/cost-model-lavapipe.json: ") && said.contains(how), "{said}");
+        assert_eq!(CostModel { chosen_as: None, ..m }, *lavapipe);
+    }
+    // Any other device, and the CPU tracer: the CPU file.
+    let gpu = DeviceRecord { name: "NVIDIA H200".into(), driver: "NVIDIA 550".into(), ..lavapipe_record("ab") };
+    let m = CostModel::for_trace_target(None, TraceTarget::Device(&gpu)).unwrap();
+    assert!(m.chosen_as.as_deref().unwrap().starts_with("assets/cost-model-cpu.json: no calibration of NVIDIA H200"));
+    assert_eq!(CostModel { chosen_as: None, ..m }, shipped());
+    let m = CostModel::for_trace_target(None, TraceTarget::Cpu).unwrap();
+    assert_eq!(CostModel { chosen_as: None, ..m }, shipped());
 }

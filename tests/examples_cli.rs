@@ -527,3 +527,133 @@ fn every_example_runs_on_a_small_input() {
     assert_eq!(ran, EXAMPLES, "every example on a good input");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// An oracle record of `docs/data/oracle-shadow.jsonl` (a CPU record), retraced as `backend` on `uuid` when given.
+fn oracle_line(device_uuid: Option<&str>) -> String {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("docs/data/oracle-shadow.jsonl")).expect("the CPU oracle file");
+    let mut v: serde_json::Value = serde_json::from_str(text.lines().next().expect("a record")).expect("a record");
+    if let Some(uuid) = device_uuid {
+        v["trace_backend"] = serde_json::json!("vulkan");
+        v["device"] = serde_json::json!({
+            "name": "llvmpipe (LLVM 15.0.6, 256 bits)",
+            "device_type": "cpu",
+            "driver": "llvmpipe Mesa 22.3.6 (LLVM 15.0.6)",
+            "driver_version": 1,
+            "device_uuid": uuid,
+        });
+    }
+    v.to_string() + "\n"
+}
+
+/// `calibrate --from-oracle` and `evaluate --compare-policies` refuse records of two tracers (a CPU and a device
+/// record; two devices), exit 1 and name both records; `--trace-backend vulkan` refuses CPU records.
+#[test]
+fn one_fit_reads_the_records_of_one_tracer() {
+    let dir = inputs("mixed-tracers");
+    let cpu = dir.join("cpu.jsonl");
+    let lavapipe = dir.join("lavapipe.jsonl");
+    let other = dir.join("other-device.jsonl");
+    std::fs::write(&cpu, oracle_line(None)).unwrap();
+    std::fs::write(&lavapipe, oracle_line(Some("6d65736132322e332e36000000000000"))).unwrap();
+    std::fs::write(&other, oracle_line(Some("00112233445566778899aabbccddeeff"))).unwrap();
+    for (a, b, found) in [(&cpu, &lavapipe, ": traced with vulkan on llvmpipe"), (&lavapipe, &other, "UUID 0011")] {
+        for (name, flag) in [("calibrate", "--from-oracle"), ("evaluate", "--compare-policies")] {
+            let out = run(name, &[flag, arg(a), flag, arg(b), "--no-refit"][..if name == "calibrate" { 5 } else { 4 }]);
+            let (stdout, stderr) = text(&out);
+            assert_eq!(out.status.code(), Some(1), "{name}: {stdout}\n{stderr}");
+            assert!(stderr.contains(&format!("{}:1: traced with", b.display())), "{name}: {stderr}");
+            assert!(stderr.contains(found), "{name}: {stderr}");
+            assert!(stderr.contains(&format!("{}:1 with", a.display())), "{name}: {stderr}");
+            assert!(stderr.contains("apart"), "{name}: {stderr}");
+        }
+    }
+    let out = run("calibrate", &["--from-oracle", arg(&cpu), "--trace-backend", "vulkan", "--no-refit"]);
+    let (_, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("--trace-backend vulkan, but the --from-oracle records were traced with cpu"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// On the device: `evaluate --trace-backend vulkan --json` on three unseen soups, `calibrate --from-oracle` on its
+/// records writes a calibration that records the device; `characterize` and `evaluate` with `--trace-backend
+/// vulkan` on lavapipe say that they use `assets/cost-model-lavapipe.json`, with `--cost-model` the given file, and
+/// on the CPU the CPU file.
+#[test]
+fn a_device_calibration_records_its_device_and_is_chosen_on_it() {
+    if std::env::var("REQUIRE_GPU").map_or(true, |v| v != "1")
+        && meshchar::gpu::Context::new(&Default::default()).is_err()
+    {
+        eprintln!("skipping: no Vulkan device");
+        return;
+    }
+    let dir = inputs("device-calibration");
+    let mut lines = String::new();
+    let mut meshes = Vec::new();
+    // Sizes an order of magnitude apart, so that the build laws are fitted on more than the fixed overheads.
+    for (i, n) in [500, 5000, 40000].into_iter().enumerate() {
+        let p = dir.join(format!("soup-{n}.obj"));
+        soup_obj(&p, n, 0xca1 + i as u64);
+        meshes.push(p);
+    }
+    for workload in ["primary", "shadow"] {
+        let mut a = vec!["--json", "--trace-backend", "vulkan", "--resolution", "16", "--repeats", "1"];
+        a.extend(["--policy", "thesis", "--workload", workload]);
+        a.extend(meshes.iter().map(|p| arg(p)));
+        let out = run("evaluate", &a);
+        let (stdout, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(0), "{stderr}");
+        lines.push_str(&stdout);
+    }
+    let records = dir.join("device.jsonl");
+    std::fs::write(&records, &lines).unwrap();
+    let file = dir.join("device-model.json");
+    let out = run("calibrate", &["--from-oracle", arg(&records), "--no-refit", "--out", arg(&file)]);
+    let (stdout, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(0), "{stdout}\n{stderr}");
+    let first: serde_json::Value = serde_json::from_str(lines.lines().next().unwrap()).unwrap();
+    let model = meshchar::cost::CostModel::load(Some(&file)).expect("the written file loads");
+    assert_eq!(model.trace_backend, meshchar::eval::oracle::TraceBackend::Vulkan);
+    let d = model.trace_device.expect("the device is recorded");
+    assert_eq!(serde_json::to_value(&d).unwrap(), first["device"], "the records' device, every field");
+    assert_eq!(model.device, d.name);
+    assert!(stdout.contains(&format!("traced with vulkan on {}", d.name)), "{stdout}");
+    // Which file the policy uses, said where the policy is printed.
+    let lavapipe = meshchar::cost::registry::device_family(&d) == "lavapipe";
+    let mesh = arg(&meshes[0]);
+    for (name, extra) in [("characterize", vec![]), ("evaluate", vec!["--resolution", "8", "--repeats", "1"])] {
+        let run_with = |more: &[&str]| {
+            let mut a = vec![mesh, "--trace-backend", "vulkan"];
+            a.extend(&extra);
+            a.extend(more);
+            let out = run(name, &a);
+            let (stdout, stderr) = text(&out);
+            assert_eq!(out.status.code(), Some(0), "{name}: {stderr}");
+            stdout
+        };
+        let stdout = run_with(&[]);
+        if lavapipe {
+            assert!(
+                stdout.contains("calibrated policy: cost model assets/cost-model-lavapipe.json: "),
+                "{name}: {stdout}"
+            );
+            assert!(stdout.contains("assets/cost-model-lavapipe.json: the device UUID"), "{name}: {stdout}");
+        } else {
+            assert!(
+                stdout.contains("calibrated policy: cost model assets/cost-model-cpu.json: no calibration"),
+                "{stdout}"
+            );
+        }
+        let stdout = run_with(&["--cost-model", arg(&file)]);
+        assert!(
+            stdout.contains(&format!("calibrated policy: cost model {}: --cost-model", file.display())),
+            "{stdout}"
+        );
+        let mut a = vec![mesh];
+        a.extend(&extra);
+        let out = run(name, &a);
+        let (stdout, _) = text(&out);
+        assert!(stdout.contains("cost model assets/cost-model-cpu.json: tracing on the CPU"), "{name}: {stdout}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

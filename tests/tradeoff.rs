@@ -334,6 +334,9 @@ fn paper_model() -> meshchar::cost::CostModel {
         ],
         total_rms_log: 0.0,
         refit: None,
+        trace_backend: Default::default(),
+        trace_device: None,
+        chosen_as: None,
     };
     m.validate().unwrap();
     m

@@ -7,7 +7,8 @@ use anyhow::Context as _;
 use clap::builder::{PossibleValuesParser, RangedU64ValueParser, TypedValueParser};
 use meshchar::accel::StructureName;
 use meshchar::characterize::{Backend, ClassRule, MortonBits};
-use meshchar::cost::CostModel;
+use meshchar::cost::{CostModel, TraceTarget};
+use meshchar::eval::oracle::{DeviceRecord, TraceBackend};
 use meshchar::geom::WorkloadKind;
 use std::path::PathBuf;
 
@@ -45,17 +46,62 @@ pub struct PolicyArgs {
     /// The selection policy
     #[arg(long, value_enum, value_name = "P", default_value_t = Policy::Calibrated)]
     pub policy: Policy,
-    /// Calibration file of the calibrated policy [default: the shipped one; a missing, unreadable or invalid file
-    /// is an error]
+    /// Calibration file of the calibrated policy [default: the shipped one of the tracer: the CPU calibration, or
+    /// with --trace-backend vulkan the one that matches the device (lavapipe's on lavapipe); a missing, unreadable
+    /// or invalid file is an error]
     #[arg(long, value_name = "FILE")]
     pub cost_model: Option<PathBuf>,
 }
 
 impl PolicyArgs {
-    /// The cost model of `--cost-model` (the shipped one without it); a file that cannot be loaded is an error.
-    pub fn cost_model(&self) -> anyhow::Result<CostModel> {
-        CostModel::load(self.cost_model.as_deref()).context("cost model")
+    /// The cost model of `--cost-model`, or without it the shipped one for `target`
+    /// ([`CostModel::for_trace_target`]: its `chosen_as` says which file and why); a file that cannot be loaded is
+    /// an error.
+    pub fn cost_model_for(&self, target: TraceTarget<'_>) -> anyhow::Result<CostModel> {
+        CostModel::for_trace_target(self.cost_model.as_deref(), target).context("cost model")
     }
+
+    /// [`PolicyArgs::cost_model_for`] the CPU tracer.
+    pub fn cost_model(&self) -> anyhow::Result<CostModel> {
+        self.cost_model_for(TraceTarget::Cpu)
+    }
+}
+
+/// `--trace-backend` (calibrate, characterize, evaluate): where the workload's rays are traced.
+#[derive(clap::Args, Clone, Copy, Debug)]
+pub struct TraceBackendArg {
+    /// Where the rays are traced: the CPU tracer, or the device traversal kernel (Vulkan); the calibrated
+    /// policy uses the calibration of that tracer
+    #[arg(long, value_name = "cpu|vulkan", default_value = "cpu", value_parser = trace_backend)]
+    pub trace_backend: TraceBackend,
+}
+
+impl TraceBackendArg {
+    /// A Vulkan context for `--trace-backend vulkan` (`None` for cpu); no device is an error.
+    pub fn context(&self) -> anyhow::Result<Option<meshchar::gpu::Context>> {
+        match self.trace_backend {
+            TraceBackend::Cpu => Ok(None),
+            TraceBackend::Vulkan => Ok(Some(
+                meshchar::gpu::Context::new(&meshchar::gpu::ContextDesc::default())
+                    .context("--trace-backend vulkan needs a Vulkan device")?,
+            )),
+        }
+    }
+}
+
+/// The device record of a context for choosing a calibration (`None`: the CPU tracer).
+pub fn device_record(ctx: Option<&meshchar::gpu::Context>) -> Option<DeviceRecord> {
+    ctx.map(DeviceRecord::of)
+}
+
+/// The trace target of a device record (`None`: the CPU tracer).
+pub fn trace_target(device: Option<&DeviceRecord>) -> TraceTarget<'_> {
+    device.map_or(TraceTarget::Cpu, TraceTarget::Device)
+}
+
+/// `--trace-backend`: `cpu` or `vulkan`.
+pub fn trace_backend(s: &str) -> Result<TraceBackend, String> {
+    s.parse()
 }
 
 /// `--tie-margin` (evaluate, tradeoff).

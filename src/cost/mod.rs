@@ -36,11 +36,15 @@
 //!
 //! A calibration file is the JSON of [`CostModel`]: `version` ([`COST_MODEL_VERSION`]), `device`, `source`,
 //! `scenes`, `feature_names` ([`FEATURE_NAMES`]), `price_names` ([`PRICE_NAMES`]), `structures` (one
-//! [`StructureModel`] each), `total_rms_log` and an optional `refit` ([`RefitModel`]); no other key.
-//! [`CostModel::load`] with a path reads that file and fails when it is missing, unreadable or invalid; without a
-//! path it returns the shipped default (`assets/cost-model-cpu.json`, fitted on this project's oracle data: the CPU
-//! structures of the oracle on the build machine; lavapipe runs on the same CPU, so it serves for lavapipe hosts
-//! too). A file that was asked for is never silently replaced by another.
+//! [`StructureModel`] each), `total_rms_log`, an optional `refit` ([`RefitModel`]), `trace_backend` (`cpu` or
+//! `vulkan`; `cpu` when absent, as in files written before it existed) and, for `vulkan`, `trace_device` (the
+//! device's name, type, driver, driver version and UUID); no other key. [`CostModel::load`] with a path reads that
+//! file and fails when it is missing, unreadable or invalid; without a path it returns the shipped CPU default
+//! (`assets/cost-model-cpu.json`, fitted on this project's CPU oracle on the build machine). Two calibrations ship
+//! ([`SHIPPED_MODELS`]): the CPU tracer's and lavapipe's (`assets/cost-model-lavapipe.json`, the device oracle on
+//! the same machine); [`CostModel::for_trace_target`] picks the one for the tracer at hand ([`registry`]: the CPU's
+//! for the CPU tracer, the device's by UUID, then by name) and records which in [`CostModel::chosen_as`]. A file
+//! that was asked for is never silently replaced by another.
 //!
 //! # Validation
 //!
@@ -50,6 +54,8 @@
 //! rules, and where each range comes from:
 //!
 //! * `version` is [`COST_MODEL_VERSION`]; `device` is a non-empty string.
+//! * `trace_device` is present exactly when `trace_backend` is `vulkan`, with a non-empty `name`: a device
+//!   calibration is chosen by its device, and a CPU calibration has none.
 //! * `feature_names` equals [`FEATURE_NAMES`] and `price_names` equals [`PRICE_NAMES`], name for name and in
 //!   order: the coefficients are read by position, so a reordered or renamed column would silently multiply the
 //!   wrong feature or count. The error names the first position that differs.
@@ -80,16 +86,19 @@
 //!   `>= 0`; `samples >= 1`.
 
 pub mod linalg;
+pub mod registry;
 mod sample;
 
 use crate::accel::StructureName;
 use crate::characterize::features::Derived;
 use crate::characterize::Features;
+use crate::eval::oracle::{DeviceRecord, TraceBackend};
 use crate::geom::WorkloadKind;
 use serde::{Deserialize, Deserializer};
 use std::ops::RangeInclusive;
 use std::path::Path;
 
+pub use registry::{ChosenModel, ShippedModel, TraceTarget, SHIPPED_MODELS};
 pub use sample::{drift, Measured, Sample};
 
 /// Version of the calibration file format (and of the feature set `phi`). Files of another version are stale.
@@ -97,6 +106,10 @@ pub const COST_MODEL_VERSION: u32 = 1;
 
 /// The shipped default calibration (CPU oracle on the project's build machine).
 pub const SHIPPED_CPU: &str = include_str!("../../assets/cost-model-cpu.json");
+
+/// The shipped calibration of lavapipe (Mesa's CPU Vulkan driver, `llvmpipe` in its device name): the device
+/// oracle (`evaluate --trace-backend vulkan`) on the project's build machine.
+pub const SHIPPED_LAVAPIPE: &str = include_str!("../../assets/cost-model-lavapipe.json");
 
 /// Names of the columns of `phi` (see the module docs).
 pub const FEATURE_NAMES: [&str; 10] = [
@@ -184,6 +197,9 @@ pub enum CostError {
         /// What is wrong.
         reason: String,
     },
+    /// No calibration serves the trace target (no shipped CPU calibration to fall back on).
+    #[error("no calibration for {0}")]
+    NoCalibration(String),
     /// A calibration file that [`CostModel::load`] was asked for and cannot use: its path and why.
     #[error("calibration file {path}: {source}")]
     File {
@@ -396,6 +412,18 @@ pub struct CostModel {
     pub total_rms_log: f64,
     /// Refit model for animations, when calibrated.
     pub refit: Option<RefitModel>,
+    /// Where the calibration's rays were traced: `cpu` (the counting CPU tracer) or `vulkan` (the device traversal
+    /// kernel). Files written before the field existed are `cpu`.
+    #[serde(default)]
+    pub trace_backend: TraceBackend,
+    /// The device that traced (`vulkan` only; absent for `cpu`): its name, type, driver, driver version and UUID
+    /// as [`crate::eval::oracle::DeviceRecord`] records them. [`registry`] matches a device to a file by it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trace_device: Option<DeviceRecord>,
+    /// Which file this model was read from and why it was chosen (`assets/cost-model-lavapipe.json: device name
+    /// ...`), set by [`CostModel::for_trace_target`]; not part of the file, `None` for a model made otherwise.
+    #[serde(skip)]
+    pub chosen_as: Option<String>,
 }
 
 impl CostModel {
@@ -459,6 +487,26 @@ impl CostModel {
             check_structure(i, s)?;
         }
         check_number(None, "total_rms_log".into(), self.total_rms_log, 0.0..=f64::MAX, "a root-mean-square error")?;
+        match (self.trace_backend, &self.trace_device) {
+            (TraceBackend::Cpu, Some(_)) => {
+                return Err(invalid(
+                    None,
+                    "trace_device",
+                    "present with trace_backend cpu: only a device calibration names a device",
+                ))
+            }
+            (TraceBackend::Vulkan, None) => {
+                return Err(invalid(
+                    None,
+                    "trace_device",
+                    "missing: a vulkan calibration names the device it was measured on",
+                ))
+            }
+            (TraceBackend::Vulkan, Some(d)) if d.name.trim().is_empty() => {
+                return Err(invalid(None, "trace_device.name", "empty: name the device the constants were measured on"))
+            }
+            _ => {}
+        }
         if let Some(r) = &self.refit {
             let f = |name: &str| format!("refit.{name}");
             check_number(
@@ -549,6 +597,9 @@ impl CostModel {
             structures,
             total_rms_log: 0.0,
             refit: None,
+            trace_backend: TraceBackend::Cpu,
+            trace_device: None,
+            chosen_as: None,
         };
         let mut se = Vec::new();
         for smp in samples {

@@ -516,6 +516,7 @@ impl SceneEvaluation {
             oracle_within_noise: self.oracle_within_noise.clone(),
             policy: None,
             predicted: None,
+            cost_model: None,
             rays_per_frame: self.rays_per_frame,
             rebuild: self.rebuild,
             reference_hits: self.reference_hits,

@@ -33,6 +33,21 @@ pub enum RecordError {
         /// Why.
         reason: String,
     },
+    /// Records of different tracers (backend or device) where one fit or comparison needs one tracer.
+    #[error(
+        "{place}: traced with {found}, but {first_place} with {first}: one calibration describes one tracer, \
+         fit (or compare) the records of each backend and device apart"
+    )]
+    MixedTracers {
+        /// `file:line` of the first record that differs.
+        place: String,
+        /// Its tracer ([`TracerOf::describe`]).
+        found: String,
+        /// `file:line` of the first record.
+        first_place: String,
+        /// The first record's tracer.
+        first: String,
+    },
     /// The scene a record names could not be loaded or characterized.
     #[error("{file}: {mesh}: {reason}")]
     Scene {
@@ -175,6 +190,10 @@ pub struct OracleRecord {
     /// The calibrated policy's predictions for every structure (written by `evaluate` when it has them).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub predicted: Option<Vec<Prediction>>,
+    /// The calibration the calibrated policy used (file and why it was chosen, [`crate::cost::CostModel::chosen_as`]),
+    /// when it selected.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cost_model: Option<String>,
     /// Rays per frame (first frame; 0 when the record does not say).
     #[serde(default)]
     pub rays_per_frame: usize,
@@ -331,6 +350,58 @@ pub fn parse_jsonl(text: &str, file: &str) -> Result<Vec<OracleRecord>, RecordEr
                 .map_err(|reason| RecordError::Parse { place: format!("{file}:{}", i + 1), reason })
         })
         .collect()
+}
+
+/// The tracer of oracle records: the backend and, for `vulkan`, the device.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TracerOf {
+    /// Where the rays were traced.
+    pub backend: super::oracle::TraceBackend,
+    /// The device (`vulkan`).
+    pub device: Option<super::oracle::DeviceRecord>,
+}
+
+impl TracerOf {
+    /// `cpu`, or `vulkan on NAME (driver DRIVER, version V, UUID U)`.
+    pub fn describe(&self) -> String {
+        match &self.device {
+            None => self.backend.as_str().to_string(),
+            Some(d) => format!(
+                "{} on {} (driver {}, version {}, UUID {})",
+                self.backend.as_str(),
+                d.name,
+                d.driver,
+                d.driver_version,
+                if d.device_uuid.is_empty() { "none" } else { &d.device_uuid }
+            ),
+        }
+    }
+}
+
+/// The one tracer of every record of `files` (`None` for no record at all); records of different backends or
+/// devices (name, driver, driver version or UUID) are refused ([`RecordError::MixedTracers`], naming the first
+/// record that differs and the first record), since one fit describes one tracer.
+pub fn tracer_of(files: &[PathBuf]) -> Result<Option<TracerOf>, RecordError> {
+    let mut first: Option<(String, TracerOf)> = None;
+    for file in files {
+        for (i, rec) in read_jsonl(file)?.into_iter().enumerate() {
+            let place = format!("{}:{}", file.display(), i + 1);
+            let t = TracerOf { backend: rec.trace_backend, device: rec.device };
+            match &first {
+                None => first = Some((place, t)),
+                Some((first_place, f)) if *f != t => {
+                    return Err(RecordError::MixedTracers {
+                        place,
+                        found: t.describe(),
+                        first_place: first_place.clone(),
+                        first: f.describe(),
+                    })
+                }
+                Some(_) => {}
+            }
+        }
+    }
+    Ok(first.map(|(_, t)| t))
 }
 
 /// Reads a JSONL file of records (`evaluate --json` output, `--oracle-cache`, `docs/data/oracle-*.jsonl`).

@@ -225,9 +225,10 @@ impl Policy for CalibratedPolicy {
         };
         let best = preds.iter().map(|p| p.total_ms).fold(f64::INFINITY, f64::min);
         let mut reasons = vec![format!(
-            "calibrated cost model ({}; total fit error {:.0}% RMS) for {} {} rays/frame x {} frame(s), {} build(s), \
+            "calibrated cost model ({}{}; total fit error {:.0}% RMS) for {} {} rays/frame x {} frame(s), {} build(s), \
              n = {}: {choice} has the smallest predicted total{}",
             self.model.device,
+            self.model.chosen_as.as_ref().map(|c| format!("; {c}")).unwrap_or_default(),
             100.0 * self.model.total_rms_log,
             self.rays_per_frame,
             self.kind.as_str(),
