@@ -89,10 +89,10 @@ pub mod linalg;
 pub mod registry;
 mod sample;
 
+use crate::accel::device::{DeviceRecord, TraceBackend};
 use crate::accel::StructureName;
 use crate::characterize::features::Derived;
 use crate::characterize::Features;
-use crate::eval::oracle::{DeviceRecord, TraceBackend};
 use crate::geom::WorkloadKind;
 use serde::{Deserialize, Deserializer};
 use std::ops::RangeInclusive;
@@ -417,7 +417,7 @@ pub struct CostModel {
     #[serde(default)]
     pub trace_backend: TraceBackend,
     /// The device that traced (`vulkan` only; absent for `cpu`): its name, type, driver, driver version and UUID
-    /// as [`crate::eval::oracle::DeviceRecord`] records them. [`registry`] matches a device to a file by it.
+    /// as [`crate::accel::device::DeviceRecord`] records them. [`registry`] matches a device to a file by it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub trace_device: Option<DeviceRecord>,
     /// Which file this model was read from and why it was chosen (`assets/cost-model-lavapipe.json: device name

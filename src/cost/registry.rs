@@ -20,7 +20,7 @@
 //! puts in its first reason.
 
 use super::{CostError, CostModel, SHIPPED_CPU, SHIPPED_LAVAPIPE};
-use crate::eval::oracle::{DeviceRecord, TraceBackend};
+use crate::accel::device::{DeviceRecord, TraceBackend};
 use std::path::Path;
 
 /// A calibration file shipped with the crate (compiled in).

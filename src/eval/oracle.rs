@@ -57,70 +57,7 @@ pub enum Rebuild {
     Once,
 }
 
-/// Where the oracle traces its rays.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum TraceBackend {
-    /// The counting CPU tracer ([`crate::trace::trace`], rayon over rays); trace time is host wall time.
-    #[default]
-    Cpu,
-    /// The device traversal kernel ([`crate::accel::device`]); trace time is the kernel's GPU timestamps.
-    Vulkan,
-}
-
-impl TraceBackend {
-    /// `cpu` or `vulkan`.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            TraceBackend::Cpu => "cpu",
-            TraceBackend::Vulkan => "vulkan",
-        }
-    }
-}
-
-impl std::str::FromStr for TraceBackend {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "cpu" => Ok(TraceBackend::Cpu),
-            "vulkan" => Ok(TraceBackend::Vulkan),
-            other => Err(format!("unknown trace backend {other:?} (cpu, vulkan)")),
-        }
-    }
-}
-
-/// The device a device oracle ran on, as its records name it.
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct DeviceRecord {
-    /// Device name.
-    pub name: String,
-    /// Device type (`cpu`, `discrete`, ...).
-    #[serde(default)]
-    pub device_type: String,
-    /// Driver name and version.
-    #[serde(default)]
-    pub driver: String,
-    /// Raw driver version.
-    #[serde(default)]
-    pub driver_version: u32,
-    /// `deviceUUID`, 32 hex digits.
-    #[serde(default)]
-    pub device_uuid: String,
-}
-
-impl DeviceRecord {
-    /// The record of a context's device.
-    pub fn of(ctx: &crate::gpu::Context) -> Self {
-        let c = ctx.caps();
-        DeviceRecord {
-            name: c.name.clone(),
-            device_type: c.device_type.as_str().to_string(),
-            driver: c.driver.clone(),
-            driver_version: c.driver_version,
-            device_uuid: c.device_uuid.clone(),
-        }
-    }
-}
+pub use crate::accel::device::{DeviceRecord, TraceBackend};
 
 /// The device side of the oracle: a context and the traversal kernel, its four pipelines already run once (some
 /// drivers compile a pipeline at its first dispatch, inside the timestamps: lavapipe does, with LLVM).
