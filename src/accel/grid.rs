@@ -128,37 +128,7 @@ const WIDEN: f32 = 1e-4;
 
 /// Resolution by the density heuristic, and the padded bounds.
 pub fn grid_resolution(bounds: &Aabb, n: usize, o: &GridOptions) -> (Aabb, [u32; 3]) {
-    let mut b = *bounds;
-    let ext = b.extent();
-    let m = ext.max_element();
-    let floor = if m > 0.0 { m * 1e-3 } else { 1.0 };
-    for a in 0..3 {
-        if ext[a] < floor {
-            let c = (b.min[a] + b.max[a]) * 0.5;
-            b.min[a] = c - floor * 0.5;
-            b.max[a] = c + floor * 0.5;
-        }
-    }
-    let e = (b.max - b.min).as_dvec3();
-    let vol = e.x * e.y * e.z;
-    let mut density = (o.density.max(1e-6) as f64) * n.max(1) as f64;
-    loop {
-        let s = (density / vol).cbrt();
-        let r = |x: f64| {
-            let v = (x * s).round();
-            if v.is_finite() {
-                v.clamp(1.0, o.max_resolution.max(1) as f64) as u32
-            } else {
-                1
-            }
-        };
-        let res = [r(e.x), r(e.y), r(e.z)];
-        let cells = res.iter().map(|&x| x as usize).product::<usize>();
-        if cells <= o.max_cells.max(1) || res == [1, 1, 1] {
-            return (b, res);
-        }
-        density *= 0.8 * o.max_cells as f64 / cells as f64;
-    }
+    super::grid_rule::resolution(bounds, n, o.density, o.max_resolution, o.max_cells)
 }
 
 impl Grid {

@@ -69,6 +69,7 @@ pub mod device;
 pub mod gpu;
 #[cfg(feature = "eval")]
 pub mod grid;
+pub mod grid_rule;
 pub mod hlbvh;
 #[cfg(feature = "eval")]
 pub mod kdtree;

@@ -93,37 +93,7 @@ impl GridRule {
     /// The padded bounds and the resolution of a grid over `n` triangles in `bounds`: `accel::grid::grid_resolution`
     /// (the density rule of Cleary and Wyvill; a zero extent padded to `1e-3` of the largest, to 1 for a point).
     pub fn resolution(&self, bounds: &Aabb, n: usize) -> (Aabb, [u32; 3]) {
-        let mut b = *bounds;
-        let ext = b.extent();
-        let m = ext.max_element();
-        let floor = if m > 0.0 { m * 1e-3 } else { 1.0 };
-        for a in 0..3 {
-            if ext[a] < floor {
-                let c = (b.min[a] + b.max[a]) * 0.5;
-                b.min[a] = c - floor * 0.5;
-                b.max[a] = c + floor * 0.5;
-            }
-        }
-        let e = (b.max - b.min).as_dvec3();
-        let vol = e.x * e.y * e.z;
-        let mut density = (self.density.max(1e-6) as f64) * n.max(1) as f64;
-        loop {
-            let s = (density / vol).cbrt();
-            let r = |x: f64| {
-                let v = (x * s).round();
-                if v.is_finite() {
-                    v.clamp(1.0, self.max_resolution.max(1) as f64) as u32
-                } else {
-                    1
-                }
-            };
-            let res = [r(e.x), r(e.y), r(e.z)];
-            let cells = res.iter().map(|&x| x as usize).product::<usize>();
-            if cells <= self.max_cells.max(1) || res == [1, 1, 1] {
-                return (b, res);
-            }
-            density *= 0.8 * self.max_cells as f64 / cells as f64;
-        }
+        crate::accel::grid_rule::resolution(bounds, n, self.density, self.max_resolution, self.max_cells)
     }
 }
 
