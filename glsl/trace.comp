@@ -8,8 +8,10 @@
 // `stack_entries` entries at stack + g * stack_entries * TRACE_STACK_ENTRY_BYTES: the host sizes it from the tree's
 // depth (a push never finds it full on a tree of that depth; if it does, the ray reports TRACE_STACK_FULL).
 // Every traversal runs as steps (one node visit, one triangle test, one pop or one cell step) in two nested loops of
-// at most 65,535 iterations each, so no single loop exceeds what every driver executes (lavapipe stops a loop after
-// 65,535 iterations); a ray that needs more than 65,535^2 steps reports TRACE_STEP_LIMIT.
+// at most 65,535 iterations each; a ray whose steps end before it is done reports TRACE_STEP_LIMIT: one that needs
+// more than 65,535^2 steps, or one whose loops the driver cut (lavapipe stops an invocation's loops after 65,535
+// iterations in all). An invocation whose ray loop was cut writes TRACE_STEP_LIMIT into the next ray it did not
+// trace, so a cut never passes as a result.
 #extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
 #include "common.glsl"
 #include "bvh.glsl"
@@ -399,7 +401,8 @@ void main() {
     uint64_t g = uint64_t(gl_WorkGroupID.x) * uint64_t(gl_WorkGroupSize.x) + uint64_t(gl_LocalInvocationIndex);
     stack_base = pc.stack + g * uint64_t(pc.stack_entries) * TRACE_STACK_ENTRY_BYTES;
     TraceScene sc = TraceSceneRef(pc.scene).s;
-    for (uint64_t i = g; i < pc.count; i += invocations) {
+    uint64_t i = g;
+    for (; i < pc.count; i += invocations) {
         TraceRay ray = TraceRayRef(pc.rays + 32ul * i).ray;
         Walk w = start(ray);
         if (begin(w, sc)) {
@@ -418,6 +421,19 @@ void main() {
         h.box_tests = w.st.boxes;
         h.prim_tests = w.st.prims;
         h.status = w.status;
+        h.pad = 0u;
+        TraceHitRef(pc.hits + 32ul * i).hit = h;
+    }
+    if (i < pc.count) {
+        // The driver cut the ray loop: the rays from i on were never traced.
+        TraceHit h;
+        h.t = 0.0;
+        h.triangle = TRACE_MISS;
+        h.u = 0.0;
+        h.v = 0.0;
+        h.box_tests = 0u;
+        h.prim_tests = 0u;
+        h.status = TRACE_STEP_LIMIT;
         h.pad = 0u;
         TraceHitRef(pc.hits + 32ul * i).hit = h;
     }

@@ -426,8 +426,9 @@ fn evaluate_traces_on_the_device() {
         assert_eq!(structures.len(), 6, "{v}");
         for s in structures {
             assert_eq!((s["valid"].as_bool(), s["hits_agree"].as_bool()), (Some(true), Some(true)), "{workload}: {s}");
-            if s["name"] == "lbvh" || s["name"] == "hlbvh" {
+            if s["name"] == "lbvh" || s["name"] == "hlbvh" || s["name"] == "grid" {
                 assert_eq!(s["build_backend"], "device", "{s}");
+                assert!(s.get("upload_ms").is_none_or(|u| u.is_null()), "{s}");
             } else {
                 assert_eq!(s["build_backend"], "host", "{s}");
                 assert!(s["upload_ms"].as_f64().is_some_and(|u| u >= 0.0), "{s}");

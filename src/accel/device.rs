@@ -505,6 +505,28 @@ impl DeviceStructure {
         })
     }
 
+    /// A grid built on the device ([`crate::accel::gpu_grid::GpuGrid::into_device_structure`]): its cell starts,
+    /// records and references, and the scene header.
+    pub(crate) fn from_grid_parts(
+        cell_start: Buffer,
+        records: Buffer,
+        refs: Buffer,
+        scene: Buffer,
+        upload: std::time::Duration,
+    ) -> Self {
+        let bytes = cell_start.size() + records.size() + refs.size() + scene.size();
+        DeviceStructure {
+            kind: TraversalKind::Grid,
+            nodes: cell_start,
+            records,
+            refs,
+            scene,
+            stack_entries: 0,
+            bytes,
+            upload_seconds: upload.as_secs_f64(),
+        }
+    }
+
     /// Which traversal it needs.
     pub fn kind(&self) -> TraversalKind {
         self.kind

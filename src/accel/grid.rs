@@ -28,6 +28,9 @@
 //! counters (which copies of one triangle would all contend for), and the same grid on every thread count. Storage
 //! is compressed rows: `cell_start[c] .. cell_start[c + 1]` indexes the reference array.
 //!
+//! The device builder ([`crate::accel::gpu_grid`]) makes the same cell lists from the same [`GridFrame`] (the
+//! frame's constants are computed once, in [`GridFrame::new`], for both).
+//!
 //! # Budget
 //!
 //! The cell references are bounded by [`GridOptions::reference_budget`] (64 per triangle, at least `2^25`) and the
@@ -54,62 +57,7 @@ use crate::mesh::Mesh;
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
-/// Options of the grid.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct GridOptions {
-    /// Cells per triangle, `lambda`.
-    pub density: f32,
-    /// Largest number of cells along one axis.
-    pub max_resolution: u32,
-    /// Largest number of cells in all.
-    pub max_cells: usize,
-    /// Cell references allowed per triangle (default 64; the shared meshes need at most 5.0): see
-    /// [`GridOptions::reference_budget`].
-    pub max_references_per_triangle: usize,
-    /// Cell references always allowed, however few the triangles (default `2^25`, 128 MiB of references): see
-    /// [`GridOptions::reference_budget`].
-    pub min_reference_budget: usize,
-    /// Largest size of the grid in bytes, as [`AccelStructure::memory_bytes`] counts it (cell starts, references,
-    /// triangle records); default 4 GiB. A larger grid fails with [`AccelError::OverBudget`] before its reference
-    /// array is allocated.
-    pub max_bytes: usize,
-}
-
-impl Default for GridOptions {
-    fn default() -> Self {
-        GridOptions {
-            density: 4.0,
-            max_resolution: 1024,
-            max_cells: 1 << 24,
-            max_references_per_triangle: 64,
-            min_reference_budget: 1 << 25,
-            max_bytes: 4 << 30,
-        }
-    }
-}
-
-impl GridOptions {
-    /// The most cell references a grid over `n` triangles may hold:
-    /// `max(max_references_per_triangle * n, min_reference_budget)` (saturating). A build that needs more fails
-    /// with [`AccelError::OverBudget`] (see the module docs).
-    pub fn reference_budget(&self, n: usize) -> usize {
-        self.max_references_per_triangle.saturating_mul(n).max(self.min_reference_budget)
-    }
-
-    /// The budget error of a grid over `n` triangles that needs at least `needed` cell references.
-    fn over_references(&self, n: usize, needed: usize) -> AccelError {
-        AccelError::OverBudget {
-            structure: "grid",
-            what: "cell references",
-            needed,
-            budget: self.reference_budget(n),
-            rule: format!(
-                "{} per triangle for {n} triangles, at least {}",
-                self.max_references_per_triangle, self.min_reference_budget
-            ),
-        }
-    }
-}
+pub use super::grid_rule::{GridFrame, GridOptions};
 
 /// The grid (see the module docs).
 #[derive(Clone, Debug, Default)]
@@ -118,13 +66,15 @@ pub struct Grid {
     res: [u32; 3],
     cell_size: Vec3,
     inv_cell: Vec3,
+    widen: DVec3,
+    pad_scale: f64,
     cell_start: Vec<u32>,
     refs: Vec<u32>,
     tris: Vec<Triangle>,
     boxes: Vec<Aabb>,
 }
 
-const WIDEN: f32 = 1e-4;
+use super::grid_rule::WIDEN;
 
 /// Resolution by the density heuristic, and the padded bounds.
 pub fn grid_resolution(bounds: &Aabb, n: usize, o: &GridOptions) -> (Aabb, [u32; 3]) {
@@ -147,13 +97,15 @@ impl Grid {
                 hi: scene.max.to_array(),
             });
         }
-        let (bounds, res) = grid_resolution(&scene, n, o);
-        let cell_size = (bounds.max - bounds.min) / Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
+        let frame = GridFrame::new(&scene, n, o);
+        let res = frame.res;
         let mut g = Grid {
-            bounds,
+            bounds: frame.bounds,
             res,
-            cell_size,
-            inv_cell: Vec3::ONE / cell_size,
+            cell_size: frame.cell_size,
+            inv_cell: frame.inv_cell,
+            widen: frame.widen,
+            pad_scale: frame.pad_scale,
             cell_start: Vec::new(),
             refs: Vec::new(),
             tris,
@@ -280,14 +232,12 @@ impl Grid {
         let (v0, e1, e2) = (t.v0.as_dvec3(), t.e1.as_dvec3(), t.e2.as_dvec3());
         let normal_len = e1.cross(e2).length();
         let all = normal_len == 0.0;
-        // The widening of every cell: WIDEN of a cell, eight f32 ulps of the coordinates (the traversal computes cell
-        // boundaries in f32), and the pad: `16 eps (|bounds| + extent) / sin(alpha)`, with `1 / sin(alpha)` =
-        // `|e1| |e2| / |e1 x e2|`.
+        // The widening of every cell (GridFrame): WIDEN of a cell, eight f32 ulps of the coordinates (the traversal
+        // computes cell boundaries in f32), and the pad: `16 eps (|bounds| + extent) / sin(alpha)`, with
+        // `1 / sin(alpha)` = `|e1| |e2| / |e1 x e2|`.
         let (bmin, cs) = (self.bounds.min.as_dvec3(), self.cell_size.as_dvec3());
-        let mag = self.bounds.min.abs().max(self.bounds.max.abs()).as_dvec3();
-        let scale = mag.max_element() + self.bounds.extent().max_element() as f64;
-        let pad = if all { 0.0 } else { 16.0 * f32::EPSILON as f64 * scale * (e1.length() * e2.length() / normal_len) };
-        let w = cs * WIDEN as f64 + mag * (8.0 * f32::EPSILON as f64) + pad;
+        let pad = if all { 0.0 } else { self.pad_scale * (e1.length() * e2.length() / normal_len) };
+        let w = self.widen + pad;
         // The cells along `axis` whose widened extent meets `lo ..= hi`, within the box's cells.
         let cells = |axis: usize, (l, h): (f64, f64)| -> Option<(u32, u32)> {
             let from = ((l - w[axis] - bmin[axis]) / cs[axis]).floor().max(lo[axis] as f64);

@@ -67,6 +67,7 @@ pub mod brute;
 pub mod bvh;
 pub mod device;
 pub mod gpu;
+pub mod gpu_grid;
 #[cfg(feature = "eval")]
 pub mod grid;
 pub mod grid_rule;

@@ -63,12 +63,16 @@ pub use crate::accel::device::{DeviceRecord, TraceBackend};
 /// drivers compile a pipeline at its first dispatch, inside the timestamps: lavapipe does, with LLVM).
 ///
 /// The LBVH and the HLBVH are built on the device ([`crate::accel::gpu::BvhBuilder`], default options, the trees
-/// of the CPU builders node for node) and traced without a read-back; the other structures are built on the host
-/// and uploaded.
+/// of the CPU builders node for node) and traced without a read-back; so is the grid
+/// ([`crate::accel::gpu_grid::GridBuilder`], default options), whose cell lists are compared with the host grid's
+/// on every build (a difference is an error); where the driver cuts the device grid builder's loops (lavapipe, on
+/// triangles over very many cells) the grid is built on the host and uploaded instead, and its `build_backend`
+/// says `host`. The other structures are built on the host and uploaded.
 pub struct DeviceOracle<'a> {
     ctx: &'a crate::gpu::Context,
     tracer: DeviceTracer,
     builder: std::cell::RefCell<crate::accel::gpu::BvhBuilder>,
+    grids: crate::accel::gpu_grid::GridBuilder,
 }
 
 impl<'a> DeviceOracle<'a> {
@@ -88,16 +92,20 @@ impl<'a> DeviceOracle<'a> {
             tracer.trace(ctx, &mut d, &ray, false)?;
         }
         let builder = std::cell::RefCell::new(crate::accel::gpu::BvhBuilder::new(ctx)?);
-        let o = DeviceOracle { ctx, tracer, builder };
+        let grids = crate::accel::gpu_grid::GridBuilder::new(ctx)?;
+        let o = DeviceOracle { ctx, tracer, builder, grids };
         // The device builders' pipelines run once too.
         let buffers = crate::gpu::MeshBuffers::upload(ctx, &mesh.positions, &mesh.indices)?;
-        for name in [StructureName::Lbvh, StructureName::Hlbvh] {
+        for name in [StructureName::Lbvh, StructureName::Hlbvh, StructureName::Grid] {
+            let host = build_structure(name, &mesh)?;
             o.run_device_built(
                 name,
                 &buffers,
                 &RaySet { kind: WorkloadKind::Primary, rays: vec![], any_hit: false },
                 None,
-            )?;
+                (host.as_ref(), &mesh),
+            )?
+            .ok_or(DeviceTraceError::NoLayout(name))?;
         }
         Ok(o)
     }
@@ -177,22 +185,47 @@ impl<'a> DeviceOracle<'a> {
         Ok(out)
     }
 
-    /// Whether the oracle builds `name` on the device (the LBVH and the HLBVH).
+    /// Whether the oracle builds `name` on the device (the LBVH, the HLBVH and the grid).
     pub fn builds_on_device(name: StructureName) -> bool {
-        matches!(name, StructureName::Lbvh | StructureName::Hlbvh)
+        matches!(name, StructureName::Lbvh | StructureName::Hlbvh | StructureName::Grid)
     }
 
-    /// Builds `name` (LBVH or HLBVH) on the device from `mesh` and traces `rays` through it: the build's GPU
+    /// Builds `name` (LBVH, HLBVH or grid) on the device from `mesh` and traces `rays` through it: the build's GPU
     /// milliseconds (its passes' timestamps, the HLBVH's host top level included, plus the triangle-records pass)
-    /// and the outcome.
+    /// and the outcome; `None` when the driver cut the device grid builder's loops (the caller builds on the
+    /// host). `host` is the host's structure of the same frame (and the frame): the device grid's cell lists must
+    /// equal its lists.
     fn run_device_built(
         &self,
         name: StructureName,
         mesh: &crate::gpu::MeshBuffers,
         rays: &RaySet,
         on_device: Option<&crate::gpu::Buffer>,
-    ) -> Result<(f64, TraceOutcome), DeviceTraceError> {
+        host: (&dyn AccelStructure, &Mesh),
+    ) -> Result<Option<(f64, TraceOutcome)>, DeviceTraceError> {
         let view = mesh.view();
+        if name == StructureName::Grid {
+            use crate::accel::gpu_grid::GridBuildError;
+            let bad = |reason: String| {
+                DeviceTraceError::Layout(crate::accel::AccelError::Invalid { structure: "grid", reason })
+            };
+            let scene = crate::accel::gpu_grid::triangle_bounds(host.1);
+            let g = match self.grids.build(&view, &scene, &Default::default()) {
+                Ok(g) => g,
+                Err(GridBuildError::LoopLimit { .. }) => return Ok(None),
+                Err(GridBuildError::Gpu(e)) => return Err(DeviceTraceError::Gpu(e)),
+                Err(e) => return Err(bad(e.to_string())),
+            };
+            let (starts, refs) = g.read_back(self.ctx).map_err(|e| bad(e.to_string()))?;
+            match host.0.device_layout() {
+                Some(crate::accel::device::DeviceLayout::Grid { cell_start, refs: want, .. })
+                    if cell_start == starts.as_slice() && want == refs.as_slice() => {}
+                _ => return Err(bad("the device-built grid's cell lists differ from the host grid's".into())),
+            }
+            let build_ms = g.gpu_ms();
+            let mut d = g.into_device_structure(self.ctx).map_err(|e| bad(e.to_string()))?;
+            return Ok(Some((build_ms, self.trace_on(&mut d, rays, on_device)?)));
+        }
         let run = |e: crate::gpu::RunError| match e {
             crate::gpu::RunError::Gpu(g) => DeviceTraceError::Gpu(g),
             other => DeviceTraceError::Layout(crate::accel::AccelError::Invalid {
@@ -210,7 +243,7 @@ impl<'a> DeviceOracle<'a> {
         let build_ms: f64 = bvh.timings().iter().map(|(_, ms)| ms).sum();
         let (mut d, records_ms) = self.tracer.structure_of(self.ctx, &bvh, &view)?;
         let out = self.trace_on(&mut d, rays, on_device)?;
-        Ok((build_ms + records_ms, out))
+        Ok(Some((build_ms + records_ms, out)))
     }
 
     fn trace_on(
@@ -523,6 +556,8 @@ struct Acc {
     valid: bool,
     disagreements: usize,
     error: Option<String>,
+    /// Built on the host after the device builder hit the driver's loop limit (some frame).
+    host_fallback: bool,
 }
 
 /// Runs the oracle on one scene (see the module docs). `selected` is the characterization's choice, if any: it
@@ -636,7 +671,15 @@ pub fn evaluate_scene_on(
                 let run = match (device, &mesh_buffers) {
                     (None, _) => Ok((build_ms, 0.0, trace(s.as_ref(), &rays))),
                     (Some(d), Some(m)) if DeviceOracle::builds_on_device(name) => {
-                        d.run_device_built(name, m, &rays, device_rays.as_ref()).map(|(b, o)| (b, 0.0, o))
+                        match d.run_device_built(name, m, &rays, device_rays.as_ref(), (s.as_ref(), mesh)) {
+                            Ok(Some((b, o))) => Ok((b, 0.0, o)),
+                            // The driver cut the device builder's loops: the host build, uploaded.
+                            Ok(None) => {
+                                a.host_fallback = true;
+                                d.run(s.as_ref(), &rays, device_rays.as_ref()).map(|(u, o)| (build_ms + u, u, o))
+                            }
+                            Err(e) => Err(e),
+                        }
                     }
                     (Some(d), _) => d.run(s.as_ref(), &rays, device_rays.as_ref()).map(|(u, o)| (build_ms + u, u, o)),
                 };
@@ -701,8 +744,14 @@ pub fn evaluate_scene_on(
             StructureResult {
                 name: Some(name),
                 build_ms: if measured_ok { Measurement::of(&builds) } else { Measurement::default() },
-                build_backend: device.map(|_| if DeviceOracle::builds_on_device(name) { "device" } else { "host" }),
-                upload_ms: device.filter(|_| !DeviceOracle::builds_on_device(name)).map(|_| {
+                build_backend: device.map(|_| {
+                    if DeviceOracle::builds_on_device(name) && !a.host_fallback {
+                        "device"
+                    } else {
+                        "host"
+                    }
+                }),
+                upload_ms: device.filter(|_| !DeviceOracle::builds_on_device(name) || a.host_fallback).map(|_| {
                     let uploads: Vec<f64> = a.upload.iter().map(|u| u * build_factor).collect();
                     Measurement::of(&uploads)
                 }),

@@ -513,9 +513,64 @@ impl RadixSort {
 
     /// Exclusive sum of the per-block counts, in place: tile sums up the levels, then scans down them.
     fn record_scan(&self, rec: &mut Recorder<'_>, internal: &Buffer, mem: &SortMemory) {
+        let levels: Vec<(u64, u64)> = (0..mem.scan_levels.len())
+            .map(|i| (internal.address() + mem.scan_offsets[i], mem.scan_levels[i]))
+            .collect();
+        self.record_scan_levels(rec, &levels);
+    }
+
+    /// Bytes of scratch [`RadixSort::record_exclusive_scan`] needs for `n` elements (the levels above the data).
+    pub fn scan_scratch_bytes(&self, n: u64) -> u64 {
+        self.scan_levels(n, 0).iter().skip(1).map(|&(_, m)| (4 * m).next_multiple_of(REGION_ALIGN)).sum::<u64>().max(4)
+    }
+
+    /// The levels of a scan of `n` elements at `data`, the upper ones packed from `scratch`.
+    fn scan_levels(&self, n: u64, data: u64) -> Vec<(u64, u64)> {
         let tile = self.config.scan_tile();
-        let level = |i: usize| (internal.address() + mem.scan_offsets[i], mem.scan_levels[i]);
-        let top = mem.scan_levels.len() - 1;
+        let mut levels = vec![(data, n)];
+        let mut offset = 0u64;
+        while levels.last().map_or(0, |l| l.1) > tile {
+            let m = levels.last().map_or(0, |l| l.1).div_ceil(tile);
+            levels.push((offset, m));
+            offset += (4 * m).next_multiple_of(REGION_ALIGN);
+        }
+        levels
+    }
+
+    /// Records the exclusive prefix sum of the `n` `u32` at the start of `data`, in place (wrapping on overflow),
+    /// with the sort's reduce-then-scan kernels; `scratch` holds [`RadixSort::scan_scratch_bytes`] bytes. Begins
+    /// with [`Recorder::barrier`]; ends with the last kernel's writes to `data`, no barrier after.
+    ///
+    /// # Errors
+    ///
+    /// [`GpuError::Buffer`] when `data` holds fewer than `n` elements or `scratch` is too small.
+    pub fn record_exclusive_scan(&self, rec: &mut Recorder<'_>, data: &Buffer, n: u64, scratch: &Buffer) -> Result<()> {
+        if data.size() < 4 * n || scratch.size() < self.scan_scratch_bytes(n) {
+            return Err(GpuError::Buffer(format!(
+                "scan of {n} elements: buffers of {} and {} bytes (need {} and {})",
+                data.size(),
+                scratch.size(),
+                4 * n,
+                self.scan_scratch_bytes(n)
+            )));
+        }
+        rec.barrier();
+        if n == 0 {
+            return Ok(());
+        }
+        let mut levels = self.scan_levels(n, data.address());
+        for l in levels.iter_mut().skip(1) {
+            l.0 += scratch.address();
+        }
+        self.record_scan_levels(rec, &levels);
+        Ok(())
+    }
+
+    /// Up the levels (tile sums), then down (scans with the partials of the level above).
+    fn record_scan_levels(&self, rec: &mut Recorder<'_>, levels: &[(u64, u64)]) {
+        let tile = self.config.scan_tile();
+        let level = |i: usize| levels[i];
+        let top = levels.len() - 1;
         for i in 0..top {
             let ((src, n), (dst, _)) = (level(i), level(i + 1));
             let push = SortScanReducePush { src, dst, n };
