@@ -639,7 +639,13 @@ fn a_device_calibration_records_its_device_and_is_chosen_on_it() {
                 stdout.contains("calibrated policy: cost model assets/cost-model-lavapipe.json: "),
                 "{name}: {stdout}"
             );
-            assert!(stdout.contains("assets/cost-model-lavapipe.json: the device UUID"), "{name}: {stdout}");
+            // The shipped file was measured on one lavapipe build: the same build matches by UUID, another
+            // (another Mesa) by name, and the policy says which.
+            assert!(
+                stdout.contains("assets/cost-model-lavapipe.json: the device UUID")
+                    || stdout.contains("is lavapipe, matched by name"),
+                "{name}: {stdout}"
+            );
         } else {
             assert!(
                 stdout.contains("calibrated policy: cost model assets/cost-model-cpu.json: no calibration"),

@@ -103,12 +103,11 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Tr
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer TraceRayRef { TraceRay ray; };
 layout(buffer_reference, std430, buffer_reference_align = 16) writeonly buffer TraceHitRef { TraceHit hit; };
 
-// Correctly rounded f32 quotient and square root. Vulkan guarantees correct rounding for f32 addition, subtraction
-// and multiplication only (division within 2.5 ulp); the f64 quotient (within a few f64 ulp) lies far closer to the
-// exact value than any f32 rounding boundary can (an f32 quotient or root is never within 2^-49 relative of a
-// midpoint unless it is one), so its conversion to f32 is the correctly rounded f32 result, as on the host.
+// Correctly rounded f32 quotient. Vulkan guarantees correct rounding for f32 addition, subtraction and
+// multiplication only (division within 2.5 ulp); the f64 quotient (within a few f64 ulp) lies far closer to the
+// exact value than any f32 rounding boundary can (an f32 quotient is never within 2^-49 relative of a midpoint
+// unless it is one), so its conversion to f32 is the correctly rounded f32 result, as on the host.
 float div_rn(float a, float b) { return float(double(a) / double(b)); }
-float sqrt_rn(float x) { return float(sqrt(double(x))); }
 
 bool is_finite_f32(float x) { return (floatBitsToUint(x) & 0x7f800000u) != 0x7f800000u; }
 
@@ -160,6 +159,27 @@ float next_up(float t) {
     if (isnan(t) || b == 0x7f800000u) return t;
     if (t == 0.0) return uintBitsToFloat(1u);
     return uintBitsToFloat(t > 0.0 ? b + 1u : b - 1u);
+}
+
+// Correctly rounded f32 square root. The f64 root is only a first guess (Mesa 25's lavapipe returns f64 roots a few
+// f64 ulp off, enough to move some f32 results by one ulp): the guess is moved to the neighbour whose rounding
+// interval holds the root, decided exactly in f64, where the square of an interval end (25 significant bits) is
+// exact and never equals x, so no tie arises.
+float sqrt_rn(float x) {
+    if (!(x > 0.0) || !is_finite_f32(x)) return sqrt(x);
+    float r = float(sqrt(double(x)));
+    double dx = double(x);
+    for (uint k = 0u; k < 2u; ++k) {
+        float up = next_up(r);
+        precise double hi = (double(r) + double(up)) * 0.5lf;
+        if (hi * hi < dx) r = up;
+    }
+    for (uint k = 0u; k < 2u; ++k) {
+        float down = uintBitsToFloat(floatBitsToUint(r) - 1u);
+        precise double lo = (double(down) + double(r)) * 0.5lf;
+        if (lo * lo > dx) r = down;
+    }
+    return r;
 }
 
 // A ray with its inverse direction (geom::ray::RayInv: a zero component's inverse is f32::MAX).
