@@ -73,6 +73,14 @@ fn run(args: Args) -> anyhow::Result<()> {
             c.float64, c.int64, c.int64_atomics, c.buffer_device_address, c.timestamp_valid_bits, c.timestamp_period
         );
         println!(
+            "      driver acceleration structures and ray queries (rt_* candidates): {}",
+            if c.ray_query {
+                "yes (VK_KHR_acceleration_structure, VK_KHR_ray_query: accelerationStructure, rayQuery)".to_string()
+            } else {
+                "no (needs VK_KHR_acceleration_structure and VK_KHR_ray_query; lavapipe from Mesa 24.1)".to_string()
+            }
+        );
+        println!(
             "      device UUID {}, driver UUID {}, pipeline cache UUID {}",
             c.device_uuid, c.driver_uuid, c.pipeline_cache_uuid
         );

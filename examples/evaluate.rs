@@ -19,6 +19,7 @@ use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::Parser;
 use cli::args::{self, JsonArg, Policy, PolicyArgs, TieMarginArg, WorkloadArgs};
 use cli::Progress;
+use meshchar::accel::driver::DriverFlags;
 use meshchar::accel::{AccelStructure, StructureName};
 use meshchar::characterize::{Characterizer, Params};
 use meshchar::cost::{CostModel, Prediction};
@@ -70,9 +71,11 @@ struct Args {
     /// Build once (static scenes, the default) or every frame (the default for animations)
     #[arg(long, value_name = "once|frame", value_parser = rebuild())]
     rebuild: Option<Rebuild>,
-    /// Comma-separated subset of bvh,kdtree,grid,bih,lbvh,hlbvh [default: all]
-    #[arg(long, value_name = "LIST", value_delimiter = ',', value_parser = args::structure)]
-    structures: Vec<StructureName>,
+    /// Comma-separated subset of bvh,kdtree,grid,bih,lbvh,hlbvh and the driver's acceleration structures
+    /// rt_fast_trace,rt_fast_build,rt_update,rt_fast_trace_compact (ray queries: --trace-backend vulkan on a device
+    /// with VK_KHR_ray_query) [default: the six project structures]
+    #[arg(long, value_name = "LIST", value_delimiter = ',', value_parser = candidate)]
+    structures: Vec<Candidate>,
     /// Eye, target (and vertical field of view in degrees, default 45); +y is up [default: a camera framing the
     /// scene]
     #[arg(long, value_name = "EX,EY,EZ,TX,TY,TZ[,FOV]", allow_hyphen_values = true, value_parser = camera)]
@@ -100,6 +103,23 @@ struct Args {
     trace_backend: TraceBackend,
 }
 
+/// A name in `--structures`: one of the project's structures or a driver acceleration structure.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Candidate {
+    Ours(StructureName),
+    Driver(DriverFlags),
+}
+
+/// `--structures` item.
+fn candidate(s: &str) -> Result<Candidate, String> {
+    if let Some(f) = DriverFlags::parse(s.trim()) {
+        return Ok(Candidate::Driver(f));
+    }
+    args::structure(s).map(Candidate::Ours).map_err(|e| {
+        format!("{e} (or a driver structure: rt_fast_trace, rt_fast_build, rt_update, rt_fast_trace_compact)")
+    })
+}
+
 /// `--trace-backend`: `cpu` or `vulkan`.
 fn trace_backend(s: &str) -> Result<TraceBackend, String> {
     s.parse()
@@ -114,7 +134,25 @@ impl Args {
             resolution: self.workload.resolution,
             frames: self.frames,
             repeats: self.repeats,
-            structures: if self.structures.is_empty() { default.structures.clone() } else { self.structures.clone() },
+            structures: if self.structures.is_empty() {
+                default.structures.clone()
+            } else {
+                self.structures
+                    .iter()
+                    .filter_map(|c| match c {
+                        Candidate::Ours(n) => Some(*n),
+                        Candidate::Driver(_) => None,
+                    })
+                    .collect()
+            },
+            driver: self
+                .structures
+                .iter()
+                .filter_map(|c| match c {
+                    Candidate::Driver(f) => Some(*f),
+                    Candidate::Ours(_) => None,
+                })
+                .collect(),
             camera: self.camera,
             ..default
         }
@@ -226,9 +264,9 @@ fn print_table(e: &SceneEvaluation) {
     println!("  reference hits: {} rays over {} frame(s)", e.reference_hits, e.frames_measured);
     if let Some(d) = &e.device {
         println!(
-            "  traced on the device: {} ({}, {}); trace ms are GPU timestamps; build ms: lbvh and hlbvh built on \
-             the device (timestamps), the others on the host plus the upload; every ray's hit checked against the \
-             CPU reference",
+            "  traced on the device: {} ({}, {}); trace ms are GPU timestamps; build ms: lbvh, hlbvh and grid \
+             built on the device (timestamps; build_backend says where), the others on the host plus the upload; \
+             every ray's hit checked against the CPU reference",
             d.name, d.device_type, d.driver
         );
     }
@@ -270,6 +308,37 @@ fn print_table(e: &SceneEvaluation) {
         );
         if let Some(err) = &s.error {
             println!("          error: {err}");
+        }
+    }
+    if !e.driver_structures.is_empty() {
+        println!(
+            "  driver acceleration structures (ray queries; GPU timestamps; no test counts: the driver exposes none):"
+        );
+        println!(
+            "  {:<22} {:>10} {:>10} {:>18} {:>9} {:>10} {:>10} {:>5} {:>5}",
+            "", "build ms", "trace ms", "total ms", "Mrays/s", "memory MB", "compact MB", "valid", "agree"
+        );
+        for d in &e.driver_structures {
+            if let (Some(err), 0) = (&d.error, d.rays) {
+                println!("  {:<22} error: {err}", d.name);
+                continue;
+            }
+            println!(
+                "  {:<22} {:>10.2} {:>10.2} {:>11.2} ±{:<6.2} {:>9.2} {:>10.2} {:>10} {:>5} {:>5}",
+                d.name,
+                d.build_ms,
+                d.trace_ms,
+                d.total_ms,
+                d.total_ms_spread,
+                d.mrays_per_s,
+                d.memory_bytes as f64 / (1024.0 * 1024.0),
+                d.compacted_bytes.map(|b| format!("{:.2}", b as f64 / (1024.0 * 1024.0))).unwrap_or_else(|| "-".into()),
+                d.valid,
+                d.hits_agree
+            );
+            if let Some(err) = &d.error {
+                println!("          error: {err}");
+            }
         }
     }
 }

@@ -28,7 +28,7 @@ fn binary() -> PathBuf {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     // What cargo relinks the example for (a manifest edit need not relink it, and without `compile-glsl` an edit
     // of glsl/ rebuilds nothing).
-    let sources = [root.join("examples"), root.join("src")];
+    let sources = [root.join("examples/engine_frame.rs"), root.join("examples/support"), root.join("src")];
     if let Some(newer) = newest_source(&sources, built) {
         panic!("example binary {} is older than {}: rebuild the examples", path.display(), newer.display());
     }

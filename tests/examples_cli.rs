@@ -37,7 +37,9 @@ fn binary(name: &str) -> PathBuf {
     );
     let built = std::fs::metadata(&path).and_then(|m| m.modified()).expect("the binary's time");
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    if let Some(newer) = newest_source(&[root.join("examples"), root.join("src")], built) {
+    // What cargo relinks this example for: its own source, the shared support code, the library.
+    let sources = [root.join("examples").join(format!("{name}.rs")), root.join("examples/support"), root.join("src")];
+    if let Some(newer) = newest_source(&sources, built) {
         panic!(
             "example binary {} is older than {}: rebuild the examples (`cargo build --release --examples`)",
             path.display(),
@@ -437,6 +439,54 @@ fn evaluate_traces_on_the_device() {
             assert!(s["trace_ms"].as_f64().is_some_and(|t| t > 0.0), "{s}");
         }
     }
+}
+
+/// The command: `evaluate --json --structures rt_fast_trace,rt_fast_build,bvh,lbvh` on a mesh no test
+/// tuned for reports the driver structures valid, agreeing with the CPU reference, with build and trace times, beside
+/// the project's; on the CPU backend they are reported as not measured, with the reason.
+#[test]
+fn evaluate_measures_the_driver_structures() {
+    let ray_query = meshchar::gpu::Context::new(&Default::default()).map(|c| c.caps().ray_query);
+    if std::env::var("REQUIRE_GPU").map_or(true, |v| v != "1") && !matches!(ray_query, Ok(true)) {
+        eprintln!("skipping: no Vulkan device with ray queries");
+        return;
+    }
+    let dir = inputs("driver-oracle");
+    let p = dir.join("soup.obj");
+    soup_obj(&p, 2000, 0xd21);
+    for workload in ["primary", "shadow"] {
+        let args =
+            ["--json", "--trace-backend", "vulkan", "--resolution", "32", "--repeats", "2", "--workload", workload];
+        let mut a: Vec<&str> = vec![arg(&p)];
+        a.extend(args);
+        a.extend(["--structures", "rt_fast_trace,rt_fast_build,bvh,lbvh"]);
+        let out = run("evaluate", &a);
+        let (stdout, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(0), "{stderr}");
+        let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("evaluate --json");
+        let ours: Vec<&str> = v["structures"].as_array().unwrap().iter().map(|s| s["name"].as_str().unwrap()).collect();
+        assert_eq!(ours, ["bvh", "lbvh"], "{v}");
+        let driver = v["driver_structures"].as_array().expect("driver_structures");
+        let names: Vec<&str> = driver.iter().map(|s| s["name"].as_str().unwrap()).collect();
+        assert_eq!(names, ["rt_fast_trace", "rt_fast_build"], "{v}");
+        for d in driver {
+            assert_eq!((d["valid"].as_bool(), d["hits_agree"].as_bool()), (Some(true), Some(true)), "{workload}: {d}");
+            assert!(d["build_ms"].as_f64().is_some_and(|b| b > 0.0), "{d}");
+            assert!(d["trace_ms"].as_f64().is_some_and(|t| t > 0.0), "{d}");
+            assert!(d["rays"].as_u64().is_some_and(|r| r > 0), "{d}");
+            assert_eq!(d["per_frame"], "rebuild", "{d}");
+        }
+    }
+    let out =
+        run("evaluate", &[arg(&p), "--json", "--resolution", "8", "--repeats", "1", "--structures", "bvh,rt_update"]);
+    let (stdout, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("evaluate --json");
+    let d = &v["driver_structures"][0];
+    assert_eq!((d["name"].as_str(), d["valid"].as_bool()), (Some("rt_update"), Some(false)), "{v}");
+    assert!(d["error"].as_str().is_some_and(|e| e.contains("--trace-backend vulkan")), "{d}");
+    let out = run("evaluate", &[arg(&p), "--structures", "rt_fastest"]);
+    assert_eq!(out.status.code(), Some(2), "an unknown name is a usage error");
 }
 
 #[test]

@@ -66,6 +66,7 @@ pub mod bih;
 pub mod brute;
 pub mod bvh;
 pub mod device;
+pub mod driver;
 pub mod gpu;
 pub mod gpu_grid;
 #[cfg(feature = "eval")]

@@ -73,6 +73,7 @@ pub struct DeviceOracle<'a> {
     tracer: DeviceTracer,
     builder: std::cell::RefCell<crate::accel::gpu::BvhBuilder>,
     grids: crate::accel::gpu_grid::GridBuilder,
+    driver: Option<crate::accel::driver::DriverBuilder>,
 }
 
 impl<'a> DeviceOracle<'a> {
@@ -93,7 +94,11 @@ impl<'a> DeviceOracle<'a> {
         }
         let builder = std::cell::RefCell::new(crate::accel::gpu::BvhBuilder::new(ctx)?);
         let grids = crate::accel::gpu_grid::GridBuilder::new(ctx)?;
-        let o = DeviceOracle { ctx, tracer, builder, grids };
+        let driver = match ctx.caps().ray_query {
+            true => Some(crate::accel::driver::DriverBuilder::new(ctx)?),
+            false => None,
+        };
+        let o = DeviceOracle { ctx, tracer, builder, grids, driver };
         // The device builders' pipelines run once too.
         let buffers = crate::gpu::MeshBuffers::upload(ctx, &mesh.positions, &mesh.indices)?;
         for name in [StructureName::Lbvh, StructureName::Hlbvh, StructureName::Grid] {
@@ -106,6 +111,11 @@ impl<'a> DeviceOracle<'a> {
                 (host.as_ref(), &mesh),
             )?
             .ok_or(DeviceTraceError::NoLayout(name))?;
+        }
+        // The ray-query pipeline compiles at its first dispatch on some drivers.
+        if let Some(b) = &o.driver {
+            let s = b.build(&buffers.view(), crate::accel::driver::DriverFlags::FastTrace)?;
+            b.trace(&s, &ray, false)?;
         }
         Ok(o)
     }
@@ -306,6 +316,8 @@ pub struct OracleConfig {
     pub structures: Vec<StructureName>,
     /// Camera; `None` frames the scene automatically ([`Camera::frame`] on the bounds of all frames).
     pub camera: Option<Camera>,
+    /// The driver's acceleration structures to measure beside `structures` (device backend with ray queries).
+    pub driver: Vec<crate::accel::driver::DriverFlags>,
 }
 
 impl Default for OracleConfig {
@@ -318,6 +330,7 @@ impl Default for OracleConfig {
             repeats: 3,
             structures: StructureName::ALL.to_vec(),
             camera: None,
+            driver: Vec::new(),
         }
     }
 }
@@ -463,6 +476,61 @@ pub struct SceneEvaluation {
     pub device: Option<DeviceRecord>,
     /// Per structure.
     pub structures: Vec<StructureResult>,
+    /// The driver's acceleration structures, when asked for ([`OracleConfig::driver`]).
+    pub driver_structures: Vec<DriverResult>,
+}
+
+/// One driver acceleration structure in the oracle ([`crate::accel::driver`]): build flags, times (GPU timestamps),
+/// memory and the agreement of its ray-query hits with the CPU reference ([`crate::accel::driver::hit_agrees`]).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DriverResult {
+    /// `rt_fast_trace`, `rt_fast_build`, `rt_update` or `rt_fast_trace_compact`.
+    pub name: String,
+    /// How it follows an animation's frames: `rebuild`, or `update` (`rt_update`: built on the first frame,
+    /// updated on the next ones).
+    pub per_frame: String,
+    /// Median build (or update) time over the run, ms: the bottom and top levels' timestamps (and the compaction).
+    pub build_ms: f64,
+    /// Median trace time over the run, ms (the ray-query dispatch's timestamps).
+    pub trace_ms: f64,
+    /// Median total, ms.
+    pub total_ms: f64,
+    /// Half the range of the totals.
+    pub total_ms_spread: f64,
+    /// Rays traced over the measured frames (first repeat).
+    pub rays: u64,
+    /// Million rays per second (median trace time).
+    pub mrays_per_s: f64,
+    /// Device bytes held (both levels, the instance, the scratch kept for updates), largest over the frames.
+    pub memory_bytes: u64,
+    /// Bytes of the bottom level as built.
+    pub built_bytes: u64,
+    /// Bytes of the compacted bottom level (`rt_fast_trace_compact`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub compacted_bytes: Option<u64>,
+    /// Built and traced without error.
+    pub valid: bool,
+    /// Every ray agreed with the CPU reference.
+    pub hits_agree: bool,
+    /// Rays that did not.
+    pub disagreements: usize,
+    /// Why it was not measured, or what failed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
+/// What the oracle gathers for one driver structure.
+#[derive(Default)]
+struct DriverAcc {
+    build: Vec<f64>,
+    trace: Vec<f64>,
+    rays: u64,
+    memory: u64,
+    built: u64,
+    compacted: Option<u64>,
+    disagreements: usize,
+    error: Option<String>,
+    kept: Vec<Option<crate::accel::driver::DriverStructure>>,
 }
 
 impl SceneEvaluation {
@@ -528,6 +596,7 @@ impl SceneEvaluation {
             ray_generation: (self.trace_backend == TraceBackend::Vulkan).then(|| "device".to_string()),
             triangles: self.triangles,
             workload: self.workload,
+            driver_structures: self.driver_structures.clone(),
         }
     }
 
@@ -609,6 +678,16 @@ pub fn evaluate_scene_on(
         a.upload = vec![0.0; repeats];
         a.trace = vec![0.0; repeats];
     }
+    let mut dacc: Vec<DriverAcc> = config
+        .driver
+        .iter()
+        .map(|_| DriverAcc {
+            build: vec![0.0; repeats],
+            trace: vec![0.0; repeats],
+            kept: (0..repeats).map(|_| None).collect(),
+            ..Default::default()
+        })
+        .collect();
     let mut rays_per_frame = 0;
     let mut reference_hits = 0u64;
     let mut rays_total = 0u64;
@@ -626,7 +705,7 @@ pub fn evaluate_scene_on(
         rays_total += rays.rays.len() as u64;
         // The device builders read the frame from device memory, where an engine's geometry already is (untimed).
         let mesh_buffers = match device {
-            Some(d) if names.iter().any(|&n| DeviceOracle::builds_on_device(n)) => Some(
+            Some(d) if names.iter().any(|&n| DeviceOracle::builds_on_device(n)) || !config.driver.is_empty() => Some(
                 crate::gpu::MeshBuffers::upload(d.ctx, &mesh.positions, &mesh.indices)
                     .map_err(|e| EvalError::Device(e.to_string()))?,
             ),
@@ -715,6 +794,82 @@ pub fn evaluate_scene_on(
                         a.sah = s.sah_cost();
                     }
                 }
+            }
+        }
+        for (di, &flags) in config.driver.iter().enumerate() {
+            let a = &mut dacc[di];
+            if a.error.is_some() {
+                continue;
+            }
+            let (Some(d), Some(m)) = (device, &mesh_buffers) else {
+                a.error = Some("driver structures are traced with ray queries: needs --trace-backend vulkan".into());
+                continue;
+            };
+            let Some(builder) = &d.driver else {
+                a.error = Some(format!(
+                    "{} has no VK_KHR_acceleration_structure / VK_KHR_ray_query (lavapipe has them from Mesa 24.1)",
+                    d.ctx.caps().name
+                ));
+                continue;
+            };
+            let extent = mesh_bounds(mesh).extent().max_element();
+            for r in 0..repeats {
+                progress(&format!(
+                    "{}: frame {}/{} repeat {}/{}: {}",
+                    scene.name,
+                    fi + 1,
+                    measured.len(),
+                    r + 1,
+                    repeats,
+                    flags.name()
+                ));
+                let view = m.view();
+                let built = match a.kept[r].take() {
+                    Some(mut s) if flags == crate::accel::driver::DriverFlags::Update => {
+                        builder.update(&view, &mut s).map(|_| s)
+                    }
+                    _ => builder.build(&view, flags),
+                };
+                let s = match built {
+                    Ok(s) => s,
+                    Err(e) => {
+                        a.error = Some(format!("device: {e}"));
+                        break;
+                    }
+                };
+                let traced = match &device_rays {
+                    Some(buf) => builder.trace_buffer(&s, buf, rays.rays.len() as u64, rays.any_hit),
+                    None => builder.trace(&s, &rays.rays.iter().map(TraceRay::from).collect::<Vec<_>>(), rays.any_hit),
+                };
+                let out = match traced {
+                    Ok(o) => o,
+                    Err(e) => {
+                        a.error = Some(format!("device: {e}"));
+                        break;
+                    }
+                };
+                a.build[r] += s.gpu_ms();
+                a.trace[r] += out.gpu_ms;
+                if r == 0 {
+                    a.rays += out.hits.len() as u64;
+                    a.memory = a.memory.max(s.memory_bytes());
+                    a.built = a.built.max(s.built_bytes());
+                    a.compacted = s.compacted_bytes().or(a.compacted);
+                    a.disagreements += out
+                        .hits
+                        .iter()
+                        .enumerate()
+                        .filter(|(i, h)| {
+                            if rays.any_hit {
+                                want.occluded.get(*i).copied().unwrap_or(false) != h.hit().is_some()
+                            } else {
+                                let w = want.hits.get(*i).copied().flatten().map(|x| (x.triangle, x.t));
+                                !crate::accel::driver::hit_agrees(w, h.hit().map(|x| (x.triangle, x.t)), extent)
+                            }
+                        })
+                        .count();
+                }
+                a.kept[r] = Some(s);
             }
         }
     }
@@ -824,5 +979,35 @@ pub fn evaluate_scene_on(
         trace_backend: if device.is_some() { TraceBackend::Vulkan } else { TraceBackend::Cpu },
         device: device.map(|d| DeviceRecord::of(d.ctx)),
         structures: results,
+        driver_structures: config
+            .driver
+            .iter()
+            .zip(&dacc)
+            .map(|(&flags, a)| {
+                let builds: Vec<f64> = a.build.iter().map(|b| b * build_factor).collect();
+                let traces: Vec<f64> = a.trace.iter().map(|t| t * trace_factor).collect();
+                let totals: Vec<f64> = builds.iter().zip(&traces).map(|(b, t)| b + t).collect();
+                let ok = a.error.is_none() && a.rays > 0;
+                let (b, t, tot) = (Measurement::of(&builds), Measurement::of(&traces), Measurement::of(&totals));
+                DriverResult {
+                    name: flags.name().to_string(),
+                    per_frame: if flags == crate::accel::driver::DriverFlags::Update { "update" } else { "rebuild" }
+                        .to_string(),
+                    build_ms: if ok { b.median } else { 0.0 },
+                    trace_ms: if ok { t.median } else { 0.0 },
+                    total_ms: if ok { tot.median } else { 0.0 },
+                    total_ms_spread: if ok { tot.spread } else { 0.0 },
+                    rays: a.rays,
+                    mrays_per_s: if ok && t.median > 0.0 { a.rays as f64 / (t.median * 1e3) } else { 0.0 },
+                    memory_bytes: a.memory,
+                    built_bytes: a.built,
+                    compacted_bytes: a.compacted,
+                    valid: ok,
+                    hits_agree: ok && a.disagreements == 0,
+                    disagreements: a.disagreements,
+                    error: a.error.clone(),
+                }
+            })
+            .collect(),
     })
 }

@@ -240,6 +240,10 @@ pub struct OracleRecord {
     pub triangles: usize,
     /// The workload.
     pub workload: WorkloadKind,
+    /// The driver's acceleration structures measured beside the project's (`--structures rt_*` with
+    /// `--trace-backend vulkan`; see [`crate::accel::driver`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub driver_structures: Vec<super::oracle::DriverResult>,
 }
 
 impl OracleRecord {

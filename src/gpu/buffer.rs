@@ -123,10 +123,15 @@ impl Context {
         }
         let dev = &self.inner.device;
         let alloc = self.inner.alloc();
-        let usage = vk::BufferUsageFlags::STORAGE_BUFFER
+        let mut usage = vk::BufferUsageFlags::STORAGE_BUFFER
             | vk::BufferUsageFlags::TRANSFER_SRC
             | vk::BufferUsageFlags::TRANSFER_DST
             | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
+        if caps.ray_query {
+            // Any buffer may hold geometry for, or be, a driver acceleration structure (crate::accel::driver).
+            usage |= vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
+                | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR;
+        }
         let info = vk::BufferCreateInfo::default().size(size).usage(usage).sharing_mode(vk::SharingMode::EXCLUSIVE);
         // SAFETY: valid device and create info.
         let buffer = vk_check("vkCreateBuffer", unsafe { dev.create_buffer(&info, alloc) })?;

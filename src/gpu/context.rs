@@ -178,6 +178,12 @@ pub struct DeviceCaps {
     /// `shaderFloat64`, supported and enabled (an owned context enables it where supported; see
     /// [`RawDevice::float64_enabled`]).
     pub float64: bool,
+    /// The driver's ray tracing for compute ([`ray_tracing_device_extensions`], [`ray_tracing_device_features`]:
+    /// acceleration structures and ray queries), supported and enabled (an owned context enables it where
+    /// supported; see [`RawDevice::ray_query_enabled`]).
+    pub ray_query: bool,
+    /// `minAccelerationStructureScratchOffsetAlignment` (bytes; 0 without [`DeviceCaps::ray_query`]).
+    pub acceleration_scratch_alignment: u32,
     /// `shaderInt64`.
     pub int64: bool,
     /// `shaderBufferInt64Atomics`.
@@ -289,6 +295,11 @@ pub struct RawDevice {
     /// ([`crate::accel::device::DeviceTracer`]) needs it; nothing else does. [`DeviceCaps::float64`] of the context
     /// is true only when this is.
     pub float64_enabled: bool,
+    /// Whether `device` was created with the extensions of [`ray_tracing_device_extensions`] and the features of
+    /// [`ray_tracing_device_features`] (default `false`): the driver's acceleration structures
+    /// ([`crate::accel::driver`]) need them; nothing else does. [`DeviceCaps::ray_query`] of the context is true
+    /// only when this is.
+    pub ray_query_enabled: bool,
 }
 
 impl RawDevice {
@@ -309,8 +320,27 @@ impl RawDevice {
             pipeline_cache: vk::PipelineCache::null(),
             allocation_callbacks: None,
             float64_enabled: false,
+            ray_query_enabled: false,
         }
     }
+}
+
+/// Device extensions of the driver's ray tracing for compute (optional: [`crate::accel::driver`] needs them):
+/// `VK_KHR_acceleration_structure`, `VK_KHR_ray_query` and `VK_KHR_deferred_host_operations` (which the first
+/// requires).
+pub fn ray_tracing_device_extensions() -> &'static [&'static CStr] {
+    &[ash::khr::acceleration_structure::NAME, ash::khr::ray_query::NAME, ash::khr::deferred_host_operations::NAME]
+}
+
+/// Sets the features of the driver's ray tracing for compute (optional, beyond [`required_device_features`]):
+/// `accelerationStructure` and `rayQuery` (with `bufferDeviceAddress`, already required). Returns their names.
+pub fn ray_tracing_device_features(
+    acceleration: &mut vk::PhysicalDeviceAccelerationStructureFeaturesKHR<'_>,
+    ray_query: &mut vk::PhysicalDeviceRayQueryFeaturesKHR<'_>,
+) -> &'static [&'static str] {
+    acceleration.acceleration_structure = vk::TRUE;
+    ray_query.ray_query = vk::TRUE;
+    &["accelerationStructure", "rayQuery", "bufferDeviceAddress"]
 }
 
 /// Device extensions a host engine must enable for [`Context::from_raw`]. Everything the engine uses is core in
@@ -520,6 +550,8 @@ pub(crate) struct Inner {
     pub(crate) queue_family: u32,
     pub(crate) caps: DeviceCaps,
     pub(crate) host_waits: std::sync::atomic::AtomicU64,
+    /// The acceleration-structure functions, with [`DeviceCaps::ray_query`].
+    pub(crate) acceleration: Option<ash::khr::acceleration_structure::Device>,
     /// The cache every kernel is created through (the context's own, the engine's, or null).
     pub(crate) pipeline_cache: vk::PipelineCache,
     /// Where [`Context::save_pipeline_cache`] writes the context's own cache.
@@ -628,13 +660,25 @@ pub(crate) fn query_caps(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> 
             }
             instance.get_physical_device_properties2(pdev, &mut p2);
         }
+        let has_rt = v12 && ray_tracing_device_extensions().iter().all(|e| has_device_extension(instance, pdev, e));
+        let mut as_props = vk::PhysicalDeviceAccelerationStructurePropertiesKHR::default();
+        if has_rt {
+            let mut p2 = vk::PhysicalDeviceProperties2::default().push_next(&mut as_props);
+            instance.get_physical_device_properties2(pdev, &mut p2);
+        }
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
+        let mut f_as = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default();
+        let mut f_rq = vk::PhysicalDeviceRayQueryFeaturesKHR::default();
         let mut f2 = vk::PhysicalDeviceFeatures2::default();
         if v12 {
             f2 = f2.push_next(&mut f12);
         }
+        if has_rt {
+            f2 = f2.push_next(&mut f_as).push_next(&mut f_rq);
+        }
         instance.get_physical_device_features2(pdev, &mut f2);
         let features = f2.features;
+        let ray_query = has_rt && f_as.acceleration_structure == vk::TRUE && f_rq.ray_query == vk::TRUE;
         let families = instance.get_physical_device_queue_family_properties(pdev);
         let queue_family = families
             .iter()
@@ -701,6 +745,12 @@ pub(crate) fn query_caps(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> 
             max_buffer_size: has_maint4.then_some(maint4.max_buffer_size),
             max_push_constants_size: props.limits.max_push_constants_size,
             float64: features.shader_float64 == vk::TRUE,
+            ray_query,
+            acceleration_scratch_alignment: if ray_query {
+                as_props.min_acceleration_structure_scratch_offset_alignment
+            } else {
+                0
+            },
             int64: features.shader_int64 == vk::TRUE,
             int64_atomics: v12 && f12.shader_buffer_int64_atomics == vk::TRUE,
             buffer_device_address: v12 && f12.buffer_device_address == vk::TRUE,
@@ -810,8 +860,17 @@ impl Context {
         required_device_features(&mut core, &mut v12);
         // Optional: the device traversal's exact division needs it, nothing else does.
         core.shader_float64 = caps.float64 as vk::Bool32;
+        // Optional: the driver's acceleration structures and ray queries, where supported.
+        let mut f_as = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default();
+        let mut f_rq = vk::PhysicalDeviceRayQueryFeaturesKHR::default();
         let mut f2 = vk::PhysicalDeviceFeatures2::default().features(core).push_next(&mut v12);
-        let ext_names: Vec<*const std::ffi::c_char> = required_device_extensions().iter().map(|e| e.as_ptr()).collect();
+        let mut ext_names: Vec<*const std::ffi::c_char> =
+            required_device_extensions().iter().map(|e| e.as_ptr()).collect();
+        if caps.ray_query {
+            ray_tracing_device_features(&mut f_as, &mut f_rq);
+            f2 = f2.push_next(&mut f_as).push_next(&mut f_rq);
+            ext_names.extend(ray_tracing_device_extensions().iter().map(|e| e.as_ptr()));
+        }
         let info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queue_info)
             .enabled_extension_names(&ext_names)
@@ -863,6 +922,7 @@ impl Context {
         let mut caps = caps;
         caps.queue_family = Some(raw.queue_family_index);
         caps.float64 &= raw.float64_enabled;
+        caps.ray_query &= raw.ray_query_enabled;
         // SAFETY: per this function's contract.
         let families = unsafe { raw.instance.get_physical_device_queue_family_properties(raw.physical_device) };
         caps.timestamp_valid_bits =
@@ -922,6 +982,7 @@ impl Context {
         })
         .map_err(|e| GpuError::Alloc { name: "allocator".into(), bytes: 0, source: e })?;
         objects.allocator = Some(Mutex::new(allocator));
+        let acceleration = caps.ray_query.then(|| ash::khr::acceleration_structure::Device::new(instance, &device));
         Ok(Context {
             inner: Arc::new(Inner {
                 device,
@@ -930,6 +991,7 @@ impl Context {
                 queue_family: family,
                 caps,
                 host_waits: std::sync::atomic::AtomicU64::new(0),
+                acceleration,
                 pipeline_cache: cache.cache,
                 cache_file: cache.file,
                 warnings: Mutex::new(cache.warnings),

@@ -26,8 +26,8 @@ pub mod sort;
 pub use bounds::{BoundsPush, PointBounds};
 pub use buffer::{Buffer, MemoryKind};
 pub use context::{
-    enumerate_devices, required_device_extensions, required_device_features, Context, ContextDesc, DeviceCaps,
-    DeviceSummary, DeviceType, RawDevice,
+    enumerate_devices, ray_tracing_device_extensions, ray_tracing_device_features, required_device_extensions,
+    required_device_features, Context, ContextDesc, DeviceCaps, DeviceSummary, DeviceType, RawDevice,
 };
 pub(crate) use geometry::geometry_push;
 pub use geometry::{GeometryView, IndexType, Indices, Vertices};

@@ -1,0 +1,145 @@
+//! The driver's acceleration structures (`meshchar::accel::driver`): built over geometry views with every
+//! build-flag choice, compacted, updated over an animation, and traced with ray queries whose hits are checked
+//! against the CPU reference. With the validation layer on; under `REQUIRE_GPU=1` a device without ray queries is
+//! a failure (CI installs lavapipe from Mesa 25, which has them).
+
+mod common;
+mod gpu_support;
+
+use meshchar::accel::device::TraceRay;
+use meshchar::accel::driver::{hit_agrees, DriverBuilder, DriverFlags};
+use meshchar::accel::{build_structure, AccelStructure, StructureName};
+use meshchar::geom::{Ray, TraceCounters, WorkloadKind};
+use meshchar::gpu::{Context, MeshBuffers};
+use meshchar::mesh::{generate, load::load_mesh, Mesh};
+use meshchar::trace::workload::{build_workload, mesh_bounds};
+use meshchar::trace::Camera;
+
+/// A context with ray queries, or `None` (skip) when the device has none and `REQUIRE_GPU` is not `1`.
+fn ray_query_context() -> Option<Context> {
+    let ctx = gpu_support::context()?;
+    if !ctx.caps().ray_query {
+        if std::env::var("REQUIRE_GPU").is_ok_and(|v| v == "1") {
+            panic!(
+                "REQUIRE_GPU=1 but {} ({}) has no VK_KHR_acceleration_structure / VK_KHR_ray_query (lavapipe has them from Mesa 24.1; scripts/setup installs Mesa 25 from Debian backports)",
+                ctx.caps().name,
+                ctx.caps().driver
+            );
+        }
+        eprintln!("skipping: no ray queries on {}", ctx.caps().name);
+        return None;
+    }
+    Some(ctx)
+}
+
+/// Rays whose hits disagree with the CPU reference: another triangle at a `t` more than `1e-4 t + 1e-6 extent`
+/// away, or a hit where the other misses (any-hit rays: occluded or not).
+fn disagreements(
+    reference: &dyn AccelStructure,
+    rays: &[Ray],
+    any: bool,
+    hits: &[meshchar::accel::device::TraceHit],
+    extent: f32,
+) -> usize {
+    let mut bad = 0;
+    for (r, h) in rays.iter().zip(hits) {
+        let mut c = TraceCounters::default();
+        if any {
+            bad += usize::from(reference.occluded(r, &mut c) != h.hit().is_some());
+            continue;
+        }
+        let want = reference.intersect(r, &mut c).map(|a| (a.triangle, a.t));
+        bad += usize::from(!hit_agrees(want, h.hit().map(|b| (b.triangle, b.t)), extent));
+    }
+    bad
+}
+
+fn check_scene(ctx: &Context, builder: &DriverBuilder, name: &str, mesh: &Mesh, res: u32) {
+    let buffers = MeshBuffers::upload(ctx, &mesh.positions, &mesh.indices).unwrap();
+    let view = buffers.view();
+    let bounds = mesh_bounds(mesh);
+    let extent = bounds.extent().max_element();
+    let camera = Camera::frame(&bounds);
+    let reference = build_structure(StructureName::Bvh, mesh).unwrap();
+    for flags in DriverFlags::ALL {
+        let s = builder.build(&view, flags).unwrap_or_else(|e| panic!("{name} {}: {e}", flags.name()));
+        assert!(s.gpu_ms() > 0.0 && s.built_bytes() > 0, "{name} {}: {s:?} {:?}", flags.name(), s.timings());
+        if flags.compacts() {
+            let c = s.compacted_bytes().expect("compacted size");
+            assert!(c > 0 && c <= s.built_bytes(), "{name}: compacted {c} of {}", s.built_bytes());
+        }
+        for kind in [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse] {
+            let set = build_workload(kind, mesh, &camera, res, reference.as_ref());
+            let dev: Vec<TraceRay> = set.rays.iter().map(TraceRay::from).collect();
+            let out = builder.trace(&s, &dev, set.any_hit).unwrap();
+            let bad = disagreements(reference.as_ref(), &set.rays, set.any_hit, &out.hits, extent);
+            let hits = out.hits.iter().filter(|h| h.hit().is_some()).count();
+            let mut c = TraceCounters::default();
+            let want = set
+                .rays
+                .iter()
+                .filter(|r| {
+                    if set.any_hit {
+                        reference.occluded(r, &mut c)
+                    } else {
+                        reference.intersect(r, &mut c).is_some()
+                    }
+                })
+                .count();
+            assert_eq!(hits > 0, want > 0, "{name} {} {kind:?}: {hits} hits, the reference {want}", flags.name());
+            // Edge and silhouette rays may go either way between two watertight-enough tests: at most 0.2%.
+            assert!(
+                bad * 500 <= set.rays.len(),
+                "{name} {} {kind:?}: {bad} of {} rays disagree",
+                flags.name(),
+                set.rays.len()
+            );
+        }
+    }
+}
+
+#[test]
+fn driver_structures_trace_like_the_cpu_reference() {
+    let Some(ctx) = ray_query_context() else { return };
+    let builder = DriverBuilder::new(&ctx).expect("builder");
+    for rel in ["stanford-bunny/bun_zipper.ply", "dabrovic-sponza/sponza.obj", "small/teapot-pd.obj"] {
+        let mesh = load_mesh(&common::shared_mesh(rel)).unwrap();
+        check_scene(&ctx, &builder, rel, &mesh, 64);
+    }
+    check_scene(&ctx, &builder, "soup", &generate::random_soup(5000, 3), 48);
+    check_scene(&ctx, &builder, "single", &generate::single_triangle(), 16);
+    gpu_support::assert_no_validation_messages(&ctx);
+}
+
+/// `rt_update` over the frames of an animation (vertices moved in place, same topology): after each update the
+/// hits equal the CPU reference of that frame; structures built without ALLOW_UPDATE refuse an update.
+#[test]
+fn an_updated_driver_structure_follows_the_animation() {
+    let Some(ctx) = ray_query_context() else { return };
+    let builder = DriverBuilder::new(&ctx).expect("builder");
+    let base = load_mesh(&common::shared_mesh("small/bunny-lowres-pd.obj")).unwrap();
+    let buffers = MeshBuffers::upload(&ctx, &base.positions, &base.indices).unwrap();
+    let mut s = builder.build(&buffers.view(), DriverFlags::Update).unwrap();
+    let fixed = builder.build(&buffers.view(), DriverFlags::FastTrace).unwrap();
+    let mut fixed = fixed;
+    assert!(builder.update(&buffers.view(), &mut fixed).is_err(), "an update without ALLOW_UPDATE is refused");
+    for frame in 1..4 {
+        let mut mesh = base.clone();
+        let k = frame as f32 * 0.05;
+        for p in mesh.positions.iter_mut() {
+            p[0] += k * p[1];
+            p[2] += k * p[1] * p[1];
+        }
+        let moved = MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).unwrap();
+        builder.update(&moved.view(), &mut s).unwrap();
+        assert!(s.timings().iter().any(|(n, _)| n == "blas_update"), "{:?}", s.timings());
+        let bounds = mesh_bounds(&mesh);
+        let reference = build_structure(StructureName::Bvh, &mesh).unwrap();
+        let set = build_workload(WorkloadKind::Primary, &mesh, &Camera::frame(&bounds), 48, reference.as_ref());
+        let dev: Vec<TraceRay> = set.rays.iter().map(TraceRay::from).collect();
+        let out = builder.trace(&s, &dev, false).unwrap();
+        let bad = disagreements(reference.as_ref(), &set.rays, false, &out.hits, bounds.extent().max_element());
+        assert!(bad * 500 <= set.rays.len(), "frame {frame}: {bad} of {} rays disagree", set.rays.len());
+    }
+    gpu_support::assert_no_validation_messages(&ctx);
+}
