@@ -143,3 +143,47 @@ fn an_updated_driver_structure_follows_the_animation() {
     }
     gpu_support::assert_no_validation_messages(&ctx);
 }
+
+/// The oracle over a three-frame animation: `rt_update` is built on frame 0 and updated on the next, `rt_fast_trace`
+/// rebuilt on each; both report one build and one trace time per frame and agree with the CPU reference.
+#[test]
+fn the_oracle_follows_an_animation_with_update_and_rebuild() {
+    use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, OracleConfig, Rebuild};
+    let Some(ctx) = ray_query_context() else { return };
+    let base = load_mesh(&common::shared_mesh("small/spot.obj")).unwrap();
+    let frames: Vec<Mesh> = (0..3)
+        .map(|f| {
+            let mut m = base.clone();
+            for p in m.positions.iter_mut() {
+                p[1] += 0.1 * f as f32 * p[0];
+            }
+            m
+        })
+        .collect();
+    let scene = meshchar::mesh::Animation { name: "bent spot".into(), frames };
+    let config = OracleConfig {
+        resolution: 24,
+        repeats: 2,
+        rebuild: Rebuild::PerFrame,
+        structures: vec![StructureName::Bvh],
+        driver: vec![DriverFlags::Update, DriverFlags::FastTrace],
+        ..Default::default()
+    };
+    let device = DeviceOracle::new(&ctx).unwrap();
+    let e = evaluate_scene_on(&scene, &config, None, &|_| {}, Some(&device)).unwrap();
+    assert_eq!(e.driver_structures.len(), 2);
+    for (d, per_frame) in e.driver_structures.iter().zip(["update", "rebuild"]) {
+        assert!(d.valid && d.hits_agree, "{d:?}");
+        assert_eq!(d.per_frame, per_frame);
+        assert_eq!((d.frame_build_ms.len(), d.frame_trace_ms.len()), (3, 3), "{d:?}");
+        assert!(d.frame_build_ms.iter().chain(&d.frame_trace_ms).all(|&ms| ms > 0.0), "{d:?}");
+        let sum: f64 = d.frame_build_ms.iter().sum();
+        assert!(
+            sum <= d.build_ms * 1.5 + 1.0 && sum >= d.build_ms * 0.5 - 1.0,
+            "per-frame builds {sum} vs {}",
+            d.build_ms
+        );
+        assert_eq!(d.rays, 3 * 24 * 24, "every frame's rays, first repeat");
+    }
+    gpu_support::assert_no_validation_messages(&ctx);
+}

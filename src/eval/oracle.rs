@@ -517,6 +517,14 @@ pub struct DriverResult {
     /// Why it was not measured, or what failed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
+    /// Per measured frame of an animation, the median build (or update) time, ms: with `rt_update` frame 0 is the
+    /// build and the others updates.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub frame_build_ms: Vec<f64>,
+    /// Per measured frame of an animation, the median trace time, ms: how an update's trace cost drifts from the
+    /// built frame's.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub frame_trace_ms: Vec<f64>,
 }
 
 /// What the oracle gathers for one driver structure.
@@ -531,6 +539,8 @@ struct DriverAcc {
     disagreements: usize,
     error: Option<String>,
     kept: Vec<Option<crate::accel::driver::DriverStructure>>,
+    /// Per frame, per repeat: build and trace ms.
+    frames: Vec<(Vec<f64>, Vec<f64>)>,
 }
 
 impl SceneEvaluation {
@@ -813,6 +823,7 @@ pub fn evaluate_scene_on(
                 continue;
             };
             let extent = mesh_bounds(mesh).extent().max_element();
+            a.frames.push((vec![0.0; repeats], vec![0.0; repeats]));
             for r in 0..repeats {
                 progress(&format!(
                     "{}: frame {}/{} repeat {}/{}: {}",
@@ -850,6 +861,10 @@ pub fn evaluate_scene_on(
                 };
                 a.build[r] += s.gpu_ms();
                 a.trace[r] += out.gpu_ms;
+                if let Some(f) = a.frames.last_mut() {
+                    f.0[r] = s.gpu_ms();
+                    f.1[r] = out.gpu_ms;
+                }
                 if r == 0 {
                     a.rays += out.hits.len() as u64;
                     a.memory = a.memory.max(s.memory_bytes());
@@ -1006,6 +1021,16 @@ pub fn evaluate_scene_on(
                     hits_agree: ok && a.disagreements == 0,
                     disagreements: a.disagreements,
                     error: a.error.clone(),
+                    frame_build_ms: if animated && ok {
+                        a.frames.iter().map(|f| Measurement::of(&f.0).median).collect()
+                    } else {
+                        Vec::new()
+                    },
+                    frame_trace_ms: if animated && ok {
+                        a.frames.iter().map(|f| Measurement::of(&f.1).median).collect()
+                    } else {
+                        Vec::new()
+                    },
                 }
             })
             .collect(),
