@@ -318,6 +318,9 @@ fn print_table(e: &SceneEvaluation) {
             "  {:<22} {:>10} {:>10} {:>18} {:>9} {:>10} {:>10} {:>5} {:>5}",
             "", "build ms", "trace ms", "total ms", "Mrays/s", "memory MB", "compact MB", "valid", "agree"
         );
+        if let Some(b) = &e.best_candidate {
+            println!("  best of all candidates (the project's and the driver's): {b}");
+        }
         for d in &e.driver_structures {
             if let (Some(err), 0) = (&d.error, d.rays) {
                 println!("  {:<22} error: {err}", d.name);

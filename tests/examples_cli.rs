@@ -469,6 +469,10 @@ fn evaluate_measures_the_driver_structures() {
         let driver = v["driver_structures"].as_array().expect("driver_structures");
         let names: Vec<&str> = driver.iter().map(|s| s["name"].as_str().unwrap()).collect();
         assert_eq!(names, ["rt_fast_trace", "rt_fast_build"], "{v}");
+        // The best of all four, computed here from the totals.
+        let all = v["structures"].as_array().unwrap().iter().chain(driver);
+        let best = all.min_by(|a, b| a["total_ms"].as_f64().unwrap().total_cmp(&b["total_ms"].as_f64().unwrap()));
+        assert_eq!(v["best_candidate"], best.unwrap()["name"], "{v}");
         for d in driver {
             assert_eq!((d["valid"].as_bool(), d["hits_agree"].as_bool()), (Some(true), Some(true)), "{workload}: {d}");
             assert!(d["build_ms"].as_f64().is_some_and(|b| b > 0.0), "{d}");

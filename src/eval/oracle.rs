@@ -478,6 +478,10 @@ pub struct SceneEvaluation {
     pub structures: Vec<StructureResult>,
     /// The driver's acceleration structures, when asked for ([`OracleConfig::driver`]).
     pub driver_structures: Vec<DriverResult>,
+    /// With driver structures measured: the candidate with the smallest median total among the project's
+    /// structures and the driver's (valid and agreeing with the reference), by name; `None` without driver
+    /// structures or without a best (`oracle_best` stays the best of the project's structures).
+    pub best_candidate: Option<String>,
 }
 
 /// One driver acceleration structure in the oracle ([`crate::accel::driver`]): build flags, times (GPU timestamps),
@@ -544,6 +548,21 @@ struct DriverAcc {
 }
 
 impl SceneEvaluation {
+    /// The best of all candidates (see [`SceneEvaluation::best_candidate`]).
+    fn best_of_all(&self) -> Option<String> {
+        if self.driver_structures.is_empty() || self.no_best_reason.is_some() {
+            return None;
+        }
+        let ours = self
+            .structures
+            .iter()
+            .filter(|s| s.valid && s.hits_agree)
+            .filter_map(|s| s.name.map(|n| (n.as_str().to_string(), s.total_ms.median)));
+        let theirs =
+            self.driver_structures.iter().filter(|d| d.valid && d.hits_agree).map(|d| (d.name.clone(), d.total_ms));
+        ours.chain(theirs).min_by(|a, b| a.1.total_cmp(&b.1)).map(|b| b.0)
+    }
+
     /// The result of one structure.
     pub fn get(&self, name: StructureName) -> Option<&StructureResult> {
         self.structures.iter().find(|s| s.name == Some(name))
@@ -607,6 +626,7 @@ impl SceneEvaluation {
             triangles: self.triangles,
             workload: self.workload,
             driver_structures: self.driver_structures.clone(),
+            best_candidate: self.best_candidate.clone(),
         }
     }
 
@@ -973,7 +993,8 @@ pub fn evaluate_scene_on(
         }
         _ => (None, None),
     };
-    Ok(SceneEvaluation {
+    let mut e = SceneEvaluation {
+        best_candidate: None,
         mesh: scene.name.clone(),
         triangles: first.triangle_count(),
         frames_measured: measured.len(),
@@ -1034,5 +1055,7 @@ pub fn evaluate_scene_on(
                 }
             })
             .collect(),
-    })
+    };
+    e.best_candidate = e.best_of_all();
+    Ok(e)
 }

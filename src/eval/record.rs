@@ -244,6 +244,9 @@ pub struct OracleRecord {
     /// `--trace-backend vulkan`; see [`crate::accel::driver`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub driver_structures: Vec<super::oracle::DriverResult>,
+    /// With driver structures: the best of all candidates by median total (the project's and the driver's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub best_candidate: Option<String>,
 }
 
 impl OracleRecord {
