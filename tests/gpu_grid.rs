@@ -64,28 +64,6 @@ impl References for Grid {
     }
 }
 
-fn degenerate_scenes() -> Vec<(&'static str, Mesh)> {
-    let bunny = load_mesh(&common::shared_mesh("small/bunny-lowres-pd.obj")).unwrap();
-    vec![
-        ("single", generate::single_triangle()),
-        ("two", generate::two_triangles()),
-        ("all equal", generate::all_equal(300)),
-        ("collinear centroids", generate::collinear_centroids(500)),
-        ("zero area", generate::zero_area(400, 3)),
-        ("overlapping large", generate::overlapping_large(200, 4)),
-        ("long thin", generate::long_thin_triangle()),
-        ("fan", generate::fan_polygon(600)),
-        ("lattice", generate::lattice_with_diagonal(20, 4)),
-        ("teapot in stadium", generate::teapot_in_stadium(5)),
-        ("flat", generate::flat(2000, 6)),
-        ("soup", generate::random_soup(3000, 7)),
-        ("clustered", generate::clustered(3000, 5, 8)),
-        ("duplicated bunny", generate::duplicated(&bunny, 3).unwrap()),
-        ("tiny bunny", generate::scaled(&bunny, 1e-6).unwrap()),
-        ("huge bunny", generate::scaled(&bunny, 1e6).unwrap()),
-    ]
-}
-
 #[test]
 fn device_grid_equals_the_host_grid_on_shared_meshes() {
     let Some(ctx) = gpu_support::context() else { return };
@@ -120,7 +98,7 @@ fn device_grid_equals_the_host_grid_on_degenerate_and_random_scenes() {
     let builder = GridBuilder::new(&ctx).expect("builder");
     let coarse = GridOptions { density: 0.5, max_resolution: 16, ..Default::default() };
     let fine = GridOptions { density: 16.0, max_resolution: 200, ..Default::default() };
-    let mut scenes = degenerate_scenes();
+    let mut scenes = common::degenerate_scenes();
     for (k, n) in [1usize, 2, 3, 17, 255, 1000, 4099].into_iter().enumerate() {
         scenes.push(("random soup", generate::random_soup(n, 100 + k as u64)));
     }

@@ -164,26 +164,8 @@ fn device_traversal_equals_cpu_on_the_dragon() {
 fn device_traversal_equals_cpu_on_degenerate_meshes() {
     let Some(ctx) = gpu_support::context() else { return };
     let tracer = DeviceTracer::new(&ctx).expect("tracer");
-    let bunny = load_mesh(&common::shared_mesh("stanford-bunny/bun_zipper_res4.ply")).unwrap();
-    let cases: Vec<(&str, Mesh)> = vec![
-        ("empty", Mesh::new("empty", vec![], vec![]).unwrap()),
-        ("single", generate::single_triangle()),
-        ("two", generate::two_triangles()),
-        ("all equal", generate::all_equal(300)),
-        ("collinear centroids", generate::collinear_centroids(500)),
-        ("zero area", generate::zero_area(400, 3)),
-        ("overlapping large", generate::overlapping_large(200, 4)),
-        ("long thin", generate::long_thin_triangle()),
-        ("fan", generate::fan_polygon(600)),
-        ("lattice", generate::lattice_with_diagonal(20, 4)),
-        ("teapot in stadium", generate::teapot_in_stadium(5)),
-        ("flat", generate::flat(2000, 6)),
-        ("soup", generate::random_soup(3000, 7)),
-        ("clustered", generate::clustered(3000, 5, 8)),
-        ("duplicated bunny", generate::duplicated(&bunny, 3).unwrap()),
-        ("tiny bunny", generate::scaled(&bunny, 1e-6).unwrap()),
-        ("huge bunny", generate::scaled(&bunny, 1e6).unwrap()),
-    ];
+    let mut cases: Vec<(&str, Mesh)> = vec![("empty", Mesh::new("empty", vec![], vec![]).unwrap())];
+    cases.extend(common::degenerate_scenes());
     for (name, mesh) in &cases {
         check_mesh(&ctx, &tracer, name, mesh, 24, 512);
     }

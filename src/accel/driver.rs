@@ -279,6 +279,17 @@ fn instance_words(blas: u64) -> [u32; 16] {
     w
 }
 
+/// The top level's one geometry: the instance array in `instances`.
+fn instances_geometry<'a>(instances: &Buffer) -> vk::AccelerationStructureGeometryKHR<'a> {
+    vk::AccelerationStructureGeometryKHR::default().geometry_type(vk::GeometryTypeKHR::INSTANCES).geometry(
+        vk::AccelerationStructureGeometryDataKHR {
+            instances: vk::AccelerationStructureGeometryInstancesDataKHR::default()
+                .array_of_pointers(false)
+                .data(vk::DeviceOrHostAddressConstKHR { device_address: instances.address() }),
+        },
+    )
+}
+
 /// Orders every earlier acceleration-structure build, compute-shader and transfer work before every later one and
 /// makes their writes visible (the build inputs, the structures, the scratch).
 fn barrier(rec: &mut Recorder<'_>) {
@@ -474,13 +485,7 @@ impl DriverBuilder {
             blas_sizes.acceleration_structure_size,
         )?;
         let instances = ctx.upload("driver instance", &instance_words(blas.address))?;
-        let inst_geometry = [vk::AccelerationStructureGeometryKHR::default()
-            .geometry_type(vk::GeometryTypeKHR::INSTANCES)
-            .geometry(vk::AccelerationStructureGeometryDataKHR {
-                instances: vk::AccelerationStructureGeometryInstancesDataKHR::default()
-                    .array_of_pointers(false)
-                    .data(vk::DeviceOrHostAddressConstKHR { device_address: instances.address() }),
-            })];
+        let inst_geometry = [instances_geometry(&instances)];
         let mut tlas_info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
             .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL)
             .flags(vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE)
@@ -596,13 +601,7 @@ impl DriverBuilder {
             let compact =
                 Handle::new(ctx, "driver blas compacted", vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL, size[0])?;
             let instances = ctx.upload("driver instance", &instance_words(compact.address))?;
-            let inst_geometry = [vk::AccelerationStructureGeometryKHR::default()
-                .geometry_type(vk::GeometryTypeKHR::INSTANCES)
-                .geometry(vk::AccelerationStructureGeometryDataKHR {
-                    instances: vk::AccelerationStructureGeometryInstancesDataKHR::default()
-                        .array_of_pointers(false)
-                        .data(vk::DeviceOrHostAddressConstKHR { device_address: instances.address() }),
-                })];
+            let inst_geometry = [instances_geometry(&instances)];
             let tlas_info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
                 .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL)
                 .flags(vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE)
@@ -681,13 +680,7 @@ impl DriverBuilder {
             first_vertex: view.base_vertex(),
             transform_offset: 0,
         }];
-        let inst_geometry = [vk::AccelerationStructureGeometryKHR::default()
-            .geometry_type(vk::GeometryTypeKHR::INSTANCES)
-            .geometry(vk::AccelerationStructureGeometryDataKHR {
-                instances: vk::AccelerationStructureGeometryInstancesDataKHR::default()
-                    .array_of_pointers(false)
-                    .data(vk::DeviceOrHostAddressConstKHR { device_address: s.instances.address() }),
-            })];
+        let inst_geometry = [instances_geometry(&s.instances)];
         let tlas_info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
             .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL)
             .flags(vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE)

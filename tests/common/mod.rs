@@ -40,3 +40,29 @@ pub fn temp_file(name: &str, bytes: &[u8]) -> PathBuf {
     std::fs::write(&p, bytes).unwrap();
     p
 }
+
+/// The degenerate scenes the device tests run (coincident, collinear, zero-area, fans, a lattice, a teapot in a
+/// stadium, flat, tiny and huge coordinates), each with its name; the bunny copies are of the lowest-resolution
+/// Stanford bunny.
+pub fn degenerate_scenes() -> Vec<(&'static str, meshchar::mesh::Mesh)> {
+    use meshchar::mesh::generate;
+    let bunny = meshchar::mesh::load::load_mesh(&shared_mesh("stanford-bunny/bun_zipper_res4.ply")).unwrap();
+    vec![
+        ("single", generate::single_triangle()),
+        ("two", generate::two_triangles()),
+        ("all equal", generate::all_equal(300)),
+        ("collinear centroids", generate::collinear_centroids(500)),
+        ("zero area", generate::zero_area(400, 3)),
+        ("overlapping large", generate::overlapping_large(200, 4)),
+        ("long thin", generate::long_thin_triangle()),
+        ("fan", generate::fan_polygon(600)),
+        ("lattice", generate::lattice_with_diagonal(20, 4)),
+        ("teapot in stadium", generate::teapot_in_stadium(5)),
+        ("flat", generate::flat(2000, 6)),
+        ("soup", generate::random_soup(3000, 7)),
+        ("clustered", generate::clustered(3000, 5, 8)),
+        ("duplicated bunny", generate::duplicated(&bunny, 3).unwrap()),
+        ("tiny bunny", generate::scaled(&bunny, 1e-6).unwrap()),
+        ("huge bunny", generate::scaled(&bunny, 1e6).unwrap()),
+    ]
+}
