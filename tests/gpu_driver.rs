@@ -187,3 +187,115 @@ fn the_oracle_follows_an_animation_with_update_and_rebuild() {
     }
     gpu_support::assert_no_validation_messages(&ctx);
 }
+
+static ENGINE_MESSAGES: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
+
+unsafe extern "system" fn engine_message(
+    _: ash::vk::DebugUtilsMessageSeverityFlagsEXT,
+    _: ash::vk::DebugUtilsMessageTypeFlagsEXT,
+    data: *const ash::vk::DebugUtilsMessengerCallbackDataEXT<'_>,
+    _: *mut std::ffi::c_void,
+) -> ash::vk::Bool32 {
+    // SAFETY: the layer passes valid callback data.
+    let text = unsafe { data.as_ref().and_then(|d| d.message_as_c_str()) }
+        .map(|m| m.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    if let Ok(mut m) = ENGINE_MESSAGES.lock() {
+        m.push(text);
+    }
+    ash::vk::FALSE
+}
+
+/// An engine creates its device with `ray_tracing_device_extensions` and `ray_tracing_device_features` beside the
+/// required ones and says so (`RawDevice::ray_query_enabled`): the context reports ray queries and the driver
+/// structures build and trace on it; the same device handed over without the flag gets no ray queries, and the
+/// builder refuses with the reason. With the validation layer on the engine's instance, silent.
+#[test]
+fn an_engine_device_with_ray_queries_builds_driver_structures() {
+    use ash::vk;
+    use meshchar::gpu::{
+        enumerate_devices, ray_tracing_device_extensions, ray_tracing_device_features, required_device_features,
+        RawDevice,
+    };
+    let Some(own) = ray_query_context() else { return };
+    drop(own);
+    let (list, selected) = enumerate_devices().expect("devices");
+    let summary = &list[selected.expect("a usable device")];
+    let family = summary.caps.queue_family.expect("a compute queue");
+    // SAFETY (whole test): the engine's side, plain Vulkan; every object is destroyed after its users.
+    unsafe {
+        let entry = ash::Entry::load().expect("loader");
+        let app = vk::ApplicationInfo::default().api_version(vk::API_VERSION_1_2);
+        let layers = [c"VK_LAYER_KHRONOS_validation".as_ptr()];
+        let exts = [ash::ext::debug_utils::NAME.as_ptr()];
+        let info = vk::InstanceCreateInfo::default()
+            .application_info(&app)
+            .enabled_layer_names(&layers)
+            .enabled_extension_names(&exts);
+        let instance = entry.create_instance(&info, None).expect("instance with the validation layer");
+        let du = ash::ext::debug_utils::Instance::new(&entry, &instance);
+        let messenger_info = vk::DebugUtilsMessengerCreateInfoEXT::default()
+            .message_severity(
+                vk::DebugUtilsMessageSeverityFlagsEXT::WARNING | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
+            )
+            .message_type(vk::DebugUtilsMessageTypeFlagsEXT::GENERAL | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION)
+            .pfn_user_callback(Some(engine_message));
+        let messenger = du.create_debug_utils_messenger(&messenger_info, None).expect("messenger");
+        let pdev = instance.enumerate_physical_devices().expect("physical devices")[summary.index];
+        let priorities = [1.0f32];
+        let queues = [vk::DeviceQueueCreateInfo::default().queue_family_index(family).queue_priorities(&priorities)];
+        let mut core = vk::PhysicalDeviceFeatures::default();
+        let mut v12 = vk::PhysicalDeviceVulkan12Features::default();
+        required_device_features(&mut core, &mut v12);
+        let mut f_as = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default();
+        let mut f_rq = vk::PhysicalDeviceRayQueryFeaturesKHR::default();
+        let names = ray_tracing_device_features(&mut f_as, &mut f_rq);
+        assert!(names.contains(&"rayQuery") && names.contains(&"accelerationStructure"), "{names:?}");
+        let mut f2 = vk::PhysicalDeviceFeatures2::default()
+            .features(core)
+            .push_next(&mut v12)
+            .push_next(&mut f_as)
+            .push_next(&mut f_rq);
+        let ext: Vec<*const std::ffi::c_char> = ray_tracing_device_extensions().iter().map(|e| e.as_ptr()).collect();
+        let dinfo = vk::DeviceCreateInfo::default()
+            .queue_create_infos(&queues)
+            .enabled_extension_names(&ext)
+            .push_next(&mut f2);
+        let device = instance.create_device(pdev, &dinfo, None).expect("engine device with ray queries");
+        {
+            let raw = RawDevice {
+                ray_query_enabled: true,
+                ..RawDevice::new(instance.clone(), device.clone(), pdev, family, 0)
+            };
+            // SAFETY: created with the required and the ray-tracing features and extensions, a compute queue at
+            // (family, 0); the test uses the queue only through the context.
+            let ctx = meshchar::gpu::Context::from_raw(raw).expect("context");
+            assert!(ctx.caps().ray_query, "the engine enabled ray queries");
+            let builder = DriverBuilder::new(&ctx).expect("builder");
+            let mesh = generate::random_soup(400, 9);
+            let buffers = MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).unwrap();
+            let s = builder.build(&buffers.view(), DriverFlags::FastBuild).expect("build");
+            let camera = Camera::frame(&mesh_bounds(&mesh));
+            let rays: Vec<Ray> = (0..256).map(|k| camera.ray(k % 16, k / 16, 16, 16)).collect();
+            let dev: Vec<TraceRay> = rays.iter().map(TraceRay::from).collect();
+            let out = builder.trace(&s, &dev, false).expect("trace");
+            let reference = build_structure(StructureName::Bvh, &mesh).unwrap();
+            let bad =
+                disagreements(reference.as_ref(), &rays, false, &out.hits, mesh_bounds(&mesh).extent().max_element());
+            assert_eq!(bad, 0, "hits on the engine's device");
+        }
+        {
+            let raw = RawDevice::new(instance.clone(), device.clone(), pdev, family, 0);
+            // SAFETY: as above.
+            let ctx = meshchar::gpu::Context::from_raw(raw).expect("context");
+            assert!(!ctx.caps().ray_query, "not enabled by the engine: not used");
+            let e = DriverBuilder::new(&ctx).expect_err("no ray queries");
+            assert!(e.to_string().contains("VK_KHR_ray_query"), "{e}");
+        }
+        device.destroy_device(None);
+        du.destroy_debug_utils_messenger(messenger, None);
+        instance.destroy_instance(None);
+    }
+    let m = ENGINE_MESSAGES.lock().unwrap();
+    assert!(m.is_empty(), "{} validation message(s):\n{}", m.len(), m.join("\n"));
+}
