@@ -274,7 +274,15 @@ fn an_engine_device_with_ray_queries_builds_driver_structures() {
             let builder = DriverBuilder::new(&ctx).expect("builder");
             let mesh = generate::random_soup(400, 9);
             let buffers = MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).unwrap();
-            let s = builder.build(&buffers.view(), DriverFlags::FastBuild).expect("build");
+            // Recorded into a command buffer of the engine's own: meshchar submits and waits for nothing.
+            let waits = ctx.host_waits();
+            let mut s = gpu_support::in_caller_command_buffer(&ctx, |rec| {
+                builder.record_build(rec, &buffers.view(), DriverFlags::FastBuild)
+            })
+            .expect("build");
+            assert_eq!(ctx.host_waits(), waits, "recording a build waits for nothing");
+            s.finish().expect("timestamps");
+            assert!(s.gpu_ms() > 0.0);
             let camera = Camera::frame(&mesh_bounds(&mesh));
             let rays: Vec<Ray> = (0..256).map(|k| camera.ray(k % 16, k / 16, 16, 16)).collect();
             let dev: Vec<TraceRay> = rays.iter().map(TraceRay::from).collect();

@@ -451,6 +451,8 @@ impl DriverBuilder {
     /// command buffer has completed. `rt_fast_trace_compact` is built uncompacted here (compaction needs the
     /// compacted size on the host: [`DriverBuilder::build`]).
     ///
+    /// Nothing is submitted or waited for (the instance record is written to host-visible memory).
+    ///
     /// Recording contract: begins with a barrier that makes earlier compute and transfer writes (the geometry)
     /// visible to the build; ends with the top level's build and a barrier after it that makes it visible to
     /// compute shaders (ray queries). The structure and the view's buffers stay alive until the command buffer
@@ -484,7 +486,9 @@ impl DriverBuilder {
             vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
             blas_sizes.acceleration_structure_size,
         )?;
-        let instances = ctx.upload("driver instance", &instance_words(blas.address))?;
+        // The instance in host-visible memory, written directly: recording waits for nothing.
+        let mut instances = ctx.create_buffer("driver instance", 64, MemoryKind::Upload)?;
+        instances.write(0, &instance_words(blas.address))?;
         let inst_geometry = [instances_geometry(&instances)];
         let mut tlas_info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
             .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL)
