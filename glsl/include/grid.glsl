@@ -63,8 +63,6 @@ dvec3 dwith(dvec3 v, uint a, double x) { return dvec3(a == 0u ? x : v.x, a == 1u
 float fcomp(vec3 v, uint a) { return a == 0u ? v.x : (a == 1u ? v.y : v.z); }
 uint ucomp(uvec3 v, uint a) { return a == 0u ? v.x : (a == 1u ? v.y : v.z); }
 
-uint grid_res(GridHeader g, uint a) { return a == 0u ? g.res_x : (a == 1u ? g.res_y : g.res_z); }
-double grid_widen(GridHeader g, uint a) { return a == 0u ? g.widen_x : (a == 1u ? g.widen_y : g.widen_z); }
 
 // Rust's `v.clamp(0.0, hi) as u32` for an integral v (a NaN gives 0).
 uint grid_clamp_cell(float v, uint res) {

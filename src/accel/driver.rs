@@ -290,6 +290,22 @@ fn instances_geometry<'a>(instances: &Buffer) -> vk::AccelerationStructureGeomet
     )
 }
 
+/// The build of the one-instance top level over `geometry` (from [`instances_geometry`]) into `dst` (null: only
+/// for the size query), with the scratch at `scratch`.
+fn tlas_build<'a>(
+    geometry: &'a [vk::AccelerationStructureGeometryKHR<'a>],
+    dst: vk::AccelerationStructureKHR,
+    scratch: u64,
+) -> vk::AccelerationStructureBuildGeometryInfoKHR<'a> {
+    vk::AccelerationStructureBuildGeometryInfoKHR::default()
+        .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL)
+        .flags(vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE)
+        .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
+        .geometries(geometry)
+        .dst_acceleration_structure(dst)
+        .scratch_data(vk::DeviceOrHostAddressKHR { device_address: scratch })
+}
+
 /// Orders every earlier acceleration-structure build, compute-shader and transfer work before every later one and
 /// makes their writes visible (the build inputs, the structures, the scratch).
 fn barrier(rec: &mut Recorder<'_>) {
@@ -490,12 +506,7 @@ impl DriverBuilder {
         let mut instances = ctx.create_buffer("driver instance", 64, MemoryKind::Upload)?;
         instances.write(0, &instance_words(blas.address))?;
         let inst_geometry = [instances_geometry(&instances)];
-        let mut tlas_info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
-            .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL)
-            .flags(vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE)
-            .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
-            .geometries(&inst_geometry);
-        let tlas_sizes = self.sizes(&tlas_info, 1)?;
+        let tlas_sizes = self.sizes(&tlas_build(&inst_geometry, vk::AccelerationStructureKHR::null(), 0), 1)?;
         let tlas = Handle::new(
             ctx,
             "driver tlas",
@@ -527,9 +538,7 @@ impl DriverBuilder {
         unsafe { loader.cmd_build_acceleration_structures(rec.command_buffer(), &[blas_info], &[&blas_range]) };
         rec.timestamp(&mut timer, "blas");
         barrier(rec);
-        tlas_info = tlas_info
-            .dst_acceleration_structure(tlas.handle)
-            .scratch_data(vk::DeviceOrHostAddressKHR { device_address: scratch_at });
+        let tlas_info = tlas_build(&inst_geometry, tlas.handle, scratch_at);
         let tlas_range = [vk::AccelerationStructureBuildRangeInfoKHR { primitive_count: 1, ..Default::default() }];
         // SAFETY: as above; the instance refers to the bottom level built before the barrier.
         unsafe { loader.cmd_build_acceleration_structures(rec.command_buffer(), &[tlas_info], &[&tlas_range]) };
@@ -604,15 +613,10 @@ impl DriverBuilder {
             })?;
             let compact =
                 Handle::new(ctx, "driver blas compacted", vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL, size[0])?;
-            let instances = ctx.upload("driver instance", &instance_words(compact.address))?;
+            let mut instances = ctx.create_buffer("driver instance", 64, MemoryKind::Upload)?;
+            instances.write(0, &instance_words(compact.address))?;
             let inst_geometry = [instances_geometry(&instances)];
-            let tlas_info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
-                .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL)
-                .flags(vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE)
-                .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
-                .geometries(&inst_geometry)
-                .dst_acceleration_structure(s.tlas.handle)
-                .scratch_data(vk::DeviceOrHostAddressKHR { device_address: self.scratch_address(&s.scratch) });
+            let tlas_info = tlas_build(&inst_geometry, s.tlas.handle, self.scratch_address(&s.scratch));
             let mut timer = Timer::new(ctx, 3)?;
             ctx.submit_and_wait(|rec| {
                 rec.reset_timer(&mut timer);
@@ -685,13 +689,7 @@ impl DriverBuilder {
             transform_offset: 0,
         }];
         let inst_geometry = [instances_geometry(&s.instances)];
-        let tlas_info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
-            .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL)
-            .flags(vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE)
-            .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
-            .geometries(&inst_geometry)
-            .dst_acceleration_structure(s.tlas.handle)
-            .scratch_data(vk::DeviceOrHostAddressKHR { device_address: scratch_at });
+        let tlas_info = tlas_build(&inst_geometry, s.tlas.handle, scratch_at);
         let tlas_range = [vk::AccelerationStructureBuildRangeInfoKHR { primitive_count: 1, ..Default::default() }];
         let mut timer = Timer::new(&self.ctx, 3)?;
         rec.reset_timer(&mut timer);
