@@ -170,6 +170,8 @@ fn known_samples_with_rays(count: u64, rays: impl Fn(u64) -> u64) -> (Vec<Sample
             features: f,
             measured,
             baseline: Some(StructureName::Grid),
+            driver: Vec::new(),
+            frame_features: Vec::new(),
         });
     }
     (samples, truth)

@@ -85,6 +85,7 @@
 //!   shipped fit is 1.08); `refit_ns_per_triangle` in `(0, PRICE_LIMIT_NS]` (a refit visits every node); `fit_rms`
 //!   `>= 0`; `samples >= 1`.
 
+pub mod driver;
 pub mod linalg;
 pub mod registry;
 mod sample;
@@ -98,8 +99,9 @@ use serde::{Deserialize, Deserializer};
 use std::ops::RangeInclusive;
 use std::path::Path;
 
+pub use driver::{DriverFit, DriverModel, DriverPrediction, DriverUpdateModel};
 pub use registry::{ChosenModel, ShippedModel, TraceTarget, SHIPPED_MODELS};
-pub use sample::{drift, Measured, Sample};
+pub use sample::{drift, DriverMeasured, Measured, Sample};
 
 /// Version of the calibration file format (and of the feature set `phi`). Files of another version are stale.
 pub const COST_MODEL_VERSION: u32 = 1;
@@ -420,6 +422,10 @@ pub struct CostModel {
     /// as [`crate::accel::device::DeviceRecord`] records them. [`registry`] matches a device to a file by it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub trace_device: Option<DeviceRecord>,
+    /// The driver's acceleration structures ([`driver`]), when the calibration measured them (a device with ray
+    /// queries); absent in files written before they existed, and for the CPU tracer.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub driver: Vec<DriverModel>,
     /// Which file this model was read from and why it was chosen (`assets/cost-model-lavapipe.json: device name
     /// ...`), set by [`CostModel::for_trace_target`]; not part of the file, `None` for a model made otherwise.
     #[serde(skip)]
@@ -525,6 +531,23 @@ impl CostModel {
                 return Err(invalid(None, f("samples"), "0: a refit model needs at least one measured frame pair"));
             }
         }
+        for (i, d) in self.driver.iter().enumerate() {
+            if let Some(j) = self.driver[..i].iter().position(|e| e.name == d.name) {
+                return Err(invalid(
+                    None,
+                    format!("driver[{i}].name"),
+                    format!("{} appears twice (also driver[{j}])", d.name),
+                ));
+            }
+            d.validate(i)?;
+        }
+        if !self.driver.is_empty() && self.trace_backend != TraceBackend::Vulkan {
+            return Err(invalid(
+                None,
+                "driver",
+                "present with trace_backend cpu: driver structures are traced on a Vulkan device",
+            ));
+        }
         Ok(())
     }
 
@@ -569,8 +592,36 @@ impl CostModel {
         self.structures.iter().map(|m| m.predict(&d, f.total_triangles.max(f.triangles), w)).collect()
     }
 
+    /// Predicted costs of every calibrated driver structure ([`driver`]) for a scene and a workload.
+    pub fn predict_driver(&self, f: &Features, w: &Workload) -> Vec<DriverPrediction> {
+        let d = f.derived();
+        self.driver.iter().filter_map(|m| m.predict(&d, f.total_triangles.max(f.triangles), w)).collect()
+    }
+
+    /// The model of one driver structure.
+    pub fn get_driver(&self, f: crate::accel::driver::DriverFlags) -> Option<&DriverModel> {
+        self.driver.iter().find(|m| m.name == f.name())
+    }
+
+    /// Fits the driver structures' models ([`driver::fit_driver`]) on the samples' driver results, replacing
+    /// [`CostModel::driver`]; structures with fewer than 3 valid samples are left out. Needs a model whose
+    /// `trace_backend` is `vulkan` to validate.
+    pub fn fit_driver(&mut self, samples: &[Sample]) -> Result<(), CostError> {
+        let mut out = Vec::new();
+        for f in crate::accel::driver::DriverFlags::ALL {
+            if let Some(m) = driver::fit_driver(samples, f)? {
+                out.push(m);
+            }
+        }
+        self.driver = out;
+        for (i, d) in self.driver.iter().enumerate() {
+            d.validate(i).map_err(|e| CostError::Fit(format!("the fitted driver model is out of range: {e}")))?;
+        }
+        Ok(())
+    }
+
     /// Fits a model on oracle samples (see the module docs). Structures with fewer than 3 valid samples are left
-    /// out.
+    /// out. The driver structures are fitted apart ([`CostModel::fit_driver`]).
     pub fn fit(samples: &[Sample], device: &str, source: &str) -> Result<CostModel, CostError> {
         if samples.is_empty() {
             return Err(CostError::Fit("no samples".into()));
@@ -599,6 +650,7 @@ impl CostModel {
             refit: None,
             trace_backend: TraceBackend::Cpu,
             trace_device: None,
+            driver: Vec::new(),
             chosen_as: None,
         };
         let mut se = Vec::new();

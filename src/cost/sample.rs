@@ -2,6 +2,7 @@
 //! the oracle measured for every structure ([`crate::eval::record::OracleRecord::sample`] makes one from a record).
 
 use super::Workload;
+use crate::accel::driver::DriverFlags;
 use crate::accel::StructureName;
 use crate::characterize::features::FeatureChange;
 use crate::characterize::Features;
@@ -31,6 +32,31 @@ pub struct Measured {
     pub within_noise_of_best: bool,
 }
 
+/// What the oracle measured for one driver structure ([`crate::eval::oracle::DriverResult`]), normalized per build
+/// and per ray.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct DriverMeasured {
+    /// The build flags.
+    #[serde(serialize_with = "flags_name")]
+    pub flags: DriverFlags,
+    /// Built, traced and agreed with the reference hits.
+    pub valid: bool,
+    /// Median total ms of the run.
+    pub total_ms: f64,
+    /// Median build ms of one build (for `rt_update` over an animation: its first frame's build).
+    pub build_ms_per_build: f64,
+    /// Trace ns per ray.
+    pub trace_ns_per_ray: f64,
+    /// Per measured frame of an animation, the build (or update) ms; empty for one frame.
+    pub frame_build_ms: Vec<f64>,
+    /// Per measured frame of an animation, the trace ms; empty for one frame.
+    pub frame_trace_ms: Vec<f64>,
+}
+
+fn flags_name<S: serde::Serializer>(f: &DriverFlags, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(f.name())
+}
+
 /// One scene under one workload: features and measurements.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Sample {
@@ -44,12 +70,22 @@ pub struct Sample {
     pub measured: Vec<Measured>,
     /// The selection of the policy compared against (the thesis policy), when known.
     pub baseline: Option<StructureName>,
+    /// Per driver structure measured (empty when the oracle measured none).
+    pub driver: Vec<DriverMeasured>,
+    /// Features of every measured frame of an animation (empty for one frame, or when not computed): the drift of
+    /// an updated driver structure is measured against them.
+    pub frame_features: Vec<Features>,
 }
 
 impl Sample {
     /// The measurement of one structure.
     pub fn get(&self, s: StructureName) -> Option<&Measured> {
         self.measured.iter().find(|m| m.structure == s)
+    }
+
+    /// The measurement of one driver structure.
+    pub fn driver_result(&self, f: DriverFlags) -> Option<&DriverMeasured> {
+        self.driver.iter().find(|m| m.flags == f)
     }
 
     /// The valid structure with the smallest measured total.

@@ -563,6 +563,27 @@ impl SceneEvaluation {
         ours.chain(theirs).min_by(|a, b| a.1.total_cmp(&b.1)).map(|b| b.0)
     }
 
+    /// The median total of a candidate by name (a project structure's, `bvh`, or a driver structure's,
+    /// `rt_fast_trace`), when it was measured valid and agreeing with the reference.
+    pub fn candidate_total(&self, name: &str) -> Option<f64> {
+        let ours = self
+            .structures
+            .iter()
+            .find(|s| s.name.is_some_and(|n| n.as_str() == name) && s.valid && s.hits_agree)
+            .map(|s| s.total_ms.median);
+        ours.or_else(|| {
+            self.driver_structures.iter().find(|d| d.name == name && d.valid && d.hits_agree).map(|d| d.total_ms)
+        })
+    }
+
+    /// `total(name) / total(best of all candidates) - 1` ([`SceneEvaluation::best_candidate`]); `None` without
+    /// driver structures, without a best, or when `name` was not validly measured.
+    pub fn candidate_regret(&self, name: &str) -> Option<f64> {
+        let best = self.candidate_total(self.best_candidate.as_deref()?)?;
+        let t = self.candidate_total(name)?;
+        (best > 0.0).then(|| t / best - 1.0)
+    }
+
     /// The result of one structure.
     pub fn get(&self, name: StructureName) -> Option<&StructureResult> {
         self.structures.iter().find(|s| s.name == Some(name))
@@ -627,6 +648,8 @@ impl SceneEvaluation {
             workload: self.workload,
             driver_structures: self.driver_structures.clone(),
             best_candidate: self.best_candidate.clone(),
+            selected_candidate: None,
+            candidate_regret: None,
         }
     }
 
@@ -898,8 +921,8 @@ pub fn evaluate_scene_on(
                             if rays.any_hit {
                                 want.occluded.get(*i).copied().unwrap_or(false) != h.hit().is_some()
                             } else {
-                                let w = want.hits.get(*i).copied().flatten().map(|x| (x.triangle, x.t));
-                                !crate::accel::driver::hit_agrees(w, h.hit().map(|x| (x.triangle, x.t)), extent)
+                                let w = want.hits.get(*i).copied().flatten();
+                                !crate::accel::driver::hit_agrees(w, h.hit(), extent)
                             }
                         })
                         .count();

@@ -9,7 +9,7 @@
 use super::oracle::{Measurement, Rebuild};
 use crate::accel::{AccelStats, StructureName};
 use crate::characterize::{features_cpu, Features, Params};
-use crate::cost::{Measured, Prediction, Sample, Workload};
+use crate::cost::{DriverMeasured, Measured, Prediction, Sample, Workload};
 use crate::geom::WorkloadKind;
 use serde::{Deserialize, Deserializer, Serialize};
 use std::path::{Path, PathBuf};
@@ -247,6 +247,12 @@ pub struct OracleRecord {
     /// With driver structures: the best of all candidates by median total (the project's and the driver's).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub best_candidate: Option<String>,
+    /// With driver structures: the policy's overall choice among all candidates (`evaluate` writes it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub selected_candidate: Option<String>,
+    /// With driver structures: `total(selected_candidate) / total(best_candidate) - 1`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub candidate_regret: Option<f64>,
 }
 
 impl OracleRecord {
@@ -343,7 +349,40 @@ impl OracleRecord {
             None | Some("thesis") => self.selected,
             Some(_) => None,
         };
-        Sample { scene: self.mesh.clone(), workload, features, measured, baseline: baseline.or(recorded) }
+        let driver = self
+            .driver_structures
+            .iter()
+            .filter_map(|d| {
+                let flags = crate::accel::driver::DriverFlags::parse(&d.name)?;
+                let finite = |x: f64| if x.is_finite() { x } else { 0.0 };
+                let mrays = finite(d.mrays_per_s);
+                // rt_update over an animation builds once and updates after: its build is its first frame's.
+                let per_build = match (flags, d.frame_build_ms.first()) {
+                    (crate::accel::driver::DriverFlags::Update, Some(&first)) if d.frame_build_ms.len() > 1 => {
+                        finite(first)
+                    }
+                    _ => finite(d.build_ms) / workload.builds as f64,
+                };
+                Some(DriverMeasured {
+                    flags,
+                    valid: d.valid && d.hits_agree && mrays > 0.0,
+                    total_ms: finite(d.total_ms),
+                    build_ms_per_build: per_build,
+                    trace_ns_per_ray: if mrays > 0.0 { 1e3 / mrays } else { 0.0 },
+                    frame_build_ms: d.frame_build_ms.clone(),
+                    frame_trace_ms: d.frame_trace_ms.clone(),
+                })
+            })
+            .collect();
+        Sample {
+            scene: self.mesh.clone(),
+            workload,
+            features,
+            measured,
+            baseline: baseline.or(recorded),
+            driver,
+            frame_features: Vec::new(),
+        }
     }
 }
 
@@ -419,10 +458,14 @@ pub fn read_jsonl(path: &Path) -> Result<Vec<OracleRecord>, RecordError> {
 }
 
 /// Calibration samples from oracle files: every scene named in a record is loaded from its recorded path (relative
-/// to the working directory) once, and its first frame's features computed with `params`. `progress` receives the
+/// to the working directory) once, and the features of its frames computed with `params`: the first frame's for
+/// [`Sample::features`], and for an animation's records with driver structures the features of every measured frame
+/// ([`Sample::frame_features`], against which an updated structure's drift is measured). `progress` receives the
 /// name of each scene loaded.
 pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str)) -> Result<Vec<Sample>, RecordError> {
-    let mut cache: std::collections::HashMap<String, Features> = std::collections::HashMap::new();
+    // Per scene: the features of its frames, as far as computed.
+    let mut cache: std::collections::HashMap<String, (crate::mesh::Animation, Vec<Features>)> =
+        std::collections::HashMap::new();
     let mut out = Vec::new();
     for file in files {
         let name = file.display().to_string();
@@ -433,9 +476,24 @@ pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str))
                 let scene = crate::mesh::load_path(Path::new(&rec.mesh)).map_err(|e| scene_err(e.to_string()))?;
                 let first = scene.frames.first().ok_or_else(|| scene_err("the scene has no frames".into()))?;
                 let f = features_cpu(first, params).map_err(|e| scene_err(format!("features: {e}")))?;
-                cache.insert(rec.mesh.clone(), f);
+                cache.insert(rec.mesh.clone(), (scene, vec![f]));
             }
-            out.push(rec.sample(cache[&rec.mesh].clone(), None));
+            let (scene, feats) = cache.get_mut(&rec.mesh).ok_or_else(|| scene_err("not loaded".into()))?;
+            let wanted = if rec.frames_measured > 1 && !rec.driver_structures.is_empty() {
+                rec.frames_measured.min(scene.frames.len())
+            } else {
+                1
+            };
+            while feats.len() < wanted {
+                let f = features_cpu(&scene.frames[feats.len()], params)
+                    .map_err(|e| scene_err(format!("features of frame {}: {e}", feats.len())))?;
+                feats.push(f);
+            }
+            let mut sample = rec.sample(feats[0].clone(), None);
+            if wanted > 1 {
+                sample.frame_features = feats[..wanted].to_vec();
+            }
+            out.push(sample);
         }
     }
     Ok(out)

@@ -1,0 +1,327 @@
+//! The driver's acceleration structures in the cost model (`VK_KHR_acceleration_structure` built with one of
+//! [`DriverFlags`], traced with ray queries).
+//!
+//! The driver reports no box or triangle test counts, so a driver structure's model has no counts and no prices:
+//!
+//! ```text
+//! build_ms(r)      = exp(a_r) * n^b_r                        (per build, the bottom and top levels)
+//! trace_ns(r)      = exp(theta_r . phi(f, kind))             (per ray, phi as for the project's structures)
+//! update_ms(r)     = exp(a'_r) * n^b'_r                      (rt_update: one MODE_UPDATE of an animation's frame)
+//! trace_update(r)  = trace_ns(r) * (1 + g_r * drift)         (rt_update: the updated structure's trace cost
+//!                                                             against the frame it was built for)
+//! ```
+//!
+//! [`fit_driver`] fits the build and update laws by least squares in log space and `theta_r` by ridge regression of
+//! `ln` ns per ray on `phi` (ridge [`super::RIDGE`] on all but the intercept), from the oracle's driver results
+//! ([`super::DriverMeasured`]). `g_r` is the least-squares slope through the origin of
+//! `trace(updated frame i) / trace(fresh frame i) - 1` against the drift ([`super::drift`]) of frame `i` from the
+//! built frame, where the fresh trace is `rt_fast_trace`'s on the same frame (rebuilt every frame, the same
+//! `PREFER_FAST_TRACE` flag without `ALLOW_UPDATE`). A negative slope (an updated structure traced faster than a
+//! fresh one, which is noise) is clamped to 0.
+//!
+//! For a whole workload ([`DriverModel::predict`]) `rt_update` pays one build and `builds - 1` updates and traces
+//! at the fresh cost; the per-frame plan ([`crate::select::plan_driver_frames`]) charges the drift.
+
+use super::{check_number, dot, invalid, linalg, phi, rms, CostError, Sample, Workload};
+use super::{f64_or_null, vec_f64_or_null, BUILD_EXPONENT_RANGE, BUILD_LN_A_RANGE, COEF_LIMIT, FEATURE_NAMES};
+use super::{RIDGE, SAH_GROWTH_RANGE};
+use crate::accel::driver::DriverFlags;
+use crate::characterize::features::Derived;
+
+/// The fitted constants of one driver structure (see the module docs).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DriverModel {
+    /// The candidate's name ([`DriverFlags::name`]: `rt_fast_trace`, `rt_fast_build`, `rt_update`,
+    /// `rt_fast_trace_compact`).
+    pub name: String,
+    /// `a_r`: `ln` of the build ms of a one-triangle scene, in [`BUILD_LN_A_RANGE`].
+    #[serde(deserialize_with = "f64_or_null")]
+    pub build_ln_a: f64,
+    /// `b_r`: exponent of `n` in the build time, in [`BUILD_EXPONENT_RANGE`].
+    #[serde(deserialize_with = "f64_or_null")]
+    pub build_exponent: f64,
+    /// `theta_r`: `ln` ns per ray against [`FEATURE_NAMES`], each of magnitude at most [`COEF_LIMIT`].
+    #[serde(deserialize_with = "vec_f64_or_null")]
+    pub trace_coef: Vec<f64>,
+    /// The update law and the trace growth with drift (`rt_update`, fitted on animations).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub update: Option<DriverUpdateModel>,
+    /// Fit errors on the calibration samples.
+    pub fit: DriverFit,
+}
+
+/// An updatable driver structure's per-frame law (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DriverUpdateModel {
+    /// `a'_r`: `ln` of the update ms of a one-triangle scene, in [`BUILD_LN_A_RANGE`].
+    #[serde(deserialize_with = "f64_or_null")]
+    pub update_ln_a: f64,
+    /// `b'_r`, in [`BUILD_EXPONENT_RANGE`].
+    #[serde(deserialize_with = "f64_or_null")]
+    pub update_exponent: f64,
+    /// `g_r`: relative growth of the trace cost per unit of drift, in [`SAH_GROWTH_RANGE`].
+    #[serde(deserialize_with = "f64_or_null")]
+    pub trace_growth_per_drift: f64,
+    /// RMS log error of the update law.
+    #[serde(deserialize_with = "f64_or_null")]
+    pub update_rms: f64,
+    /// RMS error of `trace ratio - 1` against `g * drift`.
+    #[serde(deserialize_with = "f64_or_null")]
+    pub growth_rms: f64,
+    /// Updated frames measured.
+    pub samples: usize,
+}
+
+/// Root-mean-square natural-log errors of a driver structure's fit.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DriverFit {
+    /// Samples fitted.
+    pub samples: usize,
+    /// Build time.
+    #[serde(deserialize_with = "f64_or_null")]
+    pub build: f64,
+    /// Trace ns per ray.
+    #[serde(deserialize_with = "f64_or_null")]
+    pub trace: f64,
+    /// Totals.
+    #[serde(deserialize_with = "f64_or_null")]
+    pub total: f64,
+}
+
+/// A driver structure's predicted costs for a scene and a workload.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct DriverPrediction {
+    /// The build flags.
+    #[serde(serialize_with = "flags_name")]
+    pub flags: DriverFlags,
+    /// Build ms of one build.
+    pub build_ms_per_build: f64,
+    /// Build (and, for `rt_update`, update) ms over the run.
+    pub build_ms: f64,
+    /// Predicted trace ns per ray.
+    pub trace_ns_per_ray: f64,
+    /// Trace ms over the run.
+    pub trace_ms: f64,
+    /// `build_ms + trace_ms`.
+    pub total_ms: f64,
+}
+
+fn flags_name<S: serde::Serializer>(f: &DriverFlags, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(f.name())
+}
+
+fn law(ln_a: f64, b: f64, n: u64) -> f64 {
+    (ln_a + b * (n.max(1) as f64).ln()).exp()
+}
+
+impl DriverModel {
+    /// The build flags of [`DriverModel::name`] (`None` for a name no flag set has, which
+    /// [`DriverModel::validate`] refuses).
+    pub fn flags(&self) -> Option<DriverFlags> {
+        DriverFlags::parse(&self.name)
+    }
+
+    /// Predicted trace ns per ray for features `d` and rays of `kind`.
+    pub fn trace_ns(&self, d: &Derived, kind: crate::geom::WorkloadKind) -> f64 {
+        dot(&self.trace_coef, &phi(d, kind)).clamp(-30.0, 30.0).exp()
+    }
+
+    /// Predicted ms of one build of a scene of `n` triangles.
+    pub fn build_ms(&self, n: u64) -> f64 {
+        law(self.build_ln_a, self.build_exponent, n)
+    }
+
+    /// Predicted ms of one update of a scene of `n` triangles (`None` without an update law).
+    pub fn update_ms(&self, n: u64) -> Option<f64> {
+        self.update.map(|u| law(u.update_ln_a, u.update_exponent, n))
+    }
+
+    /// Predicted costs for features `d` of a scene with `n` triangles and a workload: `rt_update` with an update
+    /// law pays one build and `builds - 1` updates, the others `builds` builds; the trace at the fresh cost.
+    /// `None` when the name is no flag set.
+    pub fn predict(&self, d: &Derived, n: u64, w: &Workload) -> Option<DriverPrediction> {
+        let flags = self.flags()?;
+        let per_build = self.build_ms(n);
+        let build_ms = match (flags, self.update_ms(n)) {
+            (DriverFlags::Update, Some(u)) if w.builds > 1 => per_build + u * (w.builds - 1) as f64,
+            _ => per_build * w.builds as f64,
+        };
+        let ns = self.trace_ns(d, w.kind);
+        let trace_ms = ns * 1e-6 * w.rays_per_frame as f64 * w.frames as f64;
+        Some(DriverPrediction {
+            flags,
+            build_ms_per_build: per_build,
+            build_ms,
+            trace_ns_per_ray: ns,
+            trace_ms,
+            total_ms: build_ms + trace_ms,
+        })
+    }
+
+    /// The rules of the module docs of [`super`] (Validation) for entry `i` of a file's `driver`: a known name, the
+    /// build law in [`BUILD_LN_A_RANGE`] and [`BUILD_EXPONENT_RANGE`], one coefficient per feature within
+    /// [`COEF_LIMIT`], the update law in the same ranges with its growth in [`SAH_GROWTH_RANGE`], and
+    /// non-negative fit errors.
+    pub fn validate(&self, i: usize) -> Result<(), CostError> {
+        let at = |f: &str| format!("driver[{i}] ({}).{f}", self.name);
+        if self.flags().is_none() {
+            let known: Vec<&str> = DriverFlags::ALL.iter().map(|f| f.name()).collect();
+            return Err(invalid(
+                None,
+                format!("driver[{i}].name"),
+                format!("{:?} is not a driver structure ({})", self.name, known.join(", ")),
+            ));
+        }
+        check_number(None, at("build_ln_a"), self.build_ln_a, BUILD_LN_A_RANGE, "ln of the build ms of one triangle")?;
+        check_number(
+            None,
+            at("build_exponent"),
+            self.build_exponent,
+            BUILD_EXPONENT_RANGE,
+            "the exponent of n in the build",
+        )?;
+        if self.trace_coef.len() != FEATURE_NAMES.len() {
+            return Err(invalid(
+                None,
+                at("trace_coef"),
+                format!("{} coefficients, expected one per feature ({})", self.trace_coef.len(), FEATURE_NAMES.len()),
+            ));
+        }
+        for (j, (&c, f)) in self.trace_coef.iter().zip(FEATURE_NAMES).enumerate() {
+            check_number(None, at(&format!("trace_coef[{j}] ({f})")), c, -COEF_LIMIT..=COEF_LIMIT, "a coefficient")?;
+        }
+        if let Some(u) = &self.update {
+            check_number(None, at("update.update_ln_a"), u.update_ln_a, BUILD_LN_A_RANGE, "ln of the update ms")?;
+            check_number(
+                None,
+                at("update.update_exponent"),
+                u.update_exponent,
+                BUILD_EXPONENT_RANGE,
+                "the exponent of n in the update",
+            )?;
+            check_number(
+                None,
+                at("update.trace_growth_per_drift"),
+                u.trace_growth_per_drift,
+                SAH_GROWTH_RANGE,
+                "the growth of the trace cost per unit of drift",
+            )?;
+            for (name, x) in [("update_rms", u.update_rms), ("growth_rms", u.growth_rms)] {
+                check_number(None, at(&format!("update.{name}")), x, 0.0..=f64::MAX, "a root-mean-square error")?;
+            }
+            if u.samples == 0 {
+                return Err(invalid(None, at("update.samples"), "0: an update law needs at least one updated frame"));
+            }
+        }
+        for (name, x) in [("build", self.fit.build), ("trace", self.fit.trace), ("total", self.fit.total)] {
+            check_number(None, at(&format!("fit.{name}")), x, 0.0..=f64::MAX, "a root-mean-square error")?;
+        }
+        Ok(())
+    }
+}
+
+/// `ln y = a + b ln n` by least squares; `None` for a singular system.
+fn fit_law(points: &[(u64, f64)]) -> Option<(f64, f64, f64)> {
+    let x: Vec<Vec<f64>> = points.iter().map(|&(n, _)| vec![1.0, (n.max(1) as f64).ln()]).collect();
+    let y: Vec<f64> = points.iter().map(|&(_, ms)| ms.ln()).collect();
+    let mut c = linalg::weighted_ridge(&x, &y, &vec![1.0; points.len()], &[0.0, 1e-9])?;
+    // Few distinct sizes (an animation's frames share one) can put the exponent out of its range: then the
+    // nearest exponent in range, with the intercept that fits it.
+    if !BUILD_EXPONENT_RANGE.contains(&c[1]) || !c[1].is_finite() {
+        let b =
+            if c[1].is_finite() { c[1].clamp(*BUILD_EXPONENT_RANGE.start(), *BUILD_EXPONENT_RANGE.end()) } else { 1.0 };
+        let a = x.iter().zip(&y).map(|(r, ly)| ly - b * r[1]).sum::<f64>() / points.len() as f64;
+        c = vec![a, b];
+    }
+    let e: Vec<f64> = points.iter().map(|&(n, ms)| (law(c[0], c[1], n) / ms).ln()).collect();
+    Some((c[0], c[1], rms(&e)))
+}
+
+/// Fits one driver structure's model on the samples' driver results (see the module docs); `None` with fewer
+/// than 3 valid samples. The update law needs animations where `rt_update` was measured frame by frame; the
+/// drift growth also `rt_fast_trace` on the same frames and [`Sample::frame_features`].
+pub fn fit_driver(samples: &[Sample], flags: DriverFlags) -> Result<Option<DriverModel>, CostError> {
+    let rows: Vec<(&Sample, &super::DriverMeasured)> = samples
+        .iter()
+        .filter_map(|s| {
+            s.driver_result(flags)
+                .filter(|m| m.valid && m.build_ms_per_build > 0.0 && m.trace_ns_per_ray > 0.0)
+                .map(|m| (s, m))
+        })
+        .collect();
+    if rows.len() < 3 {
+        return Ok(None);
+    }
+    let err = |what: &str| CostError::Fit(format!("{}: {what} system is singular", flags.name()));
+    let n_of = |s: &Sample| s.features.total_triangles.max(s.features.triangles).max(1);
+    let builds: Vec<(u64, f64)> = rows.iter().map(|(s, m)| (n_of(s), m.build_ms_per_build)).collect();
+    let (build_ln_a, build_exponent, _) = fit_law(&builds).ok_or_else(|| err("build"))?;
+    let x: Vec<Vec<f64>> = rows.iter().map(|(s, _)| phi(&s.features.derived(), s.workload.kind)).collect();
+    let y: Vec<f64> = rows.iter().map(|(_, m)| m.trace_ns_per_ray.ln()).collect();
+    let mut ridge = vec![RIDGE; FEATURE_NAMES.len()];
+    ridge[0] = 0.0;
+    let trace_coef = linalg::weighted_ridge(&x, &y, &vec![1.0; rows.len()], &ridge).ok_or_else(|| err("trace"))?;
+    let update = if flags == DriverFlags::Update { fit_update(samples) } else { None };
+    let mut m = DriverModel {
+        name: flags.name().to_string(),
+        build_ln_a,
+        build_exponent,
+        trace_coef,
+        update,
+        fit: DriverFit::default(),
+    };
+    let lr = |a: f64, b: f64| (a.max(1e-12) / b.max(1e-12)).ln();
+    let (mut eb, mut et, mut etot) = (Vec::new(), Vec::new(), Vec::new());
+    for (s, meas) in &rows {
+        let Some(p) = m.predict(&s.features.derived(), n_of(s), &s.workload) else { continue };
+        eb.push(lr(p.build_ms_per_build, meas.build_ms_per_build));
+        et.push(lr(p.trace_ns_per_ray, meas.trace_ns_per_ray));
+        etot.push(lr(p.total_ms, meas.total_ms));
+    }
+    m.fit = DriverFit { samples: rows.len(), build: rms(&eb), trace: rms(&et), total: rms(&etot) };
+    Ok(Some(m))
+}
+
+/// The update law and drift growth of `rt_update` from the animations' per-frame results.
+fn fit_update(samples: &[Sample]) -> Option<DriverUpdateModel> {
+    let (mut updates, mut xs, mut ys) = (Vec::new(), Vec::new(), Vec::new());
+    for s in samples {
+        let Some(u) = s.driver_result(DriverFlags::Update).filter(|m| m.valid) else { continue };
+        let n = s.features.total_triangles.max(s.features.triangles).max(1);
+        for &ms in u.frame_build_ms.iter().skip(1).filter(|&&ms| ms > 0.0 && ms.is_finite()) {
+            updates.push((n, ms));
+        }
+        let fresh = s.driver_result(DriverFlags::FastTrace).filter(|m| m.valid);
+        let (Some(fresh), Some(built)) = (fresh, s.frame_features.first()) else { continue };
+        for i in 1..u.frame_trace_ms.len().min(fresh.frame_trace_ms.len()).min(s.frame_features.len()) {
+            let (tu, tf) = (u.frame_trace_ms[i], fresh.frame_trace_ms[i]);
+            if tu > 0.0 && tf > 0.0 && tu.is_finite() && tf.is_finite() {
+                xs.push(super::drift(built, &s.frame_features[i]));
+                ys.push(tu / tf - 1.0);
+            }
+        }
+    }
+    if updates.len() < 3 {
+        return None;
+    }
+    let (update_ln_a, update_exponent, update_rms) = fit_law(&updates)?;
+    let sxx: f64 = xs.iter().map(|x| x * x).sum();
+    let sxy: f64 = xs.iter().zip(&ys).map(|(x, y)| x * y).sum();
+    let g = if sxx > 0.0 { (sxy / sxx).clamp(0.0, *SAH_GROWTH_RANGE.end()) } else { 0.0 };
+    let growth_rms = if xs.is_empty() {
+        0.0
+    } else {
+        (xs.iter().zip(&ys).map(|(x, y)| (g * x - y).powi(2)).sum::<f64>() / xs.len() as f64).sqrt()
+    };
+    Some(DriverUpdateModel {
+        update_ln_a,
+        update_exponent,
+        trace_growth_per_drift: g,
+        update_rms,
+        growth_rms,
+        samples: updates.len(),
+    })
+}
