@@ -110,6 +110,9 @@ fn process(
         rays_per_frame: resolution * resolution,
         frames: args.frames,
         animation_frames: None,
+        // The driver's structures are weighed when the cost model chosen for this device calibrated them (a device
+        // calibration: `calibrate --trace-backend vulkan` on a device with ray queries).
+        driver: !model.driver.is_empty(),
     };
     // The build bounds from the meshes themselves (tighter than the features'): no structure whose grid or kd-tree
     // references would exceed the default budget is a candidate.

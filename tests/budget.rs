@@ -149,7 +149,13 @@ fn an_excluded_grid_is_one_whose_build_would_fail_and_a_kept_one_builds() {
 }
 
 fn workload() -> TargetWorkload {
-    TargetWorkload { kind: WorkloadKind::Primary, rays_per_frame: 256 * 256, frames: 1, animation_frames: None }
+    TargetWorkload {
+        kind: WorkloadKind::Primary,
+        rays_per_frame: 256 * 256,
+        frames: 1,
+        animation_frames: None,
+        driver: false,
+    }
 }
 
 #[test]

@@ -336,6 +336,7 @@ fn paper_model() -> meshchar::cost::CostModel {
         refit: None,
         trace_backend: Default::default(),
         trace_device: None,
+        driver: Vec::new(),
         chosen_as: None,
     };
     m.validate().unwrap();

@@ -174,6 +174,9 @@ pub struct CalibratedPolicy {
     pub frames: u64,
     /// Relative margin within which the cheaper build wins (default 0.05).
     pub tie_margin: f64,
+    /// Weigh the driver's acceleration structures too (the device traces with ray queries), when the model has
+    /// them ([`crate::cost::CostModel::driver`]); default `false`.
+    pub driver: bool,
 }
 
 impl CalibratedPolicy {
@@ -182,7 +185,14 @@ impl CalibratedPolicy {
 
     /// A policy for `rays_per_frame` rays of `kind` over `frames` frames of a static scene (one build).
     pub fn new(model: CostModel, kind: crate::geom::WorkloadKind, rays_per_frame: u64, frames: u64) -> Self {
-        CalibratedPolicy { model, kind, rays_per_frame, frames: frames.max(1), tie_margin: Self::DEFAULT_TIE_MARGIN }
+        CalibratedPolicy {
+            model,
+            kind,
+            rays_per_frame,
+            frames: frames.max(1),
+            tie_margin: Self::DEFAULT_TIE_MARGIN,
+            driver: false,
+        }
     }
 
     /// The workload a scene of `frame_count` frames implies.
@@ -274,7 +284,32 @@ impl Policy for CalibratedPolicy {
                     .join(", ")
             ));
         }
-        Selection { structure: choice, reasons, excluded }
+        let mut driver = None;
+        if self.driver {
+            let own = preds.iter().find(|p| p.structure == choice).map(|p| (choice, p.total_ms));
+            let own = own.map(|(s, t)| {
+                // An animation: the project's side as planned per frame (rebuilds and refits), when it plans.
+                if scene.features.len() > 1 {
+                    let plan =
+                        plan_frames(&self.model, scene.features, self.kind, self.rays_per_frame, self.tie_margin);
+                    if !plan.is_empty() {
+                        return (s, plan.iter().map(|d| d.update_ms + d.trace_ms).sum());
+                    }
+                }
+                (s, t)
+            });
+            match super::driver::choose_driver(&self.model, scene.features, &w, own) {
+                Some((d, r)) => {
+                    reasons.extend(r);
+                    driver = Some(d);
+                }
+                None => reasons.push(format!(
+                    "the driver's acceleration structures are not weighed: the cost model ({}) has not calibrated them",
+                    self.model.device
+                )),
+            }
+        }
+        Selection { structure: choice, reasons, excluded, driver }
     }
 }
 

@@ -14,11 +14,13 @@
 
 pub mod budget;
 mod calibrated;
+pub mod driver;
 mod report;
 mod thesis;
 
 pub use budget::{Budget, BuildBounds, Exclusion};
 pub use calibrated::{choose, plan_frames, CalibratedPolicy, FrameAction, FrameDecision, FrameRule};
+pub use driver::{plan_driver_frames, DriverAction, DriverFrameDecision, DriverFrameRule, DriverSelection};
 pub use report::{Bounds, Report, Timings};
 pub use thesis::ThesisPolicy;
 
@@ -208,12 +210,26 @@ pub struct Selection {
     /// [`budget`]); empty when none was excluded.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub excluded: Vec<Exclusion>,
+    /// The best of the driver's acceleration structures, when the policy weighed them (the calibrated policy with
+    /// a model that calibrated them, on a device with ray queries: [`TargetWorkload::driver`]); when
+    /// [`DriverSelection::chosen`], it is the overall choice and [`Selection::structure`] the project's best.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub driver: Option<DriverSelection>,
 }
 
 impl Selection {
     /// A selection of `structure` for `reasons`, excluding nothing.
     pub fn new(structure: Structure, reasons: Vec<String>) -> Self {
-        Selection { structure, reasons, excluded: Vec::new() }
+        Selection { structure, reasons, excluded: Vec::new(), driver: None }
+    }
+
+    /// The overall choice's name: the driver structure's (`rt_fast_trace`, ...) when it was chosen, else the
+    /// project's structure's.
+    pub fn candidate(&self) -> &'static str {
+        match &self.driver {
+            Some(d) if d.chosen => d.flags.name(),
+            _ => self.structure.as_str(),
+        }
     }
 }
 
@@ -260,6 +276,9 @@ pub struct TargetWorkload {
     pub frames: u64,
     /// For an animation, how many of its leading frames the run covers (`None`: all of them).
     pub animation_frames: Option<usize>,
+    /// The device traces with the driver's acceleration structures (ray queries): the calibrated policy weighs
+    /// them too, when its model calibrated them ([`crate::cost::CostModel::driver`]).
+    pub driver: bool,
 }
 
 /// What [`select_for_scene`] decided.
@@ -326,6 +345,7 @@ pub fn select_for_scene_within(
         PolicyChoice::Calibrated { model, tie_margin } => {
             let mut p = CalibratedPolicy::new(model.clone(), workload.kind, workload.rays_per_frame, workload.frames);
             p.tie_margin = tie_margin;
+            p.driver = workload.driver;
             let used = if frames.len() > 1 { workload.animation_frames.unwrap_or(frames.len()) } else { 1 };
             let used = used.clamp(1, frames.len().min(features.len()).max(1)).min(frames.len()).min(features.len());
             let summary =

@@ -97,6 +97,11 @@ pub struct Report {
     pub policy: String,
     /// Why.
     pub reasons: Vec<String>,
+    /// The best of the driver's acceleration structures when the policy weighed them (`flags`,
+    /// `predicted_total_ms`, `chosen`, and for an animation traced with `rt_update` its per-frame `plan`); when
+    /// `chosen`, it is the overall choice (see [`super::Selection::driver`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub driver: Option<super::DriverSelection>,
     /// The calibrated policy's predicted costs per structure (absent for the thesis policy).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub predicted: Option<Vec<crate::cost::Prediction>>,
@@ -157,6 +162,7 @@ impl Report {
             selected: Structure::Bvh,
             policy: String::new(),
             reasons: Vec::new(),
+            driver: None,
             predicted: None,
             excluded: Vec::new(),
             features: None,
@@ -180,6 +186,7 @@ impl Report {
         self.selected = sel.structure;
         self.reasons = sel.reasons.clone();
         self.excluded = sel.excluded.clone();
+        self.driver = sel.driver.clone();
         self
     }
 
@@ -287,6 +294,9 @@ impl Report {
             self.empty_classes
         )?;
         writeln!(o, "  selected       {} (policy {})", self.selected, self.policy)?;
+        if let Some(d) = self.driver.as_ref().filter(|d| d.chosen) {
+            writeln!(o, "  overall        {} (the driver's acceleration structure)", d.flags.name())?;
+        }
         for r in &self.reasons {
             writeln!(o, "    - {r}")?;
         }

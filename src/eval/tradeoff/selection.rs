@@ -120,6 +120,7 @@ pub fn oracle_workload(
         rays_per_frame: o.rays_per_frame as u64,
         frames: o.frames.max(1) as u64,
         animation_frames: Some(o.frames.max(1)),
+        driver: false,
     }))
 }
 
