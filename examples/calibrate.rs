@@ -9,13 +9,17 @@
 //!
 //! With `--trace-backend vulkan` the oracle traces on the Vulkan device (`evaluate_scene_on` with a
 //! `DeviceOracle`) and the file records the device (name, type, driver, driver version, UUID), which the calibrated
-//! policy matches to choose it. `--from-oracle` files carry their tracer (`trace_backend`, `device`): records of
+//! policy matches to choose it. On a device with ray queries the oracle also measures the driver's acceleration
+//! structures (`rt_fast_trace`, `rt_fast_build`, `rt_update`, `rt_fast_trace_compact`) and the file gets their
+//! build, update and trace laws (`driver`, see `meshchar::cost::driver`); records with `driver_structures` do the
+//! same with `--from-oracle`. `--from-oracle` files carry their tracer (`trace_backend`, `device`): records of
 //! different backends or devices in one fit are refused.
 
 use anyhow::Context as _;
 use clap::Parser;
 use cli::args::{self, TraceBackendArg};
 use cli::Progress;
+use meshchar::accel::driver::DriverFlags;
 use meshchar::accel::lbvh::Lbvh;
 use meshchar::accel::AccelStructure;
 use meshchar::characterize::{features_cpu, Features, Params};
@@ -86,7 +90,7 @@ fn samples_from_oracle(files: &[PathBuf]) -> anyhow::Result<Vec<Sample>> {
     Ok(samples)
 }
 
-fn measure(args: &Args, device: Option<&DeviceOracle<'_>>) -> anyhow::Result<Vec<Sample>> {
+fn measure(args: &Args, device: Option<&DeviceOracle<'_>>, ray_query: bool) -> anyhow::Result<Vec<Sample>> {
     let mut scenes: Vec<Animation> = vec![
         Animation { name: "synthetic:random-soup-20k".into(), frames: vec![generate::random_soup(20_000, 1)] },
         Animation { name: "synthetic:clustered-20k".into(), frames: vec![generate::clustered(20_000, 8, 2)] },
@@ -114,6 +118,7 @@ fn measure(args: &Args, device: Option<&DeviceOracle<'_>>) -> anyhow::Result<Vec
                 resolution: args.resolution,
                 repeats: args.repeats,
                 rebuild: if scene.is_dynamic() { Rebuild::PerFrame } else { Rebuild::Once },
+                driver: if device.is_some() && ray_query { DriverFlags::ALL.to_vec() } else { Vec::new() },
                 ..OracleConfig::default()
             };
             // Steps: per frame the reference and every structure at every repeat.
@@ -188,7 +193,8 @@ fn run(args: Args) -> anyhow::Result<()> {
             Some(c) => Some(DeviceOracle::new(c).context("device traversal")?),
             None => None,
         };
-        let samples = measure(args, oracle.as_ref())?;
+        let ray_query = ctx.as_ref().is_some_and(|c| c.caps().ray_query);
+        let samples = measure(args, oracle.as_ref(), ray_query)?;
         (args.trace_backend.trace_backend, args::device_record(ctx.as_ref()), samples)
     } else {
         let tracer = tracer_of(&args.oracle)?.context("--from-oracle: the files hold no record")?;
@@ -226,6 +232,9 @@ fn run(args: Args) -> anyhow::Result<()> {
     let mut model = CostModel::fit(&samples, &device, &source)?;
     model.trace_backend = backend;
     model.trace_device = record;
+    if backend == TraceBackend::Vulkan && samples.iter().any(|s| !s.driver.is_empty()) {
+        model.fit_driver(&samples)?;
+    }
     model.validate()?;
     if !args.no_refit {
         let mut dirs = args.refit.clone();
@@ -279,6 +288,29 @@ fn run(args: Args) -> anyhow::Result<()> {
             d.device_uuid
         ),
         None => println!("traced with {}", model.trace_backend.as_str()),
+    }
+    if !model.driver.is_empty() {
+        println!(
+            "{:<22} {:>8} {:>6} | {:>8} {:>6} {:>7} | RMS log error: {:>6} {:>6} {:>6} | samples",
+            "driver", "ln a", "b", "upd ln a", "upd b", "g/drift", "build", "trace", "total"
+        );
+        for d in &model.driver {
+            let u = d.update;
+            let opt = |x: Option<f64>, w: usize, p: usize| x.map_or(format!("{:>w$}", "-"), |x| format!("{x:>w$.p$}"));
+            println!(
+                "{:<22} {:>8.3} {:>6.3} | {} {} {} |                {:>6.3} {:>6.3} {:>6.3} | {}",
+                d.name,
+                d.build_ln_a,
+                d.build_exponent,
+                opt(u.map(|u| u.update_ln_a), 8, 3),
+                opt(u.map(|u| u.update_exponent), 6, 3),
+                opt(u.map(|u| u.trace_growth_per_drift), 7, 3),
+                d.fit.build,
+                d.fit.trace,
+                d.fit.total,
+                d.fit.samples
+            );
+        }
     }
     if let Some(r) = &model.refit {
         println!(

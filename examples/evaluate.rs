@@ -182,8 +182,9 @@ fn load_scene(path: &Path) -> anyhow::Result<Animation> {
     Ok(meshchar::mesh::load_path(path)?)
 }
 
-/// A selection, its reasons, and the calibrated policy's predictions.
-type Selected = (StructureName, Vec<String>, Option<Vec<Prediction>>);
+/// A selection (the project's structure and the overall candidate, a driver structure's name when the policy chose
+/// one), its reasons, and the calibrated policy's predictions.
+type Selected = (StructureName, &'static str, Vec<String>, Option<Vec<Prediction>>);
 
 /// The policy's selection for a scene: every frame characterized (Vulkan when a device is found, else the CPU
 /// path) and its features computed; then the thesis policy over the frames, or the calibrated policy for the
@@ -206,13 +207,15 @@ fn select(
         rays_per_frame: if policy == Policy::Thesis { 0 } else { rays_per_frame(scene, config)? },
         frames: config.frames.unwrap_or(1) as u64,
         animation_frames: config.frames,
+        // The oracle measures driver structures: the calibrated policy weighs them too.
+        driver: !config.driver.is_empty(),
     };
     // The build bounds from the meshes (tighter than the features'): over-budget structures are no candidates.
     let bounds = BuildBounds::of_frames(&scene.frames)?;
     let chosen = select_for_scene_within(&scene.name, &chars, &features, choice, &workload, bounds, Budget::default());
     let (sel, preds) = (chosen.selection, chosen.predicted);
     let name = sel.structure;
-    Ok((name, sel.reasons, preds))
+    Ok((name, sel.candidate(), sel.reasons, preds))
 }
 
 /// Rays per frame of the oracle's workload on the first frame: `resolution^2` primary rays, or the secondary rays
@@ -437,6 +440,43 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
             );
         }
         println!("(tie margin {:.2}; leave-one-out holds out every workload of a scene together)", c.tie_margin);
+        if let Some(k) = &c.candidates {
+            println!(
+                "\nwith the driver's acceleration structures ({} samples): best flag and best candidate measured, the \
+                 calibrated policy's picks held out",
+                k.rows.len()
+            );
+            println!(
+                "{:<44} {:<8} {:>21} | {:>21} {:>7} | {:>21} | {:>21} {:>7}",
+                "scene", "workload", "best flag", "flag (held out)", "regret", "best", "choice (held out)", "regret"
+            );
+            let o = |s: &Option<String>| s.clone().unwrap_or_else(|| "-".into());
+            for r in &k.rows {
+                let scene: String = r.scene.chars().rev().take(44).collect::<Vec<_>>().into_iter().rev().collect();
+                println!(
+                    "{:<44} {:<8} {:>21} | {:>21} {:>7} | {:>21} | {:>21} {:>7}",
+                    scene,
+                    r.workload.as_str(),
+                    o(&r.oracle_best_flag),
+                    o(&r.held_out_flag),
+                    pct(r.held_out_flag_regret),
+                    o(&r.oracle_best),
+                    o(&r.held_out),
+                    pct(r.held_out_regret)
+                );
+            }
+            println!(
+                "held out: flag right {:.1}%, flag mean regret {:.1}%; overall choice right {:.1}%, mean regret {:.1}%, \
+                 worst {:.1}%; in sample: right {:.1}%, mean regret {:.1}%",
+                100.0 * k.held_out_flag_accuracy,
+                100.0 * k.held_out_flag_mean_regret,
+                100.0 * k.held_out_accuracy,
+                100.0 * k.held_out_mean_regret,
+                100.0 * k.held_out_worst_regret,
+                100.0 * k.in_sample_accuracy,
+                100.0 * k.in_sample_mean_regret
+            );
+        }
     }
     if let Some(dir) = &args.charts {
         // One chart per workload (a scene's bars side by side: thesis, calibrated held out).
@@ -506,17 +546,18 @@ fn scene(
     bar.item(i, 1 + frames * (1 + config.repeats * config.structures.len()), &scene.name);
     bar.step(&format!("{}: characterization and selection", scene.name));
     let policy = args.policy.policy;
-    let (selected, predictions) = match select(engine, &scene, &config, policy, model, args.tie_margin.tie_margin) {
-        Ok((s, reasons, preds)) => {
+    let selection = select(engine, &scene, &config, policy, model, args.tie_margin.tie_margin);
+    let (selected, candidate, predictions) = match selection {
+        Ok((s, candidate, reasons, preds)) => {
             if !args.json.json {
                 bar.suspend(|| {
-                    println!("\n{}: the {} policy selects {}", scene.name, policy.as_str(), s.as_str());
+                    println!("\n{}: the {} policy selects {candidate}", scene.name, policy.as_str());
                     for r in &reasons {
                         println!("  - {r}");
                     }
                 });
             }
-            (s, preds)
+            (s, candidate, preds)
         }
         Err(e) => {
             fail(format!("{}: characterization failed: {}", scene.name, cli::message(&e)));
@@ -537,6 +578,12 @@ fn scene(
     }
     if let Some(p) = &predictions {
         json["predicted"] = serde_json::json!(p);
+    }
+    if !e.driver_structures.is_empty() {
+        // The overall choice among the project's and the driver's structures, and its regret against the best of
+        // them all.
+        json["selected_candidate"] = serde_json::json!(candidate);
+        json["candidate_regret"] = serde_json::json!(e.candidate_regret(candidate));
     }
     bar.suspend(|| {
         if args.json.json {

@@ -67,6 +67,179 @@ pub struct Comparison {
     pub calibrated_held_out: PolicyScore,
     /// Tie margin used by the calibrated selection.
     pub tie_margin: f64,
+    /// With the driver's acceleration structures measured: the choice among all candidates.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub candidates: Option<CandidateComparison>,
+}
+
+/// One sample's choice among every candidate, the project's structures and the driver's (`rt_*`).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct CandidateRow {
+    /// Scene.
+    pub scene: String,
+    /// Workload kind.
+    pub workload: WorkloadKind,
+    /// The measured best candidate (a structure's or a driver structure's name).
+    pub oracle_best: Option<String>,
+    /// The measured best among the driver's structures only (which build flags).
+    pub oracle_best_flag: Option<String>,
+    /// The held-out calibrated policy's overall choice.
+    pub held_out: Option<String>,
+    /// Its regret against the measured best candidate.
+    pub held_out_regret: Option<f64>,
+    /// The held-out policy's pick among the driver's structures (whether or not it beats the project's).
+    pub held_out_flag: Option<String>,
+    /// That pick's regret against the best driver structure.
+    pub held_out_flag_regret: Option<f64>,
+    /// The in-sample (all scenes) policy's overall choice and its regret.
+    pub in_sample: Option<String>,
+    /// Its regret.
+    pub in_sample_regret: Option<f64>,
+}
+
+/// The calibrated policy's choice among all candidates, in sample and held out.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct CandidateComparison {
+    /// Per sample with driver measurements.
+    pub rows: Vec<CandidateRow>,
+    /// Held out: the overall choice is the measured best (share), mean and worst regret.
+    pub held_out_accuracy: f64,
+    /// Mean regret of the held-out overall choice.
+    pub held_out_mean_regret: f64,
+    /// Worst regret of the held-out overall choice.
+    pub held_out_worst_regret: f64,
+    /// Held out: the driver flag picked is the measured best flag (share).
+    pub held_out_flag_accuracy: f64,
+    /// Mean regret of the held-out flag pick among the driver structures.
+    pub held_out_flag_mean_regret: f64,
+    /// In sample: share right and mean regret of the overall choice.
+    pub in_sample_accuracy: f64,
+    /// Mean regret of the in-sample overall choice.
+    pub in_sample_mean_regret: f64,
+}
+
+/// Measured total of a candidate named as the policy names it; `None` when not validly measured.
+fn candidate_total(smp: &Sample, name: &str) -> Option<f64> {
+    if let Some(f) = crate::accel::driver::DriverFlags::parse(name) {
+        return smp.driver_result(f).filter(|d| d.valid && d.total_ms > 0.0).map(|d| d.total_ms);
+    }
+    let s: StructureName = name.parse().ok()?;
+    smp.get(s).filter(|m| m.valid && m.total_ms > 0.0).map(|m| m.total_ms)
+}
+
+/// A candidate's name and measured total, ms.
+type Named = Option<(String, f64)>;
+
+/// The measured best driver structure and overall candidate of a sample.
+fn measured_best(smp: &Sample) -> (Named, Named) {
+    let flag = smp
+        .driver
+        .iter()
+        .filter(|d| d.valid && d.total_ms > 0.0)
+        .min_by(|a, b| a.total_ms.total_cmp(&b.total_ms))
+        .map(|d| (d.flags.name().to_string(), d.total_ms));
+    let own = smp.best().map(|m| (m.structure.as_str().to_string(), m.total_ms));
+    let overall = match (&flag, &own) {
+        (Some(f), Some(o)) => Some(if f.1 < o.1 { f.clone() } else { o.clone() }),
+        (a, b) => a.clone().or_else(|| b.clone()),
+    };
+    (flag, overall)
+}
+
+/// The calibrated policy's overall choice and driver flag for a sample under `model` (fitted with driver models):
+/// the project's structure by [`choose`], then the driver structure that [`crate::select::driver`] picks, chosen
+/// overall when predicted cheaper (for an animation with its per-frame update plan).
+fn policy_candidate(model: &CostModel, smp: &Sample, tie_margin: f64) -> (Option<String>, Option<String>) {
+    let preds = model.predict(&smp.features, &smp.workload);
+    let own =
+        choose(&preds, tie_margin).map(|c| (c, preds.iter().find(|p| p.structure == c).map_or(0.0, |p| p.total_ms)));
+    let frames: Vec<crate::characterize::Features> =
+        if smp.frame_features.is_empty() { vec![smp.features.clone()] } else { smp.frame_features.clone() };
+    match crate::select::driver::choose_driver(model, &frames, &smp.workload, own) {
+        Some((d, _)) => {
+            let overall =
+                if d.chosen { Some(d.flags.name().to_string()) } else { own.map(|o| o.0.as_str().to_string()) };
+            (overall, Some(d.flags.name().to_string()))
+        }
+        None => (own.map(|o| o.0.as_str().to_string()), None),
+    }
+}
+
+/// [`CandidateComparison`] over the samples with driver measurements (`None` when none has them): the model and
+/// its driver models fitted on all samples (in sample) and, per scene, on the other scenes (held out).
+pub fn compare_candidates(
+    samples: &[Sample],
+    tie_margin: f64,
+    device: &str,
+) -> Result<Option<CandidateComparison>, CostError> {
+    if samples.iter().all(|s| s.driver.is_empty()) {
+        return Ok(None);
+    }
+    let fit = |train: &[Sample], source: &str| -> Result<CostModel, CostError> {
+        let mut m = CostModel::fit(train, device, source)?;
+        m.fit_driver(train)?;
+        Ok(m)
+    };
+    let full = fit(samples, "comparison, all samples")?;
+    let mut scenes: Vec<&str> = samples.iter().map(|s| s.scene.as_str()).collect();
+    scenes.sort();
+    scenes.dedup();
+    let mut held: Vec<(Option<String>, Option<String>)> = vec![(None, None); samples.len()];
+    for scene in &scenes {
+        let train: Vec<Sample> = samples.iter().filter(|s| s.scene != *scene).cloned().collect();
+        let Ok(model) = fit(&train, "leave-one-out") else { continue };
+        for (i, smp) in samples.iter().enumerate().filter(|(_, s)| s.scene == *scene) {
+            held[i] = policy_candidate(&model, smp, tie_margin);
+        }
+    }
+    let regret = |smp: &Sample, name: &Option<String>, best: &Named| -> Option<f64> {
+        Some(candidate_total(smp, name.as_deref()?)? / best.as_ref()?.1 - 1.0)
+    };
+    let mut rows = Vec::new();
+    for (i, smp) in samples.iter().enumerate().filter(|(_, s)| !s.driver.is_empty()) {
+        let (flag, overall) = measured_best(smp);
+        let (ins, _) = policy_candidate(&full, smp, tie_margin);
+        let (h, hf) = held[i].clone();
+        rows.push(CandidateRow {
+            scene: smp.scene.clone(),
+            workload: smp.workload.kind,
+            held_out_regret: regret(smp, &h, &overall),
+            held_out_flag_regret: regret(smp, &hf, &flag),
+            in_sample_regret: regret(smp, &ins, &overall),
+            oracle_best: overall.map(|o| o.0),
+            oracle_best_flag: flag.map(|f| f.0),
+            held_out: h,
+            held_out_flag: hf,
+            in_sample: ins,
+        });
+    }
+    let share = |f: &dyn Fn(&CandidateRow) -> Option<bool>| {
+        let v: Vec<bool> = rows.iter().filter_map(f).collect();
+        if v.is_empty() {
+            0.0
+        } else {
+            v.iter().filter(|&&b| b).count() as f64 / v.len() as f64
+        }
+    };
+    let mean = |f: &dyn Fn(&CandidateRow) -> Option<f64>| {
+        let v: Vec<f64> = rows.iter().filter_map(f).collect();
+        if v.is_empty() {
+            0.0
+        } else {
+            v.iter().sum::<f64>() / v.len() as f64
+        }
+    };
+    let same = |a: &Option<String>, b: &Option<String>| Some(a.as_ref()? == b.as_ref()?);
+    Ok(Some(CandidateComparison {
+        held_out_accuracy: share(&|r| same(&r.held_out, &r.oracle_best)),
+        held_out_mean_regret: mean(&|r| r.held_out_regret),
+        held_out_worst_regret: rows.iter().filter_map(|r| r.held_out_regret).fold(0.0, f64::max),
+        held_out_flag_accuracy: share(&|r| same(&r.held_out_flag, &r.oracle_best_flag)),
+        held_out_flag_mean_regret: mean(&|r| r.held_out_flag_regret),
+        in_sample_accuracy: share(&|r| same(&r.in_sample, &r.oracle_best)),
+        in_sample_mean_regret: mean(&|r| r.in_sample_regret),
+        rows,
+    }))
 }
 
 /// Scores `(sample, selection)` pairs.
@@ -137,5 +310,6 @@ pub fn compare(samples: &[Sample], tie_margin: f64, device: &str) -> Result<Comp
         calibrated_in_sample: score(samples.iter().zip(&ins).map(|(s, &c)| (s, c))),
         calibrated_held_out: score(samples.iter().zip(&held).map(|(s, h)| (s, h.map(|x| x.0)))),
         tie_margin,
+        candidates: compare_candidates(samples, tie_margin, device)?,
     })
 }
