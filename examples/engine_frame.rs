@@ -3,7 +3,7 @@
 //! allocator, and meshchar only through [`Context::from_raw`].
 //!
 //! `cargo run --release --example engine_frame -- [--frames N] [--mode pipelined|staged] [--check] [--json]
-//! [--png PATH] [--mesh FILE]` (`--help` explains each).
+//! [--png PATH] [--mesh FILE] [--ray-query auto|on|off]` (`--help` explains each).
 //!
 //! The scene is one interleaved vertex buffer (position, normal, uv: 32 bytes a vertex) and one index buffer holding
 //! two meshes at offsets: the embedded Utah teapot as a triangle soup with 16-bit indices, exploding (its triangles
@@ -23,6 +23,14 @@
 //! waits), for comparison. `--check` copies each frame's animated positions to a host-visible buffer inside the
 //! frame's command buffer and, once the frame's fence has been observed, compares every report with the CPU
 //! reference (`meshchar::characterize::plan::reference`) on those positions.
+//!
+//! When the device has `VK_KHR_acceleration_structure` and `VK_KHR_ray_query` (`--ray-query auto`, the default, or
+//! `on`) and the cost model calibrated the driver's `rt_update`, the engine enables them and each mesh's per-frame
+//! decision is among the LBVH (rebuild or refit) and the driver's updatable structure (rebuild, or a `MODE_UPDATE`
+//! update, as `DriverFrameRule` says from the drift since its build), whichever the model predicts cheaper for the
+//! frame's rays; the frame line names each mesh's `structure`. With `--png` the last frame's picture is then traced
+//! by ray queries through each mesh's driver structure (one built with PREFER_FAST_TRACE where the mesh runs on its
+//! LBVH), and the count of pixels that hit the CPU reference's triangle is printed.
 
 use anyhow::{anyhow, bail, ensure, Context as _, Result};
 use ash::vk;
@@ -30,9 +38,12 @@ use clap::Parser;
 use cli::args::{JsonArg, TieMarginArg, WorkloadArgs};
 use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme, Allocator, AllocatorCreateDesc};
 use gpu_allocator::MemoryLocation;
+use meshchar::accel::bvh::Bvh;
+use meshchar::accel::device::{TraceHit, TraceRay};
+use meshchar::accel::driver::{DriverBuilder, DriverFlags, DriverStructure};
 use meshchar::accel::gpu::{BvhBuilder, GpuBvh};
 use meshchar::accel::lbvh::LbvhOptions;
-use meshchar::accel::StructureName;
+use meshchar::accel::{AccelStructure, StructureName};
 use meshchar::characterize::plan::{reference, Plan};
 use meshchar::characterize::vulkan::VulkanBackend;
 use meshchar::characterize::{Characterization, Features, Params, PassTime};
@@ -41,7 +52,7 @@ use meshchar::gpu::shaders::engine_animate;
 use meshchar::gpu::{Context, GeometryView, IndexType, RawDevice, Recorder};
 use meshchar::keys::{KeyBounds, Quantizer};
 use meshchar::mesh::{generate, Mesh};
-use meshchar::select::{FrameAction, FrameRule};
+use meshchar::select::{DriverAction, DriverFrameRule, FrameAction, FrameRule};
 use serde_json::json;
 use std::ffi::{c_void, CStr};
 use std::path::PathBuf;
@@ -94,9 +105,19 @@ struct Args {
     /// Create the engine's instance without the Khronos validation layer
     #[arg(long)]
     no_validation: bool,
-    /// Calibration file of the per-frame rule [default: the shipped one]
+    /// Calibration file of the per-frame rule [default: the shipped one; with ray queries, the one chosen for the
+    /// device, whose driver structures it weighs]
     #[arg(long, value_name = "FILE")]
     cost_model: Option<PathBuf>,
+    /// The driver's acceleration structures (VK_KHR_acceleration_structure, traced with ray queries): auto uses
+    /// them when the device has them, on requires them, off never creates the device with them
+    #[arg(long, value_enum, value_name = "R", default_value_t = RayQuery::Auto)]
+    ray_query: RayQuery,
+    /// The structures each mesh's per-frame decision weighs: auto the LBVH and (with ray queries) the driver's
+    /// rt_update, whichever the cost model predicts cheaper; lbvh or rt_update only that one (rt_update needs ray
+    /// queries and a cost model that calibrated it)
+    #[arg(long, value_enum, value_name = "S", default_value_t = Candidates::Auto)]
+    structure: Candidates,
     #[command(flatten)]
     workload: WorkloadArgs,
     #[command(flatten)]
@@ -113,6 +134,29 @@ enum Mode {
     /// Submit the animation and wait for it, read the positions back and run the staged characterization (its
     /// own submissions and waits), then record the rebuilds and refits
     Staged,
+}
+
+/// `--structure`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum Candidates {
+    /// The cheaper per the cost model
+    Auto,
+    /// The project's LBVH (rebuild or refit)
+    Lbvh,
+    /// The driver's updatable structure (rebuild or update)
+    #[value(name = "rt_update")]
+    RtUpdate,
+}
+
+/// `--ray-query`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum RayQuery {
+    /// When the device has the extensions and features
+    Auto,
+    /// Required: fail without them
+    On,
+    /// Never
+    Off,
 }
 
 impl Mode {
@@ -285,6 +329,8 @@ struct Engine {
     timestamp_mask: u64,
     allocator: Option<Allocator>,
     owned: Vec<Owned>,
+    /// The device was created with the ray-tracing extensions and features (`--ray-query`).
+    ray_query: bool,
     /// Last field: dropped after [`Engine::drop`] destroyed the device.
     instance: Instance,
 }
@@ -321,7 +367,7 @@ impl Engine {
     /// Picks a device with a compute queue that has timestamps and everything meshchar needs, and creates it with
     /// the features of `meshchar::gpu::required_device_features` and the extensions of
     /// `required_device_extensions`.
-    fn new(validation: bool, sink: Arc<MessageSink>) -> Result<Engine> {
+    fn new(validation: bool, sink: Arc<MessageSink>, ray_query: RayQuery) -> Result<Engine> {
         let inst = Instance::new(validation, sink)?;
         let instance = &inst.instance;
         // SAFETY: valid instance.
@@ -364,9 +410,44 @@ impl Engine {
             [core_has.shader_int64, has12.buffer_device_address, has12.shader_buffer_int64_atomics]
         };
         ensure!(has.iter().all(|&f| f == vk::TRUE), "{device_name} lacks one of {needed:?}");
+        // The driver's ray tracing for compute, when wanted and there: its extensions and features beside the
+        // required ones.
+        let rt_names = meshchar::gpu::ray_tracing_device_extensions();
+        // SAFETY: valid physical device.
+        let rt_has = unsafe {
+            let exts = instance.enumerate_device_extension_properties(physical).context("device extensions")?;
+            let mut f_as = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default();
+            let mut f_rq = vk::PhysicalDeviceRayQueryFeaturesKHR::default();
+            let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f_as).push_next(&mut f_rq);
+            instance.get_physical_device_features2(physical, &mut f2);
+            rt_names.iter().all(|n| exts.iter().any(|e| e.extension_name_as_c_str().is_ok_and(|x| x == *n)))
+                && f_as.acceleration_structure == vk::TRUE
+                && f_rq.ray_query == vk::TRUE
+        };
+        let rt = match ray_query {
+            RayQuery::Off => false,
+            RayQuery::Auto => rt_has,
+            RayQuery::On => {
+                ensure!(
+                    rt_has,
+                    "--ray-query on: {device_name} lacks VK_KHR_acceleration_structure or VK_KHR_ray_query (or their \
+                     features); lavapipe has them from Mesa 24.1"
+                );
+                true
+            }
+        };
+        let mut f_as = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default();
+        let mut f_rq = vk::PhysicalDeviceRayQueryFeaturesKHR::default();
+        meshchar::gpu::ray_tracing_device_features(&mut f_as, &mut f_rq);
         let mut f2 = vk::PhysicalDeviceFeatures2::default().features(core).push_next(&mut v12);
-        let extensions: Vec<*const std::ffi::c_char> =
+        if rt {
+            f2 = f2.push_next(&mut f_as).push_next(&mut f_rq);
+        }
+        let mut extensions: Vec<*const std::ffi::c_char> =
             meshchar::gpu::required_device_extensions().iter().map(|e| e.as_ptr()).collect();
+        if rt {
+            extensions.extend(rt_names.iter().map(|e| e.as_ptr()));
+        }
         let info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queues)
             .enabled_extension_names(&extensions)
@@ -401,6 +482,7 @@ impl Engine {
             timestamp_mask: if bits >= 64 { u64::MAX } else { (1u64 << bits) - 1 },
             allocator: Some(allocator),
             owned: Vec::new(),
+            ray_query: rt,
             instance: inst,
         })
     }
@@ -562,10 +644,16 @@ impl Engine {
     /// The frame's first command: every earlier command in submission order (the frames before, which read and
     /// write the vertex buffer and meshchar's scratch) completes, and its writes are visible, before the rest.
     fn frame_start_barrier(&self, cmd: vk::CommandBuffer) {
-        let stages = vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER;
-        let writes = vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE;
-        let all = writes | vk::AccessFlags::SHADER_READ | vk::AccessFlags::TRANSFER_READ;
-        self.barrier(cmd, (stages, writes), (stages, all));
+        let mut stages = vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER;
+        let mut writes = vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE;
+        let mut reads = vk::AccessFlags::SHADER_READ | vk::AccessFlags::TRANSFER_READ;
+        if self.ray_query {
+            // The frames before may still build, update or trace driver structures this frame updates.
+            stages |= vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR;
+            writes |= vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR;
+            reads |= vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR;
+        }
+        self.barrier(cmd, (stages, writes), (stages, writes | reads));
     }
 
     fn timestamp(&self, cmd: vk::CommandBuffer, pool: vk::QueryPool, q: u32) {
@@ -759,9 +847,13 @@ impl Resources {
     fn new(engine: &mut Engine, meshes: &[SceneMesh]) -> Result<Resources> {
         let (v, idx) = scene_data(meshes)?;
         let vertex_bytes = 4 * v.len() as u64;
-        let usage = vk::BufferUsageFlags::STORAGE_BUFFER
+        let mut usage = vk::BufferUsageFlags::STORAGE_BUFFER
             | vk::BufferUsageFlags::TRANSFER_SRC
             | vk::BufferUsageFlags::TRANSFER_DST;
+        if engine.ray_query {
+            // The driver's builds read the engine's vertices and indices.
+            usage |= vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR;
+        }
         let vertices = engine.create_buffer(
             "vertices",
             vertex_bytes,
@@ -926,6 +1018,10 @@ struct MeshState {
     tree: Option<(GpuBvh, usize)>,
     /// The features the rule compared against when the tree was built (see [`decide`]).
     built_features: Option<Features>,
+    /// With ray queries: the driver structure in use (`rt_update`, updatable) and the frame that built it.
+    driver: Option<(DriverStructure, usize)>,
+    /// The features the driver rule compared against when the driver structure was built.
+    driver_features: Option<Features>,
     /// The latest report read back: its frame (`None`: the rest pose, before the loop), report, features.
     latest: (Option<usize>, Characterization, Features),
 }
@@ -941,11 +1037,17 @@ struct InFlight {
     copied: bool,
     /// Trees replaced in this frame, kept alive until it completes (the frame before may still refit them).
     retired: Vec<GpuBvh>,
+    /// Driver structures replaced in this frame (or built for its picture), kept alive likewise.
+    retired_driver: Vec<DriverStructure>,
+    /// With --png and ray queries, the last frame: per mesh the ray-query hits of the picture's rays.
+    picture: Vec<meshchar::gpu::Buffer>,
 }
 
 /// One mesh in one frame.
 struct MeshFrame {
     decision: FrameAction,
+    /// `lbvh`, or `rt_update` (the driver structure; its update counts as a refit).
+    structure: &'static str,
     drift: f64,
     plan_from: Option<usize>,
     plan: Plan,
@@ -965,6 +1067,8 @@ struct FrameLine {
     engine_waits: u64,
     messages: u64,
     reference_equal: Option<bool>,
+    /// Meshes of this frame traced with the driver's structure (rt_update) rather than the LBVH.
+    driver_meshes: usize,
 }
 
 /// The report without what differs between a device run and the CPU reference by construction.
@@ -983,16 +1087,40 @@ fn quantizer_of(report: &Characterization, params: &Params) -> Result<Quantizer>
     Ok(Quantizer::new(&b, params.morton_bits)?)
 }
 
-/// The rule's decision for mesh `m` at frame `frame`, from the latest features read back. Drift is measured from
-/// the features that were the latest when the tree was built to the latest now: both lag the frames they describe
-/// by the same few frames in flight, so their change estimates the change since the tree's own frame.
-fn decide(rule: &FrameRule<'_>, m: &MeshState, frame: usize, now: &Features) -> Result<(FrameAction, f64)> {
+/// The rule's decision for mesh `m` at frame `frame`, from the latest features read back: the LBVH's (rebuild or
+/// refit, [`FrameRule`]) and, with ray queries, the driver structure's (rebuild or update, [`DriverFrameRule`]),
+/// whichever predicts the smaller update plus trace time (the LBVH on a tie); `true` for the driver. Drift is
+/// measured from the features that were the latest when the structure in use was built to the latest now: both lag
+/// the frames they describe by the same few frames in flight, so their change estimates the change since the
+/// structure's own frame.
+fn decide(
+    rule: &FrameRule<'_>,
+    driver: Option<&DriverFrameRule<'_>>,
+    candidates: Candidates,
+    m: &MeshState,
+    frame: usize,
+    now: &Features,
+) -> Result<(FrameAction, f64, bool)> {
     let built = match (&m.tree, &m.built_features) {
         (Some(_), Some(f)) => Some((f, StructureName::Lbvh)),
         _ => None,
     };
     let d = rule.decide(frame, now, built).ok_or_else(|| anyhow!("the cost model predicts no LBVH"))?;
-    Ok((d.action, d.drift))
+    let mut choice = (d.action, d.drift, false);
+    if let Some(dr) = driver {
+        let built = m.driver.as_ref().and(m.driver_features.as_ref());
+        if let Some(x) = dr.decide(frame, now, built) {
+            let cheaper = x.update_ms + x.trace_ms < d.update_ms + d.trace_ms;
+            if candidates == Candidates::RtUpdate || (candidates == Candidates::Auto && cheaper) {
+                let action = match x.action {
+                    DriverAction::Rebuild => FrameAction::Rebuild,
+                    DriverAction::Update => FrameAction::Refit,
+                };
+                choice = (action, x.drift, true);
+            }
+        }
+    }
+    Ok(choice)
 }
 
 /// The CPU copy of mesh `m` with the positions read back from the engine's vertex buffer.
@@ -1016,12 +1144,18 @@ struct Run<'a> {
     states: Vec<MeshState>,
     params: Params,
     rule: FrameRule<'a>,
+    /// With ray queries and a cost model that calibrated the driver structures: their builder and rule.
+    driver: Option<(DriverBuilder, DriverFrameRule<'a>)>,
+    /// With --png and ray queries: the picture's primary rays (device buffer, count) traced in the last frame.
+    picture_rays: Option<(meshchar::gpu::Buffer, u64)>,
     lbvh: LbvhOptions,
     messages: &'a MessageSink,
     messages_seen: u64,
     lines: Vec<FrameLine>,
     /// The last frame's read-back meshes with their plans (for --png).
     last: Option<Vec<(Mesh, Plan)>>,
+    /// The last frame's ray-query hits of the picture's rays, per mesh (--png with ray queries).
+    picture: Option<Vec<Vec<TraceHit>>>,
 }
 
 impl Run<'_> {
@@ -1121,7 +1255,14 @@ impl Run<'_> {
                     (plan, *from, None)
                 }
             };
-            frames.push(MeshFrame { decision: FrameAction::Rebuild, drift: 0.0, plan_from, plan, staged: own });
+            frames.push(MeshFrame {
+                decision: FrameAction::Rebuild,
+                structure: "lbvh",
+                drift: 0.0,
+                plan_from,
+                plan,
+                staged: own,
+            });
         }
         if staged {
             // The characterization ran before this command buffer: its timestamps only mark the start of the
@@ -1131,14 +1272,42 @@ impl Run<'_> {
             }
         }
         let mut retired = Vec::new();
+        let mut retired_driver = Vec::new();
         for (i, (st, mf)) in self.states.iter_mut().zip(frames.iter_mut()).enumerate() {
             // The latest features: this frame's own (staged), else the latest read back.
             let (now_report, now_features) = match &mf.staged {
                 Some((r, f, _)) => (r.clone(), f.clone()),
                 None => (st.latest.1.clone(), st.latest.2.clone()),
             };
-            let (action, drift) = decide(&self.rule, st, t, &now_features)?;
+            let driver_rule = self.driver.as_ref().map(|(_, r)| r);
+            let (action, drift, use_driver) =
+                decide(&self.rule, driver_rule, self.args.structure, st, t, &now_features)?;
             (mf.decision, mf.drift) = (action, drift);
+            if let (true, Some((builder, _))) = (use_driver, &self.driver) {
+                mf.structure = DriverFlags::Update.name();
+                // The LBVH is no longer traced: kept alive until this frame completes.
+                if let Some((old, _)) = st.tree.take() {
+                    retired.push(old);
+                }
+                st.built_features = None;
+                match (action, st.driver.as_mut()) {
+                    (FrameAction::Refit, Some((ds, _))) => builder.record_update(&mut rec, &st.view, ds)?,
+                    _ => {
+                        let ds = builder.record_build(&mut rec, &st.view, DriverFlags::Update)?;
+                        if let Some((old, _)) = st.driver.replace((ds, t)) {
+                            retired_driver.push(old);
+                        }
+                        st.driver_features = Some(now_features);
+                        mf.decision = FrameAction::Rebuild;
+                    }
+                }
+                engine.timestamp(cmd, queries, 2 + (scene.len() + i) as u32);
+                continue;
+            }
+            if let Some((old, _)) = st.driver.take() {
+                retired_driver.push(old);
+                st.driver_features = None;
+            }
             match (action, &st.tree) {
                 (FrameAction::Refit, Some((tree, _))) => st.builder.record_refit(&mut rec, &st.view, tree)?,
                 _ => {
@@ -1154,6 +1323,31 @@ impl Run<'_> {
             }
             engine.timestamp(cmd, queries, 2 + (scene.len() + i) as u32);
         }
+        // The last frame's picture with --png and ray queries: the picture's rays through each mesh's driver
+        // structure (one built with PREFER_FAST_TRACE for the picture where the mesh is traced with its LBVH).
+        let mut picture = Vec::new();
+        if let (Some((rays, count)), Some((builder, _)), true) =
+            (&self.picture_rays, &self.driver, self.args.png.is_some() && t + 1 == self.args.frames)
+        {
+            for st in self.states.iter() {
+                let hits = self.ctx.create_buffer(
+                    "picture hits",
+                    count * std::mem::size_of::<TraceHit>() as u64,
+                    meshchar::gpu::MemoryKind::Readback,
+                )?;
+                match &st.driver {
+                    Some((ds, _)) => builder.record_trace(&mut rec, ds, rays, &hits, *count, false)?,
+                    None => {
+                        let ds = builder.record_build(&mut rec, &st.view, DriverFlags::FastTrace)?;
+                        builder.record_trace(&mut rec, &ds, rays, &hits, *count, false)?;
+                        retired_driver.push(ds);
+                    }
+                }
+                picture.push(hits);
+            }
+            let shader = (compute, vk::AccessFlags::SHADER_WRITE);
+            engine.barrier(cmd, shader, (vk::PipelineStageFlags::HOST, vk::AccessFlags::HOST_READ));
+        }
         if copy && !staged {
             engine.barrier(cmd, to_host.0, to_host.1);
         }
@@ -1168,6 +1362,8 @@ impl Run<'_> {
             record_ms: start.elapsed().as_secs_f64() * 1e3,
             copied: copy,
             retired,
+            retired_driver,
+            picture,
         });
         Ok(())
     }
@@ -1192,6 +1388,7 @@ impl Run<'_> {
             engine_waits: f.engine_waits,
             messages: 0,
             reference_equal: None,
+            driver_meshes: 0,
         };
         let mut last = Vec::new();
         for (i, (mf, st)) in f.meshes.into_iter().zip(self.states.iter_mut()).enumerate() {
@@ -1208,6 +1405,10 @@ impl Run<'_> {
                 if *built == f.frame {
                     tree.finish()?;
                 }
+            }
+            if let Some((ds, _)) = &mut st.driver {
+                // The timers of this frame's build or update (and any before) have completed.
+                ds.finish()?;
             }
             let op_ms = ms[1 + n + i];
             let equal = match (&bytes, self.args.check) {
@@ -1237,9 +1438,11 @@ impl Run<'_> {
             if let Some(e) = equal {
                 line.reference_equal = Some(line.reference_equal.unwrap_or(true) && e);
             }
+            line.driver_meshes += usize::from(mf.structure != "lbvh");
             let mut mj = json!({
                 "mesh": m.name, "triangles": m.rest.triangle_count(), "index_type": index_name(m.index_type),
-                "motion": m.motion.as_str(), "decision": mf.decision.as_str(), "drift": mf.drift,
+                "motion": m.motion.as_str(), "decision": mf.decision.as_str(), "structure": mf.structure,
+                "drift": mf.drift,
                 "plan_from_frame": mf.plan_from, "classes": report.classes, "cramers_v": report.stats.cramers_v,
                 "characterize_ms": char_ms,
             });
@@ -1253,6 +1456,15 @@ impl Run<'_> {
             }
         }
         drop(f.retired);
+        drop(f.retired_driver);
+        if !f.picture.is_empty() {
+            let count = self.picture_rays.as_ref().map_or(0, |r| r.1) as usize;
+            let mut hits = Vec::new();
+            for b in &f.picture {
+                hits.push(self.ctx.read_buffer::<TraceHit>(b, 0, count)?);
+            }
+            self.picture = Some(hits);
+        }
         if !last.is_empty() {
             self.last = Some(last);
         }
@@ -1332,6 +1544,8 @@ struct Outcome {
     wall_ms: f64,
     /// The last frame's read-back meshes and plans (for --png).
     last: Option<Vec<(Mesh, Plan)>>,
+    /// With ray queries: the last frame's ray-query hits of the picture's rays (per mesh) and their camera.
+    picture: Option<(Vec<Vec<TraceHit>>, meshchar::trace::Camera)>,
 }
 
 /// Runs the frames on the engine.
@@ -1342,14 +1556,24 @@ fn frames(
     scene: &[SceneMesh],
     sink: &MessageSink,
 ) -> Result<Outcome> {
-    let raw =
-        RawDevice::new(engine.instance.instance.clone(), engine.device.clone(), engine.physical, engine.family, 0);
+    let raw = RawDevice {
+        ray_query_enabled: engine.ray_query,
+        ..RawDevice::new(engine.instance.instance.clone(), engine.device.clone(), engine.physical, engine.family, 0)
+    };
     // SAFETY: the device was created from this physical device of this instance with every feature of
-    // required_device_features and the extensions of required_device_extensions, and has queue 0 of a compute
-    // family; the engine outlives the context and everything made from it (all dropped before this function
-    // returns, after the device is idle); the queue is used from this thread only.
+    // required_device_features and the extensions of required_device_extensions (and, with `ray_query_enabled`,
+    // those of the ray-tracing functions), and has queue 0 of a compute family; the engine outlives the context and
+    // everything made from it (all dropped before this function returns, after the device is idle); the queue is
+    // used from this thread only.
     let ctx = unsafe { Context::from_raw(raw) }?;
-    let model = CostModel::load(args.cost_model.as_deref()).context("cost model")?;
+    // With ray queries the rule weighs the driver's structures too, with the calibration of this device.
+    let model = if engine.ray_query {
+        let record = meshchar::accel::device::DeviceRecord::of(&ctx);
+        CostModel::for_trace_target(args.cost_model.as_deref(), meshchar::cost::TraceTarget::Device(&record))
+            .context("cost model")?
+    } else {
+        CostModel::load(args.cost_model.as_deref()).context("cost model")?
+    };
     let params = Params::default();
     let lbvh = LbvhOptions { bits: params.morton_bits, ..LbvhOptions::default() };
     let mut states = Vec::new();
@@ -1379,6 +1603,8 @@ fn frames(
             builder: BvhBuilder::new(&ctx)?,
             tree: None,
             built_features: None,
+            driver: None,
+            driver_features: None,
             latest: (None, report, features),
         });
     }
@@ -1390,6 +1616,52 @@ fn frames(
         tie_margin: args.tie_margin.tie_margin,
         structures: &structures,
     };
+    let rays_per_frame = u64::from(args.workload.resolution).pow(2);
+    let driver = match (engine.ray_query, model.get_driver(DriverFlags::Update)) {
+        (true, Some(_)) => Some((
+            DriverBuilder::new(&ctx)?,
+            DriverFrameRule { model: &model, kind: args.workload.workload, rays_per_frame },
+        )),
+        (true, None) => {
+            eprintln!(
+                "engine_frame: the cost model ({}) has not calibrated the driver's rt_update: the frames decide \
+                 among LBVH rebuilds and refits only",
+                model.chosen_as.as_deref().unwrap_or(&model.device)
+            );
+            None
+        }
+        _ => None,
+    };
+    if args.structure == Candidates::RtUpdate && driver.is_none() {
+        bail!(
+            "--structure rt_update: {}",
+            if engine.ray_query {
+                "the cost model has not calibrated the driver's rt_update"
+            } else {
+                "the device was created without ray queries (see --ray-query)"
+            }
+        );
+    }
+    // The picture's primary rays, made and uploaded before the frames (a wait outside them), from a camera
+    // framing twice the rest poses' bounds (the meshes move).
+    let picture_rays = match (&driver, &args.png) {
+        (Some(_), Some(_)) => {
+            let mut b = meshchar::geom::Aabb::EMPTY;
+            for m in scene {
+                b = b.union(&meshchar::trace::workload::mesh_bounds(&m.rest));
+            }
+            let (c, e) = (b.center(), b.extent());
+            let camera = meshchar::trace::Camera::frame(&meshchar::geom::Aabb::new(c - e, c + e));
+            let rays: Vec<TraceRay> = (0..PNG_RESOLUTION * PNG_RESOLUTION)
+                .map(|p| {
+                    TraceRay::from(&camera.ray(p % PNG_RESOLUTION, p / PNG_RESOLUTION, PNG_RESOLUTION, PNG_RESOLUTION))
+                })
+                .collect();
+            Some((ctx.upload("picture rays", &rays)?, rays.len() as u64, camera))
+        }
+        _ => None,
+    };
+    let picture_camera = picture_rays.as_ref().map(|r| r.2);
     let mut run = Run {
         args,
         engine,
@@ -1399,6 +1671,9 @@ fn frames(
         states,
         params,
         rule,
+        driver,
+        picture_rays: picture_rays.map(|(b, n, _)| (b, n)),
+        picture: None,
         lbvh,
         messages: sink,
         messages_seen: 0,
@@ -1440,30 +1715,38 @@ fn frames(
     // SAFETY: valid device; the engine's queue is used by this thread only.
     let _ = unsafe { engine.device.device_wait_idle() };
     result?;
-    let Run { lines, last, .. } = run;
-    Ok(Outcome { lines, wall_ms: wall, last })
+    let Run { lines, last, picture, .. } = run;
+    Ok(Outcome { lines, wall_ms: wall, last, picture: picture.zip(picture_camera) })
 }
 
 fn run(args: Args) -> Result<()> {
     let sink = Arc::new(MessageSink::default());
     let scene = scene(&args)?;
     let outcome = {
-        let mut engine = Engine::new(!args.no_validation, sink.clone())?;
+        let mut engine = Engine::new(!args.no_validation, sink.clone(), args.ray_query)?;
         let mut res = Resources::new(&mut engine, &scene)?;
-        let name = engine.device_name.clone();
+        let name = (engine.device_name.clone(), engine.ray_query);
         frames(&args, &engine, &mut res, &scene, &sink).map(|o| (o, name))
         // The engine drops here: its objects, allocator, device, messenger and instance, in that order.
     };
-    let (Outcome { lines, wall_ms: wall, last }, device) = outcome?;
+    let (Outcome { lines, wall_ms: wall, last, picture }, (device, ray_query)) = outcome?;
     let total_messages = sink.count.load(Ordering::Relaxed);
     let n = lines.len().max(1) as f64;
     let sum = |f: &dyn Fn(&FrameLine) -> f64| lines.iter().map(f).sum::<f64>();
     let rebuilds: usize = lines.iter().map(|l| l.rebuilds).sum();
     let refits: usize = lines.iter().map(|l| l.refits).sum();
+    let driver_meshes: usize = lines.iter().map(|l| l.driver_meshes).sum();
     let host_waits: u64 = lines.iter().map(|l| l.host_waits).sum();
     let engine_waits: u64 = lines.iter().map(|l| l.engine_waits).sum();
     let all_equal = args.check.then(|| lines.iter().all(|l| l.reference_equal == Some(true)));
     let mean_or_null = |total: f64, count: usize| if count > 0 { json!(total / count as f64) } else { json!(null) };
+    // The picture first, so that the summary can say how it was traced.
+    let mut picture_line = None;
+    if let (Some(path), Some(last)) = (&args.png, last) {
+        if let Some((same, pixels)) = write_png(path, &last, &Params::default(), picture.as_ref())? {
+            picture_line = Some((path.display().to_string(), same, pixels));
+        }
+    }
     let mut summary = json!({
         "summary": true, "mode": args.mode.as_str(), "device": device, "frames": lines.len(),
         "meshes": scene.iter().map(|m| json!({
@@ -1471,7 +1754,7 @@ fn run(args: Args) -> Result<()> {
             "motion": m.motion.as_str(),
         })).collect::<Vec<_>>(),
         "mean_characterize_ms": sum(&|l| l.characterize_ms) / n,
-        "rebuilds": rebuilds, "refits": refits,
+        "rebuilds": rebuilds, "refits": refits, "ray_query": ray_query, "driver_mesh_frames": driver_meshes,
         "mean_build_ms": mean_or_null(sum(&|l| l.build_ms), rebuilds),
         "mean_refit_ms": mean_or_null(sum(&|l| l.refit_ms), refits),
         "mean_record_ms": sum(&|l| l.json["record_ms"].as_f64().unwrap_or(0.0)) / n,
@@ -1481,15 +1764,20 @@ fn run(args: Args) -> Result<()> {
     if let Some(e) = all_equal {
         summary["reference_equal"] = json!(e);
     }
+    if let Some((path, same, pixels)) = &picture_line {
+        summary["picture"] =
+            json!({"path": path, "traced_by": "ray query", "pixels": pixels, "pixels_equal_to_cpu": same});
+    }
     if args.json.json {
         println!("{summary}");
     } else {
         println!(
             "{} frames ({}, {device}): characterization {:.3} ms/frame (GPU), {rebuilds} rebuilds, {refits} refits, \
-             {:.2} ms wall/frame, {host_waits} host waits in frames, {total_messages} validation messages{}",
+             {}{:.2} ms wall/frame, {host_waits} host waits in frames, {total_messages} validation messages{}",
             lines.len(),
             args.mode.as_str(),
             sum(&|l| l.characterize_ms) / n,
+            if ray_query { format!("{driver_meshes} mesh-frames on the driver's rt_update, ") } else { String::new() },
             wall / n,
             all_equal.map_or(String::new(), |e| format!(
                 ", reports {}",
@@ -1497,8 +1785,10 @@ fn run(args: Args) -> Result<()> {
             ))
         );
     }
-    if let (Some(path), Some(last)) = (&args.png, last) {
-        write_png(path, &last, &Params::default())?;
+    if let (Some((path, same, pixels)), false) = (&picture_line, args.json.json) {
+        println!(
+            "picture {path}: traced by ray queries, {same} of {pixels} pixels hit the triangle the CPU reference hits"
+        );
     }
     if args.mode == Mode::Pipelined && host_waits > 0 {
         bail!("{host_waits} host waits inside the frames");
@@ -1511,24 +1801,74 @@ fn run(args: Args) -> Result<()> {
 }
 
 /// The picture of the last frame: both meshes as read back, each triangle in the colour of its class under the
-/// frame's plan (the CPU reference's classes, equal to the device's), the teapot's classes first.
-fn write_png(path: &std::path::Path, last: &[(Mesh, Plan)], params: &Params) -> Result<()> {
+/// frame's plan (the CPU reference's classes, equal to the device's), the teapot's classes first. With `picture`
+/// (ray queries), the pixels are the ray-query hits (per pixel the nearest over the meshes), and the return is how
+/// many of them hit the triangle that the CPU reference's BVH hits, of how many pixels.
+fn write_png(
+    path: &std::path::Path,
+    last: &[(Mesh, Plan)],
+    params: &Params,
+    picture: Option<&(Vec<Vec<TraceHit>>, meshchar::trace::Camera)>,
+) -> Result<Option<(usize, usize)>> {
     let mut positions = Vec::new();
     let mut indices = Vec::new();
     let mut classes = Vec::new();
     let mut counts = Vec::new();
+    let mut starts = Vec::new();
     let per = Params { keep_per_triangle: true, ..params.clone() };
     for (mesh, plan) in last {
         let r = reference(mesh, &per, plan)?;
         let pt = r.report.per_triangle.ok_or_else(|| anyhow!("no per-triangle classes"))?;
         let (v0, k0) = (positions.len() as u32, counts.len() as u32);
+        starts.push(indices.len() as u32);
         positions.extend_from_slice(&mesh.positions);
         indices.extend(mesh.indices.iter().map(|t| t.map(|i| i + v0)));
         classes.extend(pt.classes.iter().map(|c| c + k0));
         counts.extend_from_slice(&r.report.histogram);
     }
     let mesh = Mesh::new("last frame", positions, indices)?;
-    let img = meshchar::eval::render::render_classes(&mesh, &classes, &counts, PNG_RESOLUTION, None)?;
+    let (img, agreement) = match picture {
+        None => (meshchar::eval::render::render_classes(&mesh, &classes, &counts, PNG_RESOLUTION, None)?, None),
+        Some((per_mesh, camera)) => {
+            ensure!(per_mesh.len() == last.len(), "{} picture hit lists for {} meshes", per_mesh.len(), last.len());
+            let pixels = (PNG_RESOLUTION * PNG_RESOLUTION) as usize;
+            let mut nearest: Vec<Option<(f32, u32)>> = vec![None; pixels];
+            for (hits, &start) in per_mesh.iter().zip(&starts) {
+                ensure!(hits.len() == pixels, "{} picture hits for {pixels} pixels", hits.len());
+                for (n, h) in nearest.iter_mut().zip(hits) {
+                    if let Some(h) = h.hit().filter(|h| n.is_none_or(|(t, _)| h.t < t)) {
+                        *n = Some((h.t, start + h.triangle));
+                    }
+                }
+            }
+            let hits: Vec<Option<u32>> = nearest.iter().map(|n| n.map(|(_, t)| t)).collect();
+            // The CPU reference's hits of the same rays, for the agreement count.
+            let bvh = Bvh::build(&mesh)?;
+            let same = hits
+                .iter()
+                .enumerate()
+                .filter(|&(p, &h)| {
+                    let ray = camera.ray(
+                        p as u32 % PNG_RESOLUTION,
+                        p as u32 / PNG_RESOLUTION,
+                        PNG_RESOLUTION,
+                        PNG_RESOLUTION,
+                    );
+                    let w = bvh.intersect(&ray, &mut Default::default()).map(|x| x.triangle);
+                    w == h
+                })
+                .count();
+            let img = meshchar::eval::render::render_classes_from_hits(
+                &mesh,
+                &classes,
+                &counts,
+                PNG_RESOLUTION,
+                camera,
+                &hits,
+            )?;
+            (img, Some((same, pixels)))
+        }
+    };
     std::fs::write(path, img.encode_png()?).with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
+    Ok(agreement)
 }

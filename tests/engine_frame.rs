@@ -176,3 +176,72 @@ fn help_and_png() {
     assert!(bytes.starts_with(b"\x89PNG\r\n\x1a\n"), "not a PNG");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// With ray queries (`--ray-query on`): `--structure rt_update` runs every mesh-frame on the driver's updatable
+/// structure (rebuilt on frame 0, then updated or rebuilt as the rule says), with no host wait, no validation
+/// message and every report equal to the reference; the picture comes from ray queries and every pixel hits the
+/// CPU reference's triangle. `--structure auto` names a structure per mesh and counts the driver's, and
+/// `--ray-query off` never uses it.
+#[test]
+fn ray_query_frames_use_the_driver_structure_and_trace_the_picture() {
+    let Some(ctx) = gpu_support::context() else { return };
+    if !ctx.caps().ray_query {
+        assert!(
+            std::env::var("REQUIRE_GPU").map_or(true, |v| v != "1"),
+            "REQUIRE_GPU=1 but {} has no ray queries (scripts/setup installs Mesa 25 from Debian backports)",
+            ctx.caps().name
+        );
+        let out = run(&["--frames", "2", "--ray-query", "on"]);
+        assert_ne!(out.status.code(), Some(0), "--ray-query on without ray queries fails");
+        return;
+    }
+    drop(ctx);
+    let dir = std::env::temp_dir().join(format!("meshchar-engine-frame-rq-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temporary directory");
+    let png = dir.join("rq.png");
+    let png_arg = png.to_str().expect("a UTF-8 temporary path");
+    let args =
+        ["--frames", "8", "--json", "--check", "--ray-query", "on", "--structure", "rt_update", "--png", png_arg];
+    let (lines, summary) = frames(&args);
+    assert_eq!(lines.len(), 8);
+    for (t, l) in lines.iter().enumerate() {
+        assert_eq!(u(l, "host_waits"), 0, "frame {t}: {l}");
+        assert_eq!(l["reference_equal"], Value::Bool(true), "frame {t}: {l}");
+        for m in l["meshes"].as_array().expect("meshes") {
+            assert_eq!(m["structure"], "rt_update", "frame {t}: {m}");
+            assert!(matches!(m["decision"].as_str(), Some("rebuild" | "refit")), "{m}");
+            if t == 0 {
+                assert_eq!(m["decision"], "rebuild", "frame 0 builds: {m}");
+            }
+        }
+    }
+    assert_eq!(summary["ray_query"], Value::Bool(true));
+    assert_eq!(u(&summary, "driver_mesh_frames"), 16, "{summary}");
+    assert_eq!(u(&summary, "validation_messages"), 0, "{summary}");
+    let pic = &summary["picture"];
+    assert_eq!(pic["traced_by"], "ray query", "{summary}");
+    assert!(u(pic, "pixels") > 0);
+    assert_eq!(u(pic, "pixels_equal_to_cpu"), u(pic, "pixels"), "every pixel hits the reference's triangle: {pic}");
+    assert!(std::fs::read(&png).expect("the PNG").starts_with(b"\x89PNG\r\n\x1a\n"));
+    // auto: a structure per mesh, the driver's counted.
+    let (lines, summary) = frames(&["--frames", "4", "--json", "--ray-query", "on"]);
+    let on_driver = lines
+        .iter()
+        .flat_map(|l| l["meshes"].as_array().cloned().unwrap_or_default())
+        .inspect(|m| assert!(matches!(m["structure"].as_str(), Some("lbvh" | "rt_update")), "{m}"))
+        .filter(|m| m["structure"] == "rt_update")
+        .count() as u64;
+    assert_eq!(u(&summary, "driver_mesh_frames"), on_driver, "{summary}");
+    // off: the LBVH only.
+    let (lines, summary) = frames(&["--frames", "2", "--json", "--ray-query", "off"]);
+    assert_eq!(summary["ray_query"], Value::Bool(false));
+    assert_eq!(u(&summary, "driver_mesh_frames"), 0);
+    assert!(lines
+        .iter()
+        .flat_map(|l| l["meshes"].as_array().cloned().unwrap_or_default())
+        .all(|m| m["structure"] == "lbvh"));
+    let bad = run(&["--frames", "2", "--ray-query", "off", "--structure", "rt_update"]);
+    assert_ne!(bad.status.code(), Some(0), "rt_update without ray queries is an error");
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--structure rt_update"), "the error names the flag");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -187,7 +187,7 @@ pub fn interior_camera(mesh: &Mesh) -> Option<Camera> {
 
 /// Renders `mesh` at `resolution x resolution` with `camera` (`None`: the automatic camera, [`Camera::frame`]) with
 /// triangle `i` in the colour of class `classes[i]` (one class per triangle, each below `counts.len()`), and a
-/// legend of `counts`.
+/// legend of `counts`. The rays are traced on the CPU (a BVH of `mesh`).
 pub fn render_classes(
     mesh: &Mesh,
     classes: &[u32],
@@ -195,6 +195,43 @@ pub fn render_classes(
     resolution: u32,
     camera: Option<Camera>,
 ) -> Result<ClassImage, RenderError> {
+    check_classes(mesh, classes, counts, resolution)?;
+    let bvh = Bvh::build(mesh)?;
+    let camera = camera.unwrap_or_else(|| Camera::frame(&mesh_bounds(mesh)));
+    use rayon::prelude::*;
+    let hits: Vec<Option<u32>> = (0..resolution * resolution)
+        .into_par_iter()
+        .map(|p| {
+            let ray = camera.ray(p % resolution, p / resolution, resolution, resolution);
+            bvh.intersect(&ray, &mut TraceCounters::default()).map(|h| h.triangle)
+        })
+        .collect();
+    paint(mesh, classes, counts, resolution, &camera, &hits)
+}
+
+/// [`render_classes`] from hits traced elsewhere (a device, ray queries): `hits[p]` is the triangle of `mesh` that
+/// the ray of pixel `p` (`camera.ray(p % resolution, p / resolution, resolution, resolution)`, row by row) hit
+/// first, `None` for a miss.
+pub fn render_classes_from_hits(
+    mesh: &Mesh,
+    classes: &[u32],
+    counts: &[u64],
+    resolution: u32,
+    camera: &Camera,
+    hits: &[Option<u32>],
+) -> Result<ClassImage, RenderError> {
+    check_classes(mesh, classes, counts, resolution)?;
+    let pixels = u64::from(resolution) * u64::from(resolution);
+    if hits.len() as u64 != pixels {
+        return Err(RenderError::Invalid(format!("{} hits for {pixels} pixels", hits.len())));
+    }
+    if let Some(t) = hits.iter().flatten().find(|&&t| t as usize >= mesh.triangle_count()) {
+        return Err(RenderError::Invalid(format!("hit triangle {t} of {} triangles", mesh.triangle_count())));
+    }
+    paint(mesh, classes, counts, resolution, camera, hits)
+}
+
+fn check_classes(mesh: &Mesh, classes: &[u32], counts: &[u64], resolution: u32) -> Result<(), RenderError> {
     if classes.len() != mesh.triangle_count() {
         return Err(RenderError::Invalid(format!(
             "{} classes for {} triangles (characterize every triangle: sample stride 1)",
@@ -209,8 +246,20 @@ pub fn render_classes(
     if !(16..=4096).contains(&resolution) {
         return Err(RenderError::Invalid(format!("resolution {resolution} outside 16..=4096")));
     }
-    let bvh = Bvh::build(mesh)?;
-    let camera = camera.unwrap_or_else(|| Camera::frame(&mesh_bounds(mesh)));
+    Ok(())
+}
+
+/// The picture of per-pixel hits (checked by the callers): Lambert-shaded class colours, the share bar and the
+/// legend.
+fn paint(
+    mesh: &Mesh,
+    classes: &[u32],
+    counts: &[u64],
+    resolution: u32,
+    camera: &Camera,
+    hits: &[Option<u32>],
+) -> Result<ClassImage, RenderError> {
+    let k = counts.len() as u32;
     let (w, rh) = (resolution, resolution);
     let per_row = (w / ENTRY_W).max(1);
     let rows = k.div_ceil(per_row);
@@ -225,26 +274,14 @@ pub fn render_classes(
         counts: counts.to_vec(),
         bar: (rh + 8, BAR_H),
     };
-    use rayon::prelude::*;
-    let shades: Vec<(Option<u32>, [u8; 3])> = (0..w * rh)
-        .into_par_iter()
-        .map(|p| {
-            let ray = camera.ray(p % w, p / w, w, rh);
-            let mut c = TraceCounters::default();
-            match bvh.intersect(&ray, &mut c) {
-                Some(hit) => {
-                    let [a, b, cc] = mesh.triangle(hit.triangle as usize);
-                    let lambert = (b - a).cross(cc - a).try_normalize().map_or(0.0, |n| n.dot(ray.dir).abs());
-                    let level = (lambert * (SHADE_LEVELS - 1) as f32).round() as u32;
-                    (Some(hit.triangle), shaded(classes[hit.triangle as usize], level))
-                }
-                None => (None, BACKGROUND),
-            }
-        })
-        .collect();
-    for (p, (t, c)) in shades.into_iter().enumerate() {
-        img.triangle[p] = t;
-        img.pixels[p] = c;
+    for (p, hit) in hits.iter().enumerate() {
+        let Some(t) = *hit else { continue };
+        let ray = camera.ray(p as u32 % w, p as u32 / w, w, rh);
+        let [a, b, cc] = mesh.triangle(t as usize);
+        let lambert = (b - a).cross(cc - a).try_normalize().map_or(0.0, |n| n.dot(ray.dir).abs());
+        let level = (lambert * (SHADE_LEVELS - 1) as f32).round() as u32;
+        img.triangle[p] = Some(t);
+        img.pixels[p] = shaded(classes[t as usize], level);
     }
     // Share bar: segment widths proportional to the counts (cumulative rounding, so they add up to the width).
     let total: u64 = counts.iter().sum::<u64>().max(1);
