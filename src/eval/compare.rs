@@ -151,10 +151,15 @@ fn measured_best(smp: &Sample) -> (Named, Named) {
 /// overall when predicted cheaper (for an animation with its per-frame update plan).
 fn policy_candidate(model: &CostModel, smp: &Sample, tie_margin: f64) -> (Option<String>, Option<String>) {
     let preds = model.predict(&smp.features, &smp.workload);
-    let own =
-        choose(&preds, tie_margin).map(|c| (c, preds.iter().find(|p| p.structure == c).map_or(0.0, |p| p.total_ms)));
     let frames: Vec<crate::characterize::Features> =
         if smp.frame_features.is_empty() { vec![smp.features.clone()] } else { smp.frame_features.clone() };
+    // The project's side as the policy weighs it: for an animation, its per-frame plan.
+    let planned =
+        crate::select::planned_total(model, &frames, smp.workload.kind, smp.workload.rays_per_frame, tie_margin);
+    let own = choose(&preds, tie_margin).map(|c| {
+        let single = preds.iter().find(|p| p.structure == c).map_or(0.0, |p| p.total_ms);
+        (c, planned.unwrap_or(single))
+    });
     match crate::select::driver::choose_driver(model, &frames, &smp.workload, own) {
         Some((d, _)) => {
             let overall =

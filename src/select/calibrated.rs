@@ -68,6 +68,23 @@ fn bvh_family(s: StructureName) -> bool {
     matches!(s, StructureName::Bvh | StructureName::Lbvh | StructureName::Hlbvh)
 }
 
+/// The project's side for an animation (`features` of more than one frame): the total of its per-frame plan
+/// ([`plan_frames`]: rebuilds and refits), or `None` for a static scene or when nothing plans. What the policy
+/// weighs the driver's structures against, and what the policy comparison scores it by.
+pub(crate) fn planned_total(
+    model: &CostModel,
+    features: &[Features],
+    kind: crate::geom::WorkloadKind,
+    rays_per_frame: u64,
+    tie_margin: f64,
+) -> Option<f64> {
+    if features.len() < 2 {
+        return None;
+    }
+    let plan = plan_frames(model, features, kind, rays_per_frame, tie_margin);
+    (!plan.is_empty()).then(|| plan.iter().map(|d| d.update_ms + d.trace_ms).sum())
+}
+
 /// Per-frame rebuild-or-refit plan for an animation with per-frame `features` and `rays_per_frame` rays of `kind`
 /// per frame: greedy, frame by frame, the cheaper of rebuilding with the calibrated choice and refitting the tree in
 /// use (BVH family only, and only with a refit model). Each step is [`FrameRule::decide`] over all calibrated
@@ -286,17 +303,9 @@ impl Policy for CalibratedPolicy {
         }
         let mut driver = None;
         if self.driver {
-            let own = preds.iter().find(|p| p.structure == choice).map(|p| (choice, p.total_ms));
-            let own = own.map(|(s, t)| {
-                // An animation: the project's side as planned per frame (rebuilds and refits), when it plans.
-                if scene.features.len() > 1 {
-                    let plan =
-                        plan_frames(&self.model, scene.features, self.kind, self.rays_per_frame, self.tie_margin);
-                    if !plan.is_empty() {
-                        return (s, plan.iter().map(|d| d.update_ms + d.trace_ms).sum());
-                    }
-                }
-                (s, t)
+            let own = preds.iter().find(|p| p.structure == choice).map(|p| {
+                let t = planned_total(&self.model, scene.features, self.kind, self.rays_per_frame, self.tie_margin);
+                (choice, t.unwrap_or(p.total_ms))
             });
             match super::driver::choose_driver(&self.model, scene.features, &w, own) {
                 Some((d, r)) => {
