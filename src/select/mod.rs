@@ -19,6 +19,7 @@ mod report;
 mod thesis;
 
 pub use budget::{Budget, BuildBounds, Exclusion};
+#[cfg(feature = "eval")]
 pub(crate) use calibrated::planned_total;
 pub use calibrated::{choose, plan_frames, CalibratedPolicy, FrameAction, FrameDecision, FrameRule};
 pub use driver::{plan_driver_frames, DriverAction, DriverFrameDecision, DriverFrameRule, DriverSelection};
