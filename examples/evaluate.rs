@@ -6,7 +6,7 @@
 //! cargo run --release --example evaluate -- [FILE|DIR ...] [--json] [--workload primary|shadow|diffuse]
 //!     [--resolution N] [--frames F] [--repeats R] [--rebuild once|frame] [--structures bvh,kdtree,...]
 //!     [--camera EX,EY,EZ,TX,TY,TZ[,FOV]] [--charts DIR] [--policy thesis|calibrated] [--cost-model FILE]
-//!     [--tie-margin X] [--oracle-cache FILE] [--trace-backend cpu|vulkan] [--help]
+//!     [--tie-margin X] [--oracle-cache FILE] [--trace-backend cpu|vulkan] [--max-tests-per-ray TESTS] [--help]
 //! cargo run --release --example evaluate -- --compare-policies FILE.jsonl ... [--charts DIR] [--json]
 //! ```
 //!
@@ -101,6 +101,20 @@ struct Args {
     /// timed apart; every ray's hit is checked against the CPU reference). MESHCHAR_DEVICE picks the device
     #[arg(long, value_name = "cpu|vulkan", default_value = "cpu", value_parser = trace_backend)]
     trace_backend: TraceBackend,
+    /// The trace budget: a structure whose box and triangle tests per ray, on a sample of 1,024 of the rays, exceed
+    /// this is reported as failed instead of traced (a reference over it fails the scene); coincident copies of
+    /// many triangles make every ray test them all
+    #[arg(long, value_name = "TESTS", default_value_t = meshchar::eval::oracle::DEFAULT_MAX_TESTS_PER_RAY,
+          value_parser = positive_f64)]
+    max_tests_per_ray: f64,
+}
+
+/// A positive finite number.
+fn positive_f64(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
+        _ => Err(format!("{s:?} is not a positive number")),
+    }
 }
 
 /// A name in `--structures`: one of the project's structures or a driver acceleration structure.
@@ -154,6 +168,7 @@ impl Args {
                 })
                 .collect(),
             camera: self.camera,
+            max_tests_per_ray: self.max_tests_per_ray,
             ..default
         }
     }

@@ -431,6 +431,13 @@ fn bounded_build(mesh: &Mesh, name: StructureName) -> Result<meshchar::accel::Ac
                     assert!(s.max_depth as f64 <= (8.0 + 1.3 * log2).round(), "{what}");
                     assert!(s.nodes <= 16 * n, "{what}");
                 }
+                StructureName::Bvh => {
+                    // One reference per triangle, less the copies of a triangle it keeps once.
+                    let copies = meshchar::accel::bvh::Bvh::build(mesh).expect("bvh").tree().copies().len();
+                    assert_eq!(s.references + copies, n, "{what}");
+                    assert!(s.nodes < 2 * n, "{what}");
+                    assert!(s.max_depth as f64 <= 64.0 + 2.0 * log2, "{what}");
+                }
                 _ => {
                     assert_eq!(s.references, n, "{what}");
                     assert!(s.nodes < 2 * n, "{what}");
@@ -475,6 +482,8 @@ fn degenerate_scenes_build_with_bounded_work() {
                 match name {
                     StructureName::KdTree => assert!(s.is_some_and(|s| s.references <= 8 * n), "{s:?}"),
                     StructureName::Bih => assert!(s.is_some_and(|s| s.max_depth <= 64), "{s:?}"),
+                    // The unit triangle and its two zero-area legs, each kept once.
+                    StructureName::Bvh => assert!(s.is_some_and(|s| s.references == 3), "{s:?}"),
                     _ => {}
                 }
             }

@@ -140,3 +140,61 @@ fn the_lattice_with_diagonal_zero_area_triangles_fits_the_grid_and_agrees_with_b
     assert!(hits > 0, "no ray hits the lattice");
     assert!(bad.is_empty(), "{} disagreements:\n{}", bad.len(), bad.join("\n"));
 }
+
+/// `mesh` with the triangle of index `i` repeated `k` times (same vertex indices) for each `(i, k)`, the repeats
+/// appended at the end.
+fn with_index_copies(mesh: &Mesh, repeats: &[(usize, usize)]) -> Mesh {
+    let mut out = mesh.clone();
+    for &(i, k) in repeats {
+        out.indices.extend(std::iter::repeat_n(mesh.indices[i], k));
+    }
+    out.name = format!("{} with index copies", mesh.name);
+    out
+}
+
+#[test]
+fn the_bvh_keeps_one_copy_of_a_triangle_and_changes_no_hit() {
+    use meshchar::accel::bvh::Bvh;
+    use meshchar::mesh::generate;
+    // The fan of 3,000 triangles over three points: 1,000 copies each of the unit triangle and of its two zero-area
+    // legs. A lattice with 100 copies of one of its triangles and 20 of another (fewer copies than a leaf holds are
+    // left alone, in their leaf). Every structure still equals brute force, under the tie rule, on the three
+    // workloads.
+    let fan = generate::fan_polygon(3000);
+    let lattice = with_index_copies(&generate::lattice_with_diagonal(20, 0), &[(17, 100), (401, 20)]);
+    for (mesh, copies, kept) in [(&fan, 2997, 3), (&lattice, 120, 800)] {
+        let bvh = Bvh::build(mesh).expect("bvh");
+        assert_eq!(bvh.tree().copies().len(), copies, "{}", mesh.name);
+        let stats = bvh.validate().expect("valid");
+        assert_eq!((stats.triangles, stats.references), (mesh.triangle_count(), kept), "{}", mesh.name);
+        let brute = build_structure(StructureName::Brute, mesh).expect("brute force");
+        let (bad, hits) = disagreements(mesh, brute.as_ref(), 48);
+        assert!(hits > 0 && bad.is_empty(), "{}: {hits} hits, disagreements:\n{}", mesh.name, bad.join("\n"));
+    }
+    // On the fan a ray tests one triangle instead of a thousand.
+    let camera = Camera::frame(&mesh_bounds(&fan));
+    let bvh = Bvh::build(&fan).expect("bvh");
+    let rays = build_workload(WorkloadKind::Primary, &fan, &camera, 48, &bvh);
+    let out = trace(&bvh, &rays);
+    let hit = out.hits.iter().filter(|h| h.is_some()).count();
+    assert!(hit > 0 && out.counters.prim_tests <= 3 * hit as u64, "{} tests, {hit} hits", out.counters.prim_tests);
+    // The kept triangle is the first copy: index 0 for the unit triangle.
+    assert!(out.hits.iter().flatten().all(|h| h.triangle == 0), "a hit on a later copy");
+    // A refit to moved vertices keeps the copies copies: still valid, still equal to brute force.
+    let mut moved = fan.clone();
+    for p in moved.positions.iter_mut() {
+        *p = [p[0] * 2.0 + 0.5, p[1] * 0.5 - 1.0, p[0] + p[1]];
+    }
+    let mut refitted = Bvh::build(&fan).expect("bvh");
+    refitted.refit(&moved).expect("refit");
+    refitted.validate().expect("valid after the refit");
+    let brute = build_structure(StructureName::Brute, &moved).expect("brute force");
+    let camera = Camera::frame(&mesh_bounds(&moved));
+    for kind in [WorkloadKind::Primary, WorkloadKind::Shadow] {
+        let rays = build_workload(kind, &moved, &camera, 32, brute.as_ref());
+        let (want, got) = (trace(brute.as_ref(), &rays), trace(&refitted, &rays));
+        assert_eq!(want.occluded, got.occluded, "{kind:?}");
+        assert!(want.hits.iter().zip(&got.hits).all(|(a, b)| hits_agree(a, b)), "{kind:?}");
+        assert!(want.hits.iter().chain(&got.hits).any(|h| h.is_some()) || rays.any_hit, "{kind:?}: no hit");
+    }
+}

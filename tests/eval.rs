@@ -235,3 +235,41 @@ fn a_structure_over_its_budget_is_reported_failed_and_the_others_are_measured() 
     assert_eq!(g["error"].as_str(), Some(err));
     assert_eq!(g["valid"], false);
 }
+
+#[test]
+fn a_structure_over_the_trace_budget_is_reported_failed_and_a_reference_over_it_fails_the_scene() {
+    use meshchar::accel::build_structure;
+    use meshchar::trace::workload::{build_workload, mesh_bounds};
+    use meshchar::trace::{trace, Camera};
+    // The fan of a polygon over three points: 1,000 copies of one triangle. The BVH keeps one copy; the other
+    // structures test them all on every ray that reaches them. At 32 x 32 rays the sample is every ray, so which
+    // structures exceed the budget follows from their counts over all rays, computed here apart.
+    let mesh = meshchar::mesh::generate::fan_polygon(3000);
+    let budget = 64.0;
+    let camera = Camera::frame(&mesh_bounds(&mesh));
+    let reference = build_structure(StructureName::Bvh, &mesh).unwrap();
+    let rays = build_workload(WorkloadKind::Primary, &mesh, &camera, 32, reference.as_ref());
+    let anim = Animation::new("fan", vec![mesh.clone()]).unwrap();
+    let config = OracleConfig { resolution: 32, repeats: 1, max_tests_per_ray: budget, ..Default::default() };
+    let e = evaluate_scene(&anim, &config, None, &|_| {}).unwrap();
+    let mut over = 0;
+    for s in &e.structures {
+        let name = s.name.unwrap();
+        let Ok(accel) = build_structure(name, &mesh) else {
+            assert!(s.error.as_deref().is_some_and(|e| e.contains("budget")), "{name}: {:?}", s.error);
+            continue;
+        };
+        let c = trace(accel.as_ref(), &rays).counters;
+        let per_ray = (c.box_tests + c.prim_tests) as f64 / rays.rays.len() as f64;
+        let failed = s.error.as_deref().is_some_and(|e| e.contains("over the trace budget"));
+        assert_eq!(failed, per_ray > budget, "{name}: {per_ray} tests per ray: {:?}", s.error);
+        assert_eq!(s.valid, !failed, "{name}");
+        over += usize::from(failed);
+    }
+    assert!(over >= 3, "only {over} structures over the budget");
+    assert_eq!(e.oracle_best, Some(StructureName::Bvh));
+    // A budget the reference itself exceeds: the scene fails, naming the reference.
+    let tight = OracleConfig { max_tests_per_ray: 0.5, ..config };
+    let err = evaluate_scene(&anim, &tight, None, &|_| {}).unwrap_err().to_string();
+    assert!(err.contains("reference") && err.contains("over the trace budget"), "{err}");
+}

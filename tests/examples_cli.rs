@@ -719,3 +719,44 @@ fn a_device_calibration_records_its_device_and_is_chosen_on_it() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_polygon_over_three_points_gives_a_report_at_the_default_resolution() {
+    // One OBJ face of 300,002 corners cycling over three vertices: 300,000 triangles, 100,000 copies of one. At
+    // 1024 x 1024 rays a structure that tests every copy would trace for minutes; the BVH keeps one copy, the
+    // structures over the trace budget are reported failed, and the report names the BVH best.
+    let dir = std::env::temp_dir().join(format!("meshchar-examples-cli-fan-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let file = dir.join("fan.obj");
+    let mut obj = String::from("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1");
+    for i in 0..300_001usize {
+        obj.push_str([" 2", " 3", " 1"][i % 3]);
+    }
+    obj.push('\n');
+    std::fs::write(&file, obj).expect("fan.obj");
+    for name in ["characterize", "build_bvh"] {
+        let out = run(name, &["--backend", "cpu", arg(&file)]);
+        assert_eq!(out.status.code(), Some(0), "{name}: {:?}", text_of(&out));
+    }
+    let out = run("evaluate", &["--repeats", "1", "--json", arg(&file)]);
+    let (stdout, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    let j: serde_json::Value = serde_json::from_str(stdout.lines().next().expect("a line")).expect("json");
+    assert_eq!(j["triangles"], 300_000);
+    assert_eq!(j["resolution"], 1024);
+    assert_eq!(j["oracle_best"], "bvh", "{stdout}");
+    let over: Vec<&str> = j["structures"]
+        .as_array()
+        .expect("structures")
+        .iter()
+        .filter(|s| s["error"].as_str().is_some_and(|e| e.contains("over the trace budget")))
+        .filter_map(|s| s["name"].as_str())
+        .collect();
+    assert!(over.contains(&"lbvh") && over.contains(&"kdtree"), "{over:?}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+fn text_of(out: &Output) -> String {
+    let (a, b) = text(out);
+    format!("{a}{b}")
+}

@@ -263,7 +263,7 @@ impl GpuBvh {
                 _ => return Err(GpuError::Buffer(format!("triangle {id}: vertex index out of range"))),
             }
         }
-        Ok(BvhTree { nodes, tris, ids })
+        Ok(BvhTree { nodes, tris, ids, copies: Vec::new() })
     }
 }
 

@@ -340,7 +340,7 @@ impl Hlbvh {
         let tris = ids.par_iter().map(|&i| tris[i as usize]).collect();
         let clusters =
             ranges.iter().zip(&offsets).map(|(&(s, e), &off)| (s as u32, (e - s) as u32, off as u32)).collect();
-        Ok(Hlbvh { tree: BvhTree { nodes, tris, ids }, clusters, max_leaf: o.max_leaf })
+        Ok(Hlbvh { tree: BvhTree { nodes, tris, ids, copies: Vec::new() }, clusters, max_leaf: o.max_leaf })
     }
 
     /// The nodes and triangle records.

@@ -304,7 +304,11 @@ impl Lbvh {
         let keys = sorted_keys(&codes);
         let (nodes, tris, ids) = karras_tree(&keys, o.bits, &boxes, &tris);
         let nodes = collapse_leaves(&nodes, o.max_leaf);
-        Ok(Lbvh { tree: BvhTree { nodes, tris, ids }, codes: keys.iter().map(|k| k.0).collect(), max_leaf: o.max_leaf })
+        Ok(Lbvh {
+            tree: BvhTree { nodes, tris, ids, copies: Vec::new() },
+            codes: keys.iter().map(|k| k.0).collect(),
+            max_leaf: o.max_leaf,
+        })
     }
     /// The nodes and triangle records.
     pub fn tree(&self) -> &BvhTree {

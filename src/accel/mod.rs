@@ -455,6 +455,19 @@ impl Validation {
         Ok(())
     }
 
+    /// Entry `copy`, in no leaf, stands for a copy of entry `kept`, which is in a leaf (the caller checks that they
+    /// are copies): fails otherwise, or when `copy` is in a leaf or listed twice.
+    pub(crate) fn copy(&mut self, copy: usize, kept: usize) -> Result<(), AccelError> {
+        if !self.covered.get(kept).copied().unwrap_or(false) {
+            return Err(self.invalid(format!("entry {copy} copies entry {kept}, which is in no leaf")));
+        }
+        match self.covered.get_mut(copy) {
+            Some(c) if !*c => *c = true,
+            _ => return Err(self.invalid(format!("copy {copy} in a leaf, listed twice or out of range"))),
+        }
+        Ok(())
+    }
+
     /// The statistics, after checking that the walk reached every node and the leaves cover every entry.
     pub(crate) fn finish(self) -> Result<AccelStats, AccelError> {
         let unreached = self.visited.iter().filter(|&&v| !v).count();

@@ -29,6 +29,19 @@
 //! noise when the selection is within noise of the best. With one repeat the spread is zero and nothing is ever
 //! within noise: use at least three repeats to judge.
 //!
+//! # Trace budget
+//!
+//! Building is bounded by the grid's and the kd-tree's reference budgets; tracing is bounded here. Before a
+//! structure's first timed trace on a frame, a sample of the rays (every `k`-th ray, [`TRACE_SAMPLE_RAYS`] of them;
+//! not timed) is traced with counters; when its box and triangle tests per ray exceed
+//! [`OracleConfig::max_tests_per_ray`], the structure is reported as failed for the scene, with the counts and the
+//! projected total, and the others are measured. The reference is checked the same way before it makes the rays,
+//! and a reference over the budget is an error for the scene. Such scenes exist: a polygon face over three points
+//! loads to many coincident copies of one triangle, and under the tie rule a ray that reaches them tests every copy
+//! (the binned-SAH BVH keeps one copy of a triangle whose vertex indices repeat, [`crate::accel::bvh::BvhTree::copies`],
+//! the other structures test them all). On every scene of `docs/data` the most tests per ray of any structure is
+//! 134 (the grid on the dragon, shadow rays), so the default of 4,096 stops only the pathological.
+//!
 //! # The cheapest structure within noise
 //!
 //! When several structures are within noise of the best, the measurement cannot tell them apart, and the one that
@@ -318,6 +331,56 @@ pub struct OracleConfig {
     pub camera: Option<Camera>,
     /// The driver's acceleration structures to measure beside `structures` (device backend with ray queries).
     pub driver: Vec<crate::accel::driver::DriverFlags>,
+    /// The trace budget: most box and triangle tests per ray (mean over a sample of the rays) before a structure
+    /// is reported as failed instead of traced (see the module docs).
+    pub max_tests_per_ray: f64,
+}
+
+/// Rays the trace-budget check traces per structure and frame (fewer when the workload has fewer).
+pub const TRACE_SAMPLE_RAYS: usize = 1024;
+
+/// The default [`OracleConfig::max_tests_per_ray`].
+pub const DEFAULT_MAX_TESTS_PER_RAY: f64 = 4096.0;
+
+/// [`TRACE_SAMPLE_RAYS`] of `rays` (all when there are fewer), spread over the whole set: ray
+/// `floor(frac(i * phi) * len)` for `i` in `0 .. TRACE_SAMPLE_RAYS`, the golden-ratio sequence, so that a sample
+/// of an image's rays (row by row) covers its columns as well as its rows (a stride equal to the image width
+/// would sample one column).
+fn sample_rays(rays: &[crate::geom::Ray]) -> Vec<crate::geom::Ray> {
+    if rays.len() <= TRACE_SAMPLE_RAYS {
+        return rays.to_vec();
+    }
+    const PHI_FRAC: f64 = 0.618_033_988_749_894_8;
+    (0..TRACE_SAMPLE_RAYS)
+        .map(|i| rays[(((i as f64 * PHI_FRAC).fract() * rays.len() as f64) as usize).min(rays.len() - 1)])
+        .collect()
+}
+
+/// Traces a sample of `rays` ([`TRACE_SAMPLE_RAYS`] of them, spread over the set) through `s` with counters (not part of any
+/// timing) and fails with the reason when the tests per ray exceed `max_tests_per_ray`.
+pub fn check_trace_budget(s: &dyn AccelStructure, rays: &RaySet, max_tests_per_ray: f64) -> Result<(), String> {
+    if rays.rays.is_empty() {
+        return Ok(());
+    }
+    let sample = RaySet { kind: rays.kind, rays: sample_rays(&rays.rays), any_hit: rays.any_hit };
+    let out = trace(s, &sample);
+    let k = sample.rays.len() as f64;
+    let per_ray = (out.counters.box_tests + out.counters.prim_tests) as f64 / k;
+    if per_ray > max_tests_per_ray {
+        return Err(format!(
+            "{}: over the trace budget: a sample of {} rays needs {:.0} tests per ray ({:.0} box, {:.0} triangle), \
+             about {:.2e} for the {} rays, over the budget of {max_tests_per_ray} per ray (--max-tests-per-ray); \
+             coincident or heavily overlapping triangles make every ray test them all",
+            s.name(),
+            sample.rays.len(),
+            per_ray,
+            out.counters.box_tests as f64 / k,
+            out.counters.prim_tests as f64 / k,
+            per_ray * rays.rays.len() as f64,
+            rays.rays.len()
+        ));
+    }
+    Ok(())
 }
 
 impl Default for OracleConfig {
@@ -331,6 +394,7 @@ impl Default for OracleConfig {
             structures: StructureName::ALL.to_vec(),
             camera: None,
             driver: Vec::new(),
+            max_tests_per_ray: DEFAULT_MAX_TESTS_PER_RAY,
         }
     }
 }
@@ -747,7 +811,19 @@ pub fn evaluate_scene_on(
     for (fi, mesh) in measured.iter().enumerate() {
         progress(&format!("{}: frame {}/{}: rays and reference hits", scene.name, fi + 1, measured.len()));
         let reference = crate::accel::bvh::Bvh::build(mesh)?;
+        let over =
+            |reason: String| EvalError::Config { scene: scene.name.clone(), reason: format!("reference {reason}") };
+        if config.workload != WorkloadKind::Primary {
+            // The secondary rays start where the reference's primary rays hit.
+            let primary = RaySet {
+                kind: WorkloadKind::Primary,
+                rays: crate::trace::workload::primary_rays(&camera, config.resolution, config.resolution),
+                any_hit: false,
+            };
+            check_trace_budget(&reference, &primary, config.max_tests_per_ray).map_err(over)?;
+        }
         let rays: RaySet = build_workload(config.workload, mesh, &camera, config.resolution, &reference);
+        check_trace_budget(&reference, &rays, config.max_tests_per_ray).map_err(over)?;
         if fi == 0 {
             rays_per_frame = rays.rays.len();
         }
@@ -800,6 +876,13 @@ pub fn evaluate_scene_on(
                         continue;
                     }
                 };
+                if r == 0 {
+                    if let Err(e) = check_trace_budget(s.as_ref(), &rays, config.max_tests_per_ray) {
+                        a.error = Some(e);
+                        a.valid = false;
+                        continue;
+                    }
+                }
                 let run = match (device, &mesh_buffers) {
                     (None, _) => Ok((build_ms, 0.0, trace(s.as_ref(), &rays))),
                     (Some(d), Some(m)) if DeviceOracle::builds_on_device(name) => {

@@ -3,7 +3,12 @@
 //! Binned SAH after Wald 2007: centroids binned into [`BvhOptions::bins`] bins per axis on the centroid bounds,
 //! all three axes evaluated, the plane of least `K_T * A + K_I * (A_L N_L + A_R N_R)` taken when it beats a leaf
 //! (`K_I * A * N`) or when the node holds more than [`BvhOptions::max_leaf`] triangles. Nodes whose centroids
-//! coincide, or deeper than 64 levels, are split at the object median. Subtrees above
+//! coincide, or deeper than 64 levels, are split at the object median. A node whose centroids coincide and that
+//! holds copies of one triangle (the same three vertex indices in the same order, as a polygon face over few
+//! points loads to) keeps only the copy of the smallest index: under the tie rule no other copy can be the closest
+//! hit (its record, `t`, `u` and `v` are the same bits) nor change an any-hit answer, and every ray that reaches them
+//! would otherwise test them all. The copies stay among the triangle records (so a refit, which keeps the vertex
+//! indices, keeps them copies) in no leaf; [`super::BvhTree::copies`] lists them. Subtrees above
 //! [`BvhOptions::parallel_threshold`] triangles are built in parallel (`rayon::join`), and the binning of large
 //! nodes is parallel too; every subtree writes into its own slice of a preallocated array (a subtree of `k`
 //! triangles owns `2k - 1` slots), which a final pass compacts with siblings adjacent. The result does not depend on
@@ -83,6 +88,12 @@ impl Ref {
     #[inline]
     fn idx(&self) -> u32 {
         self.b.min.w.to_bits()
+    }
+    /// For a copy dropped from the leaves ([`dedup_copies`]): the triangle index of the copy kept, plus one (0: not
+    /// a dropped copy).
+    #[inline]
+    fn kept_plus_one(&self) -> u32 {
+        self.b.max.w.to_bits()
     }
     /// Twice the box centre.
     #[inline]
@@ -316,6 +327,31 @@ fn partition_with_bounds(v: &mut [Ref], mut left: impl FnMut(&Ref) -> bool) -> (
     (i, [lb, lcb, rb, rcb])
 }
 
+/// Sorts `refs` (whose centroids coincide) by vertex indices `same` and moves every copy of a triangle (equal
+/// vertex indices, larger triangle index) to the end, marked with the index of the copy kept; returns the number
+/// of triangles kept (they come first, in vertex-index order).
+fn dedup_copies(refs: &mut [Ref], same: &[[u32; 3]]) -> usize {
+    let key = |r: &Ref| same.get(r.idx() as usize).copied().unwrap_or([u32::MAX; 3]);
+    refs.sort_unstable_by(|a, b| key(a).cmp(&key(b)).then(a.idx().cmp(&b.idx())));
+    let mut kept: Vec<Ref> = Vec::with_capacity(refs.len());
+    let mut copies: Vec<Ref> = Vec::new();
+    for r in refs.iter() {
+        match kept.last() {
+            Some(k) if key(k) == key(r) => {
+                let mut c = *r;
+                c.b.max.w = f32::from_bits(k.idx() + 1);
+                copies.push(c);
+            }
+            _ => kept.push(*r),
+        }
+    }
+    let u = kept.len();
+    refs[..u].copy_from_slice(&kept);
+    refs[u..].copy_from_slice(&copies);
+    u
+}
+
+#[allow(clippy::too_many_arguments)]
 fn build_rec(
     refs: &mut [Ref],
     nodes: &mut [BvhNode],
@@ -324,6 +360,7 @@ fn build_rec(
     depth: u32,
     (bounds, cb): (B4, B4),
     o: &BvhOptions,
+    same: Option<&[[u32; 3]]>,
 ) {
     let n = refs.len();
     let leaf = |nodes: &mut [BvhNode]| nodes[0] = BvhNode::leaf(&bounds.aabb(), first, n as u32);
@@ -352,6 +389,15 @@ fn build_rec(
     let (m, [lb, lcb, rb, rcb]) = match split {
         Some(s) => s,
         None if n > o.max_leaf || depth >= MAX_SAH_DEPTH && n > 1 => {
+            // Coincident centroids: copies of one triangle keep the first (see the module docs); the boxes of the
+            // copies are their kept triangle's, so the bounds stay.
+            if let Some(same) = same.filter(|_| cb.min.truncate() == cb.max.truncate()) {
+                let u = dedup_copies(refs, same);
+                if u < n {
+                    build_rec(&mut refs[..u], nodes, base, first, depth, (bounds, cb), o, None);
+                    return;
+                }
+            }
             let axis = cb.aabb().longest_axis();
             let m = n / 2;
             refs.select_nth_unstable_by(m, |a, b| a.c2()[axis].total_cmp(&b.c2()[axis]).then(a.idx().cmp(&b.idx())));
@@ -370,12 +416,12 @@ fn build_rec(
     let (lr, rr) = refs.split_at_mut(m);
     if n >= o.parallel_threshold {
         rayon::join(
-            || build_rec(lr, ln, base + 1, first, depth + 1, (lb, lcb), o),
-            || build_rec(rr, rn, base + 2 * m32, first + m32, depth + 1, (rb, rcb), o),
+            || build_rec(lr, ln, base + 1, first, depth + 1, (lb, lcb), o, same),
+            || build_rec(rr, rn, base + 2 * m32, first + m32, depth + 1, (rb, rcb), o, same),
         );
     } else {
-        build_rec(lr, ln, base + 1, first, depth + 1, (lb, lcb), o);
-        build_rec(rr, rn, base + 2 * m32, first + m32, depth + 1, (rb, rcb), o);
+        build_rec(lr, ln, base + 1, first, depth + 1, (lb, lcb), o, same);
+        build_rec(rr, rn, base + 2 * m32, first + m32, depth + 1, (rb, rcb), o, same);
     }
 }
 
@@ -403,20 +449,40 @@ pub(crate) fn compact_sibling_pairs(sparse: &[BvhNode]) -> Vec<BvhNode> {
     out
 }
 
-/// Builds a binned-SAH tree over arbitrary boxes (used for triangles here and for clusters by the HLBVH).
-/// Returns the compact nodes and the order of the input boxes in the leaves.
-pub(crate) fn build_sah_tree(boxes: &[Aabb], o: &BvhOptions) -> (Vec<BvhNode>, Vec<u32>) {
+/// Builds a binned-SAH tree over triangle boxes; `same`, the triangles' vertex indices, lets it keep one of the
+/// copies of a triangle ([`dedup_copies`]). Returns the compact nodes, the order of the input boxes (the leaves'
+/// entries, and the dropped copies at the places their nodes had) and, per dropped copy, its position in that
+/// order and the position of the copy kept.
+pub(crate) fn build_sah_tree(
+    boxes: &[Aabb],
+    o: &BvhOptions,
+    same: Option<&[[u32; 3]]>,
+) -> (Vec<BvhNode>, Vec<u32>, Vec<(u32, u32)>) {
     let n = boxes.len();
     if n == 0 {
-        return (Vec::new(), Vec::new());
+        return (Vec::new(), Vec::new(), Vec::new());
     }
     let mut refs: Vec<Ref> = boxes.par_iter().enumerate().map(|(i, b)| Ref::new(b, i as u32)).collect();
     let mut sparse = vec![BvhNode::default(); 2 * n - 1];
     let o = BvhOptions { bins: o.bins.clamp(2, MAX_BINS), max_leaf: o.max_leaf.max(1), ..*o };
     let bounds = ref_bounds(&refs);
-    build_rec(&mut refs, &mut sparse, 0, 0, 0, bounds, &o);
+    build_rec(&mut refs, &mut sparse, 0, 0, 0, bounds, &o, same);
     let nodes = compact_sibling_pairs(&sparse);
-    (nodes, refs.iter().map(|r| r.idx()).collect())
+    let order: Vec<u32> = refs.iter().map(|r| r.idx()).collect();
+    let mut copies = Vec::new();
+    if refs.iter().any(|r| r.kept_plus_one() != 0) {
+        let mut pos = vec![0u32; n];
+        for (p, &id) in order.iter().enumerate() {
+            pos[id as usize] = p as u32;
+        }
+        copies = refs
+            .iter()
+            .enumerate()
+            .filter(|(_, r)| r.kept_plus_one() != 0)
+            .map(|(p, r)| (p as u32, pos[(r.kept_plus_one() - 1) as usize]))
+            .collect();
+    }
+    (nodes, order, copies)
 }
 
 /// Binned-SAH BVH (see the module docs).
@@ -429,9 +495,9 @@ impl Bvh {
     /// Builds with explicit options.
     pub fn build_with(mesh: &Mesh, options: &BvhOptions) -> Result<Self, AccelError> {
         let (tris, boxes) = prepare(mesh, "bvh")?;
-        let (nodes, order) = build_sah_tree(&boxes, options);
+        let (nodes, order, copies) = build_sah_tree(&boxes, options, Some(&mesh.indices));
         let tris = order.par_iter().map(|&i| tris[i as usize]).collect();
-        Ok(Bvh { tree: BvhTree { nodes, tris, ids: order } })
+        Ok(Bvh { tree: BvhTree { nodes, tris, ids: order, copies } })
     }
     /// Refits the tree to the positions of `mesh` (the next frame of an animation): see [`BvhTree::refit`].
     pub fn refit(&mut self, mesh: &Mesh) -> Result<(), AccelError> {
@@ -459,5 +525,37 @@ impl AccelStructure for Bvh {
     }
     fn sah_cost(&self) -> Option<f64> {
         Some(self.tree.sah_cost())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::generate;
+
+    #[test]
+    fn validation_refuses_a_copy_that_is_not_one() {
+        let bvh = Bvh::build(&generate::fan_polygon(30)).unwrap();
+        assert_eq!(bvh.tree.copies.len(), 27);
+        bvh.validate().unwrap();
+        // A zero-area leg listed as a copy of the unit triangle: other record bits.
+        let (copy, _) = bvh.tree.copies[0];
+        let other = bvh.tree.copies.iter().find(|&&(c, _)| bvh.tree.tris[c as usize] != bvh.tree.tris[copy as usize]);
+        let mut bad = bvh.clone();
+        bad.tree.copies[0].1 = other.unwrap().1;
+        assert!(bad.validate().unwrap_err().to_string().contains("no later copy"));
+        // A copy dropped from the list: an entry in no leaf.
+        let mut bad = bvh.clone();
+        bad.tree.copies.pop();
+        assert!(bad.validate().unwrap_err().to_string().contains("in no leaf"));
+        // A copy listed twice.
+        let mut bad = bvh.clone();
+        let first = bad.tree.copies[0];
+        bad.tree.copies.push(first);
+        assert!(bad.validate().is_err());
+        // The kept record standing for itself (a smaller index is required).
+        let mut bad = bvh;
+        bad.tree.copies[0].1 = bad.tree.copies[0].0;
+        assert!(bad.validate().is_err());
     }
 }
