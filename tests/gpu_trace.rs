@@ -1,6 +1,6 @@
 //! Device traversal (`glsl/trace.comp`) against the CPU tracer, ray by ray: for every structure (BVH, kd-tree, grid,
 //! BIH, LBVH, HLBVH), every ray's hit triangle, `t`, `u` and `v` bits and its box and triangle test counts equal what
-//! `AccelStructure::intersect` / `occluded` give for the same ray, on the shared static meshes, a BART frame, the
+//! `AccelStructure::intersect` / `occluded` give for the same ray, on every shared static mesh, the first frame of three BART animations, the
 //! degenerate generators and random rays (zero and negative-zero direction components, origins inside and outside).
 //! With the validation layer on; every GPU test fails (never skips) under `REQUIRE_GPU=1`.
 
@@ -147,6 +147,36 @@ fn device_traversal_equals_cpu_on_shared_meshes() {
     ] {
         let mesh = load_mesh(&common::shared_mesh(rel)).unwrap();
         check_mesh(&ctx, &tracer, rel, &mesh, res, 1024);
+    }
+    gpu_support::assert_no_validation_messages(&ctx);
+}
+
+#[test]
+fn device_traversal_equals_cpu_on_every_other_shared_mesh() {
+    // The scans, the lower resolutions of the bunny and the dragon, and the first frame of every BART animation
+    // (the meshes of the test above and the full dragon, below, aside), at fewer rays.
+    let Some(ctx) = gpu_support::context() else { return };
+    let tracer = DeviceTracer::new(&ctx).expect("tracer");
+    let root = common::shared_meshes();
+    let listed = |d: &str| -> Vec<std::path::PathBuf> {
+        let mut v: Vec<_> =
+            std::fs::read_dir(root.join(d)).expect("mesh folder").map(|e| e.expect("entry").path()).collect();
+        v.sort();
+        v
+    };
+    let mut files: Vec<std::path::PathBuf> = listed("scans");
+    files.extend(listed("stanford-bunny").into_iter().filter(|p| p.to_string_lossy().contains("_res")));
+    files.extend(listed("stanford-dragon").into_iter().filter(|p| p.to_string_lossy().contains("_res")));
+    for anim in ["kitchen", "museum5", "robots"] {
+        files.extend(
+            listed(&format!("bart/{anim}")).into_iter().filter(|p| p.extension().is_some_and(|e| e == "obj")).take(1),
+        );
+    }
+    let files: Vec<_> = files.into_iter().filter(|p| p.extension().is_some_and(|e| e == "obj" || e == "ply")).collect();
+    assert!(files.len() >= 15, "only {} meshes found", files.len());
+    for f in &files {
+        let mesh = load_mesh(f).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
+        check_mesh(&ctx, &tracer, &f.display().to_string(), &mesh, 32, 256);
     }
     gpu_support::assert_no_validation_messages(&ctx);
 }
