@@ -1,7 +1,8 @@
 //! Device traversal (`glsl/trace.comp`) against the CPU tracer, ray by ray: for every structure (BVH, kd-tree, grid,
 //! BIH, LBVH, HLBVH), every ray's hit triangle, `t`, `u` and `v` bits and its box and triangle test counts equal what
-//! `AccelStructure::intersect` / `occluded` give for the same ray, on every shared static mesh, the first frame of three BART animations, the
-//! degenerate generators and random rays (zero and negative-zero direction components, origins inside and outside).
+//! `AccelStructure::intersect` / `occluded` give for the same ray, on every shared static mesh, the first frame of
+//! three BART animations, the degenerate generators and random rays (zero and negative-zero direction components,
+//! origins inside and outside).
 //! With the validation layer on; every GPU test fails (never skips) under `REQUIRE_GPU=1`.
 
 mod common;
