@@ -325,11 +325,8 @@ const BLOCK: usize = 256;
 // histogram counts are `u32`.
 const _: () = assert!(TASK <= 1 << 32 && TASK % BLOCK == 0);
 
-/// One block of triangles inside a task: their centroid keys, then their cells, by axis.
+/// The cells of one block of keys inside a task, by axis.
 struct Block {
-    x: [f32; BLOCK],
-    y: [f32; BLOCK],
-    z: [f32; BLOCK],
     cx: [u32; BLOCK],
     cy: [u32; BLOCK],
     cz: [u32; BLOCK],
@@ -337,45 +334,135 @@ struct Block {
 
 impl Block {
     fn new() -> Box<Block> {
-        Box::new(Block {
-            x: [0.0; BLOCK],
-            y: [0.0; BLOCK],
-            z: [0.0; BLOCK],
-            cx: [0; BLOCK],
-            cy: [0; BLOCK],
-            cz: [0; BLOCK],
-        })
+        Box::new(Block { cx: [0; BLOCK], cy: [0; BLOCK], cz: [0; BLOCK] })
     }
+}
 
-    /// Step 1 for up to [`BLOCK`] triangles of `tris`: their keys into `x`, `y`, `z`. Returns how many, and whether
-    /// every index was below `p.len()` (the key of a triangle with an index out of range is left as 0; the caller
-    /// reports the mesh invalid).
-    #[inline(always)]
-    fn gather<'a>(&mut self, tris: impl Iterator<Item = &'a [u32; 3]>, p: &[[f32; 3]]) -> (usize, bool) {
-        let mut len = 0;
-        let mut ok = true;
-        for (t, ((x, y), z)) in tris.zip(self.x.iter_mut().zip(self.y.iter_mut()).zip(self.z.iter_mut())) {
-            let k = match (p.get(t[0] as usize), p.get(t[1] as usize), p.get(t[2] as usize)) {
-                (Some(&a), Some(&b), Some(&c)) => keys::centroid_key(a, b, c),
-                _ => {
-                    ok = false;
-                    [0.0; 3]
-                }
-            };
-            (*x, *y, *z) = (k[0], k[1], k[2]);
-            len += 1;
-        }
-        (len, ok)
+/// The centroid keys of the sample, by axis (`x[j]` of sampled triangle `j`): pass 1 of [`fast_with`] writes them
+/// as it bounds them, and pass 2 reads them in order instead of gathering the vertices again.
+#[derive(Default)]
+struct SampleKeys {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
+}
+
+/// The working memory of [`fast_with`], kept between calls: the sample's centroid keys (12 bytes per sampled
+/// triangle) and its Morton codes (4 bytes per sampled triangle for 30-bit codes, 8 for 63-bit ones), as large as
+/// the largest sample characterized with it. With the keys kept, pass 2 reads them in order instead of gathering
+/// every triangle's vertices a second time. Fresh memory is expensive, though: on the 2-core development VM the
+/// first write to the 14 MB that the dragon (871,414 triangles) needs costs about 6 ms in page faults, as much as
+/// the characterization itself, so [`fast`], which has no memory to keep, gathers twice and allocates only the
+/// codes, and a caller that characterizes every frame keeps one `Scratch` (as [`super::Characterizer`] does) and
+/// pays for it once.
+#[derive(Default)]
+pub struct Scratch {
+    keys: SampleKeys,
+    codes30: Vec<u32>,
+    codes63: Vec<u64>,
+}
+
+impl Scratch {
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        4 * (self.keys.x.capacity() + self.keys.y.capacity() + self.keys.z.capacity() + self.codes30.capacity())
+            + 8 * self.codes63.capacity()
     }
+}
 
-    /// [`Block::gather`] for the sampled triangles of `tris`: every one (`stride == 1`) or every `stride`-th.
+/// `v` with `n` elements, its memory reused: no write when it had as many (the caller overwrites them).
+fn sized<T: Copy + Default>(v: &mut Vec<T>, n: usize) -> &mut [T] {
+    if v.len() < n {
+        v.resize(n, T::default());
+    }
+    &mut v[..n]
+}
+
+/// One block of keys gathered from the vertices (where the sample's keys are not kept).
+struct KeyBuf {
+    x: [f32; BLOCK],
+    y: [f32; BLOCK],
+    z: [f32; BLOCK],
+}
+
+impl KeyBuf {
+    fn new() -> Box<KeyBuf> {
+        Box::new(KeyBuf { x: [0.0; BLOCK], y: [0.0; BLOCK], z: [0.0; BLOCK] })
+    }
+    fn slices(&mut self) -> (&mut [f32], &mut [f32], &mut [f32]) {
+        (&mut self.x, &mut self.y, &mut self.z)
+    }
+}
+
+/// Where pass 2 of [`fast_with`] finds a task's keys: stored by pass 1, or gathered again from the vertices of the
+/// task's triangles.
+#[derive(Clone, Copy)]
+enum TaskKeys<'a> {
+    Stored(&'a [f32], &'a [f32], &'a [f32]),
+    Gather { tris: &'a [[u32; 3]], stride: usize, p: &'a [[f32; 3]] },
+}
+
+impl<'a> TaskKeys<'a> {
+    /// The keys of the task's block `j` of `len` sampled triangles (gathered into `buf` when not stored).
     #[inline(always)]
-    fn gather_sampled(&mut self, tris: &[[u32; 3]], stride: usize, p: &[[f32; 3]]) -> (usize, bool) {
-        if stride == 1 {
-            self.gather(tris.iter(), p)
-        } else {
-            self.gather(tris.iter().step_by(stride), p)
+    fn block<'b>(&self, j: usize, len: usize, buf: &'b mut KeyBuf) -> (&'b [f32], &'b [f32], &'b [f32])
+    where
+        'a: 'b,
+    {
+        match *self {
+            TaskKeys::Stored(x, y, z) => {
+                let r = j * BLOCK..j * BLOCK + len;
+                (&x[r.clone()], &y[r.clone()], &z[r])
+            }
+            TaskKeys::Gather { tris, stride, p } => {
+                let from = (j * BLOCK * stride).min(tris.len());
+                let to = ((j * BLOCK + len) * stride).min(tris.len());
+                gather_sampled(&tris[from..to], stride, p, buf.slices());
+                (&buf.x[..len], &buf.y[..len], &buf.z[..len])
+            }
         }
+    }
+}
+
+/// Step 1 for the triangles of `tris`: their keys into `x`, `y`, `z` (as many as the shortest of the four).
+/// Returns how many, and whether every index was below `p.len()` (the key of a triangle with an index out of range
+/// is left as 0; the caller reports the mesh invalid).
+#[inline(always)]
+fn gather<'a>(
+    tris: impl Iterator<Item = &'a [u32; 3]>,
+    p: &[[f32; 3]],
+    x: &mut [f32],
+    y: &mut [f32],
+    z: &mut [f32],
+) -> (usize, bool) {
+    let mut len = 0;
+    let mut ok = true;
+    for (t, ((x, y), z)) in tris.zip(x.iter_mut().zip(y.iter_mut()).zip(z.iter_mut())) {
+        let k = match (p.get(t[0] as usize), p.get(t[1] as usize), p.get(t[2] as usize)) {
+            (Some(&a), Some(&b), Some(&c)) => keys::centroid_key(a, b, c),
+            _ => {
+                ok = false;
+                [0.0; 3]
+            }
+        };
+        (*x, *y, *z) = (k[0], k[1], k[2]);
+        len += 1;
+    }
+    (len, ok)
+}
+
+/// [`gather`] for the sampled triangles of `tris`: every one (`stride == 1`) or every `stride`-th.
+#[inline(always)]
+fn gather_sampled(
+    tris: &[[u32; 3]],
+    stride: usize,
+    p: &[[f32; 3]],
+    (x, y, z): (&mut [f32], &mut [f32], &mut [f32]),
+) -> (usize, bool) {
+    if stride == 1 {
+        gather(tris.iter(), p, x, y, z)
+    } else {
+        gather(tris.iter().step_by(stride), p, x, y, z)
     }
 }
 
@@ -456,19 +543,40 @@ struct TaskBounds {
 
 /// Pass 1 of [`fast`] for one task: validation of the task's triangles `tris` (those from its first sampled
 /// triangle to the next task's, sampled or not) and of the vertices `verts`, and steps 1 and 2 for the sampled
-/// triangles. With `stride == 1` the indices are checked as the keys are gathered.
+/// triangles, whose keys go to `keys` when given (one per sampled triangle of the task), block by block so that each
+/// block's keys are still in L1 when they are bounded. With `stride == 1` the indices are checked as the keys are
+/// gathered.
 #[inline(never)]
-fn task_bounds(tris: &[[u32; 3]], stride: usize, verts: &[[f32; 3]], p: &[[f32; 3]]) -> TaskBounds {
+fn task_bounds(
+    tris: &[[u32; 3]],
+    stride: usize,
+    verts: &[[f32; 3]],
+    p: &[[f32; 3]],
+    keys: Option<(&mut [f32], &mut [f32], &mut [f32])>,
+) -> TaskBounds {
     let mut valid = all_finite(verts) && (stride == 1 || all_below(tris, p.len()));
     let mut lo = [u32::MAX; 3];
     let mut hi = [0u32; 3];
-    let mut b = Block::new();
-    for block in tris.chunks(BLOCK * stride) {
-        let (len, ok) = b.gather_sampled(block, stride, p);
+    let mut bound = |block: &[[u32; 3]], (x, y, z): (&mut [f32], &mut [f32], &mut [f32])| {
+        let (len, ok) = gather_sampled(block, stride, p, (x, y, z));
         valid &= ok;
-        ordered_range(&b.x[..len], &mut lo[0], &mut hi[0]);
-        ordered_range(&b.y[..len], &mut lo[1], &mut hi[1]);
-        ordered_range(&b.z[..len], &mut lo[2], &mut hi[2]);
+        ordered_range(&x[..len], &mut lo[0], &mut hi[0]);
+        ordered_range(&y[..len], &mut lo[1], &mut hi[1]);
+        ordered_range(&z[..len], &mut lo[2], &mut hi[2]);
+    };
+    match keys {
+        Some((x, y, z)) => {
+            let out = x.chunks_mut(BLOCK).zip(y.chunks_mut(BLOCK)).zip(z.chunks_mut(BLOCK));
+            for (block, ((x, y), z)) in tris.chunks(BLOCK * stride).zip(out) {
+                bound(block, (x, y, z));
+            }
+        }
+        None => {
+            let mut buf = KeyBuf::new();
+            for block in tris.chunks(BLOCK * stride) {
+                bound(block, buf.slices());
+            }
+        }
     }
     TaskBounds { bounds: [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]], valid }
 }
@@ -476,19 +584,38 @@ fn task_bounds(tris: &[[u32; 3]], stride: usize, verts: &[[f32; 3]], p: &[[f32; 
 /// Validation and pass 1 of [`fast`]: the mesh checked as [`Mesh::validate`] checks it (each task checks its
 /// triangles and a share of the vertices, in vectorized loops; on failure the error is the one `Mesh::validate`
 /// returns, naming the first offending vertex or triangle), then the quantizer of the sample, with the first
-/// overflowing key named as [`Quantizer::of_keys`] does it.
-fn sample_quantizer(mesh: &Mesh, stride: usize, n: usize, bits: MortonBits) -> Result<Quantizer, CharError> {
+/// overflowing key named as [`Quantizer::of_keys`] does it; and the keys of the sample into `keys` when given.
+fn sample_quantizer(
+    mesh: &Mesh,
+    stride: usize,
+    n: usize,
+    bits: MortonBits,
+    keys: Option<&mut SampleKeys>,
+) -> Result<Quantizer, CharError> {
     let p = &mesh.positions[..];
     let total = mesh.triangle_count();
     let tasks = n.div_ceil(TASK);
     let verts_per_task = p.len().div_ceil(tasks.max(1));
-    let r = (0..tasks)
+    type Out<'k> = Option<(&'k mut [f32], &'k mut [f32], &'k mut [f32])>;
+    let outs: Vec<Out<'_>> = match keys {
+        Some(k) => {
+            let (x, y, z) = (sized(&mut k.x, n), sized(&mut k.y, n), sized(&mut k.z, n));
+            x.chunks_mut(TASK)
+                .zip(y.chunks_mut(TASK))
+                .zip(z.chunks_mut(TASK))
+                .map(|((x, y), z)| Some((x, y, z)))
+                .collect()
+        }
+        None => (0..tasks).map(|_| None).collect(),
+    };
+    let r = outs
         .into_par_iter()
-        .map(|t| {
+        .enumerate()
+        .map(|(t, out)| {
             let tris = task_tris(mesh, stride, t, TASK.min(n - t * TASK));
             let v0 = (t * verts_per_task).min(p.len());
             let verts = &p[v0..(v0 + verts_per_task).min(p.len())];
-            task_bounds(tris, stride, verts, p)
+            task_bounds(tris, stride, verts, p, out)
         })
         .reduce(
             || TaskBounds { bounds: [u32::MAX, u32::MAX, u32::MAX, 0, 0, 0], valid: true },
@@ -560,16 +687,17 @@ impl Cells {
         r - u32::from(t - MAGIC > v)
     }
 
-    /// Step 3 for the first `len` keys of `b`: their cells into `cx`, `cy`, `cz`, in a vectorized loop.
+    /// Step 3 for the keys `x`, `y`, `z` (at most [`BLOCK`], equally many): their cells into `b.cx`, `b.cy`,
+    /// `b.cz`, in a vectorized loop.
     #[inline(always)]
-    fn cells(&self, b: &mut Block, len: usize) {
-        for (c, &s) in b.cx[..len].iter_mut().zip(&b.x[..len]) {
+    fn cells(&self, (x, y, z): (&[f32], &[f32], &[f32]), b: &mut Block) {
+        for (c, &s) in b.cx.iter_mut().zip(x) {
             *c = self.cell(s, 0);
         }
-        for (c, &s) in b.cy[..len].iter_mut().zip(&b.y[..len]) {
+        for (c, &s) in b.cy.iter_mut().zip(y) {
             *c = self.cell(s, 1);
         }
-        for (c, &s) in b.cz[..len].iter_mut().zip(&b.z[..len]) {
+        for (c, &s) in b.cz.iter_mut().zip(z) {
             *c = self.cell(s, 2);
         }
     }
@@ -743,15 +871,15 @@ impl Sums63 {
     }
 }
 
-/// Pass 2 of [`fast`] for one task, 30-bit codes: steps 1 to 5b for the sampled triangles of `tris`, block by block
-/// (keys gathered, cells in a vectorized loop, then the codes by table into `out` and into the sums).
+/// Pass 2 of [`fast`] for one task, 30-bit codes: steps 3 to 5b for the task's keys `k`, block by block (cells in a
+/// vectorized loop, then the codes by table into `out` and into the sums).
 #[inline(never)]
-fn task_codes30<C: Code>(tris: &[[u32; 3]], stride: usize, p: &[[f32; 3]], cells: &Cells, out: &mut [C]) -> TaskSums {
-    let mut b = Block::new();
+fn task_codes30<C: Code>(k: TaskKeys<'_>, cells: &Cells, out: &mut [C]) -> TaskSums {
+    let (mut b, mut buf) = (Block::new(), KeyBuf::new());
     let mut s = Sums30::new();
-    for (block, out) in tris.chunks(BLOCK * stride).zip(out.chunks_mut(BLOCK)) {
-        let (len, _) = b.gather_sampled(block, stride, p);
-        cells.cells(&mut b, len);
+    for (j, out) in out.chunks_mut(BLOCK).enumerate() {
+        let len = out.len();
+        cells.cells(k.block(j, len, &mut buf), &mut b);
         for (o, ((&x, &y), &z)) in out[..len].iter_mut().zip(b.cx[..len].iter().zip(&b.cy[..len]).zip(&b.cz[..len])) {
             let m = (spread10(x) << 2) | (spread10(y) << 1) | spread10(z);
             *o = C::from_code30(m);
@@ -763,12 +891,12 @@ fn task_codes30<C: Code>(tris: &[[u32; 3]], stride: usize, p: &[[f32; 3]], cells
 
 /// [`task_codes30`] for 63-bit codes.
 #[inline(never)]
-fn task_codes63(tris: &[[u32; 3]], stride: usize, p: &[[f32; 3]], cells: &Cells, out: &mut [u64]) -> TaskSums {
-    let mut b = Block::new();
+fn task_codes63(k: TaskKeys<'_>, cells: &Cells, out: &mut [u64]) -> TaskSums {
+    let (mut b, mut buf) = (Block::new(), KeyBuf::new());
     let mut s = Sums63::new();
-    for (block, out) in tris.chunks(BLOCK * stride).zip(out.chunks_mut(BLOCK)) {
-        let (len, _) = b.gather_sampled(block, stride, p);
-        cells.cells(&mut b, len);
+    for (j, out) in out.chunks_mut(BLOCK).enumerate() {
+        let len = out.len();
+        cells.cells(k.block(j, len, &mut buf), &mut b);
         for (o, ((&x, &y), &z)) in out[..len].iter_mut().zip(b.cx[..len].iter().zip(&b.cy[..len]).zip(&b.cz[..len])) {
             let m = (spread21(x) << 2) | (spread21(y) << 1) | spread21(z);
             *o = m;
@@ -806,24 +934,46 @@ fn task_tris(mesh: &Mesh, stride: usize, t: usize, len: usize) -> &[[u32; 3]] {
     &mesh.indices[j0 * stride..end]
 }
 
+/// Where pass 2 finds the sample's keys: kept by pass 1, or in the mesh (sampled every `stride`-th triangle).
+#[derive(Clone, Copy)]
+enum SampleSource<'a> {
+    Stored(&'a SampleKeys),
+    Gather(&'a Mesh, usize),
+}
+
+impl SampleSource<'_> {
+    /// The keys of task `t` (`len` of them): `TASK` from `t * TASK` on.
+    fn task(&self, t: usize, len: usize) -> TaskKeys<'_> {
+        match *self {
+            SampleSource::Stored(k) => {
+                let r = t * TASK..t * TASK + len;
+                TaskKeys::Stored(&k.x[r.clone()], &k.y[r.clone()], &k.z[r])
+            }
+            SampleSource::Gather(mesh, stride) => {
+                TaskKeys::Gather { tris: task_tris(mesh, stride, t, len), stride, p: &mesh.positions }
+            }
+        }
+    }
+}
+
 /// Pass 2 of [`fast`], 30-bit codes: every code into `codes` (one per sampled triangle) and the exact statistics.
-fn sample_codes30<C: Code>(mesh: &Mesh, stride: usize, q: &Quantizer, codes: &mut [C]) -> CodeStats {
+fn sample_codes30<C: Code>(keys: SampleSource<'_>, q: &Quantizer, codes: &mut [C]) -> CodeStats {
     let cells = Cells::of(q);
     let sums = codes
         .par_chunks_mut(TASK)
         .enumerate()
-        .map(|(t, out)| task_codes30(task_tris(mesh, stride, t, out.len()), stride, &mesh.positions, &cells, out))
+        .map(|(t, out)| task_codes30(keys.task(t, out.len()), &cells, out))
         .collect();
     fold_sums(codes.len(), sums)
 }
 
 /// [`sample_codes30`] for 63-bit codes.
-fn sample_codes63(mesh: &Mesh, stride: usize, q: &Quantizer, codes: &mut [u64]) -> CodeStats {
+fn sample_codes63(keys: SampleSource<'_>, q: &Quantizer, codes: &mut [u64]) -> CodeStats {
     let cells = Cells::of(q);
     let sums = codes
         .par_chunks_mut(TASK)
         .enumerate()
-        .map(|(t, out)| task_codes63(task_tris(mesh, stride, t, out.len()), stride, &mesh.positions, &cells, out))
+        .map(|(t, out)| task_codes63(keys.task(t, out.len()), &cells, out))
         .collect();
     fold_sums(codes.len(), sums)
 }
@@ -966,6 +1116,17 @@ fn sample_histogram<C: Offset>(codes: &[C], stats: &CodeStats, k: u32, classes: 
 ///
 /// Same errors as [`naive`]; the same triangle is named when several keys overflow (the first one).
 pub fn fast(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError> {
+    run_fast(mesh, params, None)
+}
+
+/// [`fast`] in the working memory `scratch`, kept for the next call (see [`Scratch`]): pass 1 keeps the sample's
+/// keys there, and pass 2 reads them instead of gathering the vertices again. The same result.
+pub fn fast_with(mesh: &Mesh, params: &Params, scratch: &mut Scratch) -> Result<Characterization, CharError> {
+    run_fast(mesh, params, Some(scratch))
+}
+
+/// [`fast`] and [`fast_with`].
+fn run_fast(mesh: &Mesh, params: &Params, scratch: Option<&mut Scratch>) -> Result<Characterization, CharError> {
     let start = Instant::now();
     params.validate()?;
     let stride = params.sample_stride as usize;
@@ -979,35 +1140,59 @@ pub fn fast(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError>
 
     // Validation; steps 1 and 2, and step 3's host part.
     let t = Instant::now();
-    let q = sample_quantizer(mesh, stride, n, bits)?;
+    let (keys, codes30, codes63) = match scratch {
+        Some(Scratch { keys, codes30, codes63 }) => (Some(keys), Some(codes30), Some(codes63)),
+        None => (None, None, None),
+    };
+    let mut keys = keys;
+    let q = sample_quantizer(mesh, stride, n, bits, keys.as_deref_mut())?;
+    let source = match keys.as_deref() {
+        Some(k) => SampleSource::Stored(k),
+        None => SampleSource::Gather(mesh, stride),
+    };
     timings.push(pass("keys_bounds", t));
 
     // Steps 3 to 6, then 7 and 8.
     let keep = params.keep_per_triangle;
     let (stats, k, histogram, per_triangle) = if bits == MortonBits::Bits30 && !keep {
-        let mut codes = vec![0u32; n];
         let t = Instant::now();
-        let stats = sample_codes30(mesh, stride, &q, &mut codes);
+        let mut fresh: Vec<u32>;
+        let codes = match codes30 {
+            Some(v) => sized(v, n),
+            None => {
+                fresh = vec![0u32; n];
+                &mut fresh[..]
+            }
+        };
+        let stats = sample_codes30(source, &q, codes);
         let k = finalize::class_count_of(params.class_rule, &stats);
         timings.push(pass("morton_moments", t));
         let t = Instant::now();
-        let histogram = sample_histogram(&codes, &stats, k, &mut []);
+        let histogram = sample_histogram(codes, &stats, k, &mut []);
         timings.push(pass("classes_histogram", t));
         (stats, k, histogram, None)
     } else {
-        let mut codes = vec![0u64; n];
         let t = Instant::now();
+        // The codes returned per triangle are the caller's; others stay in the scratch.
+        let mut owned = Vec::new();
+        let codes = match codes63 {
+            Some(v) if !keep => sized(v, n),
+            _ => {
+                owned = vec![0u64; n];
+                &mut owned[..]
+            }
+        };
         let stats = match bits {
-            MortonBits::Bits30 => sample_codes30(mesh, stride, &q, &mut codes),
-            MortonBits::Bits63 => sample_codes63(mesh, stride, &q, &mut codes),
+            MortonBits::Bits30 => sample_codes30(source, &q, codes),
+            MortonBits::Bits63 => sample_codes63(source, &q, codes),
         };
         let k = finalize::class_count_of(params.class_rule, &stats);
         timings.push(pass("morton_moments", t));
         let t = Instant::now();
         let mut classes = if keep { vec![0u32; n] } else { Vec::new() };
-        let histogram = sample_histogram(&codes, &stats, k, &mut classes);
+        let histogram = sample_histogram(codes, &stats, k, &mut classes);
         timings.push(pass("classes_histogram", t));
-        (stats, k, histogram, keep.then_some(PerTriangle { codes, classes }))
+        (stats, k, histogram, keep.then_some(PerTriangle { codes: owned, classes }))
     };
 
     // Steps 9 and 10.
@@ -1221,8 +1406,9 @@ mod tests {
         }
     }
 
-    /// `fast`, `fast_previous` and `naive` give the same result (timings aside), with and without per-triangle data.
-    fn assert_same(mesh: &Mesh, p: &Params) {
+    /// `fast`, `fast_with` (in `scratch`, which earlier calls on other meshes have used), `fast_previous` and
+    /// `naive` give the same result (timings aside), with and without per-triangle data.
+    fn assert_same(mesh: &Mesh, p: &Params, scratch: &mut Scratch) {
         let strip = |mut c: Characterization| {
             c.timings.clear();
             c.backend.clear();
@@ -1232,6 +1418,7 @@ mod tests {
         let a = strip(fast(mesh, p).unwrap_or_else(|e| panic!("{}: {e}", mesh.name)));
         let b = strip(fast_previous(mesh, p).unwrap());
         assert_eq!(a, b, "{} {p:?}", mesh.name);
+        assert_eq!(a, strip(fast_with(mesh, p, scratch).unwrap()), "{} {p:?}: with a scratch", mesh.name);
         let kept = Params { keep_per_triangle: !p.keep_per_triangle, ..p.clone() };
         let c = strip(fast(mesh, &kept).unwrap());
         assert_eq!((&a.code_stats, &a.histogram, a.classes), (&c.code_stats, &c.histogram, c.classes));
@@ -1245,6 +1432,7 @@ mod tests {
         let big = generate::random_soup(2 * TASK + 77, 6);
         let meshes = [
             generate::random_soup(3000, 7),
+            generate::random_soup(TASK + 5, 12),
             generate::clustered(5000, 4, 8),
             generate::flat(999, 9),
             generate::all_equal(300),
@@ -1257,6 +1445,9 @@ mod tests {
         ];
         let rules =
             [ClassRule::Doane, ClassRule::Sturges, ClassRule::Sqrt, ClassRule::Fixed(4096), ClassRule::Fixed(2)];
+        // One scratch for all: meshes larger and smaller than the one before, so that it holds stale keys and codes
+        // past the current sample.
+        let mut scratch = Scratch::default();
         for mesh in &meshes {
             for bits in [MortonBits::Bits30, MortonBits::Bits63] {
                 for (i, stride) in [1u32, 2, 3, 7].into_iter().enumerate() {
@@ -1267,10 +1458,10 @@ mod tests {
                         keep_per_triangle: i % 2 == 1,
                         ..Params::default()
                     };
-                    assert_same(mesh, &p);
+                    assert_same(mesh, &p, &mut scratch);
                 }
             }
-            assert_same(mesh, &Params { class_rule: ClassRule::Fixed(4096), ..Params::default() });
+            assert_same(mesh, &Params { class_rule: ClassRule::Fixed(4096), ..Params::default() }, &mut scratch);
         }
     }
 

@@ -187,6 +187,8 @@ pub struct Characterizer {
     backend: Backend,
     vulkan: Option<vulkan::VulkanBackend>,
     note: Option<String>,
+    /// The CPU fast path's working memory, kept from one call to the next ([`cpu::Scratch`]).
+    scratch: cpu::Scratch,
 }
 
 impl Characterizer {
@@ -196,25 +198,41 @@ impl Characterizer {
     pub fn new(backend: Option<Backend>) -> Result<Self, CharError> {
         let want_vulkan = matches!(backend, None | Some(Backend::Vulkan));
         if !want_vulkan {
-            return Ok(Characterizer { backend: backend.unwrap_or_default(), vulkan: None, note: None });
+            return Ok(Characterizer {
+                backend: backend.unwrap_or_default(),
+                vulkan: None,
+                note: None,
+                scratch: cpu::Scratch::default(),
+            });
         }
         let made = crate::gpu::Context::new(&crate::gpu::ContextDesc::default())
             .map_err(|e| CharError::Gpu(e.to_string()))
             .and_then(|ctx| vulkan::VulkanBackend::new(&ctx));
         match (made, backend) {
-            (Ok(vk), _) => Ok(Characterizer { backend: Backend::Vulkan, vulkan: Some(vk), note: None }),
+            (Ok(vk), _) => Ok(Characterizer {
+                backend: Backend::Vulkan,
+                vulkan: Some(vk),
+                note: None,
+                scratch: cpu::Scratch::default(),
+            }),
             (Err(e), Some(_)) => Err(e),
             (Err(e), None) => Ok(Characterizer {
                 backend: Backend::Cpu,
                 vulkan: None,
                 note: Some(format!("no usable Vulkan device ({e}); using the CPU path")),
+                scratch: cpu::Scratch::default(),
             }),
         }
     }
 
     /// A Vulkan characterizer on an existing context (a host engine's device, say).
     pub fn with_context(ctx: &crate::gpu::Context) -> Result<Self, CharError> {
-        Ok(Characterizer { backend: Backend::Vulkan, vulkan: Some(vulkan::VulkanBackend::new(ctx)?), note: None })
+        Ok(Characterizer {
+            backend: Backend::Vulkan,
+            vulkan: Some(vulkan::VulkanBackend::new(ctx)?),
+            note: None,
+            scratch: cpu::Scratch::default(),
+        })
     }
 
     /// The backend in use.
@@ -232,7 +250,7 @@ impl Characterizer {
         match (&mut self.vulkan, self.backend) {
             (Some(vk), _) => vk.characterize(mesh, params),
             (None, Backend::Naive) => cpu::naive(mesh, params),
-            (None, _) => cpu::fast(mesh, params),
+            (None, _) => cpu::fast_with(mesh, params, &mut self.scratch),
         }
     }
 
