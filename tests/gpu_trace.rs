@@ -203,6 +203,22 @@ fn device_traversal_equals_cpu_on_degenerate_meshes() {
     gpu_support::assert_no_validation_messages(&ctx);
 }
 
+#[test]
+fn device_traversal_equals_cpu_on_the_failure_study_scenes() {
+    // The failure study's generated scenes (flat, collinear, all equal, 1e30 and 1e-30, slivers, overlapping, ...),
+    // two frames of each, smaller than the study's own.
+    let Some(ctx) = gpu_support::context() else { return };
+    let tracer = DeviceTracer::new(&ctx).expect("tracer");
+    let cases = meshchar::eval::failure_study::generated_cases(2000).expect("cases");
+    assert!(cases.len() >= 10, "only {} cases", cases.len());
+    for case in &cases {
+        for (f, frame) in case.frames.iter().take(2).enumerate() {
+            check_mesh(&ctx, &tracer, &format!("{} frame {f}", case.name), frame, 24, 256);
+        }
+    }
+    gpu_support::assert_no_validation_messages(&ctx);
+}
+
 /// A hand-made BVH 300 levels deep (a chain: each internal node holds a leaf and the rest of the chain) is traced
 /// with a stack sized from its depth: every ray finds the triangle the brute force finds.
 #[test]
