@@ -5,8 +5,10 @@
 //! * `trace/<scene>/<structure>`: primary rays at 256 x 256 through every structure (throughput: rays/s).
 //! * `crates/<scene>/...`: the same build and trace with the crates a Rust user would pick instead (`bvh` 0.13 with
 //!   its rayon build, `obvhs` 0.4 BVH2 with the `medium_build` preset).
-//! * `side_by_side`: one run that prints, per scene, build Mtris/s, trace Mrays/s (medians of 5), SAH cost
-//!   (`K_T = K_I = 1`, see `meshchar::accel::sah_cost`) and hit agreement with our BVH, for ours and both crates.
+//! * `side_by_side`: one run that prints, per scene (the three above and four scans the builders were never tuned
+//!   on), build Mtris/s, trace Mrays/s (medians of 5), SAH cost (`K_T = K_I = 1`, see `meshchar::accel::sah_cost`)
+//!   and hit agreement with our BVH, for ours, `bvh` 0.13 and `obvhs` 0.4 (medium and fastest presets), then the
+//!   ratios: our binned-SAH BVH against obvhs's medium preset, our LBVH against its fastest (PLOC).
 //!
 //! Scenes come from `../shared/meshes`; the bench fails naming the path when they are missing.
 //! Run: `cargo bench --bench accel` (filter with e.g. `-- side_by_side` or `-- build/bunny`).
@@ -149,8 +151,17 @@ mod obvhs_crate {
     /// Builds with the `medium_build` preset and reorders the triangles by `primitive_indices`, as obvhs advises
     /// (part of the build time). Returns the tree, the reordered triangles and their mesh indices.
     pub fn build(tris: &[Triangle]) -> (Bvh2, Vec<Triangle>, Vec<u32>) {
+        build_with(tris, BvhBuildParams::medium_build())
+    }
+
+    /// [`build`] with the `fastest_build` preset (PLOC).
+    pub fn build_fastest(tris: &[Triangle]) -> (Bvh2, Vec<Triangle>, Vec<u32>) {
+        build_with(tris, BvhBuildParams::fastest_build())
+    }
+
+    fn build_with(tris: &[Triangle], params: BvhBuildParams) -> (Bvh2, Vec<Triangle>, Vec<u32>) {
         let mut t = Duration::ZERO;
-        let bvh = build_bvh2_from_tris(tris, BvhBuildParams::medium_build(), &mut t);
+        let bvh = build_bvh2_from_tris(tris, params, &mut t);
         let ids = bvh.primitive_indices.clone();
         let ordered = ids.iter().map(|&i| tris[i as usize]).collect();
         (bvh, ordered, ids)
@@ -259,6 +270,14 @@ fn disagreements(ours: &[Option<meshchar::geom::Hit>], theirs: &[Option<(f32, us
         .count()
 }
 
+/// Scenes of `side_by_side` beside [`SCENES`]: scans the builders were never tuned on.
+const UNTUNED: [(&str, &str); 4] = [
+    ("buddha", "scans/happy-buddha-100k.obj"),
+    ("lucy", "scans/lucy-52k.obj"),
+    ("nefertiti", "scans/nefertiti.obj"),
+    ("igea", "scans/igea.ply"),
+];
+
 fn side_by_side(_: &mut Criterion) {
     // Runs when no filter is given or the filter names it (criterion's filters only apply to its own benches).
     let filters: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with("--")).collect();
@@ -271,10 +290,15 @@ fn side_by_side(_: &mut Criterion) {
         "{:<8} {:<22} {:>12} {:>12} {:>10} {:>14}",
         "scene", "structure", "build Mtri/s", "trace Mray/s", "SAH", "hits differ"
     );
-    for (scene, mesh) in scenes() {
+    let untuned = UNTUNED.iter().map(|(name, rel)| (*name, common::load_shared(rel)));
+    // Per scene: (ours / obvhs medium) build and trace speed, SAH of each; (our LBVH / obvhs fastest) build speed,
+    // SAH of each.
+    let mut ratios = Vec::new();
+    for (scene, mesh) in scenes().into_iter().chain(untuned) {
         let n = mesh.triangle_count() as f64;
         let rays = rays_for(&mesh);
         let nr = rays.rays.len() as f64;
+        let mut lbvh = (0.0, 0.0);
         let (bt, ours) =
             median_of(REPS, || build_structure(StructureName::Bvh, &mesh).unwrap_or_else(|e| panic!("{e}")));
         let (tt, out) = median_of(REPS, || trace(ours.as_ref(), &rays));
@@ -287,6 +311,9 @@ fn side_by_side(_: &mut Criterion) {
             let (t, o) = median_of(REPS, || trace(s.as_ref(), &rays));
             let bad = meshchar::trace::count_disagreements(&o, &out);
             row(&format!("meshchar {name}"), b, t, s.sah_cost().unwrap_or(f64::NAN), bad);
+            if name == StructureName::Lbvh {
+                lbvh = (b, s.sah_cost().unwrap_or(f64::NAN));
+            }
         }
         let (b, (shapes, bvh)) = median_of(REPS, || {
             let mut s = bvh_crate::shapes(&mesh);
@@ -302,6 +329,41 @@ fn side_by_side(_: &mut Criterion) {
             rays.rays.par_iter().map(|r| obvhs_crate::closest(&ob, &ot, &oid, r)).collect::<Vec<_>>()
         });
         row("obvhs 0.4 (medium)", b, t, obvhs_crate::sah(&ob), disagreements(&out.hits, &hits));
+        let medium = (b, t, obvhs_crate::sah(&ob));
+        let (b, (fb, ft, fid)) = median_of(REPS, || obvhs_crate::build_fastest(&otris));
+        let (t, hits) = median_of(REPS, || {
+            rays.rays.par_iter().map(|r| obvhs_crate::closest(&fb, &ft, &fid, r)).collect::<Vec<_>>()
+        });
+        row("obvhs 0.4 (fastest)", b, t, obvhs_crate::sah(&fb), disagreements(&out.hits, &hits));
+        ratios.push((
+            scene,
+            medium.0 / bt,
+            medium.1 / tt,
+            ours.sah_cost().unwrap_or(f64::NAN),
+            medium.2,
+            b / lbvh.0,
+            lbvh.1,
+            obvhs_crate::sah(&fb),
+        ));
+    }
+    println!(
+        "\nratios (speed of ours / speed of obvhs, > 1 is faster; measured above in this run, {} threads)",
+        rayon::current_num_threads()
+    );
+    println!(
+        "{:<10} {:>22} {:>22} {:>18} {:>22} {:>18}",
+        "scene",
+        "bvh / medium build",
+        "bvh / medium trace",
+        "SAH bvh, medium",
+        "lbvh / fastest build",
+        "SAH lbvh, fastest"
+    );
+    for (scene, build, tr, sb, sm, lb, sl, sf) in ratios {
+        println!(
+            "{scene:<10} {:>21.2}x {:>21.2}x {:>8.1}, {:>7.1} {:>21.2}x {:>8.1}, {:>7.1}",
+            build, tr, sb, sm, lb, sl, sf
+        );
     }
 }
 
