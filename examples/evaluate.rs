@@ -105,16 +105,8 @@ struct Args {
     /// this is reported as failed instead of traced (a reference over it fails the scene); coincident copies of
     /// many triangles make every ray test them all
     #[arg(long, value_name = "TESTS", default_value_t = meshchar::eval::oracle::DEFAULT_MAX_TESTS_PER_RAY,
-          value_parser = positive_f64)]
+          value_parser = args::positive_number)]
     max_tests_per_ray: f64,
-}
-
-/// A positive finite number.
-fn positive_f64(s: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
-        _ => Err(format!("{s:?} is not a positive number")),
-    }
 }
 
 /// A name in `--structures`: one of the project's structures or a driver acceleration structure.

@@ -185,6 +185,11 @@ pub fn tie_margin(s: &str) -> Result<f64, String> {
     s.parse().ok().filter(|x: &f64| (0.0..=1.0).contains(x)).ok_or_else(|| "needs a number in 0..=1".into())
 }
 
+/// A finite number above zero (`--max-tests-per-ray`).
+pub fn positive_number(s: &str) -> Result<f64, String> {
+    s.parse().ok().filter(|x: &f64| x.is_finite() && *x > 0.0).ok_or_else(|| "needs a positive number".into())
+}
+
 /// The significance of a test, in `(0, 1)`.
 pub fn alpha(s: &str) -> Result<f64, String> {
     s.parse().ok().filter(|x: &f64| *x > 0.0 && *x < 1.0).ok_or_else(|| "needs a number in (0, 1)".into())
