@@ -4,7 +4,7 @@
 //!
 //! ```text
 //! cargo run --release --example evaluate -- [FILE|DIR ...] [--json] [--workload primary|shadow|diffuse]
-//!     [--resolution N] [--frames F] [--repeats R] [--rebuild once|frame] [--structures bvh,kdtree,...]
+//!     [--resolution N] [--frames F] [--repeats R] [--precision FRACTION] [--max-repeats R] [--rebuild once|frame] [--structures bvh,kdtree,...]
 //!     [--camera EX,EY,EZ,TX,TY,TZ[,FOV]] [--charts DIR] [--policy thesis|calibrated] [--cost-model FILE]
 //!     [--tie-margin X] [--oracle-cache FILE] [--trace-backend cpu|vulkan] [--max-tests-per-ray TESTS] [--help]
 //! cargo run --release --example evaluate -- --compare-policies FILE.jsonl ... [--charts DIR] [--json]
@@ -31,6 +31,7 @@ use meshchar::eval::{OracleConfig, Rebuild, SceneEvaluation};
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::Animation;
 use meshchar::select::{select_for_scene_within, Budget, BuildBounds, PolicyChoice, TargetWorkload};
+use meshchar::trace::views::View;
 use meshchar::trace::workload::{build_workload, mesh_bounds};
 use meshchar::trace::Camera;
 use std::io::Write;
@@ -68,6 +69,15 @@ struct Args {
     /// Repeats of every measurement; medians are reported
     #[arg(long, value_name = "R", default_value_t = 3, value_parser = args::positive())]
     repeats: usize,
+    /// The precise oracle: repeat each structure (at least --repeats times, interleaved with the others) until the
+    /// 95% confidence interval of its median total lies within this fraction of the median (0.02: +-2%), or
+    /// --max-repeats; "within noise" then means overlapping intervals [default: exactly --repeats repeats]
+    #[arg(long, value_name = "FRACTION", value_parser = args::alpha)]
+    precision: Option<f64>,
+    /// The most repeats of one structure under --precision
+    #[arg(long, value_name = "R", default_value_t = meshchar::eval::oracle::DEFAULT_MAX_REPEATS,
+          value_parser = args::positive())]
+    max_repeats: usize,
     /// Build once (static scenes, the default) or every frame (the default for animations)
     #[arg(long, value_name = "once|frame", value_parser = rebuild())]
     rebuild: Option<Rebuild>,
@@ -80,6 +90,11 @@ struct Args {
     /// scene]
     #[arg(long, value_name = "EX,EY,EZ,TX,TY,TZ[,FOV]", allow_hyphen_values = true, value_parser = camera)]
     camera: Option<Camera>,
+    /// A camera preset computed from the scene's bounds: framing (the whole scene from outside), inside (the eye
+    /// inside the bounds), close-up (near the centre, narrow field of view) or grazing (nearly parallel to the
+    /// dominant plane); the record's `view` names it
+    #[arg(long, value_name = "PRESET", conflicts_with = "camera", value_parser = view)]
+    view: Option<View>,
     /// Write SVG bar charts (build time, frame rate, tests per ray) into DIR; with --compare-policies, the
     /// per-scene regret charts policy-regret-<workload>.svg
     #[arg(long, value_name = "DIR")]
@@ -126,6 +141,11 @@ fn candidate(s: &str) -> Result<Candidate, String> {
     })
 }
 
+/// `--view`: a camera preset.
+fn view(s: &str) -> Result<View, String> {
+    View::from_name(s).ok_or_else(|| format!("unknown view {s:?} (framing, inside, close-up, grazing)"))
+}
+
 /// `--trace-backend`: `cpu` or `vulkan`.
 fn trace_backend(s: &str) -> Result<TraceBackend, String> {
     s.parse()
@@ -161,6 +181,8 @@ impl Args {
                 .collect(),
             camera: self.camera,
             max_tests_per_ray: self.max_tests_per_ray,
+            precision: self.precision,
+            max_repeats: self.max_repeats,
             ..default
         }
     }
@@ -249,7 +271,7 @@ fn fmt_opt(v: Option<f64>, prec: usize) -> String {
 
 fn print_table(e: &SceneEvaluation) {
     println!(
-        "\n{}  ({} triangles, {} frame(s) measured, totals for {} frame(s), {} rays {}x{}, {} rays/frame, {} repeat(s))",
+        "\n{}  ({} triangles, {} frame(s) measured, totals for {} frame(s), {} rays {}x{}, {} rays/frame, repeats: {})",
         e.mesh,
         e.triangles,
         e.frames_measured,
@@ -258,7 +280,10 @@ fn print_table(e: &SceneEvaluation) {
         e.resolution,
         e.resolution,
         e.rays_per_frame,
-        e.repeats
+        match e.precision {
+            Some(p) => format!("at least {}, to a 95% interval within ±{}%", e.repeats, 100.0 * p),
+            None => e.repeats.to_string(),
+        }
     );
     println!(
         "  selected: {}   oracle best: {}   cheapest within noise: {}   regret: {}{}",
@@ -316,6 +341,19 @@ fn print_table(e: &SceneEvaluation) {
             s.hits_agree,
             mark
         );
+        if let Some([lo, hi]) = s.total_ms.ci95 {
+            let m = s.total_ms.median.max(f64::MIN_POSITIVE);
+            println!(
+                "          total 95% interval [{lo:.2}, {hi:.2}] ms (-{:.1}% +{:.1}%), {} repeats{}",
+                100.0 * (1.0 - lo / m),
+                100.0 * (hi / m - 1.0),
+                s.total_ms.samples,
+                match s.precision_met {
+                    Some(false) => ", precision not met (--max-repeats)",
+                    _ => "",
+                }
+            );
+        }
         if let Some(err) = &s.error {
             println!("          error: {err}");
         }
@@ -547,6 +585,11 @@ fn scene(
     };
     let mut config = args.config();
     config.rebuild = args.rebuild.unwrap_or(if scene.is_dynamic() { Rebuild::PerFrame } else { Rebuild::Once });
+    if let Some(v) = args.view {
+        let f = scene.frames.len().min(config.frames.unwrap_or(scene.frames.len()).max(1));
+        let b = scene.frames[..f].iter().fold(meshchar::geom::Aabb::EMPTY, |a, m| a.union(&mesh_bounds(m)));
+        config.camera = Some(v.camera(&b));
+    }
     // Steps: the selection, then per measured frame the reference and every structure at every repeat.
     let frames =
         if scene.is_dynamic() { config.frames.unwrap_or(scene.frames.len()).clamp(1, scene.frames.len()) } else { 1 };
@@ -580,6 +623,9 @@ fn scene(
     };
     let mut json = e.to_json();
     json["policy"] = serde_json::json!(policy.as_str());
+    if let Some(v) = args.view {
+        json["view"] = serde_json::json!(v.name());
+    }
     if policy == Policy::Calibrated {
         json["cost_model"] = serde_json::json!(model.chosen_as);
     }

@@ -273,3 +273,96 @@ fn a_structure_over_the_trace_budget_is_reported_failed_and_a_reference_over_it_
     let err = evaluate_scene(&anim, &tight, None, &|_| {}).unwrap_err().to_string();
     assert!(err.contains("reference") && err.contains("over the trace budget"), "{err}");
 }
+
+#[test]
+fn the_median_interval_uses_the_sign_test_order_statistics() {
+    use meshchar::eval::oracle::median_ci95;
+    let sorted = |n: usize| (1..=n).map(|i| i as f64).collect::<Vec<f64>>();
+    // Below 6 samples no pair of order statistics covers the median with 95%.
+    for n in 0..6 {
+        assert_eq!(median_ci95(&sorted(n)), None, "n = {n}");
+    }
+    // 6 to 8: the extremes (2 * 0.5^n <= 0.05, and 2 * P(B <= 1) > 0.05).
+    for n in 6..=8 {
+        assert_eq!(median_ci95(&sorted(n)), Some([1.0, n as f64]), "n = {n}");
+    }
+    // Table values: n = 9: x(2), x(8); n = 20: x(6), x(15); n = 100: x(40), x(61).
+    assert_eq!(median_ci95(&sorted(9)), Some([2.0, 8.0]));
+    assert_eq!(median_ci95(&sorted(20)), Some([6.0, 15.0]));
+    assert_eq!(median_ci95(&sorted(100)), Some([40.0, 61.0]));
+    // Large counts do not underflow.
+    let [lo, hi] = median_ci95(&sorted(2001)).unwrap();
+    assert!(lo > 900.0 && hi < 1100.0 && lo < 1001.0 && hi > 1001.0, "{lo} {hi}");
+    // With intervals, "within noise" is overlap, whatever the spreads.
+    let a = Measurement::of(&[10.0, 10.1, 10.2, 10.3, 10.4, 10.5, 30.0]);
+    let b = Measurement::of(&[10.6, 10.7, 10.8, 10.9, 11.0, 11.1, 1.0]);
+    assert_eq!((a.ci95, b.ci95), (Some([10.0, 30.0]), Some([1.0, 11.1])));
+    assert!(a.within_noise(&b));
+    let c = Measurement::of(&[20.0, 20.1, 20.2, 20.3, 20.4, 20.5]);
+    assert!(!a.within_noise(&Measurement::of(&[40.0, 40.0, 41.0, 41.0, 42.0, 42.0])));
+    assert!(c.precise_to(0.02) && !c.precise_to(0.01));
+    assert!(!Measurement::of(&[1.0, 1.0, 1.0]).precise_to(0.5), "no interval below 6 samples");
+}
+
+#[test]
+fn the_precise_oracle_repeats_until_the_interval_is_narrow_or_the_cap() {
+    let anim = Animation::new("static", vec![scene(300, 0.0)]).unwrap();
+    let mut c = config(WorkloadKind::Primary);
+    c.structures = vec![StructureName::Bvh, StructureName::Grid];
+    // A target every interval meets: the fewest repeats that give an interval (6), not fewer.
+    c.precision = Some(1e6);
+    let e = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
+    assert_eq!(e.precision, Some(1e6));
+    for s in &e.structures {
+        assert_eq!(s.total_ms.samples, 6, "{:?}", s.name);
+        assert_eq!(s.precision_met, Some(true));
+        let [lo, hi] = s.total_ms.ci95.expect("an interval from 6 repeats");
+        assert!(lo <= s.total_ms.median && s.total_ms.median <= hi);
+    }
+    // The record carries the interval, the repeats and the verdict, and reads back.
+    let rec = meshchar::eval::record::OracleRecord::from_json_line(&e.record().to_json_line()).unwrap();
+    assert_eq!(rec.precision, Some(1e6));
+    for (r, s) in rec.structures.iter().zip(&e.structures) {
+        assert_eq!(r.total_ms_ci95, s.total_ms.ci95);
+        assert_eq!(r.repeats_measured, Some(6));
+        assert_eq!(r.precision_met, Some(true));
+    }
+    // A target no timing meets: the cap, reported as not met; `repeats` is still the least.
+    c.precision = Some(1e-12);
+    c.max_repeats = 8;
+    let e = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
+    for s in &e.structures {
+        assert_eq!(s.total_ms.samples, 8, "{:?}", s.name);
+        assert_eq!(s.precision_met, Some(false));
+    }
+    // A cap below `repeats` does not cut them.
+    c.max_repeats = 2;
+    let e = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
+    assert!(e.structures.iter().all(|s| s.total_ms.samples == 3 && s.precision_met == Some(false)));
+    // Without a target: exactly `repeats`, no verdict.
+    c.precision = None;
+    let e = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
+    assert!(e.structures.iter().all(|s| s.total_ms.samples == 3 && s.precision_met.is_none()));
+}
+
+#[test]
+fn the_precise_oracle_repeats_every_frame_of_an_animation_as_often_as_the_first() {
+    let anim = Animation::new("anim", vec![scene(200, 0.0), scene(200, 0.3)]).unwrap();
+    let mut c = config(WorkloadKind::Primary);
+    c.structures = vec![StructureName::Lbvh, StructureName::Bih];
+    c.rebuild = Rebuild::PerFrame;
+    c.precision = Some(1e-12);
+    c.max_repeats = 7;
+    let lines = std::sync::Mutex::new(Vec::<String>::new());
+    let e = evaluate_scene(&anim, &c, None, &|l| lines.lock().unwrap().push(l.to_string())).unwrap();
+    let lines = lines.into_inner().unwrap();
+    for s in &e.structures {
+        let name = s.name.unwrap().as_str();
+        assert_eq!(s.total_ms.samples, 7);
+        for frame in ["frame 1/2", "frame 2/2"] {
+            let runs = lines.iter().filter(|l| l.contains(frame) && l.ends_with(&format!(": {name}"))).count();
+            assert_eq!(runs, 7, "{name} on {frame}");
+        }
+        assert!(s.valid && s.hits_agree);
+    }
+}

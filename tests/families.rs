@@ -113,3 +113,29 @@ fn counts_at_2m() {
         assert_eq!(m.triangle_count(), 2_000_000, "{family}");
     }
 }
+
+#[test]
+fn a_family_spec_names_a_generated_scene_wherever_a_path_is_taken() {
+    use meshchar::mesh::families::parse_spec;
+    assert_eq!(parse_spec("family:city:1000:5"), Some(Ok((Family::City, 1000, 5))));
+    assert_eq!(parse_spec("family:Terrain:100k"), Some(Ok((Family::Terrain, 100_000, 0))));
+    assert_eq!(parse_spec("family:particles:2m:1"), Some(Ok((Family::Particles, 2_000_000, 1))));
+    assert_eq!(parse_spec("family:stadium:10_000:9"), Some(Ok((Family::Stadium, 10_000, 9))));
+    assert_eq!(parse_spec("bunny.obj"), None);
+    for bad in
+        ["family:", "family:city", "family:forest:10", "family:city:ten", "family:city:10:x", "family:city:1:2:3"]
+    {
+        let e = parse_spec(bad).unwrap().unwrap_err();
+        assert!(e.contains("family:NAME:TRIANGLES") || e.contains("unknown scene family"), "{bad}: {e}");
+    }
+    // Loading the spec gives the generator's mesh bit for bit, named by the spec.
+    let anim = meshchar::mesh::load_path(std::path::Path::new("family:city:1000:5")).unwrap();
+    assert_eq!(anim.name, "family:city:1000:5");
+    let want = generate(Family::City, 1000, 5).unwrap();
+    assert_eq!(anim.frames.len(), 1);
+    assert_eq!(bits(&anim.frames[0]), bits(&want));
+    // A bad spec is an error naming it, and a count over the limit is refused.
+    let e = meshchar::mesh::load_path(std::path::Path::new("family:city:lots")).unwrap_err().to_string();
+    assert!(e.contains("family:city:lots"), "{e}");
+    assert!(meshchar::mesh::load_path(std::path::Path::new("family:city:100m")).is_err());
+}

@@ -334,10 +334,20 @@ pub struct OracleConfig {
     /// The trace budget: most box and triangle tests per ray (mean over a sample of the rays) before a structure
     /// is reported as failed instead of traced (see the module docs).
     pub max_tests_per_ray: f64,
+    /// The precise oracle: when set (a fraction, 0.02 for +-2%), every structure is measured at least `repeats`
+    /// times and then again, interleaved with the others still short of it, until the 95% confidence interval of
+    /// its median total ([`median_ci95`]) lies within this fraction of the median, or `max_repeats` is reached
+    /// (the structure's `precision_met` is then `false`). `None`: exactly `repeats` repeats.
+    pub precision: Option<f64>,
+    /// The most repeats of one structure under `precision`.
+    pub max_repeats: usize,
 }
 
 /// Rays the trace-budget check traces per structure and frame (fewer when the workload has fewer).
 pub const TRACE_SAMPLE_RAYS: usize = 1024;
+
+/// The default [`OracleConfig::max_repeats`].
+pub const DEFAULT_MAX_REPEATS: usize = 60;
 
 /// The default [`OracleConfig::max_tests_per_ray`].
 pub const DEFAULT_MAX_TESTS_PER_RAY: f64 = 4096.0;
@@ -395,6 +405,8 @@ impl Default for OracleConfig {
             camera: None,
             driver: Vec::new(),
             max_tests_per_ray: DEFAULT_MAX_TESTS_PER_RAY,
+            precision: None,
+            max_repeats: DEFAULT_MAX_REPEATS,
         }
     }
 }
@@ -432,6 +444,32 @@ pub struct Measurement {
     pub max: f64,
     /// Half the range, the noise estimate.
     pub spread: f64,
+    /// Samples.
+    pub samples: usize,
+    /// The median's distribution-free 95% confidence interval ([`median_ci95`]); `None` below 6 samples, where no
+    /// pair of order statistics covers the median with 95% confidence.
+    pub ci95: Option<[f64; 2]>,
+}
+
+/// The distribution-free 95% confidence interval of the median of `sorted` (ascending) samples: the order
+/// statistics `x_(j)` and `x_(n+1-j)` (1-based) for the largest `j` with `2 P(B <= j - 1) <= 0.05`, `B` binomial
+/// with `n` trials and probability 1/2 (the sign-test interval; it assumes independent samples from one
+/// distribution, nothing about its shape). `None` for fewer than 6 samples (at 5, even `[min, max]` covers the
+/// median with only 93.75%).
+pub fn median_ci95(sorted: &[f64]) -> Option<[f64; 2]> {
+    let n = sorted.len();
+    // Cumulative binomial in log space (0.5^n underflows past n = 1074).
+    let ln_half_n = n as f64 * 0.5f64.ln();
+    let (mut ln_pmf, mut cdf, mut j) = (ln_half_n, 0.0f64, 0usize);
+    for k in 0..n / 2 {
+        cdf += ln_pmf.exp();
+        if 2.0 * cdf > 0.05 {
+            break;
+        }
+        j = k + 1;
+        ln_pmf += ((n - k) as f64).ln() - ((k + 1) as f64).ln();
+    }
+    (j >= 1).then(|| [sorted[j - 1], sorted[n - j]])
 }
 
 impl Measurement {
@@ -444,12 +482,35 @@ impl Measurement {
         s.sort_by(f64::total_cmp);
         let k = s.len();
         let median = if k % 2 == 1 { s[k / 2] } else { 0.5 * (s[k / 2 - 1] + s[k / 2]) };
-        Measurement { median, min: s[0], max: s[k - 1], spread: 0.5 * (s[k - 1] - s[0]) }
+        Measurement {
+            median,
+            min: s[0],
+            max: s[k - 1],
+            spread: 0.5 * (s[k - 1] - s[0]),
+            samples: k,
+            ci95: median_ci95(&s),
+        }
     }
 
-    /// Whether two measurements are within noise of each other (see the module docs).
+    /// Whether two measurements are within noise of each other: with confidence intervals on both, when the
+    /// intervals overlap; otherwise when the medians differ by no more than the sum of the spreads (see the module
+    /// docs).
     pub fn within_noise(&self, o: &Measurement) -> bool {
-        (self.median - o.median).abs() <= self.spread + o.spread
+        match (self.ci95, o.ci95) {
+            (Some(a), Some(b)) => a[0] <= b[1] && b[0] <= a[1],
+            _ => (self.median - o.median).abs() <= self.spread + o.spread,
+        }
+    }
+
+    /// Whether the confidence interval lies within `precision` (a fraction: 0.02 is +-2%) of the median on both
+    /// sides; `false` without an interval or with a median of zero.
+    pub fn precise_to(&self, precision: f64) -> bool {
+        match self.ci95 {
+            Some([lo, hi]) if self.median > 0.0 => {
+                lo >= self.median * (1.0 - precision) && hi <= self.median * (1.0 + precision)
+            }
+            _ => false,
+        }
     }
 }
 
@@ -490,6 +551,9 @@ pub struct StructureResult {
     pub disagreements: usize,
     /// Whether its total is within noise of the best total.
     pub within_noise_of_best: bool,
+    /// Under [`OracleConfig::precision`]: whether the total's confidence interval met it within
+    /// [`OracleConfig::max_repeats`]; `None` without a precision target.
+    pub precision_met: Option<bool>,
     /// The build or validation error, if any.
     pub error: Option<String>,
 }
@@ -513,6 +577,8 @@ pub struct SceneEvaluation {
     pub rebuild: Rebuild,
     /// Repeats.
     pub repeats: usize,
+    /// The precision target ([`OracleConfig::precision`]), when one was set.
+    pub precision: Option<f64>,
     /// Rays per frame (first frame).
     pub rays_per_frame: usize,
     /// The selection passed in (from the characterization's policy), if any.
@@ -675,6 +741,8 @@ impl SceneEvaluation {
             regret: self.regret,
             regret_within_noise: self.regret_within_noise,
             repeats: self.repeats,
+            precision: self.precision,
+            view: None,
             resolution: self.resolution,
             selected: self.selected,
             structures: self
@@ -697,6 +765,9 @@ impl SceneEvaluation {
                     stats: s.stats,
                     total_ms: s.total_ms.median,
                     total_ms_spread: s.total_ms.spread,
+                    total_ms_ci95: s.total_ms.ci95,
+                    repeats_measured: Some(s.total_ms.samples).filter(|&k| k > 0),
+                    precision_met: s.precision_met,
                     trace_ms: s.trace_ms.median,
                     trace_ms_range: [s.trace_ms.min, s.trace_ms.max],
                     valid: s.valid,
@@ -790,11 +861,24 @@ pub fn evaluate_scene_on(
     });
     let names = &config.structures;
     let mut acc: Vec<Acc> = vec![Acc { valid: true, ..Default::default() }; names.len()];
-    for a in acc.iter_mut() {
-        a.build = vec![0.0; repeats];
-        a.upload = vec![0.0; repeats];
-        a.trace = vec![0.0; repeats];
-    }
+    // Totals per repeat: a static scene's frame stands for `frames` frames.
+    let (build_factor, trace_factor) = if animated {
+        (1.0, 1.0)
+    } else {
+        let f = frames as f64;
+        (if config.rebuild == Rebuild::PerFrame { f } else { 1.0 }, f)
+    };
+    let precision = config.precision.filter(|p| p.is_finite() && *p > 0.0);
+    let max_repeats = if precision.is_some() { config.max_repeats.max(repeats) } else { repeats };
+    // Whether frame 0's repeats so far settle a structure's total (precise oracle).
+    let settled = |a: &Acc| match precision {
+        None => true,
+        Some(p) => {
+            let totals: Vec<f64> =
+                a.build.iter().zip(&a.trace).map(|(b, t)| b * build_factor + t * trace_factor).collect();
+            Measurement::of(&totals).precise_to(p)
+        }
+    };
     let mut dacc: Vec<DriverAcc> = config
         .driver
         .iter()
@@ -851,19 +935,39 @@ pub fn evaluate_scene_on(
             }
             (None, _) => None,
         };
-        for r in 0..repeats {
+        // Repeats, interleaved across structures. On frame 0 a structure runs `repeats` times and, under a
+        // precision target, on until its total is precise enough (or `max_repeats`); later frames repeat each
+        // structure as often as frame 0 did, so that every repeat's total covers every frame.
+        let mut r = 0;
+        loop {
+            let mut ran = false;
             for (si, &name) in names.iter().enumerate() {
                 let a = &mut acc[si];
                 if a.error.is_some() {
                     continue;
                 }
+                let wanted = match fi {
+                    0 => r < repeats || (r < max_repeats && !settled(a)),
+                    _ => r < a.build.len(),
+                };
+                if !wanted {
+                    continue;
+                }
+                ran = true;
+                if fi == 0 {
+                    a.build.push(0.0);
+                    a.upload.push(0.0);
+                    a.trace.push(0.0);
+                }
+                let bound = if fi == 0 { max_repeats } else { a.build.len() };
                 progress(&format!(
-                    "{}: frame {}/{} repeat {}/{}: {name}",
+                    "{}: frame {}/{} repeat {}/{}{}: {name}",
                     scene.name,
                     fi + 1,
                     measured.len(),
                     r + 1,
-                    repeats
+                    if r < repeats { repeats } else { bound },
+                    if r < repeats || fi > 0 { "" } else { " (precision)" },
                 ));
                 let t = Instant::now();
                 let built = build_structure(name, mesh);
@@ -931,6 +1035,10 @@ pub fn evaluate_scene_on(
                     }
                 }
             }
+            if !ran {
+                break;
+            }
+            r += 1;
         }
         for (di, &flags) in config.driver.iter().enumerate() {
             let a = &mut dacc[di];
@@ -1014,13 +1122,6 @@ pub fn evaluate_scene_on(
             }
         }
     }
-    // Totals per repeat.
-    let (build_factor, trace_factor) = if animated {
-        (1.0, 1.0)
-    } else {
-        let f = frames as f64;
-        (if config.rebuild == Rebuild::PerFrame { f } else { 1.0 }, f)
-    };
     let mut results: Vec<StructureResult> = names
         .iter()
         .zip(&acc)
@@ -1064,6 +1165,7 @@ pub fn evaluate_scene_on(
                 hits_agree: a.disagreements == 0 && a.rays > 0,
                 disagreements: a.disagreements,
                 within_noise_of_best: false,
+                precision_met: precision.map(|p| measured_ok && Measurement::of(&totals).precise_to(p)),
                 error: a.error.clone(),
             }
         })
@@ -1109,6 +1211,7 @@ pub fn evaluate_scene_on(
         resolution: config.resolution,
         rebuild: config.rebuild,
         repeats,
+        precision,
         rays_per_frame,
         selected,
         oracle_best,

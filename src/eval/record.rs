@@ -129,6 +129,17 @@ pub struct StructureRecord {
     /// Half the range of the totals over the repeats (the noise estimate), ms.
     #[serde(default, deserialize_with = "nan_if_null")]
     pub total_ms_spread: f64,
+    /// The median total's 95% confidence interval, ms ([`super::oracle::median_ci95`]; from 6 repeats on). When
+    /// present, "within noise" means overlapping intervals.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub total_ms_ci95: Option<[f64; 2]>,
+    /// Repeats measured of this structure (the precise oracle repeats each until its interval is narrow enough);
+    /// absent in records written before the field existed (then the record's `repeats`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub repeats_measured: Option<usize>,
+    /// Under a precision target (the record's `precision`): whether the interval met it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub precision_met: Option<bool>,
     /// Median trace time over the run (all frames), ms.
     #[serde(default, deserialize_with = "nan_if_null")]
     pub trace_ms: f64,
@@ -156,7 +167,14 @@ impl StructureRecord {
     /// The total as a [`Measurement`]: the median with a symmetric range of the recorded spread.
     pub fn total(&self) -> Measurement {
         let spread = if self.total_ms_spread.is_finite() { self.total_ms_spread } else { 0.0 };
-        Measurement { median: self.total_ms, min: self.total_ms - spread, max: self.total_ms + spread, spread }
+        Measurement {
+            median: self.total_ms,
+            min: self.total_ms - spread,
+            max: self.total_ms + spread,
+            spread,
+            samples: self.repeats_measured.unwrap_or(0),
+            ci95: self.total_ms_ci95,
+        }
     }
 }
 
@@ -210,9 +228,17 @@ pub struct OracleRecord {
     /// Whether the selection is within noise of the best.
     #[serde(default)]
     pub regret_within_noise: Option<bool>,
-    /// Repeats of the measurement.
+    /// Repeats of the measurement (the least per structure under a precision target).
     #[serde(default = "default_one")]
     pub repeats: usize,
+    /// The camera preset the scene was seen from (`evaluate --view`; [`crate::trace::views::View`]), when one was
+    /// named.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub view: Option<String>,
+    /// The precise oracle's target: each structure's total was repeated until the 95% confidence interval of its
+    /// median lay within this fraction of it (each structure's `precision_met` says whether it did).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub precision: Option<f64>,
     /// Image side of the workload.
     #[serde(default)]
     pub resolution: u32,

@@ -96,6 +96,46 @@ impl std::str::FromStr for Family {
     }
 }
 
+/// The prefix of a generated scene's name: `family:NAME:TRIANGLES[:SEED]` ([`parse_spec`]).
+pub const SPEC_PREFIX: &str = "family:";
+
+/// A generated scene named on a command line or in a record: `family:NAME:TRIANGLES[:SEED]`, for instance
+/// `family:city:100000:7` (seed 0 when left out; `TRIANGLES` may use `_` separators and a `k` or `m` suffix:
+/// `100k`, `2m`). `None` when `s` does not start with [`SPEC_PREFIX`]; otherwise the family, the triangle count
+/// and the seed, or why the spec is wrong.
+pub fn parse_spec(s: &str) -> Option<Result<(Family, usize, u64), String>> {
+    let rest = s.strip_prefix(SPEC_PREFIX)?;
+    let parts: Vec<&str> = rest.split(':').collect();
+    let usage = || format!("{s:?}: a generated scene is family:NAME:TRIANGLES[:SEED]");
+    Some((|| {
+        if !(2..=3).contains(&parts.len()) {
+            return Err(usage());
+        }
+        let family: Family = parts[0].parse()?;
+        let count = parts[1].trim().replace('_', "").to_ascii_lowercase();
+        let (digits, scale) = match count.strip_suffix('k') {
+            Some(d) => (d, 1_000u64),
+            None => match count.strip_suffix('m') {
+                Some(d) => (d, 1_000_000),
+                None => (count.as_str(), 1),
+            },
+        };
+        let n = digits
+            .parse::<u64>()
+            .ok()
+            .and_then(|d| d.checked_mul(scale))
+            .ok_or_else(|| format!("{}: the triangle count {:?} is not a whole number", usage(), parts[1]))?;
+        let n = usize::try_from(n).map_err(|_| format!("{}: {n} triangles is too many", usage()))?;
+        let seed = match parts.get(2) {
+            Some(t) => {
+                t.trim().parse::<u64>().map_err(|_| format!("{}: the seed {t:?} is not a whole number", usage()))?
+            }
+            None => 0,
+        };
+        Ok((family, n, seed))
+    })())
+}
+
 /// A scene of `family` with exactly `triangles` triangles from `seed` (see the module docs).
 ///
 /// Fails with [`MeshError::Invalid`] when `triangles` exceeds [`MAX_FAMILY_TRIANGLES`].

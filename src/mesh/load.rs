@@ -258,7 +258,19 @@ pub fn load_animation(paths: &[PathBuf]) -> Result<Animation, MeshError> {
 /// In a directory, the frames are the entries whose extension is `.obj` or `.ply` (case-insensitive), sorted by file
 /// name; other entries are ignored. A directory without such entries is an error naming it, and so is a frame entry
 /// that is not a regular file (see [`frame_files`]). The animation is named after the path.
+///
+/// A path that does not exist and reads `family:NAME:TRIANGLES[:SEED]` is a generated scene of a family
+/// ([`super::families::parse_spec`], [`super::families::generate`]), named by the spec: every tool that loads scenes
+/// takes them, and a record naming one regenerates the same mesh bit for bit.
 pub fn load_path(path: &Path) -> Result<Animation, MeshError> {
+    if !path.exists() {
+        let spec = path.to_string_lossy();
+        if let Some(parsed) = super::families::parse_spec(&spec) {
+            let (family, n, seed) = parsed.map_err(|reason| MeshError::Invalid { file: spec.to_string(), reason })?;
+            let mesh = super::families::generate(family, n, seed)?;
+            return Animation::new(spec.to_string(), vec![mesh]);
+        }
+    }
     if path.is_dir() {
         let frames = frame_files(path)?;
         if frames.is_empty() {
