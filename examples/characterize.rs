@@ -22,6 +22,7 @@ use meshchar::mesh::Animation;
 use meshchar::select::{
     select_for_scene_within, Budget, BuildBounds, CalibratedPolicy, PolicyChoice, Report, TargetWorkload,
 };
+use meshchar::trace::workload::mesh_bounds;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -69,6 +70,14 @@ struct Args {
     /// Calibrated policy: frames rendered with one build of a static scene
     #[arg(long, value_name = "F", default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
     frames: u64,
+    /// Calibrated policy: the camera the engine will trace from, eye, target (and vertical field of view in
+    /// degrees, default 45), +y up [default: a camera framing the scene]
+    #[arg(long, value_name = "EX,EY,EZ,TX,TY,TZ[,FOV]", allow_hyphen_values = true, value_parser = args::camera)]
+    camera: Option<meshchar::trace::Camera>,
+    /// Calibrated policy: a camera preset from the scene's bounds instead of --camera: framing, inside, close-up or
+    /// grazing
+    #[arg(long, value_name = "PRESET", conflicts_with = "camera", value_parser = args::view)]
+    view: Option<meshchar::trace::views::View>,
 }
 
 impl Args {
@@ -113,6 +122,10 @@ fn process(
         // The driver's structures are weighed when the cost model chosen for this device calibrated them (a device
         // calibration: `calibrate --trace-backend vulkan` on a device with ray queries).
         driver: !model.driver.is_empty(),
+        camera: args.camera.or_else(|| {
+            let b = scene.frames.iter().fold(meshchar::geom::Aabb::EMPTY, |a, m| a.union(&mesh_bounds(m)));
+            args.view.map(|v| v.camera(&b))
+        }),
     };
     // The build bounds from the meshes themselves (tighter than the features'): no structure whose grid or kd-tree
     // references would exceed the default budget is a candidate.

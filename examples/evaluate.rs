@@ -88,12 +88,12 @@ struct Args {
     structures: Vec<Candidate>,
     /// Eye, target (and vertical field of view in degrees, default 45); +y is up [default: a camera framing the
     /// scene]
-    #[arg(long, value_name = "EX,EY,EZ,TX,TY,TZ[,FOV]", allow_hyphen_values = true, value_parser = camera)]
+    #[arg(long, value_name = "EX,EY,EZ,TX,TY,TZ[,FOV]", allow_hyphen_values = true, value_parser = args::camera)]
     camera: Option<Camera>,
     /// A camera preset computed from the scene's bounds: framing (the whole scene from outside), inside (the eye
     /// inside the bounds), close-up (near the centre, narrow field of view) or grazing (nearly parallel to the
     /// dominant plane); the record's `view` names it
-    #[arg(long, value_name = "PRESET", conflicts_with = "camera", value_parser = view)]
+    #[arg(long, value_name = "PRESET", conflicts_with = "camera", value_parser = args::view)]
     view: Option<View>,
     /// Write SVG bar charts (build time, frame rate, tests per ray) into DIR; with --compare-policies, the
     /// per-scene regret charts policy-regret-<workload>.svg
@@ -106,10 +106,10 @@ struct Args {
     /// Append every scene's JSON line to FILE (to compare policies later without measuring)
     #[arg(long, value_name = "FILE")]
     oracle_cache: Option<PathBuf>,
-    /// Read cached oracle JSON lines (repeatable) and compare the thesis policy's recorded selections with the
+    /// Read cached oracle JSON lines (one or more files; repeatable) and compare the thesis policy's recorded selections with the
     /// calibrated policy, in sample and leave-one-scene-out; measures nothing (meshes are loaded from the recorded
     /// paths for their features)
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, value_name = "FILE", num_args = 1..)]
     compare_policies: Vec<PathBuf>,
     /// Where the rays are traced: `cpu` (the counting CPU tracer, host wall time) or `vulkan` (the device traversal
     /// kernel on the Vulkan device, GPU timestamps; structures are built on the host and uploaded, the upload
@@ -139,11 +139,6 @@ fn candidate(s: &str) -> Result<Candidate, String> {
     args::structure(s).map(Candidate::Ours).map_err(|e| {
         format!("{e} (or a driver structure: rt_fast_trace, rt_fast_build, rt_update, rt_fast_trace_compact)")
     })
-}
-
-/// `--view`: a camera preset.
-fn view(s: &str) -> Result<View, String> {
-    View::from_name(s).ok_or_else(|| format!("unknown view {s:?} (framing, inside, close-up, grazing)"))
 }
 
 /// `--trace-backend`: `cpu` or `vulkan`.
@@ -194,18 +189,6 @@ fn rebuild() -> impl TypedValueParser<Value = Rebuild> {
         .map(|s| if s == "once" { Rebuild::Once } else { Rebuild::PerFrame })
 }
 
-/// `--camera EX,EY,EZ,TX,TY,TZ[,FOV]`.
-fn camera(s: &str) -> Result<Camera, String> {
-    let v: Vec<f32> =
-        s.split(',').map(|s| s.trim().parse::<f32>()).collect::<Result<_, _>>().map_err(|_| "needs numbers")?;
-    if v.len() != 6 && v.len() != 7 {
-        return Err("needs EX,EY,EZ,TX,TY,TZ[,FOV]".into());
-    }
-    let fov = v.get(6).copied().unwrap_or(45.0);
-    Camera::look_at(glam::Vec3::new(v[0], v[1], v[2]), glam::Vec3::new(v[3], v[4], v[5]), glam::Vec3::Y, fov)
-        .ok_or_else(|| "eye equals target, view along +y, or bad field of view".into())
-}
-
 /// Loads a mesh file as a one-frame scene, or a directory of `.obj`/`.ply` frames (sorted by name) as an animation.
 fn load_scene(path: &Path) -> anyhow::Result<Animation> {
     Ok(meshchar::mesh::load_path(path)?)
@@ -238,6 +221,9 @@ fn select(
         animation_frames: config.frames,
         // The oracle measures driver structures: the calibrated policy weighs them too.
         driver: !config.driver.is_empty(),
+        // The engine's view, when the command line names one (else the oracle frames the scene, as the policy
+        // assumes without a camera).
+        camera: config.camera,
     };
     // The build bounds from the meshes (tighter than the features'): over-budget structures are no candidates.
     let bounds = BuildBounds::of_frames(&scene.frames)?;
@@ -422,6 +408,52 @@ fn pct(x: Option<f64>) -> String {
 
 /// `--compare-policies`: thesis (recorded) against calibrated (in sample and leave-one-scene-out) on cached
 /// oracle results.
+/// The policies against the baselines: overall, then mean / worst regret per workload and per family.
+fn print_baselines(b: &meshchar::eval::compare::Baselines) {
+    println!("\nbaselines ({} samples; families: {}):", b.families.len(), {
+        let mut f = b.families.clone();
+        f.sort();
+        f.dedup();
+        f.join(", ")
+    });
+    println!(
+        "{:<34} {:>6} {:>6} {:>9} {:>12} {:>12} {:>12}  worst at",
+        "policy (how fitted)", "scored", "failed", "accuracy", "within noise", "mean regret", "worst regret"
+    );
+    for p in &b.policies {
+        let s = &p.overall;
+        println!(
+            "{:<34} {:>6} {:>6} {:>8.1}% {:>11.1}% {:>11.1}% {:>11.1}%  {}",
+            format!("{} ({})", p.policy, p.holdout),
+            s.scored,
+            s.failed,
+            100.0 * s.accuracy,
+            100.0 * s.within_noise,
+            100.0 * s.mean_regret,
+            100.0 * s.worst_regret,
+            s.worst
+        );
+    }
+    for (what, pick) in [("workload", 0), ("family", 1)] {
+        let keys: Vec<String> = match b.policies.first() {
+            Some(p) => (if pick == 0 { &p.by_workload } else { &p.by_family }).iter().map(|k| k.0.clone()).collect(),
+            None => Vec::new(),
+        };
+        print!("\nmean / worst regret by {what:<8}");
+        for k in &keys {
+            print!(" {k:>15}");
+        }
+        println!();
+        for p in &b.policies {
+            print!("{:<34}", format!("{} ({})", p.policy, p.holdout));
+            for (_, s) in if pick == 0 { &p.by_workload } else { &p.by_family } {
+                print!(" {:>15}", format!("{:.1}/{:.0}%", 100.0 * s.mean_regret, 100.0 * s.worst_regret));
+            }
+            println!();
+        }
+    }
+}
+
 fn compare_policies(args: &Args) -> anyhow::Result<()> {
     let bar = Progress::new("compare-policies", None, args.json.json);
     // One tracer per comparison: the calibrated policy is fitted on these records, so they must describe one
@@ -522,6 +554,7 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
                 100.0 * k.in_sample_mean_regret
             );
         }
+        print_baselines(&c.baselines);
     }
     if let Some(dir) = &args.charts {
         // One chart per workload (a scene's bars side by side: thesis, calibrated held out).

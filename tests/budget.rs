@@ -155,6 +155,7 @@ fn workload() -> TargetWorkload {
         frames: 1,
         animation_frames: None,
         driver: false,
+        camera: None,
     }
 }
 

@@ -140,7 +140,7 @@ fn known_samples_with_rays(count: u64, rays: impl Fn(u64) -> u64) -> (Vec<Sample
         let kind = kinds[(i % 3) as usize];
         let x = phi(&f.derived(), kind);
         let n = f.triangles as f64;
-        let workload = Workload { kind, rays_per_frame: rays(i), frames: 1, builds: 1 };
+        let workload = Workload { kind, rays_per_frame: rays(i), frames: 1, builds: 1, view: None };
         let measured = truth
             .iter()
             .enumerate()
@@ -319,7 +319,7 @@ fn the_calibrated_policy_picks_the_cheapest_prediction() {
         for margin in [0.0, 0.05, 0.5] {
             let mut policy = CalibratedPolicy::new(CostModel::shipped().unwrap(), kind, rays, 7);
             policy.tie_margin = margin;
-            let w = Workload { kind, rays_per_frame: rays, frames: 7, builds: 1 };
+            let w = Workload { kind, rays_per_frame: rays, frames: 7, builds: 1, view: None };
             assert_eq!(policy.workload(1), w);
             let want = reference_totals(&policy.model, &feats[0], &w);
             let preds = policy.predictions(&summary).unwrap();
@@ -413,7 +413,10 @@ fn oracle_records_parse_into_samples() {
     });
     let f = features_cpu(&generate::single_triangle(), &Params::default()).unwrap();
     let s = OracleRecord::from_json(&rec).unwrap().sample(f, None);
-    assert_eq!(s.workload, Workload { kind: WorkloadKind::Shadow, rays_per_frame: 1000, frames: 3, builds: 3 });
+    assert_eq!(
+        s.workload,
+        Workload { kind: WorkloadKind::Shadow, rays_per_frame: 1000, frames: 3, builds: 3, view: None }
+    );
     assert_eq!(s.baseline, Some(StructureName::Bvh));
     let bvh = s.get(StructureName::Bvh).unwrap();
     assert_eq!(bvh.build_ms_per_build, 10.0);
@@ -438,4 +441,144 @@ fn refit_keeps_a_valid_tree_and_tracks_the_geometry() {
     }
     let other = generate::random_soup(10, 1);
     assert!(tree.refit(&other).is_err());
+}
+
+#[test]
+fn the_baselines_are_scored_on_the_same_samples_by_workload_and_family() {
+    use meshchar::cost::SIZE_FEATURES;
+    use meshchar::eval::compare::{compare_baselines, family_of, workload_of};
+    let (mut samples, _) = known_samples_with_rays(24, |i| 10u64.pow(3 + (i % 7) as u32));
+    for (i, s) in samples.iter_mut().enumerate() {
+        s.scene = format!("family:{}:1000:{i}", if i % 2 == 0 { "city" } else { "terrain" });
+    }
+    assert_eq!(family_of("family:city:1000:3"), "city");
+    assert_eq!(family_of("bunny.obj"), "mesh");
+    assert_eq!(workload_of(&samples[1]), "shadow");
+    let b = compare_baselines(&samples, 0.0, "test");
+    let names: Vec<String> = b.policies.iter().map(|p| format!("{} {}", p.policy, p.holdout)).collect();
+    assert_eq!(
+        names,
+        [
+            "thesis recorded",
+            "best_single hindsight",
+            "size_only scene_out",
+            "size_only family_out",
+            "calibrated scene_out",
+            "calibrated family_out",
+            "calibrated in_sample"
+        ]
+    );
+    // The best single structure per workload, by hand: the one of least mean regret over that workload's samples.
+    let (bvh, grid) = (StructureName::Bvh, StructureName::Grid);
+    let single = b.get("best_single", "hindsight").unwrap();
+    for kind in ["primary", "shadow", "diffuse"] {
+        let of: Vec<&Sample> = samples.iter().filter(|s| s.workload.kind.as_str() == kind).collect();
+        let mean = |st| of.iter().map(|s| s.regret(st).unwrap()).sum::<f64>() / of.len() as f64;
+        let want = if mean(bvh) <= mean(grid) { bvh } else { grid };
+        for (s, c) in samples.iter().zip(&single.choices) {
+            if s.workload.kind.as_str() == kind {
+                assert_eq!(*c, Some(want), "{kind}");
+            }
+        }
+        let (_, sc) = single.by_workload.iter().find(|(k, _)| k == kind).unwrap();
+        assert!((sc.mean_regret - mean(want)).abs() < 1e-12, "{kind}: {} vs {}", sc.mean_regret, mean(want));
+    }
+    // The thesis baseline is the recorded choice; the families are scored apart and together.
+    assert!(b.get("thesis", "recorded").unwrap().choices.iter().all(|c| *c == Some(grid)));
+    let cal = b.get("calibrated", "scene_out").unwrap();
+    assert_eq!(
+        cal.by_family.iter().map(|(k, s)| (k.as_str(), s.scored)).collect::<Vec<_>>(),
+        [("city", 12), ("terrain", 12)]
+    );
+    assert_eq!((cal.overall.scored, cal.overall.mean_regret), (24, 0.0), "exact data: {:?}", cal.overall);
+    // The size-only model sees no geometry: its test-count laws have zero geometric coefficients, and a change of
+    // the geometric features alone changes none of its predictions.
+    let m = CostModel::fit_size_only(&samples, "test", "size only").unwrap();
+    let full = CostModel::fit(&samples, "test", "full").unwrap();
+    for (sm, fm) in m.structures.iter().zip(&full.structures) {
+        assert!(sm.box_coef[SIZE_FEATURES..].iter().chain(&sm.prim_coef[SIZE_FEATURES..]).all(|c| *c == 0.0));
+        assert!(fm.box_coef[SIZE_FEATURES..].iter().any(|c| *c != 0.0), "the full model uses the geometry");
+    }
+    let mut other = samples[0].features.clone();
+    other.size_histogram.rotate_left(3);
+    other.occupied_cells.iter_mut().for_each(|c| *c = (*c / 2).max(1));
+    let (p, q) = (m.predict(&samples[0].features, &samples[0].workload), m.predict(&other, &samples[0].workload));
+    assert_eq!(p, q);
+    // A selection that was not validly measured is counted as failed, not scored.
+    samples[0].measured.iter_mut().for_each(|x| x.valid = x.structure != grid);
+    let b = compare_baselines(&samples, 0.0, "test");
+    let t = &b.get("thesis", "recorded").unwrap().overall;
+    assert_eq!((t.scored, t.failed), (23, 1));
+}
+
+#[test]
+fn view_features_tell_inside_from_outside_and_a_view_enters_only_a_model_fitted_with_views() {
+    use glam::Vec3;
+    use meshchar::cost::ViewFeatures;
+    use meshchar::trace::Camera;
+    let (lo, hi) = ([0.0f32; 3], [1.0f32; 3]);
+    let b = meshchar::geom::Aabb { min: Vec3::ZERO, max: Vec3::ONE };
+    // Framing: outside, about 1.05 / sin(22.5 deg) half-diagonals away, the box on part of the image.
+    let framing = ViewFeatures::framing(lo, hi);
+    assert!(!framing.eye_inside);
+    assert!((framing.distance - 1.05 / (22.5f64.to_radians()).sin()).abs() < 1e-3, "{framing:?}");
+    assert!(framing.coverage > 0.1 && framing.coverage < 1.0, "{framing:?}");
+    assert_eq!(framing, ViewFeatures::of(&Camera::frame(&b), lo, hi));
+    // Inside: every ray starts in the box.
+    let inside = Camera::look_at(Vec3::splat(0.5), Vec3::new(1.0, 0.5, 0.5), Vec3::Y, 60.0).unwrap();
+    let v = ViewFeatures::of(&inside, lo, hi);
+    assert!(v.eye_inside && v.coverage == 1.0 && v.distance < 1e-6, "{v:?}");
+    // Looking away: no ray enters; the coverage is floored.
+    let away = Camera::look_at(Vec3::new(0.5, 0.5, 3.0), Vec3::new(0.5, 0.5, 6.0), Vec3::Y, 30.0).unwrap();
+    let v = ViewFeatures::of(&away, lo, hi);
+    assert!(!v.eye_inside && v.coverage == 1.0 / 1024.0, "{v:?}");
+    assert!(v.row().iter().all(|x| x.is_finite()));
+    // An empty box counts as the unit cube: finite features.
+    assert!(ViewFeatures::of(&away, [1.0; 3], [0.0; 3]).row().iter().all(|x| x.is_finite()));
+
+    // Samples where the eye inside halves the box tests of the grid and doubles the BVH's.
+    let (mut samples, _) = known_samples_with_rays(48, |i| 10u64.pow(3 + (i % 5) as u32));
+    for (i, s) in samples.iter_mut().enumerate() {
+        let cam = if i % 2 == 0 { Camera::frame(&b) } else { inside };
+        s.features.lo = lo;
+        s.features.hi = hi;
+        let v = ViewFeatures::of(&cam, lo, hi);
+        s.workload.view = Some(v);
+        for m in s.measured.iter_mut() {
+            let k: f64 = match (v.eye_inside, m.structure) {
+                (true, StructureName::Grid) => 0.5,
+                (true, _) => 2.0,
+                _ => 1.0,
+            };
+            m.box_tests_per_ray *= k;
+        }
+    }
+    let m = CostModel::fit(&samples, "test", "views").unwrap();
+    assert!(m.structures.iter().all(|s| s.view_box_coef.len() == 3 && s.view_prim_coef.len() == 3));
+    let grid = m.get(StructureName::Grid).unwrap();
+    let bvh = m.get(StructureName::Bvh).unwrap();
+    // eye_inside's coefficient carries ln 0.5 and ln 2 (the other view features are constant within each group).
+    let d = |s: &meshchar::cost::StructureModel, w: &Workload| {
+        s.predict(&samples[0].features.derived(), samples[0].features.triangles, w).box_tests_per_ray
+    };
+    let w_out = Workload { view: Some(framing), ..samples[0].workload };
+    let w_in = Workload { view: Some(ViewFeatures::of(&inside, lo, hi)), ..samples[0].workload };
+    assert!((d(grid, &w_in) / d(grid, &w_out) - 0.5).abs() < 0.05, "{} {}", d(grid, &w_in), d(grid, &w_out));
+    assert!((d(bvh, &w_in) / d(bvh, &w_out) - 2.0).abs() < 0.1, "{} {}", d(bvh, &w_in), d(bvh, &w_out));
+    // Without a view, the prediction is the framing camera's.
+    let none = Workload { view: None, ..samples[0].workload };
+    assert_eq!(m.predict(&samples[0].features, &none), m.predict(&samples[0].features, &w_out));
+    // The model round-trips through its file with the view coefficients.
+    let back = CostModel::from_json(&m.to_json()).unwrap();
+    assert_eq!(back.structures, m.structures);
+    // Samples without views fit no view coefficient, and such a model (the shipped one too) ignores the camera.
+    for s in samples.iter_mut() {
+        s.workload.view = None;
+    }
+    let plain = CostModel::fit(&samples, "test", "no views").unwrap();
+    assert!(plain.structures.iter().all(|s| s.view_box_coef.is_empty()));
+    let shipped = CostModel::shipped().unwrap();
+    for model in [&plain, &shipped] {
+        assert_eq!(model.predict(&samples[0].features, &w_in), model.predict(&samples[0].features, &w_out));
+    }
 }

@@ -79,7 +79,7 @@ fn known_samples() -> Vec<Sample> {
         let f = features(n, 100 + i);
         let kind = kinds[(i % 3) as usize];
         let rays = 10_000 + 1_000 * i;
-        let workload = Workload { kind, rays_per_frame: rays, frames: 1, builds: 1 };
+        let workload = Workload { kind, rays_per_frame: rays, frames: 1, builds: 1, view: None };
         let x = phi(&f.derived(), kind);
         let driver = truths()
             .iter()
@@ -113,7 +113,8 @@ fn known_samples() -> Vec<Sample> {
             anim.frames.iter().map(|m| features_cpu(m, &Params::default()).expect("features")).collect();
         let rays = 20_000u64;
         let builds = feats.len() as u64;
-        let workload = Workload { kind: WorkloadKind::Primary, rays_per_frame: rays, frames: builds, builds };
+        let workload =
+            Workload { kind: WorkloadKind::Primary, rays_per_frame: rays, frames: builds, builds, view: None };
         let nn = n as f64;
         let mut driver = Vec::new();
         for t in truths() {
@@ -270,7 +271,7 @@ fn the_policy_weighs_the_driver_structures_only_when_asked_and_says_which_flag()
     // Equal trace costs: the cheapest build wins, rt_fast_build (a = -7 against -6 and -5.9).
     assert_eq!(d.flags, DriverFlags::FastBuild);
     assert_eq!(s.candidate(), "rt_fast_build");
-    let w = Workload { kind: WorkloadKind::Primary, rays_per_frame: 1 << 20, frames: 1, builds: 1 };
+    let w = Workload { kind: WorkloadKind::Primary, rays_per_frame: 1 << 20, frames: 1, builds: 1, view: None };
     let want = cheap.predict_driver(&feats[0], &w).iter().map(|p| p.total_ms).fold(f64::INFINITY, f64::min);
     assert_eq!(d.predicted_total_ms, want);
     let text = s.reasons.join("\n");

@@ -366,3 +366,28 @@ fn the_precise_oracle_repeats_every_frame_of_an_animation_as_often_as_the_first(
         assert!(s.valid && s.hits_agree);
     }
 }
+
+#[test]
+fn a_record_keeps_its_camera_and_its_sample_reads_the_view_from_it() {
+    use meshchar::cost::ViewFeatures;
+    use meshchar::eval::record::{CameraRecord, OracleRecord};
+    use meshchar::trace::Camera;
+    let anim = Animation::new("static", vec![scene(300, 0.0)]).unwrap();
+    let mut c = config(WorkloadKind::Primary);
+    c.structures = vec![StructureName::Bvh, StructureName::Grid];
+    let b = meshchar::trace::workload::mesh_bounds(&anim.frames[0]);
+    let inside = Camera::look_at(b.center(), b.center() + Vec3::new(1.0, -0.2, 0.3), Vec3::Y, 70.0).unwrap();
+    for (camera, want_inside) in [(None, false), (Some(inside), true)] {
+        c.camera = camera;
+        let e = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
+        let used = camera.unwrap_or_else(|| Camera::frame(&b));
+        let rec = OracleRecord::from_json_line(&e.record().to_json_line()).unwrap();
+        assert_eq!(rec.camera, Some(CameraRecord::from(&used)));
+        assert_eq!(rec.camera.unwrap().camera(), used);
+        let f = meshchar::characterize::features_cpu(&anim.frames[0], &Default::default()).unwrap();
+        let smp = rec.sample(f.clone(), None);
+        let v = smp.workload.view.expect("a view from the recorded camera");
+        assert_eq!(v, ViewFeatures::of(&used, f.lo, f.hi));
+        assert_eq!(v.eye_inside, want_inside);
+    }
+}

@@ -318,6 +318,8 @@ fn paper_model() -> meshchar::cost::CostModel {
         box_coef: vec![0.0; FEATURE_NAMES.len()],
         prim_coef: vec![0.0; FEATURE_NAMES.len()],
         trace_price: vec![ns_per_ray, ns_per_ray, ns_per_ray, 0.0, 0.0, 0.0, 0.0],
+        view_box_coef: Vec::new(),
+        view_prim_coef: Vec::new(),
         fit: FitError::default(),
     };
     let m = CostModel {

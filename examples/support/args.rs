@@ -241,3 +241,26 @@ where
         self.0.possible_values()
     }
 }
+
+/// `--camera EX,EY,EZ,TX,TY,TZ[,FOV]`.
+pub fn camera(s: &str) -> Result<meshchar::trace::Camera, String> {
+    let v: Vec<f32> =
+        s.split(',').map(|s| s.trim().parse::<f32>()).collect::<Result<_, _>>().map_err(|_| "needs numbers")?;
+    if v.len() != 6 && v.len() != 7 {
+        return Err("needs EX,EY,EZ,TX,TY,TZ[,FOV]".into());
+    }
+    let fov = v.get(6).copied().unwrap_or(45.0);
+    meshchar::trace::Camera::look_at(
+        glam::Vec3::new(v[0], v[1], v[2]),
+        glam::Vec3::new(v[3], v[4], v[5]),
+        glam::Vec3::Y,
+        fov,
+    )
+    .ok_or_else(|| "eye equals target, view along +y, or bad field of view".into())
+}
+
+/// `--view`: a camera preset.
+pub fn view(s: &str) -> Result<meshchar::trace::views::View, String> {
+    meshchar::trace::views::View::from_name(s)
+        .ok_or_else(|| format!("unknown view {s:?} (framing, inside, close-up, grazing)"))
+}

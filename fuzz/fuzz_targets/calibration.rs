@@ -32,7 +32,7 @@ fuzz_target!(|data: &[u8]| {
         aspect_log2: 1.0,
     };
     for kind in [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse] {
-        let w = Workload { kind, rays_per_frame: 1 << 20, frames: 100, builds: 1 };
+        let w = Workload { kind, rays_per_frame: 1 << 20, frames: 100, builds: 1, view: None };
         let preds: Vec<_> = m.structures.iter().map(|s| s.predict(&d, 1 << 16, &w)).collect();
         let _ = meshchar::select::choose(&preds, 0.05);
     }

@@ -89,6 +89,7 @@ pub mod driver;
 pub mod linalg;
 pub mod registry;
 mod sample;
+pub mod view;
 
 use crate::accel::device::{DeviceRecord, TraceBackend};
 use crate::accel::StructureName;
@@ -102,6 +103,7 @@ use std::path::Path;
 pub use driver::{DriverFit, DriverModel, DriverPrediction, DriverUpdateModel};
 pub use registry::{ChosenModel, ShippedModel, TraceTarget, SHIPPED_MODELS};
 pub use sample::{drift, DriverMeasured, Measured, Sample};
+pub use view::{ViewFeatures, VIEW_FEATURE_NAMES};
 
 /// Version of the calibration file format (and of the feature set `phi`). Files of another version are stale.
 pub const COST_MODEL_VERSION: u32 = 1;
@@ -126,6 +128,10 @@ pub const FEATURE_NAMES: [&str; 10] = [
     "size_spread",
     "aspect_log2",
 ];
+
+/// The leading [`FEATURE_NAMES`] that do not describe the geometry: the intercept, the workload kind and the
+/// triangle count (`ln_n`). The size-only model ([`CostModel::fit_size_only`]) uses these alone.
+pub const SIZE_FEATURES: usize = 4;
 
 /// Names of the trace price columns: a per-ray overhead for each workload kind, ns per box test and per triangle
 /// test for coherent (primary) rays, and the extra ns per test for incoherent (shadow, diffuse) rays.
@@ -241,6 +247,10 @@ pub struct Workload {
     pub frames: u64,
     /// Builds over the run (1 for a static scene built once, `frames` when rebuilt every frame).
     pub builds: u64,
+    /// The camera, reduced to [`ViewFeatures`]; `None`: the framing camera of the scene's bounds
+    /// ([`CostModel::predict`] resolves it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub view: Option<ViewFeatures>,
 }
 
 /// The phi row of [`FEATURE_NAMES`] for derived features and a workload kind.
@@ -324,6 +334,13 @@ pub struct StructureModel {
     /// Trace prices, ns, one per [`PRICE_NAMES`] (all in `0..=PRICE_LIMIT_NS`, not all 0).
     #[serde(deserialize_with = "vec_f64_or_null")]
     pub trace_price: Vec<f64>,
+    /// The view's coefficients in the box-test law, one per [`VIEW_FEATURE_NAMES`], or none (a calibration
+    /// fitted without views, which ignores the camera).
+    #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
+    pub view_box_coef: Vec<f64>,
+    /// The view's coefficients in the triangle-test law, as `view_box_coef`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
+    pub view_prim_coef: Vec<f64>,
     /// Fit errors on the calibration samples.
     pub fit: FitError,
 }
@@ -350,11 +367,14 @@ pub struct Prediction {
 }
 
 impl StructureModel {
-    /// Predicted costs for features `d` of a scene with `n` triangles and a workload.
+    /// Predicted costs for features `d` of a scene with `n` triangles and a workload. With view coefficients,
+    /// `w.view` enters the test-count laws (`None` counts as zeros here: [`CostModel::predict`] first resolves a
+    /// missing view to the framing camera).
     pub fn predict(&self, d: &Derived, n: u64, w: &Workload) -> Prediction {
         let x = phi(d, w.kind);
-        let bx = dot(&self.box_coef, &x).clamp(-30.0, 30.0).exp();
-        let pr = dot(&self.prim_coef, &x).clamp(-30.0, 30.0).exp();
+        let v = w.view.map_or([0.0; 3], |v| v.row());
+        let bx = (dot(&self.box_coef, &x) + dot(&self.view_box_coef, &v)).clamp(-30.0, 30.0).exp();
+        let pr = (dot(&self.prim_coef, &x) + dot(&self.view_prim_coef, &v)).clamp(-30.0, 30.0).exp();
         let ns = dot(&self.trace_price, &price_row(w.kind, bx, pr));
         let per_build = (self.build_ln_a + self.build_exponent * (n.max(1) as f64).ln()).exp();
         let build_ms = per_build * w.builds as f64;
@@ -587,9 +607,13 @@ impl CostModel {
     }
 
     /// Predicted costs of every calibrated structure for a scene (its first frame's features) and a workload.
+    ///
+    /// A workload without a view is predicted for the framing camera of the features' bounds
+    /// ([`ViewFeatures::framing`]), the oracle's default camera.
     pub fn predict(&self, f: &Features, w: &Workload) -> Vec<Prediction> {
         let d = f.derived();
-        self.structures.iter().map(|m| m.predict(&d, f.total_triangles.max(f.triangles), w)).collect()
+        let w = resolve_view(f, w);
+        self.structures.iter().map(|m| m.predict(&d, f.total_triangles.max(f.triangles), &w)).collect()
     }
 
     /// Predicted costs of every calibrated driver structure ([`driver`]) for a scene and a workload.
@@ -623,12 +647,28 @@ impl CostModel {
     /// Fits a model on oracle samples (see the module docs). Structures with fewer than 3 valid samples are left
     /// out. The driver structures are fitted apart ([`CostModel::fit_driver`]).
     pub fn fit(samples: &[Sample], device: &str, source: &str) -> Result<CostModel, CostError> {
+        Self::fit_on(samples, device, source, true)
+    }
+
+    /// The size-only model: [`CostModel::fit`] with every geometric feature left out of the test-count laws (their
+    /// coefficients are zero), so that a prediction depends on the triangle count, the workload kind, the rays and
+    /// the frames alone ([`SIZE_FEATURES`] of [`FEATURE_NAMES`]). Against the full model it measures what the
+    /// scene's geometry adds to the choice (the thesis's first hypothesis).
+    pub fn fit_size_only(samples: &[Sample], device: &str, source: &str) -> Result<CostModel, CostError> {
+        Self::fit_on(samples, device, source, false)
+    }
+
+    fn fit_on(samples: &[Sample], device: &str, source: &str, geometric: bool) -> Result<CostModel, CostError> {
         if samples.is_empty() {
             return Err(CostError::Fit("no samples".into()));
         }
+        // The view enters the laws when some sample records its camera (and not in the size-only model): samples
+        // without one stand for the framing camera. Records of the framing camera alone fit no view coefficient,
+        // so the model is then the one fitted before views existed.
+        let views = geometric && samples.iter().any(|s| s.workload.view.is_some());
         let mut structures = Vec::new();
         for s in StructureName::ALL {
-            if let Some(m) = fit_structure(samples, s)? {
+            if let Some(m) = fit_structure(samples, s, geometric, views)? {
                 structures.push(m);
             }
         }
@@ -668,6 +708,12 @@ impl CostModel {
         m.validate().map_err(|e| CostError::Fit(format!("the fitted model is out of range: {e}")))?;
         Ok(m)
     }
+}
+
+/// `w` with its view resolved: its own, or the framing camera of the features' bounds (only computed when some
+/// structure model reads views is not known here, so always; it costs [`view::COVERAGE_GRID`]^2 slab tests).
+fn resolve_view(f: &Features, w: &Workload) -> Workload {
+    Workload { view: Some(w.view.unwrap_or_else(|| ViewFeatures::framing(f.lo, f.hi))), ..*w }
 }
 
 /// What a JSON value is, for error messages.
@@ -782,6 +828,22 @@ fn check_structure(i: usize, s: &StructureModel) -> Result<(), CostError> {
             check_number(st, at(&format!("{name}[{j}] ({f})")), c, -COEF_LIMIT..=COEF_LIMIT, "a coefficient")?;
         }
     }
+    for (name, coef) in [("view_box_coef", &s.view_box_coef), ("view_prim_coef", &s.view_prim_coef)] {
+        if !coef.is_empty() && coef.len() != VIEW_FEATURE_NAMES.len() {
+            return Err(invalid(
+                st,
+                at(name),
+                format!(
+                    "{} coefficients, expected none or one per view feature ({})",
+                    coef.len(),
+                    VIEW_FEATURE_NAMES.len()
+                ),
+            ));
+        }
+        for (j, (&c, f)) in coef.iter().zip(VIEW_FEATURE_NAMES).enumerate() {
+            check_number(st, at(&format!("{name}[{j}] ({f})")), c, -COEF_LIMIT..=COEF_LIMIT, "a coefficient")?;
+        }
+    }
     if s.trace_price.len() != PRICE_NAMES.len() {
         return Err(invalid(
             st,
@@ -809,7 +871,12 @@ fn rms(v: &[f64]) -> f64 {
     }
 }
 
-fn fit_structure(samples: &[Sample], s: StructureName) -> Result<Option<StructureModel>, CostError> {
+fn fit_structure(
+    samples: &[Sample],
+    s: StructureName,
+    geometric: bool,
+    views: bool,
+) -> Result<Option<StructureModel>, CostError> {
     let rows: Vec<(&Sample, &Measured)> = samples
         .iter()
         .filter_map(|smp| {
@@ -830,13 +897,27 @@ fn fit_structure(samples: &[Sample], s: StructureName) -> Result<Option<Structur
     let build = linalg::weighted_ridge(&bx, &by, &ones, &[0.0, 1e-9]).ok_or_else(|| err("build"))?;
     // Test counts.
     let p = FEATURE_NAMES.len();
-    let x: Vec<Vec<f64>> = rows.iter().map(|(smp, _)| phi(&smp.features.derived(), smp.workload.kind)).collect();
-    let mut ridge = vec![RIDGE; p];
+    let x: Vec<Vec<f64>> = rows
+        .iter()
+        .map(|(smp, _)| {
+            let mut row = phi(&smp.features.derived(), smp.workload.kind);
+            if !geometric {
+                row[SIZE_FEATURES..].iter_mut().for_each(|v| *v = 0.0);
+            }
+            if views {
+                row.extend(resolve_view(&smp.features, &smp.workload).view.map_or([0.0; 3], |v| v.row()));
+            }
+            row
+        })
+        .collect();
+    let mut ridge = vec![RIDGE; p + if views { VIEW_FEATURE_NAMES.len() } else { 0 }];
     ridge[0] = 0.0;
     let lbox: Vec<f64> = rows.iter().map(|(_, m)| m.box_tests_per_ray.max(1e-3).ln()).collect();
     let lprim: Vec<f64> = rows.iter().map(|(_, m)| m.prim_tests_per_ray.max(1e-3).ln()).collect();
-    let box_coef = linalg::weighted_ridge(&x, &lbox, &ones, &ridge).ok_or_else(|| err("box tests"))?;
-    let prim_coef = linalg::weighted_ridge(&x, &lprim, &ones, &ridge).ok_or_else(|| err("triangle tests"))?;
+    let mut box_coef = linalg::weighted_ridge(&x, &lbox, &ones, &ridge).ok_or_else(|| err("box tests"))?;
+    let mut prim_coef = linalg::weighted_ridge(&x, &lprim, &ones, &ridge).ok_or_else(|| err("triangle tests"))?;
+    let view_box_coef = box_coef.split_off(p);
+    let view_prim_coef = prim_coef.split_off(p);
     // Prices.
     let tx: Vec<Vec<f64>> =
         rows.iter().map(|(smp, m)| price_row(smp.workload.kind, m.box_tests_per_ray, m.prim_tests_per_ray)).collect();
@@ -850,12 +931,14 @@ fn fit_structure(samples: &[Sample], s: StructureName) -> Result<Option<Structur
         box_coef,
         prim_coef,
         trace_price: c,
+        view_box_coef,
+        view_prim_coef,
         fit: FitError::default(),
     };
     let (mut eb, mut ebox, mut eprim, mut etc, mut et, mut etot) = (vec![], vec![], vec![], vec![], vec![], vec![]);
     for (smp, meas) in &rows {
-        let pr =
-            m.predict(&smp.features.derived(), smp.features.total_triangles.max(smp.features.triangles), &smp.workload);
+        let w = resolve_view(&smp.features, &smp.workload);
+        let pr = m.predict(&smp.features.derived(), smp.features.total_triangles.max(smp.features.triangles), &w);
         let lr = |a: f64, b: f64| (a.max(1e-12) / b.max(1e-12)).ln();
         eb.push(lr(pr.build_ms_per_build, meas.build_ms_per_build));
         ebox.push(lr(pr.box_tests_per_ray, meas.box_tests_per_ray.max(1e-3)));

@@ -25,6 +25,10 @@ pub struct PolicyScore {
     pub worst_regret: f64,
     /// Where the worst regret occurred (`scene (workload)`).
     pub worst: String,
+    /// Samples where the selection was not validly measured (it failed to build, over a budget, or disagreed with
+    /// the reference) while another structure was: a catastrophe the regret figures cannot show; they are not
+    /// scored.
+    pub failed: usize,
 }
 
 /// One sample's selections and regrets.
@@ -70,6 +74,8 @@ pub struct Comparison {
     /// With the driver's acceleration structures measured: the choice among all candidates.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub candidates: Option<CandidateComparison>,
+    /// The calibrated policy against the four baselines ([`compare_baselines`]).
+    pub baselines: Baselines,
 }
 
 /// One sample's choice among every candidate, the project's structures and the driver's (`rt_*`).
@@ -253,7 +259,10 @@ pub fn score<'a>(pairs: impl Iterator<Item = (&'a Sample, Option<StructureName>)
     let (mut hit, mut near, mut sum) = (0usize, 0usize, 0.0);
     for (smp, sel) in pairs {
         let (Some(sel), Some(best)) = (sel, smp.best()) else { continue };
-        let Some(r) = smp.regret(sel) else { continue };
+        let Some(r) = smp.regret(sel) else {
+            s.failed += 1;
+            continue;
+        };
         s.scored += 1;
         hit += (sel == best.structure) as usize;
         near += (sel == best.structure || smp.get(sel).is_some_and(|m| m.within_noise_of_best)) as usize;
@@ -316,5 +325,187 @@ pub fn compare(samples: &[Sample], tie_margin: f64, device: &str) -> Result<Comp
         calibrated_held_out: score(samples.iter().zip(&held).map(|(s, h)| (s, h.map(|x| x.0)))),
         tie_margin,
         candidates: compare_candidates(samples, tie_margin, device)?,
+        baselines: compare_baselines(samples, tie_margin, device),
     })
+}
+
+/// The family a sample's scene belongs to, for leave-one-family-out: a generated scene's family
+/// (`family:NAME:...`, [`crate::mesh::families::parse_spec`]); otherwise `animation` for a directory of frames and
+/// `mesh` for a file (the shared scans, models and interiors).
+pub fn family_of(scene: &str) -> String {
+    match crate::mesh::families::parse_spec(scene) {
+        Some(Ok((f, _, _))) => f.name().to_string(),
+        _ if std::path::Path::new(scene).is_dir() => "animation".to_string(),
+        _ => "mesh".to_string(),
+    }
+}
+
+/// The workload a sample stands for, as the baselines group it: the ray kind, and the frames when more than one
+/// (`primary`, `shadow x100`).
+pub fn workload_of(smp: &Sample) -> String {
+    match smp.workload.frames {
+        0 | 1 => smp.workload.kind.as_str().to_string(),
+        f => format!("{} x{f}", smp.workload.kind.as_str()),
+    }
+}
+
+/// One policy's selections over the samples and their scores, overall, by workload and by family.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct PolicyRun {
+    /// `thesis`, `best_single`, `size_only` or `calibrated`.
+    pub policy: String,
+    /// How it was fitted: `recorded` (the thesis policy's recorded choice), `hindsight` (the best single structure
+    /// per workload, chosen on all samples), `in_sample`, `scene_out` (fitted without the sample's scene) or
+    /// `family_out` (fitted without the sample's family).
+    pub holdout: String,
+    /// The selection per sample (in the samples' order).
+    pub choices: Vec<Option<StructureName>>,
+    /// Over all samples.
+    pub overall: PolicyScore,
+    /// Per workload ([`workload_of`]), sorted by name.
+    pub by_workload: Vec<(String, PolicyScore)>,
+    /// Per family ([`family_of`]), sorted by name.
+    pub by_family: Vec<(String, PolicyScore)>,
+}
+
+/// The selection against four baselines (see [`compare_baselines`]).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Baselines {
+    /// Per sample: its family ([`family_of`]).
+    pub families: Vec<String>,
+    /// Per sample: its workload ([`workload_of`]).
+    pub workloads: Vec<String>,
+    /// The policies, in the order: thesis (recorded), best single structure (hindsight), size-only and calibrated
+    /// (each leave-one-scene-out and, with more than one family, leave-one-family-out), calibrated in sample.
+    pub policies: Vec<PolicyRun>,
+}
+
+impl Baselines {
+    /// The run of `policy` fitted as `holdout`.
+    pub fn get(&self, policy: &str, holdout: &str) -> Option<&PolicyRun> {
+        self.policies.iter().find(|p| p.policy == policy && p.holdout == holdout)
+    }
+}
+
+/// Selections of a model fitted without each group (`group` of a sample: its scene or its family) on the samples
+/// of that group; `None` where the fit failed or the model predicts nothing.
+fn held_out_choices(
+    samples: &[Sample],
+    group: &dyn Fn(&Sample) -> String,
+    fit: &dyn Fn(&[Sample]) -> Result<CostModel, CostError>,
+    tie_margin: f64,
+) -> Vec<Option<StructureName>> {
+    let keys: Vec<String> = samples.iter().map(group).collect();
+    let mut groups = keys.clone();
+    groups.sort();
+    groups.dedup();
+    let mut out = vec![None; samples.len()];
+    for g in &groups {
+        let train: Vec<Sample> = samples.iter().zip(&keys).filter(|(_, k)| *k != g).map(|(s, _)| s.clone()).collect();
+        let Ok(model) = fit(&train) else { continue };
+        for (i, smp) in samples.iter().enumerate().filter(|(i, _)| keys[*i] == *g) {
+            out[i] = choose(&model.predict(&smp.features, &smp.workload), tie_margin);
+        }
+    }
+    out
+}
+
+/// Per workload, the structure with the least mean regret over the samples of that workload (ties: the first in
+/// [`StructureName::ALL`]): the best single structure chosen in hindsight.
+fn best_single(samples: &[Sample], workloads: &[String]) -> Vec<Option<StructureName>> {
+    let mut keys = workloads.to_vec();
+    keys.sort();
+    keys.dedup();
+    let mut pick = std::collections::HashMap::new();
+    for k in &keys {
+        let of: Vec<&Sample> = samples.iter().zip(workloads).filter(|(_, w)| *w == k).map(|(s, _)| s).collect();
+        let mean = |s: StructureName| -> f64 {
+            // A structure that failed where another was measured counts as a miss of unbounded cost.
+            let r: Vec<f64> =
+                of.iter().filter(|x| x.best().is_some()).map(|x| x.regret(s).unwrap_or(f64::INFINITY)).collect();
+            if r.is_empty() {
+                f64::INFINITY
+            } else {
+                r.iter().sum::<f64>() / r.len() as f64
+            }
+        };
+        let best = StructureName::ALL.into_iter().map(|s| (s, mean(s))).fold(
+            None,
+            |b: Option<(StructureName, f64)>, x| match b {
+                Some(b) if b.1 <= x.1 => Some(b),
+                _ => Some(x),
+            },
+        );
+        pick.insert(k.clone(), best.map(|b| b.0));
+    }
+    workloads.iter().map(|w| pick.get(w).copied().flatten()).collect()
+}
+
+/// Scores of `choices` over `samples`: overall, per workload and per family.
+fn policy_run(
+    policy: &str,
+    holdout: &str,
+    samples: &[Sample],
+    choices: Vec<Option<StructureName>>,
+    workloads: &[String],
+    families: &[String],
+) -> PolicyRun {
+    let by = |keys: &[String]| -> Vec<(String, PolicyScore)> {
+        let mut names = keys.to_vec();
+        names.sort();
+        names.dedup();
+        names
+            .into_iter()
+            .map(|k| {
+                let sc =
+                    score(samples.iter().zip(&choices).zip(keys).filter(|(_, g)| **g == k).map(|((s, c), _)| (s, *c)));
+                (k, sc)
+            })
+            .collect()
+    };
+    PolicyRun {
+        policy: policy.to_string(),
+        holdout: holdout.to_string(),
+        overall: score(samples.iter().zip(&choices).map(|(s, c)| (s, *c))),
+        by_workload: by(workloads),
+        by_family: by(families),
+        choices,
+    }
+}
+
+/// The calibrated policy against four baselines on the same samples: the thesis policy (its recorded choices),
+/// the best single structure per workload chosen in hindsight, the size-only model ([`CostModel::fit_size_only`])
+/// and the calibrated model, each of the last two fitted leave-one-scene-out and, when the samples span more than
+/// one family ([`family_of`]), leave-one-family-out; and the calibrated model in sample.
+pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> Baselines {
+    let families: Vec<String> = samples.iter().map(|s| family_of(&s.scene)).collect();
+    let workloads: Vec<String> = samples.iter().map(workload_of).collect();
+    let fam_of: std::collections::HashMap<&str, &str> =
+        samples.iter().zip(&families).map(|(s, f)| (s.scene.as_str(), f.as_str())).collect();
+    let scene = |s: &Sample| s.scene.clone();
+    let family = |s: &Sample| fam_of.get(s.scene.as_str()).map_or_else(String::new, |f| f.to_string());
+    let full = |t: &[Sample]| CostModel::fit(t, device, "held out");
+    let size = |t: &[Sample]| CostModel::fit_size_only(t, device, "held out, size only");
+    let mut distinct = families.clone();
+    distinct.sort();
+    distinct.dedup();
+    let run = |p: &str, h: &str, c: Vec<Option<StructureName>>| policy_run(p, h, samples, c, &workloads, &families);
+    let mut policies = vec![
+        run("thesis", "recorded", samples.iter().map(|s| s.baseline).collect()),
+        run("best_single", "hindsight", best_single(samples, &workloads)),
+        run("size_only", "scene_out", held_out_choices(samples, &scene, &size, tie_margin)),
+    ];
+    if distinct.len() > 1 {
+        policies.push(run("size_only", "family_out", held_out_choices(samples, &family, &size, tie_margin)));
+    }
+    policies.push(run("calibrated", "scene_out", held_out_choices(samples, &scene, &full, tie_margin)));
+    if distinct.len() > 1 {
+        policies.push(run("calibrated", "family_out", held_out_choices(samples, &family, &full, tie_margin)));
+    }
+    let ins: Vec<Option<StructureName>> = match full(samples) {
+        Ok(m) => samples.iter().map(|s| choose(&m.predict(&s.features, &s.workload), tie_margin)).collect(),
+        Err(_) => vec![None; samples.len()],
+    };
+    policies.push(run("calibrated", "in_sample", ins));
+    Baselines { families, workloads, policies }
 }

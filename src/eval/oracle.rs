@@ -577,6 +577,9 @@ pub struct SceneEvaluation {
     pub rebuild: Rebuild,
     /// Repeats.
     pub repeats: usize,
+    /// The camera the rays were made from.
+    #[serde(skip)]
+    pub camera: Camera,
     /// The precision target ([`OracleConfig::precision`]), when one was set.
     pub precision: Option<f64>,
     /// Rays per frame (first frame).
@@ -743,6 +746,7 @@ impl SceneEvaluation {
             repeats: self.repeats,
             precision: self.precision,
             view: None,
+            camera: Some((&self.camera).into()),
             resolution: self.resolution,
             selected: self.selected,
             structures: self
@@ -1212,6 +1216,7 @@ pub fn evaluate_scene_on(
         rebuild: config.rebuild,
         repeats,
         precision,
+        camera,
         rays_per_frame,
         selected,
         oracle_best,

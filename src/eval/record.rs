@@ -11,6 +11,7 @@ use crate::accel::{AccelStats, StructureName};
 use crate::characterize::{features_cpu, Features, Params};
 use crate::cost::{DriverMeasured, Measured, Prediction, Sample, Workload};
 use crate::geom::WorkloadKind;
+use crate::trace::Camera;
 use serde::{Deserialize, Deserializer, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -75,6 +76,47 @@ fn default_one() -> usize {
 
 fn default_once() -> Rebuild {
     Rebuild::Once
+}
+
+/// A pinhole camera as a record holds it ([`Camera`]'s fields).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraRecord {
+    /// Eye position.
+    pub eye: [f32; 3],
+    /// Unit viewing direction.
+    pub forward: [f32; 3],
+    /// Unit right vector.
+    pub right: [f32; 3],
+    /// Unit up vector.
+    pub up: [f32; 3],
+    /// `tan(fov_y / 2)`.
+    pub tan_half_fov: f32,
+}
+
+impl From<&Camera> for CameraRecord {
+    fn from(c: &Camera) -> Self {
+        CameraRecord {
+            eye: c.eye.to_array(),
+            forward: c.forward.to_array(),
+            right: c.right.to_array(),
+            up: c.up.to_array(),
+            tan_half_fov: c.tan_half_fov,
+        }
+    }
+}
+
+impl CameraRecord {
+    /// The camera.
+    pub fn camera(&self) -> Camera {
+        use glam::Vec3;
+        Camera {
+            eye: Vec3::from_array(self.eye),
+            forward: Vec3::from_array(self.forward),
+            right: Vec3::from_array(self.right),
+            up: Vec3::from_array(self.up),
+            tan_half_fov: self.tan_half_fov,
+        }
+    }
 }
 
 /// What the oracle measured for one structure on one scene and workload.
@@ -235,6 +277,10 @@ pub struct OracleRecord {
     /// named.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub view: Option<String>,
+    /// The camera the rays were made from (absent in records written before the field existed: the framing camera
+    /// of the scene's bounds). The calibrated policy reads it as the sample's view ([`crate::cost::ViewFeatures`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<CameraRecord>,
     /// The precise oracle's target: each structure's total was repeated until the 95% confidence interval of its
     /// median lay within this fraction of it (each structure's `precision_met` says whether it did).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -342,13 +388,14 @@ impl OracleRecord {
         let frames = self.frames.max(1) as u64;
         let animated = self.frames_measured > 1;
         let builds = if animated || self.rebuild == Rebuild::PerFrame { frames } else { 1 };
-        Workload { kind: self.workload, rays_per_frame: self.rays_per_frame as u64, frames, builds }
+        Workload { kind: self.workload, rays_per_frame: self.rays_per_frame as u64, frames, builds, view: None }
     }
 
     /// A calibration sample: the record's measurements with the scene's `features`. `baseline` defaults to the
     /// record's `selected` when its `policy` is `thesis` or absent (records written before policies had names).
     pub fn sample(&self, features: Features, baseline: Option<StructureName>) -> Sample {
-        let workload = self.cost_workload();
+        let mut workload = self.cost_workload();
+        workload.view = self.camera.map(|c| crate::cost::ViewFeatures::of(&c.camera(), features.lo, features.hi));
         let measured = self
             .structures
             .iter()

@@ -11,7 +11,7 @@
 use super::{Policy, SceneSummary, Selection, ThesisPolicy};
 use crate::accel::StructureName;
 use crate::characterize::Features;
-use crate::cost::{CostModel, Prediction, Workload};
+use crate::cost::{CostModel, Prediction, ViewFeatures, Workload};
 
 /// The calibrated choice among predictions: the smallest predicted total, then, within `tie_margin` (relative) of
 /// it, the smallest predicted build. `None` for no predictions.
@@ -138,7 +138,7 @@ impl FrameRule<'_> {
         now: &Features,
         built: Option<(&Features, StructureName)>,
     ) -> Option<FrameDecision> {
-        let w = Workload { kind: self.kind, rays_per_frame: self.rays_per_frame, frames: 1, builds: 1 };
+        let w = Workload { kind: self.kind, rays_per_frame: self.rays_per_frame, frames: 1, builds: 1, view: None };
         let preds = self.model.predict(now, &w);
         let allowed: Vec<Prediction> = preds
             .iter()
@@ -194,6 +194,11 @@ pub struct CalibratedPolicy {
     /// Weigh the driver's acceleration structures too (the device traces with ray queries), when the model has
     /// them ([`crate::cost::CostModel::driver`]); default `false`.
     pub driver: bool,
+    /// The engine's camera, when it gives one: the first frame's predictions read its [`ViewFeatures`] (a model
+    /// calibrated with views weighs them; see [`crate::cost::view`]). `None` (the default): the framing camera of
+    /// the scene's bounds, the oracle's default. The per-frame rule of an animation ([`FrameRule`]) does not read
+    /// it yet.
+    pub camera: Option<crate::trace::Camera>,
 }
 
 impl CalibratedPolicy {
@@ -209,6 +214,7 @@ impl CalibratedPolicy {
             frames: frames.max(1),
             tie_margin: Self::DEFAULT_TIE_MARGIN,
             driver: false,
+            camera: None,
         }
     }
 
@@ -216,16 +222,24 @@ impl CalibratedPolicy {
     pub fn workload(&self, frame_count: usize) -> Workload {
         if frame_count > 1 {
             let f = frame_count as u64;
-            Workload { kind: self.kind, rays_per_frame: self.rays_per_frame, frames: f, builds: f }
+            Workload { kind: self.kind, rays_per_frame: self.rays_per_frame, frames: f, builds: f, view: None }
         } else {
-            Workload { kind: self.kind, rays_per_frame: self.rays_per_frame, frames: self.frames, builds: 1 }
+            Workload {
+                kind: self.kind,
+                rays_per_frame: self.rays_per_frame,
+                frames: self.frames,
+                builds: 1,
+                view: None,
+            }
         }
     }
 
     /// Predictions for a scene (first frame's features), `None` without features.
     pub fn predictions(&self, scene: &SceneSummary<'_>) -> Option<Vec<Prediction>> {
         let f = scene.features.first()?;
-        Some(self.model.predict(f, &self.workload(scene.features.len())))
+        let mut w = self.workload(scene.features.len());
+        w.view = self.camera.map(|c| ViewFeatures::of(&c, f.lo, f.hi));
+        Some(self.model.predict(f, &w))
     }
 }
 
@@ -268,6 +282,18 @@ impl Policy for CalibratedPolicy {
                 String::new()
             }
         )];
+        if let Some(c) = &self.camera {
+            let f = &scene.features[0];
+            let v = ViewFeatures::of(c, f.lo, f.hi);
+            let reads = self.model.structures.iter().any(|s| !s.view_box_coef.is_empty());
+            reasons.push(format!(
+                "view: eye {} the bounds, {:.0}% of the image on them, {:.2} half-diagonals from the centre{}",
+                if v.eye_inside { "inside" } else { "outside" },
+                100.0 * v.coverage,
+                v.distance,
+                if reads { "" } else { " (this calibration was fitted without views: the view changes no prediction)" }
+            ));
+        }
         for e in &excluded {
             reasons.push(format!("excluded before choosing: {}", e.reason));
         }

@@ -268,7 +268,7 @@ impl PolicyChoice<'_> {
 }
 
 /// The workload a scene is selected for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TargetWorkload {
     /// Kind of rays.
     pub kind: WorkloadKind,
@@ -281,6 +281,9 @@ pub struct TargetWorkload {
     /// The device traces with the driver's acceleration structures (ray queries): the calibrated policy weighs
     /// them too, when its model calibrated them ([`crate::cost::CostModel::driver`]).
     pub driver: bool,
+    /// The camera the rays will be made from, when the engine knows it ([`CalibratedPolicy::camera`]); `None`: the
+    /// framing camera of the scene's bounds.
+    pub camera: Option<crate::trace::Camera>,
 }
 
 /// What [`select_for_scene`] decided.
@@ -348,6 +351,7 @@ pub fn select_for_scene_within(
             let mut p = CalibratedPolicy::new(model.clone(), workload.kind, workload.rays_per_frame, workload.frames);
             p.tie_margin = tie_margin;
             p.driver = workload.driver;
+            p.camera = workload.camera;
             let used = if frames.len() > 1 { workload.animation_frames.unwrap_or(frames.len()) } else { 1 };
             let used = used.clamp(1, frames.len().min(features.len()).max(1)).min(frames.len()).min(features.len());
             let summary =

@@ -121,6 +121,7 @@ pub fn oracle_workload(
         frames: o.frames.max(1) as u64,
         animation_frames: Some(o.frames.max(1)),
         driver: false,
+        camera: o.camera.map(|c| c.camera()),
     }))
 }
 
