@@ -20,7 +20,7 @@ use meshchar::characterize::{cpu, Characterization, Characterizer, ClassRule, Pa
 use meshchar::cost::CostModel;
 use meshchar::mesh::Animation;
 use meshchar::select::{
-    select_for_scene_within, Budget, BuildBounds, CalibratedPolicy, PolicyChoice, Report, TargetWorkload,
+    select_for_scene_within, Budget, BuildBounds, CalibratedPolicy, PolicyChoice, Report, SelectionCost, TargetWorkload,
 };
 use meshchar::trace::workload::mesh_bounds;
 use std::path::PathBuf;
@@ -107,8 +107,11 @@ fn process(
     bar: &Progress,
 ) -> anyhow::Result<()> {
     let params = args.params();
+    let t0 = std::time::Instant::now();
     let (results, features): (Vec<Characterization>, Vec<Features>) =
         engine.characterize_animation_with_features(scene, &params)?;
+    let characterize_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let t1 = std::time::Instant::now();
     let policy = match args.policy.policy {
         Policy::Thesis => PolicyChoice::Thesis,
         Policy::Calibrated => PolicyChoice::Calibrated { model, tie_margin: CalibratedPolicy::DEFAULT_TIE_MARGIN },
@@ -132,12 +135,22 @@ fn process(
     let bounds = BuildBounds::of_frames(&scene.frames)?;
     let chosen =
         select_for_scene_within(&scene.name, &results, &features, policy, &workload, bounds, Budget::default());
+    let select_ms = t1.elapsed().as_secs_f64() * 1e3;
+    let frames = if scene.frames.len() > 1 { scene.frames.len() as u64 } else { args.frames };
+    let cost = SelectionCost::new(
+        characterize_ms,
+        select_ms,
+        scene.frames.len(),
+        chosen.predicted.as_ref().and_then(|p| p.iter().find(|p| p.structure == chosen.selection.structure)),
+        frames,
+    );
     let dynamic = scene.frames.len() > 1;
     for (i, (frame, c)) in scene.frames.iter().zip(&results).enumerate() {
         let mut report = Report::new(if dynamic { scene.name.clone() } else { frame.name.clone() }, c)
             .selection(chosen.kind, chosen.policy, &chosen.selection)
             .zero_area(cpu::zero_area_triangles(frame, params.sample_stride))
-            .features(features[i].clone());
+            .features(features[i].clone())
+            .selection_cost(cost);
         if let Some(p) = &chosen.predicted {
             report = report.predicted(p.clone());
         }

@@ -266,3 +266,29 @@ fn bounds_of_frames_are_the_largest_frame_bounds() {
     assert!(both.grid_references >= meshchar::select::BuildBounds::of_mesh(&a).unwrap().grid_references);
     assert_eq!(meshchar::select::BuildBounds::of_frames(&[]).unwrap(), None);
 }
+
+#[test]
+fn the_decision_cost_is_weighed_against_the_chosen_frame() {
+    use meshchar::select::SelectionCost;
+    let p = meshchar::cost::Prediction {
+        structure: meshchar::accel::StructureName::Bvh,
+        build_ms_per_build: 10.0,
+        build_ms: 10.0,
+        box_tests_per_ray: 1.0,
+        prim_tests_per_ray: 1.0,
+        trace_ns_per_ray: 1.0,
+        trace_ms: 990.0,
+        total_ms: 1000.0,
+    };
+    // A static scene over 10 frames: 100 ms a frame; a decision of 0.5 + 0.4 ms is 0.9% of it.
+    let c = SelectionCost::new(0.5, 0.4, 1, Some(&p), 10);
+    assert_eq!(c.predicted_frame_ms, Some(100.0));
+    assert!((c.share.unwrap() - 0.009).abs() < 1e-12 && c.within_goal == Some(true), "{c:?}");
+    // An animation of 4 frames, each characterized: the decision per frame is a quarter of the whole.
+    let c = SelectionCost::new(8.0, 4.0, 4, Some(&p), 4);
+    assert_eq!((c.per_frame_ms, c.predicted_frame_ms), (3.0, Some(250.0)));
+    assert_eq!(c.within_goal, Some(false));
+    // Without predictions (the thesis policy) there is nothing to weigh against.
+    let c = SelectionCost::new(1.0, 1.0, 1, None, 1);
+    assert_eq!((c.share, c.within_goal), (None, None));
+}

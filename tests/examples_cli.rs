@@ -153,6 +153,13 @@ fn bad_values_exit_2() {
         ("characterize", &["--workload", "nope"]),
         ("characterize", &["--frames", "0"]),
         ("characterize", &["--resolution"]),
+        ("characterize", &["--view", "sideways"]),
+        ("characterize", &["--camera", "1,2,3"]),
+        ("characterize", &["--view", "inside", "--camera", "0,0,1,0,0,0"]),
+        ("evaluate", &["x.obj", "--precision", "0"]),
+        ("evaluate", &["x.obj", "--precision", "2"]),
+        ("evaluate", &["x.obj", "--max-repeats", "0"]),
+        ("evaluate", &["x.obj", "--view", "sideways"]),
         ("evaluate", &["x.obj", "--resolution", "abc"]),
         ("evaluate", &["x.obj", "--resolution", "16385"]),
         ("evaluate", &["x.obj", "--workload", "nope"]),
@@ -231,6 +238,18 @@ fn flag_equals_value_and_plain_flags_work() {
     assert_eq!(report["morton_bits"], 63);
     assert_eq!(report["class_rule"], "sturges");
     assert_eq!(report["backend"], "cpu");
+    // The decision's cost against the chosen structure's predicted frame.
+    let c = &report["selection_cost"];
+    assert!(c["characterize_ms"].as_f64().unwrap() > 0.0 && c["select_ms"].as_f64().unwrap() >= 0.0, "{c}");
+    assert!(c["predicted_frame_ms"].as_f64().unwrap() > 0.0 && c["within_goal"].is_boolean(), "{c}");
+    // A view: the calibrated policy says what it saw.
+    let out = run("characterize", &["--json", "--backend=cpu", "--view", "inside", "family:city:3000:1"]);
+    let (stdout, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    let report: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
+    assert_eq!(report["mesh"], "family:city:3000:1");
+    let reasons = report["reasons"].as_array().unwrap();
+    assert!(reasons.iter().any(|r| r.as_str().unwrap().starts_with("view: eye inside the bounds")), "{reasons:?}");
     // The last of a repeated option wins, as before clap.
     let out = run("characterize", &["--json", "--backend", "naive", "--backend", "cpu"]);
     let (stdout, stderr) = text(&out);

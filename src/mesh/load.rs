@@ -267,7 +267,8 @@ pub fn load_path(path: &Path) -> Result<Animation, MeshError> {
         let spec = path.to_string_lossy();
         if let Some(parsed) = super::families::parse_spec(&spec) {
             let (family, n, seed) = parsed.map_err(|reason| MeshError::Invalid { file: spec.to_string(), reason })?;
-            let mesh = super::families::generate(family, n, seed)?;
+            let mut mesh = super::families::generate(family, n, seed)?;
+            mesh.name = spec.to_string();
             return Animation::new(spec.to_string(), vec![mesh]);
         }
     }

@@ -23,7 +23,7 @@ pub use budget::{Budget, BuildBounds, Exclusion};
 pub(crate) use calibrated::planned_total;
 pub use calibrated::{choose, plan_frames, CalibratedPolicy, FrameAction, FrameDecision, FrameRule};
 pub use driver::{plan_driver_frames, DriverAction, DriverFrameDecision, DriverFrameRule, DriverSelection};
-pub use report::{Bounds, Report, Timings};
+pub use report::{Bounds, Report, SelectionCost, Timings};
 pub use thesis::ThesisPolicy;
 
 use crate::characterize::{Characterization, Features};

@@ -117,6 +117,57 @@ pub struct Report {
     pub device: String,
     /// Milliseconds per pass, and `total`.
     pub timings_ms: Timings,
+    /// What deciding cost against what the decision is about ([`SelectionCost`]), when measured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub selection_cost: Option<SelectionCost>,
+}
+
+/// The price of the decision: the characterization (with the features) and the selection, wall time, against the
+/// chosen structure's predicted frame time. The goal is at most 1% ([`SelectionCost::GOAL`]); `within_goal` says
+/// whether it was met.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SelectionCost {
+    /// Characterizing every frame and computing the features, ms (wall time, this process).
+    pub characterize_ms: f64,
+    /// The selection (the view, the predictions, the budget bounds, the choice), ms.
+    pub select_ms: f64,
+    /// The decision's cost per frame: both of the above, divided by the frames characterized (an animation is
+    /// characterized every frame; a static scene once, and counted whole against one frame).
+    pub per_frame_ms: f64,
+    /// The chosen structure's predicted frame time: its predicted total over the frames it covers, ms; `None`
+    /// without predictions (the thesis policy).
+    pub predicted_frame_ms: Option<f64>,
+    /// `per_frame_ms / predicted_frame_ms`.
+    pub share: Option<f64>,
+    /// `share <= GOAL`.
+    pub within_goal: Option<bool>,
+}
+
+impl SelectionCost {
+    /// The goal: the decision costs at most this share of a frame.
+    pub const GOAL: f64 = 0.01;
+
+    /// The cost of a decision that took `characterize_ms` and `select_ms` over `frames_characterized` frames,
+    /// against the chosen prediction (`predicted`, its total over `frames` frames).
+    pub fn new(
+        characterize_ms: f64,
+        select_ms: f64,
+        frames_characterized: usize,
+        predicted: Option<&crate::cost::Prediction>,
+        frames: u64,
+    ) -> Self {
+        let per_frame_ms = (characterize_ms + select_ms) / frames_characterized.max(1) as f64;
+        let predicted_frame_ms = predicted.map(|p| p.total_ms / frames.max(1) as f64);
+        let share = predicted_frame_ms.filter(|&f| f > 0.0).map(|f| per_frame_ms / f);
+        SelectionCost {
+            characterize_ms,
+            select_ms,
+            per_frame_ms,
+            predicted_frame_ms,
+            share,
+            within_goal: share.map(|s| s <= Self::GOAL),
+        }
+    }
 }
 
 impl Report {
@@ -169,6 +220,7 @@ impl Report {
             backend: c.backend.clone(),
             device: c.device.clone(),
             timings_ms: Timings(timings),
+            selection_cost: None,
         }
     }
 
@@ -193,6 +245,12 @@ impl Report {
     /// Sets the calibrated policy's predicted costs.
     pub fn predicted(mut self, p: Vec<crate::cost::Prediction>) -> Report {
         self.predicted = Some(p);
+        self
+    }
+
+    /// Sets the cost of the decision.
+    pub fn selection_cost(mut self, c: SelectionCost) -> Report {
+        self.selection_cost = Some(c);
         self
     }
 
@@ -302,6 +360,23 @@ impl Report {
         }
         for e in &self.excluded {
             writeln!(o, "  excluded       {}", e.reason)?;
+        }
+        if let Some(c) = &self.selection_cost {
+            writeln!(
+                o,
+                "  decision cost  {:.3} ms per frame (characterize {:.3} ms, select {:.3} ms){}",
+                c.per_frame_ms,
+                c.characterize_ms,
+                c.select_ms,
+                match (c.predicted_frame_ms, c.share) {
+                    (Some(f), Some(s)) => format!(
+                        "; {:.2}% of the chosen structure's predicted {f:.3} ms frame{}",
+                        100.0 * s,
+                        if s <= SelectionCost::GOAL { "" } else { ": over the 1% goal" }
+                    ),
+                    _ => String::new(),
+                }
+            )?;
         }
         let t: Vec<String> = self.timings_ms.0.iter().map(|p| format!("{} {:.3}", p.name, p.ms)).collect();
         writeln!(o, "  timings (ms)   {} [{} on {}]", t.join(", "), self.backend, self.device)
