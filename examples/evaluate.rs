@@ -25,7 +25,7 @@ use meshchar::characterize::{Characterizer, Params};
 use meshchar::cost::{CostModel, Prediction};
 use meshchar::eval::chart::BarChart;
 use meshchar::eval::compare::compare;
-use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, TraceBackend};
+use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, RefitCandidate, TraceBackend};
 use meshchar::eval::record::{load_samples as load_oracle_samples, tracer_of};
 use meshchar::eval::{OracleConfig, Rebuild, SceneEvaluation};
 use meshchar::geom::WorkloadKind;
@@ -111,6 +111,11 @@ struct Args {
     /// paths for their features)
     #[arg(long, value_name = "FILE", num_args = 1..)]
     compare_policies: Vec<PathBuf>,
+    /// With --compare-policies: every static scene measured over one frame also stands for F frames with one build
+    /// (each structure's total: its build plus F times its trace, the oracle's own formula), for each F listed, so
+    /// that the policies are scored where the build amortizes (for instance 1,10,100,1000)
+    #[arg(long, value_name = "F,F,...", value_parser = args::list(clap::value_parser!(u64).range(1..)))]
+    frames_sweep: Option<args::List<u64>>,
     /// Where the rays are traced: `cpu` (the counting CPU tracer, host wall time) or `vulkan` (the device traversal
     /// kernel on the Vulkan device, GPU timestamps; structures are built on the host and uploaded, the upload
     /// timed apart; every ray's hit is checked against the CPU reference). MESHCHAR_DEVICE picks the device
@@ -129,6 +134,7 @@ struct Args {
 enum Candidate {
     Ours(StructureName),
     Driver(DriverFlags),
+    Refit(RefitCandidate),
 }
 
 /// `--structures` item.
@@ -136,8 +142,14 @@ fn candidate(s: &str) -> Result<Candidate, String> {
     if let Some(f) = DriverFlags::parse(s.trim()) {
         return Ok(Candidate::Driver(f));
     }
+    if let Some(r) = RefitCandidate::parse(s.trim()) {
+        return Ok(Candidate::Refit(r));
+    }
     args::structure(s).map(Candidate::Ours).map_err(|e| {
-        format!("{e} (or a driver structure: rt_fast_trace, rt_fast_build, rt_update, rt_fast_trace_compact)")
+        format!(
+            "{e} (or a driver structure: rt_fast_trace, rt_fast_build, rt_update, rt_fast_trace_compact; or a refit \
+             candidate: bvh_refit, lbvh_refit)"
+        )
     })
 }
 
@@ -162,7 +174,7 @@ impl Args {
                     .iter()
                     .filter_map(|c| match c {
                         Candidate::Ours(n) => Some(*n),
-                        Candidate::Driver(_) => None,
+                        _ => None,
                     })
                     .collect()
             },
@@ -171,7 +183,16 @@ impl Args {
                 .iter()
                 .filter_map(|c| match c {
                     Candidate::Driver(f) => Some(*f),
-                    Candidate::Ours(_) => None,
+                    _ => None,
+                })
+                .collect(),
+            // Refit candidates: as listed, or both for an animation when nothing is listed (set per scene).
+            refit: self
+                .structures
+                .iter()
+                .filter_map(|c| match c {
+                    Candidate::Refit(r) => Some(*r),
+                    _ => None,
                 })
                 .collect(),
             camera: self.camera,
@@ -378,6 +399,44 @@ fn print_table(e: &SceneEvaluation) {
             }
         }
     }
+    if !e.refit_structures.is_empty() {
+        println!("  refit candidates (frame 0 built, every later frame refitted):");
+        println!(
+            "  {:<12} {:>10} {:>10} {:>10} {:>18} {:>9} {:>9} {:>15} {:>5} {:>5}",
+            "",
+            "build ms",
+            "refit ms",
+            "trace ms",
+            "total ms",
+            "box/ray",
+            "tri/ray",
+            "SAH first/last",
+            "valid",
+            "agree"
+        );
+        for r in &e.refit_structures {
+            println!(
+                "  {:<12} {:>10.2} {:>10.2} {:>10.2} {:>11.2} ±{:<6.2} {:>9.2} {:>9.2} {:>15} {:>5} {:>5}",
+                r.name,
+                r.build_ms,
+                r.refit_ms,
+                r.trace_ms,
+                r.total_ms,
+                r.total_ms_spread,
+                r.box_tests_per_ray,
+                r.prim_tests_per_ray,
+                r.sah_first_last.map(|[a, b]| format!("{a:.1}/{b:.1}")).unwrap_or_else(|| "-".into()),
+                r.valid,
+                r.hits_agree
+            );
+            if let Some(err) = &r.error {
+                println!("          error: {err}");
+            }
+        }
+        if let Some(b) = &e.best_candidate {
+            println!("  best of all candidates (rebuilt and refitted): {b}");
+        }
+    }
 }
 
 fn append_line(path: &Path, line: &str) -> std::io::Result<()> {
@@ -472,6 +531,10 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
             tracer.as_ref().map_or_else(|| "nothing (no records)".into(), |t| t.describe())
         );
     }
+    let samples = match &args.frames_sweep {
+        Some(f) => meshchar::eval::compare::with_frames(&samples, &f.0),
+        None => samples,
+    };
     let c = compare(&samples, args.tie_margin.tie_margin, &device)?;
     if args.json.json {
         println!("{}", serde_json::json!(c));
@@ -618,6 +681,9 @@ fn scene(
     };
     let mut config = args.config();
     config.rebuild = args.rebuild.unwrap_or(if scene.is_dynamic() { Rebuild::PerFrame } else { Rebuild::Once });
+    if args.structures.is_empty() && scene.is_dynamic() && args.trace_backend == TraceBackend::Cpu {
+        config.refit = RefitCandidate::ALL.to_vec();
+    }
     if let Some(v) = args.view {
         let f = scene.frames.len().min(config.frames.unwrap_or(scene.frames.len()).max(1));
         let b = scene.frames[..f].iter().fold(meshchar::geom::Aabb::EMPTY, |a, m| a.union(&mesh_bounds(m)));

@@ -582,3 +582,23 @@ fn view_features_tell_inside_from_outside_and_a_view_enters_only_a_model_fitted_
         assert_eq!(model.predict(&samples[0].features, &w_in), model.predict(&samples[0].features, &w_out));
     }
 }
+
+#[test]
+fn a_static_sample_stands_for_more_frames_with_the_same_build_and_trace() {
+    use meshchar::eval::compare::with_frames;
+    let (mut samples, _) = known_samples(3);
+    samples[2].workload.frames = 5;
+    samples[2].workload.builds = 5;
+    let out = with_frames(&samples, &[1, 10, 1000]);
+    assert_eq!(out.len(), 2 * 3 + 1, "two static one-frame samples swept, the per-frame one kept once");
+    for (k, f) in [1u64, 10, 1000].into_iter().enumerate() {
+        let (a, d) = (&samples[0], &out[k]);
+        assert_eq!((d.workload.frames, d.workload.builds), (f, 1));
+        for (m, n) in a.measured.iter().zip(&d.measured) {
+            let want = m.build_ms + f as f64 * m.trace_ms;
+            assert!((n.total_ms - want).abs() <= 1e-12 * want, "{f}: {} vs {want}", n.total_ms);
+            assert_eq!(n.trace_ns_per_ray, m.trace_ns_per_ray);
+        }
+    }
+    assert_eq!(out[6], samples[2]);
+}

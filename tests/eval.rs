@@ -391,3 +391,43 @@ fn a_record_keeps_its_camera_and_its_sample_reads_the_view_from_it() {
         assert_eq!(v.eye_inside, want_inside);
     }
 }
+
+#[test]
+fn refit_candidates_build_frame_0_refit_the_rest_and_agree_with_the_reference() {
+    use meshchar::eval::oracle::RefitCandidate;
+    let anim = Animation::new("anim", vec![scene(200, 0.0), scene(200, 0.3), scene(200, 0.6)]).unwrap();
+    let mut c = config(WorkloadKind::Primary);
+    c.structures = vec![StructureName::Bvh, StructureName::Lbvh];
+    c.rebuild = Rebuild::PerFrame;
+    c.refit = RefitCandidate::ALL.to_vec();
+    let lines = std::sync::Mutex::new(Vec::<String>::new());
+    let e = evaluate_scene(&anim, &c, None, &|l| lines.lock().unwrap().push(l.to_string())).unwrap();
+    let names: Vec<&str> = e.refit_structures.iter().map(|r| r.name.as_str()).collect();
+    assert_eq!(names, ["bvh_refit", "lbvh_refit"]);
+    for r in &e.refit_structures {
+        assert!(r.valid && r.hits_agree && r.error.is_none(), "{r:?}");
+        assert_eq!(r.rays as usize, 3 * 24 * 24);
+        assert_eq!((r.frame_update_ms.len(), r.frame_trace_ms.len()), (3, 3));
+        assert!(r.build_ms > 0.0 && r.refit_ms > 0.0 && r.trace_ms > 0.0 && r.total_ms > 0.0, "{r:?}");
+        // Frame 0's tree is the rebuilt structure's: the same SAH cost.
+        let rebuilt = e.get(RefitCandidate::parse(&r.name).unwrap().structure()).unwrap();
+        assert_eq!(r.sah_first_last.map(|s| s[0]), rebuilt.sah_cost, "{}", r.name);
+        assert_eq!(RefitCandidate::parse(&r.name).map(|c| c.name()), Some(r.name.as_str()));
+        // Every frame repeated `repeats` times.
+        let runs = lines.lock().unwrap().iter().filter(|l| l.ends_with(&format!(": {}", r.name))).count();
+        assert_eq!(runs, 3 * 3);
+    }
+    // The best of every candidate is named, and the records keep the refit results.
+    let best = e.best_candidate.clone().expect("a best candidate");
+    let all = ["bvh", "lbvh", "bvh_refit", "lbvh_refit"];
+    assert!(all.contains(&best.as_str()), "{best}");
+    let least = all.iter().filter_map(|n| e.candidate_total(n)).fold(f64::INFINITY, f64::min);
+    assert_eq!(e.candidate_total(&best), Some(least));
+    let rec = meshchar::eval::record::OracleRecord::from_json_line(&e.record().to_json_line()).unwrap();
+    assert_eq!(rec.refit_structures, e.refit_structures);
+    // A static scene has nothing to refit.
+    let one = Animation::new("static", vec![scene(200, 0.0)]).unwrap();
+    c.rebuild = Rebuild::Once;
+    let e = evaluate_scene(&one, &c, None, &|_| {}).unwrap();
+    assert!(e.refit_structures.is_empty() && e.best_candidate.is_none());
+}

@@ -509,3 +509,35 @@ pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> B
     policies.push(run("calibrated", "in_sample", ins));
     Baselines { families, workloads, policies }
 }
+
+/// Static samples rendered over more frames: every sample of a static scene measured over one frame with one
+/// build (`frames == 1`, `builds == 1`) stands, for each `F` of `frames`, for a sample of `F` frames with the same
+/// build: each structure's total becomes `build_ms + F * trace_ms`, the oracle's own total for a static scene
+/// built once ([`super::oracle`]), from the same measured build and trace. Other samples (animations, per-frame
+/// rebuilds, several frames measured) are kept once, as they are. The derived samples carry no noise verdict
+/// (`within_noise_of_best` is false): the oracle measured one frame, not `F`.
+pub fn with_frames(samples: &[Sample], frames: &[u64]) -> Vec<Sample> {
+    let mut out = Vec::new();
+    for s in samples {
+        let sweepable = s.workload.frames == 1 && s.workload.builds == 1 && s.frame_features.is_empty();
+        if !sweepable || frames.is_empty() {
+            out.push(s.clone());
+            continue;
+        }
+        for &f in frames {
+            let f = f.max(1);
+            let mut d = s.clone();
+            d.workload.frames = f;
+            if f > 1 {
+                for m in d.measured.iter_mut() {
+                    m.trace_ms *= f as f64;
+                    m.total_ms = m.build_ms + m.trace_ms;
+                    m.within_noise_of_best = false;
+                }
+                d.driver.clear();
+            }
+            out.push(d);
+        }
+    }
+    out
+}

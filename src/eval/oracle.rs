@@ -14,10 +14,14 @@
 //! * A static scene (one mesh) rendered for `F` frames: `total = B + F * T` when the structure is built once,
 //!   `F * (B + T)` when rebuilt every frame, with `B`, `T` the build and trace time of one frame.
 //! * An animation (several meshes, one topology): frames `0 .. F` are used, each rebuilt and traced:
-//!   `total = sum_f (B_f + T_f)`. Building once is refused for an animation: the oracle builds every structure
-//!   through [`AccelStructure`], which has no refit (of the six, only the BVH family can be refitted, with
-//!   [`crate::accel::bvh::BvhTree::refit`]; [`crate::eval::failure_study::refit_study`] measures refitting against
-//!   rebuilding), and tracing frame `f` through frame 0's structure without a refit would give wrong hits.
+//!   `total = sum_f (B_f + T_f)`. Building once is refused for an animation (tracing frame `f` through frame 0's
+//!   structure without an update would give wrong hits).
+//! * **Refit candidates** of an animation ([`OracleConfig::refit`], `bvh_refit` and `lbvh_refit`): frame 0 built,
+//!   every later frame refitted ([`crate::accel::bvh::BvhTree::refit`]) and traced, every frame's hits checked
+//!   against the reference: `total = B_0 + sum_{f >= 1} R_f + sum_f T_f`. They are candidates of their own
+//!   ([`SceneEvaluation::refit_structures`], named in [`SceneEvaluation::best_candidate`]), so that what refitting
+//!   saves is measured rather than predicted; they are measured with `repeats` repeats (no precision target) on
+//!   the CPU tracer.
 //!
 //! The **oracle best** is the structure with the smallest median total among those that built, validated and
 //! agreed with the reference hits. The **regret** of a selection `s` is `total(s) / total(best) - 1`.
@@ -28,6 +32,16 @@
 //! noise* of each other when their medians differ by no more than the sum of their spreads; a regret is within
 //! noise when the selection is within noise of the best. With one repeat the spread is zero and nothing is ever
 //! within noise: use at least three repeats to judge.
+//!
+//! # The precise oracle
+//!
+//! With [`OracleConfig::precision`] set (0.02 for +-2%), each structure is measured `repeats` times and then again,
+//! interleaved with the others still short of the target, until the distribution-free 95% confidence interval of
+//! its median total ([`median_ci95`], the sign-test interval from order statistics: at least 6 repeats) lies within
+//! the target of the median, or [`OracleConfig::max_repeats`] is reached; each structure's `precision_met` says
+//! which. With intervals, two totals are within noise when their intervals overlap. On an animation, frame 0
+//! decides the repeats and later frames repeat each structure as often, so that every repeat's total covers every
+//! frame.
 //!
 //! # Trace budget
 //!
@@ -341,6 +355,115 @@ pub struct OracleConfig {
     pub precision: Option<f64>,
     /// The most repeats of one structure under `precision`.
     pub max_repeats: usize,
+    /// Refit candidates to measure on an animation beside the rebuilt structures ([`RefitCandidate`]): frame 0
+    /// built, every later frame refitted. Ignored for a static scene; measured on the CPU tracer only.
+    pub refit: Vec<RefitCandidate>,
+}
+
+/// A candidate that builds frame 0 of an animation and refits the tree to every later frame
+/// ([`crate::accel::bvh::BvhTree::refit`]) instead of rebuilding it: what an engine does with a deforming mesh.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum RefitCandidate {
+    /// The binned-SAH BVH, refitted: `bvh_refit`.
+    #[serde(rename = "bvh_refit")]
+    Bvh,
+    /// The LBVH, refitted: `lbvh_refit`.
+    #[serde(rename = "lbvh_refit")]
+    Lbvh,
+}
+
+impl RefitCandidate {
+    /// Every refit candidate.
+    pub const ALL: [RefitCandidate; 2] = [RefitCandidate::Bvh, RefitCandidate::Lbvh];
+
+    /// `bvh_refit` or `lbvh_refit`.
+    pub fn name(self) -> &'static str {
+        match self {
+            RefitCandidate::Bvh => "bvh_refit",
+            RefitCandidate::Lbvh => "lbvh_refit",
+        }
+    }
+
+    /// Parses [`RefitCandidate::name`].
+    pub fn parse(s: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|c| c.name() == s)
+    }
+
+    /// The structure it builds on frame 0.
+    pub fn structure(self) -> StructureName {
+        match self {
+            RefitCandidate::Bvh => StructureName::Bvh,
+            RefitCandidate::Lbvh => StructureName::Lbvh,
+        }
+    }
+
+    fn build(self, mesh: &Mesh) -> Result<Refitted, crate::accel::AccelError> {
+        Ok(match self {
+            RefitCandidate::Bvh => Refitted::Bvh(crate::accel::bvh::Bvh::build(mesh)?),
+            RefitCandidate::Lbvh => Refitted::Lbvh(crate::accel::lbvh::Lbvh::build(mesh)?),
+        })
+    }
+}
+
+/// A tree that is refitted frame after frame.
+enum Refitted {
+    Bvh(crate::accel::bvh::Bvh),
+    Lbvh(crate::accel::lbvh::Lbvh),
+}
+
+impl Refitted {
+    fn accel(&self) -> &dyn AccelStructure {
+        match self {
+            Refitted::Bvh(b) => b,
+            Refitted::Lbvh(l) => l,
+        }
+    }
+
+    fn refit(&mut self, mesh: &Mesh) -> Result<(), crate::accel::AccelError> {
+        match self {
+            Refitted::Bvh(b) => b.refit(mesh),
+            Refitted::Lbvh(l) => l.refit(mesh),
+        }
+    }
+}
+
+/// What the oracle measured for one refit candidate on an animation.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RefitResult {
+    /// `bvh_refit` or `lbvh_refit`.
+    pub name: String,
+    /// Median build of frame 0, ms.
+    pub build_ms: f64,
+    /// Median of the refits of frames 1 and later, summed, ms.
+    pub refit_ms: f64,
+    /// Median trace time over every frame, ms.
+    pub trace_ms: f64,
+    /// Median total (build, refits and traces of every frame), ms.
+    pub total_ms: f64,
+    /// Half the range of the totals over the repeats, ms.
+    pub total_ms_spread: f64,
+    /// Rays traced per repeat (over all measured frames).
+    pub rays: u64,
+    /// Box tests per ray over every frame.
+    pub box_tests_per_ray: f64,
+    /// Triangle tests per ray over every frame.
+    pub prim_tests_per_ray: f64,
+    /// SAH cost of frame 0's tree and of the last frame's refitted tree.
+    pub sah_first_last: Option<[f64; 2]>,
+    /// Memory of the tree, bytes.
+    pub memory_bytes: usize,
+    /// Every refitted tree validated.
+    pub valid: bool,
+    /// Every hit agreed with the reference on every frame.
+    pub hits_agree: bool,
+    /// Rays that disagreed with the reference.
+    pub disagreements: usize,
+    /// The build, refit or validation error, if any.
+    pub error: Option<String>,
+    /// Per frame: the median build (frame 0) or refit (later frames), ms.
+    pub frame_update_ms: Vec<f64>,
+    /// Per frame: the median trace, ms.
+    pub frame_trace_ms: Vec<f64>,
 }
 
 /// Rays the trace-budget check traces per structure and frame (fewer when the workload has fewer).
@@ -407,6 +530,7 @@ impl Default for OracleConfig {
             max_tests_per_ray: DEFAULT_MAX_TESTS_PER_RAY,
             precision: None,
             max_repeats: DEFAULT_MAX_REPEATS,
+            refit: Vec::new(),
         }
     }
 }
@@ -611,9 +735,12 @@ pub struct SceneEvaluation {
     pub structures: Vec<StructureResult>,
     /// The driver's acceleration structures, when asked for ([`OracleConfig::driver`]).
     pub driver_structures: Vec<DriverResult>,
-    /// With driver structures measured: the candidate with the smallest median total among the project's
-    /// structures and the driver's (valid and agreeing with the reference), by name; `None` without driver
-    /// structures or without a best (`oracle_best` stays the best of the project's structures).
+    /// The refit candidates of an animation ([`OracleConfig::refit`]): frame 0 built, later frames refitted.
+    pub refit_structures: Vec<RefitResult>,
+    /// With driver structures or refit candidates measured: the candidate with the smallest median total among
+    /// the project's rebuilt structures, the refitted ones and the driver's (valid and agreeing with the
+    /// reference), by name; `None` without such candidates or without a best (`oracle_best` stays the best of
+    /// the project's rebuilt structures).
     pub best_candidate: Option<String>,
 }
 
@@ -664,6 +791,63 @@ pub struct DriverResult {
     pub frame_trace_ms: Vec<f64>,
 }
 
+/// What the oracle gathers for one refit candidate.
+#[derive(Default)]
+struct RefitAcc {
+    kept: Vec<Option<Refitted>>,
+    /// Per frame, per repeat: build or refit ms, and trace ms.
+    frames: Vec<(Vec<f64>, Vec<f64>)>,
+    rays: u64,
+    box_tests: u64,
+    prim_tests: u64,
+    memory: usize,
+    disagreements: usize,
+    valid: bool,
+    sah_first: Option<f64>,
+    sah_last: Option<f64>,
+    error: Option<String>,
+}
+
+impl RefitAcc {
+    fn result(&self, name: &str, repeats: usize) -> RefitResult {
+        let ok = self.error.is_none() && self.rays > 0;
+        let per_repeat = |pick: &dyn Fn(usize) -> f64| -> Vec<f64> { (0..repeats).map(pick).collect() };
+        let build = per_repeat(&|r| self.frames.first().map_or(0.0, |f| f.0[r]));
+        let refit = per_repeat(&|r| self.frames.iter().skip(1).map(|f| f.0[r]).sum());
+        let traces = per_repeat(&|r| self.frames.iter().map(|f| f.1[r]).sum());
+        let totals: Vec<f64> = (0..repeats).map(|r| build[r] + refit[r] + traces[r]).collect();
+        let per_ray = |x: u64| if self.rays > 0 { x as f64 / self.rays as f64 } else { 0.0 };
+        let med = |v: &[f64]| if ok { Measurement::of(v).median } else { 0.0 };
+        RefitResult {
+            name: name.to_string(),
+            build_ms: med(&build),
+            refit_ms: med(&refit),
+            trace_ms: med(&traces),
+            total_ms: med(&totals),
+            total_ms_spread: if ok { Measurement::of(&totals).spread } else { 0.0 },
+            rays: self.rays,
+            box_tests_per_ray: per_ray(self.box_tests),
+            prim_tests_per_ray: per_ray(self.prim_tests),
+            sah_first_last: self.sah_first.zip(self.sah_last).map(|(a, b)| [a, b]),
+            memory_bytes: self.memory,
+            valid: ok && self.valid,
+            hits_agree: ok && self.disagreements == 0,
+            disagreements: self.disagreements,
+            error: self.error.clone(),
+            frame_update_ms: if ok {
+                self.frames.iter().map(|f| Measurement::of(&f.0).median).collect()
+            } else {
+                vec![]
+            },
+            frame_trace_ms: if ok {
+                self.frames.iter().map(|f| Measurement::of(&f.1).median).collect()
+            } else {
+                vec![]
+            },
+        }
+    }
+}
+
 /// What the oracle gathers for one driver structure.
 #[derive(Default)]
 struct DriverAcc {
@@ -683,7 +867,7 @@ struct DriverAcc {
 impl SceneEvaluation {
     /// The best of all candidates (see [`SceneEvaluation::best_candidate`]).
     fn best_of_all(&self) -> Option<String> {
-        if self.driver_structures.is_empty() || self.no_best_reason.is_some() {
+        if (self.driver_structures.is_empty() && self.refit_structures.is_empty()) || self.no_best_reason.is_some() {
             return None;
         }
         let ours = self
@@ -693,7 +877,9 @@ impl SceneEvaluation {
             .filter_map(|s| s.name.map(|n| (n.as_str().to_string(), s.total_ms.median)));
         let theirs =
             self.driver_structures.iter().filter(|d| d.valid && d.hits_agree).map(|d| (d.name.clone(), d.total_ms));
-        ours.chain(theirs).min_by(|a, b| a.1.total_cmp(&b.1)).map(|b| b.0)
+        let refitted =
+            self.refit_structures.iter().filter(|d| d.valid && d.hits_agree).map(|d| (d.name.clone(), d.total_ms));
+        ours.chain(theirs).chain(refitted).min_by(|a, b| a.1.total_cmp(&b.1)).map(|b| b.0)
     }
 
     /// The median total of a candidate by name (a project structure's, `bvh`, or a driver structure's,
@@ -706,6 +892,9 @@ impl SceneEvaluation {
             .map(|s| s.total_ms.median);
         ours.or_else(|| {
             self.driver_structures.iter().find(|d| d.name == name && d.valid && d.hits_agree).map(|d| d.total_ms)
+        })
+        .or_else(|| {
+            self.refit_structures.iter().find(|d| d.name == name && d.valid && d.hits_agree).map(|d| d.total_ms)
         })
     }
 
@@ -786,6 +975,7 @@ impl SceneEvaluation {
             triangles: self.triangles,
             workload: self.workload,
             driver_structures: self.driver_structures.clone(),
+            refit_structures: self.refit_structures.clone(),
             best_candidate: self.best_candidate.clone(),
             selected_candidate: None,
             candidate_regret: None,
@@ -892,6 +1082,11 @@ pub fn evaluate_scene_on(
             kept: (0..repeats).map(|_| None).collect(),
             ..Default::default()
         })
+        .collect();
+    let refits: Vec<RefitCandidate> = if animated { config.refit.clone() } else { Vec::new() };
+    let mut racc: Vec<RefitAcc> = refits
+        .iter()
+        .map(|_| RefitAcc { kept: (0..repeats).map(|_| None).collect(), valid: true, ..Default::default() })
         .collect();
     let mut rays_per_frame = 0;
     let mut reference_hits = 0u64;
@@ -1125,6 +1320,69 @@ pub fn evaluate_scene_on(
                 a.kept[r] = Some(s);
             }
         }
+        for (ri, &cand) in refits.iter().enumerate() {
+            let a = &mut racc[ri];
+            if a.error.is_some() {
+                continue;
+            }
+            if device.is_some() {
+                a.error = Some("refit candidates are measured on the CPU tracer only (--trace-backend cpu)".into());
+                continue;
+            }
+            a.frames.push((vec![0.0; repeats], vec![0.0; repeats]));
+            for r in 0..repeats {
+                progress(&format!(
+                    "{}: frame {}/{} repeat {}/{}: {}",
+                    scene.name,
+                    fi + 1,
+                    measured.len(),
+                    r + 1,
+                    repeats,
+                    cand.name()
+                ));
+                let t = Instant::now();
+                let updated = match a.kept[r].take() {
+                    Some(mut s) => s.refit(mesh).map(|_| s),
+                    None => cand.build(mesh),
+                };
+                let update_ms = ms(t);
+                let s = match updated {
+                    Ok(s) => s,
+                    Err(e) => {
+                        a.error = Some(e.to_string());
+                        break;
+                    }
+                };
+                if r == 0 {
+                    if let Err(e) = check_trace_budget(s.accel(), &rays, config.max_tests_per_ray) {
+                        a.error = Some(e);
+                        break;
+                    }
+                }
+                let out = trace(s.accel(), &rays);
+                if let Some(f) = a.frames.last_mut() {
+                    f.0[r] = update_ms;
+                    f.1[r] = out.seconds * 1e3;
+                }
+                if r == 0 {
+                    a.rays += out.rays() as u64;
+                    a.box_tests += out.counters.box_tests;
+                    a.prim_tests += out.counters.prim_tests;
+                    a.memory = a.memory.max(s.accel().memory_bytes());
+                    a.disagreements += count_disagreements(&out, &want);
+                    if let Err(e) = s.accel().validate() {
+                        a.valid = false;
+                        a.error.get_or_insert(e.to_string());
+                    }
+                    let sah = s.accel().sah_cost();
+                    if fi == 0 {
+                        a.sah_first = sah;
+                    }
+                    a.sah_last = sah;
+                }
+                a.kept[r] = Some(s);
+            }
+        }
     }
     let mut results: Vec<StructureResult> = names
         .iter()
@@ -1207,6 +1465,7 @@ pub fn evaluate_scene_on(
     };
     let mut e = SceneEvaluation {
         best_candidate: None,
+        refit_structures: Vec::new(),
         mesh: scene.name.clone(),
         triangles: first.triangle_count(),
         frames_measured: measured.len(),
@@ -1270,6 +1529,7 @@ pub fn evaluate_scene_on(
             })
             .collect(),
     };
+    e.refit_structures = refits.iter().zip(&racc).map(|(c, a)| a.result(c.name(), repeats)).collect();
     e.best_candidate = e.best_of_all();
     Ok(e)
 }

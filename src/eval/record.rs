@@ -316,6 +316,10 @@ pub struct OracleRecord {
     /// `--trace-backend vulkan`; see [`crate::accel::driver`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub driver_structures: Vec<super::oracle::DriverResult>,
+    /// The refit candidates of an animation (`bvh_refit`, `lbvh_refit`: frame 0 built, later frames refitted;
+    /// see [`super::oracle::RefitResult`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub refit_structures: Vec<super::oracle::RefitResult>,
     /// With driver structures: the best of all candidates by median total (the project's and the driver's).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub best_candidate: Option<String>,
