@@ -692,7 +692,11 @@ fn scene(
     // Steps: the selection, then per measured frame the reference and every structure at every repeat.
     let frames =
         if scene.is_dynamic() { config.frames.unwrap_or(scene.frames.len()).clamp(1, scene.frames.len()) } else { 1 };
-    bar.item(i, 1 + frames * (1 + config.repeats * config.structures.len()), &scene.name);
+    bar.item(
+        i,
+        1 + frames * (1 + config.repeats * (config.structures.len() + config.refit.len() + config.driver.len())),
+        &scene.name,
+    );
     bar.step(&format!("{}: characterization and selection", scene.name));
     let policy = args.policy.policy;
     let selection = select(engine, &scene, &config, policy, model, args.tie_margin.tie_margin);

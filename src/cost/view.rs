@@ -18,7 +18,7 @@
 //! predicts for the framing view; a calibration fitted without them (no `view_box_coef`) ignores the view.
 
 use crate::geom::Aabb;
-use crate::trace::Camera;
+use crate::geom::Camera;
 use glam::Vec3;
 
 /// Names of the view features, in the order of [`ViewFeatures::row`].

@@ -12,11 +12,13 @@
 //! of `f32::MAX` instead of infinity, so that no slab test ever computes `0 * inf`.
 
 mod aabb;
+pub mod camera;
 mod clip;
 mod ray;
 mod triangle;
 
 pub use aabb::Aabb;
+pub use camera::Camera;
 pub(crate) use clip::Polygon;
 pub(crate) use ray::RayInv;
 #[cfg(test)]

@@ -198,7 +198,7 @@ pub struct CalibratedPolicy {
     /// calibrated with views weighs them; see [`crate::cost::view`]). `None` (the default): the framing camera of
     /// the scene's bounds, the oracle's default. The per-frame rule of an animation ([`FrameRule`]) does not read
     /// it yet.
-    pub camera: Option<crate::trace::Camera>,
+    pub camera: Option<crate::geom::Camera>,
 }
 
 impl CalibratedPolicy {

@@ -283,7 +283,7 @@ pub struct TargetWorkload {
     pub driver: bool,
     /// The camera the rays will be made from, when the engine knows it ([`CalibratedPolicy::camera`]); `None`: the
     /// framing camera of the scene's bounds.
-    pub camera: Option<crate::trace::Camera>,
+    pub camera: Option<crate::geom::Camera>,
 }
 
 /// What [`select_for_scene`] decided.
