@@ -612,7 +612,12 @@ impl CostModel {
     /// ([`ViewFeatures::framing`]), the oracle's default camera.
     pub fn predict(&self, f: &Features, w: &Workload) -> Vec<Prediction> {
         let d = f.derived();
-        let w = resolve_view(f, w);
+        // Only a model fitted with views reads them: the others skip the framing camera's slab tests.
+        let w = if self.structures.iter().any(|m| !m.view_box_coef.is_empty() || !m.view_prim_coef.is_empty()) {
+            resolve_view(f, w)
+        } else {
+            *w
+        };
         self.structures.iter().map(|m| m.predict(&d, f.total_triangles.max(f.triangles), &w)).collect()
     }
 
@@ -710,8 +715,8 @@ impl CostModel {
     }
 }
 
-/// `w` with its view resolved: its own, or the framing camera of the features' bounds (only computed when some
-/// structure model reads views is not known here, so always; it costs [`view::COVERAGE_GRID`]^2 slab tests).
+/// `w` with its view resolved: its own, or the framing camera of the features' bounds (it costs
+/// [`view::COVERAGE_GRID`]^2 slab tests).
 fn resolve_view(f: &Features, w: &Workload) -> Workload {
     Workload { view: Some(w.view.unwrap_or_else(|| ViewFeatures::framing(f.lo, f.hi))), ..*w }
 }
