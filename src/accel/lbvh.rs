@@ -44,8 +44,8 @@
 //! [`min_total`]: crate::keys::min_total
 //! [`max_total`]: crate::keys::max_total
 
-use super::bvh::{fit_boxes, BvhNode, BvhTree};
-use super::{prepare, AccelError, AccelStats, AccelStructure, StructureName};
+use super::bvh::{BvhNode, BvhTree};
+use super::{check_mesh, AccelError, AccelStats, AccelStructure, StructureName};
 use crate::geom::{Aabb, Triangle};
 use crate::keys::{centroid_key, MortonBits};
 use crate::mesh::Mesh;
@@ -91,8 +91,17 @@ pub fn morton_codes(mesh: &Mesh, bits: MortonBits, structure: &'static str) -> R
 
 /// Sorted `(code, triangle)` pairs.
 pub fn sorted_keys(codes: &[u64]) -> Vec<(u64, u32)> {
-    let mut v: Vec<(u64, u32)> = codes.iter().enumerate().map(|(i, &c)| (c, i as u32)).collect();
-    v.par_sort_unstable();
+    let top = codes.par_iter().copied().max().unwrap_or(0);
+    let bits = 64 - top.leading_zeros();
+    // A stable sort by code of the pairs in triangle order sorts them by (code, triangle). Codes of up to 32 bits
+    // travel packed with their index in one u64 (half the bytes per pass).
+    if bits <= 32 && codes.len() <= u32::MAX as usize + 1 {
+        let mut packed: Vec<u64> = codes.par_iter().enumerate().map(|(i, &c)| (c << 32) | i as u64).collect();
+        super::radix::sort_by_key(&mut packed, bits, |x| x >> 32);
+        return packed.par_iter().map(|&x| (x >> 32, x as u32)).collect();
+    }
+    let mut v: Vec<(u64, u32)> = codes.par_iter().enumerate().map(|(i, &c)| (c, i as u32)).collect();
+    super::radix::sort_by_key(&mut v, bits, |x| x.0);
     v
 }
 
@@ -104,12 +113,7 @@ pub fn radix_tree_children(keys: &[(u64, u32)], code_bits: u32) -> Vec<(u32, u32
         if j < 0 || j >= n {
             return -1;
         }
-        let (a, b) = (keys[i as usize], keys[j as usize]);
-        if a.0 != b.0 {
-            (a.0 ^ b.0).leading_zeros() as i64 - (64 - code_bits as i64)
-        } else {
-            code_bits as i64 + (a.1 ^ b.1).leading_zeros() as i64
-        }
+        prefix(keys[i as usize], keys[j as usize], code_bits)
     };
     (0..(n - 1).max(0))
         .into_par_iter()
@@ -150,42 +154,109 @@ pub fn radix_tree_children(keys: &[(u64, u32)], code_bits: u32) -> Vec<(u32, u32
         .collect()
 }
 
+/// Length of the common prefix of two extended keys `code ‖ triangle` (step 3 of the module docs).
+#[inline]
+fn prefix(a: (u64, u32), b: (u64, u32), code_bits: u32) -> i64 {
+    if a.0 != b.0 {
+        (a.0 ^ b.0).leading_zeros() as i64 - (64 - code_bits as i64)
+    } else {
+        code_bits as i64 + (a.1 ^ b.1).leading_zeros() as i64
+    }
+}
+
+/// Ranges of at least this many positions build their two subtrees in parallel.
+const KARRAS_PARALLEL: usize = 4096;
+
 /// The nodes of the Karras tree of `keys` (sorted) in the unified numbering, boxes fitted: internal node `k` has
 /// the children [`radix_tree_children`] gives, the leaf of position `p` holds record `first + p` with the box of
-/// its triangle (`boxes`, in mesh order). Shared by the LBVH and every HLBVH cluster (`first` = the cluster's first
-/// position).
-pub(crate) fn karras_nodes(keys: &[(u64, u32)], bits: MortonBits, boxes: &[Aabb], first: usize) -> Vec<BvhNode> {
+/// its triangle (`leaf_box` of its triangle index). Shared by the LBVH and every HLBVH cluster (`first` = the
+/// cluster's first position).
+///
+/// Built top down in one pass with the box fit: the node over positions `a ..= b` splits after `gamma`, the last
+/// position whose extended key shares more than `delta(a, b)` leading bits with that of `a` (a binary search; the
+/// same split as the Karras construction, which builds this one binary radix tree), its left child is the leaf of
+/// `a` or internal node `gamma`, its right child the leaf of `b` or internal node `gamma + 1`, and its box is the
+/// union of its children's (left, then right, as [`fit_boxes`] takes it). A node over `a ..= b` is internal node
+/// `a` or `b`; the internal nodes below it lie in `a ..= b` without it, so the two subtrees own disjoint parts of
+/// the node array and ranges of [`KARRAS_PARALLEL`] positions and more build them in parallel. The depth is at most
+/// the extended key's bit count, so the recursion is shallow. [`radix_tree_children`] with [`fit_boxes`] is the
+/// reference it is tested against.
+pub(crate) fn karras_nodes<F>(keys: &[(u64, u32)], bits: MortonBits, leaf_box: &F, first: usize) -> Vec<BvhNode>
+where
+    F: Fn(u32) -> Aabb + Sync,
+{
     let m = keys.len();
     if m == 0 {
         return Vec::new();
     }
-    let children = radix_tree_children(keys, bits.total());
     let mut nodes = vec![BvhNode::default(); 2 * m - 1];
-    let (internal, leaves) = nodes.split_at_mut(m - 1);
-    for (nd, &(l, r)) in internal.iter_mut().zip(&children) {
-        *nd = BvhNode::internal(&Aabb::EMPTY, l, r);
+    if m == 1 {
+        nodes[0] = BvhNode::leaf(&leaf_box(keys[0].1), first as u32, 1);
+        return nodes;
     }
-    leaves.par_iter_mut().enumerate().with_min_len(1024).for_each(|(p, nd)| {
-        *nd = BvhNode::leaf(&boxes[keys[p].1 as usize], (first + p) as u32, 1);
-    });
-    // A Karras tree is a tree over all its nodes, so the fit cannot fail; its leaves keep the boxes set here.
-    let fitted = fit_boxes(&mut nodes, |leaf| Some(leaf.aabb()));
-    debug_assert!(fitted.is_ok(), "{fitted:?}");
+    let (internal, leaves) = nodes.split_at_mut(m - 1);
+    let cx = KarrasBuild { keys, code_bits: bits.total(), leaf_box, first: first as u32, m };
+    cx.node(0, m - 1, true, internal, leaves);
     nodes
 }
 
-/// Builds the Karras tree of sorted keys whose triangle boxes are `boxes` (mesh order), with triangle records
-/// `tris`: nodes in the unified numbering and the records in sorted order.
-pub(crate) fn karras_tree(
-    keys: &[(u64, u32)],
-    bits: MortonBits,
-    boxes: &[Aabb],
-    tris: &[Triangle],
-) -> (Vec<BvhNode>, Vec<Triangle>, Vec<u32>) {
-    let nodes = karras_nodes(keys, bits, boxes, 0);
-    let ids: Vec<u32> = keys.iter().map(|k| k.1).collect();
-    let sorted_tris = ids.par_iter().map(|&i| tris[i as usize]).collect();
-    (nodes, sorted_tris, ids)
+/// What every step of [`karras_nodes`] reads.
+struct KarrasBuild<'a, F> {
+    keys: &'a [(u64, u32)],
+    code_bits: u32,
+    leaf_box: &'a F,
+    first: u32,
+    m: usize,
+}
+
+impl<F: Fn(u32) -> Aabb + Sync> KarrasBuild<'_, F> {
+    /// Builds the subtree over positions `a ..= b` (`a < b`). Its node is internal node `a` when it is the root or
+    /// a right child (`own_first`), internal node `b` when it is a left child; `internal` holds exactly the internal
+    /// nodes of the subtree: `a ..= b - 1` for the root and right children, `a + 1 ..= b` for left children (by
+    /// induction from the root's `0 ..= m - 2`: either way the children share `a + 1 ..= b - 1`, the left one taking
+    /// `a + 1 ..= gamma`). `leaves` holds the leaves of `a ..= b`. Returns the subtree's box.
+    fn node(&self, a: usize, b: usize, own_first: bool, internal: &mut [BvhNode], leaves: &mut [BvhNode]) -> Aabb {
+        let keys = self.keys;
+        let dnode = prefix(keys[a], keys[b], self.code_bits);
+        // The last position p in a ..= b - 1 with prefix(a, p) > dnode (p = a qualifies).
+        let (mut lo, mut hi) = (a, b - 1);
+        while lo < hi {
+            let mid = lo + (hi - lo).div_ceil(2);
+            if prefix(keys[a], keys[mid], self.code_bits) > dnode {
+                lo = mid;
+            } else {
+                hi = mid - 1;
+            }
+        }
+        let gamma = lo;
+        let split = if own_first { internal.split_first_mut() } else { internal.split_last_mut() };
+        let Some((own, rest)) = split else { unreachable!("a node over two or more positions owns its own slot") };
+        let (li, ri) = rest.split_at_mut(gamma - a);
+        let (ll, rl) = leaves.split_at_mut(gamma + 1 - a);
+        let leaf_index = |p: usize| (self.m - 1 + p) as u32;
+        let left_index = if a == gamma { leaf_index(a) } else { gamma as u32 };
+        let right_index = if b == gamma + 1 { leaf_index(b) } else { (gamma + 1) as u32 };
+        let left = |li: &mut [BvhNode], ll: &mut [BvhNode]| self.child(a, gamma, false, li, ll);
+        let right = |ri: &mut [BvhNode], rl: &mut [BvhNode]| self.child(gamma + 1, b, true, ri, rl);
+        let (lb, rb) = if b - a >= KARRAS_PARALLEL {
+            rayon::join(|| left(li, ll), || right(ri, rl))
+        } else {
+            (left(li, ll), right(ri, rl))
+        };
+        let bx = lb.union(&rb);
+        *own = BvhNode::internal(&bx, left_index, right_index);
+        bx
+    }
+
+    /// A child over `a ..= b`: the leaf of `a` when `a == b`, else the subtree.
+    fn child(&self, a: usize, b: usize, own_first: bool, internal: &mut [BvhNode], leaves: &mut [BvhNode]) -> Aabb {
+        if a == b {
+            let bx = (self.leaf_box)(self.keys[a].1);
+            leaves[0] = BvhNode::leaf(&bx, self.first + a as u32, 1);
+            return bx;
+        }
+        self.node(a, b, own_first, internal, leaves)
+    }
 }
 
 /// `x`, or 0 where it is below the smallest normal f32: the collapse's arithmetic never meets a subnormal, so a
@@ -299,11 +370,14 @@ pub struct Lbvh {
 impl Lbvh {
     /// Builds with explicit options.
     pub fn build_with(mesh: &Mesh, o: &LbvhOptions) -> Result<Self, AccelError> {
-        let (tris, boxes) = prepare(mesh, "lbvh")?;
+        check_mesh(mesh, "lbvh")?;
         let codes = morton_codes(mesh, o.bits, "lbvh")?;
         let keys = sorted_keys(&codes);
-        let (nodes, tris, ids) = karras_tree(&keys, o.bits, &boxes, &tris);
-        let nodes = collapse_leaves(&nodes, o.max_leaf);
+        // Leaf boxes and triangle records straight from the mesh, the records in sorted order.
+        let nodes = karras_nodes(&keys, o.bits, &|i| Aabb::of_triangle(&mesh.triangle(i as usize)), 0);
+        let nodes = if o.max_leaf.min(MAX_COLLAPSE_LEAF) > 1 { collapse_leaves(&nodes, o.max_leaf) } else { nodes };
+        let ids: Vec<u32> = keys.par_iter().map(|k| k.1).collect();
+        let tris = ids.par_iter().map(|&i| Triangle::new(&mesh.triangle(i as usize))).collect();
         Ok(Lbvh {
             tree: BvhTree { nodes, tris, ids, copies: Vec::new() },
             codes: keys.iter().map(|k| k.0).collect(),
@@ -417,6 +491,7 @@ pub(crate) fn check_karras_shape(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::accel::bvh::fit_boxes;
     use glam::Vec3;
 
     #[test]
@@ -432,6 +507,54 @@ mod tests {
         // index 2 (bit 1) from 0 and 1 (bit 0).
         let keys = [(5, 0), (5, 1), (5, 2)];
         assert_eq!(radix_tree_children(&keys, 3), vec![(1, 4), (2, 3)]);
+    }
+
+    /// The Karras construction node by node ([`radix_tree_children`], then [`fit_boxes`]): the reference of the
+    /// top-down [`karras_nodes`].
+    fn karras_reference(keys: &[(u64, u32)], bits: MortonBits, boxes: &[Aabb], first: usize) -> Vec<BvhNode> {
+        let m = keys.len();
+        let children = radix_tree_children(keys, bits.total());
+        let mut nodes: Vec<BvhNode> = children.iter().map(|&(l, r)| BvhNode::internal(&Aabb::EMPTY, l, r)).collect();
+        nodes.extend((0..m).map(|p| BvhNode::leaf(&boxes[keys[p].1 as usize], (first + p) as u32, 1)));
+        fit_boxes(&mut nodes, |leaf| Some(leaf.aabb())).unwrap();
+        nodes
+    }
+
+    #[test]
+    fn the_top_down_build_equals_the_karras_construction() {
+        let mut seed = 11u64;
+        let mut rnd = move || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            seed >> 33
+        };
+        for &(n, range, bits) in &[
+            (1usize, 1u64 << 30, MortonBits::Bits30),
+            (2, 1 << 30, MortonBits::Bits30),
+            (3, 1, MortonBits::Bits30),
+            (17, 4, MortonBits::Bits30),
+            (1000, 1 << 30, MortonBits::Bits30),
+            (20_000, 1 << 30, MortonBits::Bits30),
+            (20_000, 1, MortonBits::Bits30),
+            (20_000, 64, MortonBits::Bits30),
+            (9_000, 1 << 63, MortonBits::Bits63),
+            (9_000, 3, MortonBits::Bits63),
+        ] {
+            let boxes: Vec<Aabb> = (0..n)
+                .map(|_| {
+                    let p = Vec3::new(rnd() as f32, rnd() as f32, rnd() as f32) / 1e6;
+                    Aabb::new(p, p + Vec3::splat((rnd() % 7) as f32 / 3.0))
+                })
+                .collect();
+            let codes: Vec<u64> = (0..n).map(|_| ((rnd() << 31) ^ rnd()) % range).collect();
+            let keys = sorted_keys(&codes);
+            let mut expect = keys.clone();
+            expect.sort_unstable();
+            assert_eq!(keys, expect, "sorted keys, n {n}");
+            for first in [0, 5] {
+                let got = karras_nodes(&keys, bits, &|i| boxes[i as usize], first);
+                assert_eq!(got, karras_reference(&keys, bits, &boxes, first), "n {n}, codes below {range}");
+            }
+        }
     }
 
     fn unit_box_at(x: f32) -> Aabb {

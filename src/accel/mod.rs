@@ -76,6 +76,7 @@ pub mod hlbvh;
 #[cfg(feature = "eval")]
 pub mod kdtree;
 pub mod lbvh;
+mod radix;
 
 use crate::geom::{Aabb, Hit, Ray, TraceCounters, Triangle};
 use crate::keys::KeyError;
@@ -327,15 +328,23 @@ pub fn build_structure(name: StructureName, mesh: &Mesh) -> Result<Box<dyn Accel
     })
 }
 
-/// Triangle records and bounding boxes of a mesh, in mesh order, after checking the mesh.
-///
-/// Bounding boxes come from the mesh's vertices (also for zero-area triangles).
-pub fn prepare(mesh: &Mesh, structure: &'static str) -> Result<(Vec<Triangle>, Vec<Aabb>), AccelError> {
+/// The checks of [`prepare`] without its arrays: the mesh is valid ([`Mesh::validate`]) and has at most
+/// [`MAX_TRIANGLES`] triangles.
+pub fn check_mesh(mesh: &Mesh, structure: &'static str) -> Result<(), AccelError> {
     mesh.validate()?;
     let n = mesh.triangle_count();
     if n > MAX_TRIANGLES {
         return Err(AccelError::TooLarge { structure, what: "triangles", count: n, limit: MAX_TRIANGLES });
     }
+    Ok(())
+}
+
+/// Triangle records and bounding boxes of a mesh, in mesh order, after checking the mesh.
+///
+/// Bounding boxes come from the mesh's vertices (also for zero-area triangles).
+pub fn prepare(mesh: &Mesh, structure: &'static str) -> Result<(Vec<Triangle>, Vec<Aabb>), AccelError> {
+    check_mesh(mesh, structure)?;
+    let n = mesh.triangle_count();
     use rayon::prelude::*;
     Ok((0..n)
         .into_par_iter()
