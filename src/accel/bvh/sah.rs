@@ -26,7 +26,7 @@ use rayon::prelude::*;
 /// Options of the binned-SAH builder.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BvhOptions {
-    /// Bins per axis (2 to 16).
+    /// Bins per axis (2 to 32) of nodes under 2,048 references; larger nodes get at least 32.
     pub bins: usize,
     /// Largest leaf; nodes above it are always split.
     pub max_leaf: usize,
@@ -40,7 +40,8 @@ impl Default for BvhOptions {
     }
 }
 
-const MAX_BINS: usize = 16;
+/// Bins per axis at most (a power of two: bin indices are masked into the arrays).
+const MAX_BINS: usize = 32;
 const MAX_SAH_DEPTH: u32 = 64;
 const PAR_BIN_THRESHOLD: usize = 65_536;
 
@@ -75,25 +76,30 @@ impl B4 {
     }
 }
 
-/// A triangle reference during the build: its box, with the triangle index in the bits of `min.w`.
+/// A triangle reference during the build: its box, with the triangle index in the `w` lanes, 16 bits in each
+/// ([`index_lane`]).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Ref {
     b: B4,
 }
 
+/// Sixteen bits of a triangle index as the `w` lane of a reference's box: the float of bits
+/// `0x3F80_0000 | k << 7`, in `[1, 2)`. The lanes go through every box operation (unions, differences, products),
+/// so they must be normal numbers: x86 processors take a slow path, tens of times slower, for arithmetic on
+/// subnormal operands, which the raw index bits would be.
+#[inline]
+fn index_lane(k: u32) -> f32 {
+    f32::from_bits(0x3F80_0000 | (k & 0xFFFF) << 7)
+}
+
 impl Ref {
     fn new(b: &Aabb, idx: u32) -> Self {
-        Ref { b: B4 { min: b.min.extend(f32::from_bits(idx)), max: b.max.extend(0.0) } }
+        Ref { b: B4 { min: b.min.extend(index_lane(idx)), max: b.max.extend(index_lane(idx >> 16)) } }
     }
     #[inline]
     fn idx(&self) -> u32 {
-        self.b.min.w.to_bits()
-    }
-    /// For a copy dropped from the leaves ([`dedup_copies`]): the triangle index of the copy kept, plus one (0: not
-    /// a dropped copy).
-    #[inline]
-    fn kept_plus_one(&self) -> u32 {
-        self.b.max.w.to_bits()
+        let lane = |x: f32| (x.to_bits() >> 7) & 0xFFFF;
+        lane(self.b.min.w) | lane(self.b.max.w) << 16
     }
     /// Twice the box centre.
     #[inline]
@@ -102,61 +108,108 @@ impl Ref {
     }
 }
 
-#[derive(Clone, Copy)]
-struct Bin {
-    b: B4,
-    n: u32,
+/// Per axis and bin: the union of the boxes of the references binned there, and their count. One scratch per
+/// thread of the build, reset for the bins a node uses.
+#[derive(Clone)]
+struct Bins {
+    min: [[Vec4; MAX_BINS]; 3],
+    max: [[Vec4; MAX_BINS]; 3],
+    n: [[u32; MAX_BINS]; 3],
 }
 
-const EMPTY_BIN: Bin = Bin { b: B4::EMPTY, n: 0 };
+impl Bins {
+    fn new() -> Box<Bins> {
+        Box::new(Bins {
+            min: [[B4::EMPTY.min; MAX_BINS]; 3],
+            max: [[B4::EMPTY.max; MAX_BINS]; 3],
+            n: [[0; MAX_BINS]; 3],
+        })
+    }
+    fn reset(&mut self, nb: usize) {
+        for a in 0..3 {
+            self.min[a][..nb].fill(B4::EMPTY.min);
+            self.max[a][..nb].fill(B4::EMPTY.max);
+            self.n[a][..nb].fill(0);
+        }
+    }
+    #[inline]
+    fn add(&mut self, refs: &[Ref], g: &Binning) {
+        for r in refs {
+            let bins = g.bins(r.c2());
+            for (a, &i) in bins.iter().enumerate() {
+                self.min[a][i] = self.min[a][i].min(r.b.min);
+                self.max[a][i] = self.max[a][i].max(r.b.max);
+                self.n[a][i] += 1;
+            }
+        }
+    }
+    fn merge(mut self: Box<Self>, o: Box<Self>, nb: usize) -> Box<Self> {
+        for a in 0..3 {
+            for i in 0..nb {
+                self.min[a][i] = self.min[a][i].min(o.min[a][i]);
+                self.max[a][i] = self.max[a][i].max(o.max[a][i]);
+                self.n[a][i] += o.n[a][i];
+            }
+        }
+        self
+    }
+    /// The union of bins `range` of axis `a`.
+    fn union(&self, a: usize, range: std::ops::Range<usize>) -> B4 {
+        let mut b = B4::EMPTY;
+        for i in range {
+            b = b.union(B4 { min: self.min[a][i], max: self.max[a][i] });
+        }
+        b
+    }
+}
 
-type Bins = [[Bin; MAX_BINS]; 3];
-
+/// The mapping of twice a centroid to a bin on each axis: `floor((c2 - cmin) * k)`, clamped to the bins.
 struct Binning {
     cmin: Vec4,
     k: Vec4,
-    nb: usize,
+    top: Vec4,
 }
 
 impl Binning {
+    fn new(cb: &B4, nb: usize) -> Binning {
+        let ext = cb.max - cb.min;
+        let kf = |e: f32| {
+            if e > 0.0 {
+                nb as f32 * (1.0 - 1e-6) / e
+            } else {
+                0.0
+            }
+        };
+        Binning { cmin: cb.min, k: Vec4::new(kf(ext.x), kf(ext.y), kf(ext.z), 0.0), top: Vec4::splat((nb - 1) as f32) }
+    }
+    /// The bin of `c2` on each axis. Clamped in f32 (a NaN lane, which only a sum overflowing to infinity can
+    /// make, lands in bin 0), truncated on all lanes at once, and masked into the bin arrays.
     #[inline]
     fn bins(&self, c2: Vec4) -> [usize; 3] {
-        // Clamped in f32 first: the integer conversions then need no saturation.
-        let x = ((c2 - self.cmin) * self.k).clamp(Vec4::ZERO, Vec4::splat((self.nb - 1) as f32));
-        [x.x as u32 as usize, x.y as u32 as usize, x.z as u32 as usize]
-    }
-    #[inline]
-    fn bin(&self, c2: Vec4, axis: usize) -> usize {
-        let x = (c2[axis] - self.cmin[axis]) * self.k[axis];
-        (x as usize).min(self.nb - 1)
+        let x = ((c2 - self.cmin) * self.k).max(Vec4::ZERO).min(self.top);
+        let i = truncate(x);
+        [i[0] as usize & (MAX_BINS - 1), i[1] as usize & (MAX_BINS - 1), i[2] as usize & (MAX_BINS - 1)]
     }
 }
 
-fn bin_refs(refs: &[Ref], g: &Binning) -> Bins {
-    let mut bins = [[EMPTY_BIN; MAX_BINS]; 3];
-    bin_refs_into(refs, g, &mut bins);
-    bins
-}
-
-fn bin_refs_into(refs: &[Ref], g: &Binning, bins: &mut Bins) {
-    for r in refs {
-        let [b0, b1, b2] = g.bins(r.c2());
-        for (axis_bins, bi) in bins.iter_mut().zip([b0, b1, b2]) {
-            let bin = &mut axis_bins[bi];
-            bin.n += 1;
-            bin.b = bin.b.union(r.b);
-        }
+/// The lanes of `x` (each in `0 ..= MAX_BINS - 1`) truncated to integers, in one instruction where SSE2 exists.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+fn truncate(x: Vec4) -> [u32; 4] {
+    use std::arch::x86_64::{__m128, __m128i, _mm_cvttps_epi32};
+    let v: __m128 = x.into();
+    // SAFETY: SSE2 is part of every x86_64 target; __m128i and [u32; 4] are 16 plain bytes, every bit pattern a
+    // valid [u32; 4].
+    unsafe {
+        let i: __m128i = _mm_cvttps_epi32(v);
+        std::mem::transmute::<__m128i, [u32; 4]>(i)
     }
 }
 
-fn merge_bins(mut a: Bins, b: Bins) -> Bins {
-    for (x, y) in a.iter_mut().zip(b.iter()) {
-        for (p, q) in x.iter_mut().zip(y.iter()) {
-            p.n += q.n;
-            p.b = p.b.union(q.b);
-        }
-    }
-    a
+#[cfg(not(target_arch = "x86_64"))]
+#[inline]
+fn truncate(x: Vec4) -> [u32; 4] {
+    [x.x as u32, x.y as u32, x.z as u32, 0]
 }
 
 fn ref_bounds(refs: &[Ref]) -> (B4, B4) {
@@ -176,48 +229,93 @@ fn ref_bounds(refs: &[Ref]) -> (B4, B4) {
     }
 }
 
-/// Best binned split: `(axis, first bin of the right side, cost = A_L N_L + A_R N_R in half areas)`.
-fn find_split(refs: &[Ref], cb: &B4, nb: usize) -> Option<(usize, usize, f32, Binning)> {
-    let ext = cb.max - cb.min;
-    let kf = |e: f32| {
-        if e > 0.0 {
-            nb as f32 * (1.0 - 1e-6) / e
-        } else {
-            0.0
-        }
-    };
-    let g = Binning { cmin: cb.min, k: Vec4::new(kf(ext.x), kf(ext.y), kf(ext.z), 0.0), nb };
+/// The best binned split of a node.
+struct Split {
+    axis: usize,
+    /// First bin of the right side.
+    bin: usize,
+    /// `A_L N_L + A_R N_R` in half areas.
+    cost: f32,
+    /// Boxes of the two sides (unions of their bins).
+    left: B4,
+    right: B4,
+    g: Binning,
+}
+
+/// Bins `refs` on all three axes into `nb` bins over the centroid bounds `cb` and sweeps each axis for the plane of
+/// least `A_L N_L + A_R N_R` (ties: the more balanced, then the lower axis and plane). `None` when the centroids
+/// coincide.
+fn find_split(refs: &[Ref], cb: &B4, nb: usize, bins: &mut Bins) -> Option<Split> {
+    let g = Binning::new(cb, nb);
     if g.k == Vec4::ZERO {
         return None;
     }
-    let mut bins = [[EMPTY_BIN; MAX_BINS]; 3];
     if refs.len() >= PAR_BIN_THRESHOLD {
-        bins = refs.par_chunks(16_384).map(|c| bin_refs(c, &g)).reduce(|| [[EMPTY_BIN; MAX_BINS]; 3], merge_bins);
+        let merged = refs
+            .par_chunks(16_384)
+            .fold(
+                || {
+                    let mut b = Bins::new();
+                    b.reset(nb);
+                    b
+                },
+                |mut b, c| {
+                    b.add(c, &g);
+                    b
+                },
+            )
+            .reduce_with(|x, y| x.merge(y, nb));
+        if let Some(m) = merged {
+            *bins = *m;
+        }
     } else {
-        bin_refs_into(refs, &g, &mut bins);
+        bins.reset(nb);
+        bins.add(refs, &g);
     }
     let n = refs.len() as i64;
     let mut best: Option<(usize, usize, f32, i64)> = None;
-    for (a, ab) in bins.iter().enumerate() {
+    for a in 0..3 {
         if g.k[a] == 0.0 {
             continue;
         }
-        sweep_bins::<B4, MAX_BINS>(
-            nb,
-            |i| (ab[i].b, ab[i].n),
-            |i, cost, cnt| {
-                let imbalance = (2 * cnt as i64 - n).abs();
-                let better = match best {
-                    None => true,
-                    Some((_, _, bc, bi)) => cost < bc || (cost == bc && imbalance < bi),
-                };
-                if better {
-                    best = Some((a, i, cost, imbalance));
-                }
-            },
-        );
+        let (mins, maxs, counts) = (&bins.min[a], &bins.max[a], &bins.n[a]);
+        let mut right_area = [0.0f32; MAX_BINS];
+        let mut right_n = [0u32; MAX_BINS];
+        let (mut lo, mut hi, mut cnt) = (B4::EMPTY.min, B4::EMPTY.max, 0u32);
+        for i in (1..nb).rev() {
+            lo = lo.min(mins[i]);
+            hi = hi.max(maxs[i]);
+            cnt += counts[i];
+            right_area[i] = B4 { min: lo, max: hi }.half_area();
+            right_n[i] = cnt;
+        }
+        let (mut lo, mut hi, mut cnt) = (B4::EMPTY.min, B4::EMPTY.max, 0u32);
+        for i in 1..nb {
+            lo = lo.min(mins[i - 1]);
+            hi = hi.max(maxs[i - 1]);
+            cnt += counts[i - 1];
+            if cnt == 0 || right_n[i] == 0 {
+                continue;
+            }
+            let cost = B4 { min: lo, max: hi }.half_area() * cnt as f32 + right_area[i] * right_n[i] as f32;
+            let imbalance = (2 * cnt as i64 - n).abs();
+            let better = match best {
+                None => true,
+                Some((_, _, bc, bi)) => cost < bc || (cost == bc && imbalance < bi),
+            };
+            if better {
+                best = Some((a, i, cost, imbalance));
+            }
+        }
     }
-    best.map(|(a, i, c, _)| (a, i, c, g))
+    best.map(|(axis, bin, cost, _)| Split {
+        axis,
+        bin,
+        cost,
+        left: bins.union(axis, 0..bin),
+        right: bins.union(axis, bin..nb),
+        g,
+    })
 }
 
 /// A box the SAH sweep accumulates: [`Aabb`] (the HLBVH's top level) or the builder's SIMD box.
@@ -306,31 +404,131 @@ pub(crate) fn partition<T>(v: &mut [T], mut left: impl FnMut(&T) -> bool) -> usi
     i
 }
 
-/// In-place partition that also returns the box and centroid box (of `min + max`) of each side.
-fn partition_with_bounds(v: &mut [Ref], mut left: impl FnMut(&Ref) -> bool) -> (usize, [B4; 4]) {
-    let (mut lb, mut lcb, mut rb, mut rcb) = (B4::EMPTY, B4::EMPTY, B4::EMPTY, B4::EMPTY);
-    let mut i = 0;
-    let mut j = v.len();
-    while i < j {
-        let r = v[i];
-        if left(&r) {
-            lb = lb.union(r.b);
-            lcb.grow(r.c2());
-            i += 1;
-        } else {
-            rb = rb.union(r.b);
-            rcb.grow(r.c2());
-            j -= 1;
-            v.swap(i, j);
+/// Partitions `v` on the bin of each reference's centroid on `axis` (the bin the split was found with): left
+/// (bins below `bin`) first, in input order, then right. Branch-free: every reference is written to the next slot
+/// of its side in `tmp` (left from the front, right from the back), then copied back while the centroid boxes (of
+/// `min + max`) of both sides are taken. Returns the size of the left side and the two centroid boxes.
+fn partition_split(v: &mut [Ref], tmp: &mut [Ref], g: &Binning, axis: usize, bin: usize) -> (usize, B4, B4) {
+    let n = v.len();
+    let tmp = &mut tmp[..n];
+    let (mut l, mut r) = (0usize, n);
+    for x in v.iter() {
+        let left = g.bins(x.c2())[axis] < bin;
+        let at = if left { l } else { r - 1 };
+        tmp[at] = *x;
+        l += left as usize;
+        r -= (!left) as usize;
+    }
+    let (mut lcb, mut rcb) = (B4::EMPTY, B4::EMPTY);
+    for (d, s) in v[..l].iter_mut().zip(&tmp[..l]) {
+        *d = *s;
+        lcb.grow(s.c2());
+    }
+    for (d, s) in v[l..].iter_mut().zip(tmp[l..].iter().rev()) {
+        *d = *s;
+        rcb.grow(s.c2());
+    }
+    (l, lcb, rcb)
+}
+
+/// Nodes of at most this many references are split by an exact sweep ([`exact_split`]) instead of binning.
+const EXACT_MAX: usize = 8;
+
+/// The exact SAH sweep of a small node: on each axis the references sorted by centroid (then index), every
+/// position between two of them a candidate, `A_L N_L + A_R N_R` from prefix and suffix boxes (ties: the more
+/// balanced, then the lower axis and position). Reorders `refs` by the chosen axis and returns `(cost, left size,
+/// left box, right box)`; `None` for fewer than two references.
+fn exact_split(refs: &mut [Ref]) -> Option<(f32, usize, B4, B4)> {
+    let n = refs.len();
+    if !(2..=EXACT_MAX).contains(&n) {
+        return None;
+    }
+    if n == 2 {
+        // Every axis gives the same two sides; the order is by centroid on the first axis that separates them.
+        let (c0, c1) = (refs[0].c2(), refs[1].c2());
+        let swap = (0..3).find(|&a| c0[a] != c1[a]).map_or(refs[1].idx() < refs[0].idx(), |a| c1[a] < c0[a]);
+        if swap {
+            refs.swap(0, 1);
+        }
+        let cost = refs[0].b.half_area() + refs[1].b.half_area();
+        return Some((cost, 1, refs[0].b, refs[1].b));
+    }
+    let mut boxes = [B4::EMPTY; EXACT_MAX];
+    let mut c = [[0u64; EXACT_MAX]; 3];
+    for (i, r) in refs.iter().enumerate() {
+        boxes[i] = r.b;
+        let (c2, id) = (r.c2(), u64::from(r.idx()));
+        for (a, ca) in c.iter_mut().enumerate() {
+            ca[i] = u64::from(ordered_bits(c2[a])) << 32 | id;
         }
     }
-    (i, [lb, lcb, rb, rcb])
+    // (cost, imbalance, axis, left size); the order of the best axis is recomputed at the end.
+    let mut best: Option<(f32, usize, usize, usize)> = None;
+    let mut order = [0usize; EXACT_MAX];
+    for (a, ca) in c.iter().enumerate() {
+        ranks_into(&ca[..n], &mut order);
+        let mut right_area = [0.0f32; EXACT_MAX];
+        let mut acc = B4::EMPTY;
+        for i in (1..n).rev() {
+            acc = acc.union(boxes[order[i]]);
+            right_area[i] = acc.half_area();
+        }
+        let mut acc = B4::EMPTY;
+        for i in 1..n {
+            acc = acc.union(boxes[order[i - 1]]);
+            let cost = acc.half_area() * i as f32 + right_area[i] * (n - i) as f32;
+            let imbalance = (2 * i).abs_diff(n);
+            let better = match best {
+                None => true,
+                Some((bc, bi, _, _)) => cost < bc || (cost == bc && imbalance < bi),
+            };
+            if better {
+                best = Some((cost, imbalance, a, i));
+            }
+        }
+    }
+    let (cost, _, axis, m) = best?;
+    ranks_into(&c[axis][..n], &mut order);
+    let mut sorted = [refs[0]; EXACT_MAX];
+    for (k, &i) in order[..n].iter().enumerate() {
+        sorted[k] = refs[i];
+    }
+    refs.copy_from_slice(&sorted[..n]);
+    let (mut lb, mut rb) = (B4::EMPTY, B4::EMPTY);
+    for (k, r) in refs.iter().enumerate() {
+        if k < m {
+            lb = lb.union(r.b);
+        } else {
+            rb = rb.union(r.b);
+        }
+    }
+    Some((cost, m, lb, rb))
+}
+
+/// The bits of `x` as an unsigned integer in the order of the floats (`-0.0` taken as `+0.0`).
+#[inline]
+fn ordered_bits(x: f32) -> u32 {
+    let b = (x + 0.0).to_bits();
+    if b >> 31 != 0 {
+        !b
+    } else {
+        b | 0x8000_0000
+    }
+}
+
+/// The order of `keys` (distinct): `order[rank] = i`, the rank of `i` counted branch-free.
+#[inline]
+fn ranks_into(keys: &[u64], order: &mut [usize; EXACT_MAX]) {
+    for (i, &ki) in keys.iter().enumerate() {
+        let rank: usize = keys.iter().map(|&kj| (kj < ki) as usize).sum();
+        order[rank] = i;
+    }
 }
 
 /// Sorts `refs` (whose centroids coincide) by vertex indices `same` and moves every copy of a triangle (equal
-/// vertex indices, larger triangle index) to the end, marked with the index of the copy kept; returns the number
-/// of triangles kept (they come first, in vertex-index order).
-fn dedup_copies(refs: &mut [Ref], same: &[[u32; 3]]) -> usize {
+/// vertex indices, larger triangle index) to the end, adding (copy, kept) triangle indices to `pairs`; returns the
+/// number of triangles kept (they come first, in vertex-index order).
+fn dedup_copies(refs: &mut [Ref], same: &[[u32; 3]], pairs: &mut Vec<(u32, u32)>) -> usize {
     let key = |r: &Ref| same.get(r.idx() as usize).copied().unwrap_or([u32::MAX; 3]);
     refs.sort_unstable_by(|a, b| key(a).cmp(&key(b)).then(a.idx().cmp(&b.idx())));
     let mut kept: Vec<Ref> = Vec::with_capacity(refs.len());
@@ -338,9 +536,8 @@ fn dedup_copies(refs: &mut [Ref], same: &[[u32; 3]]) -> usize {
     for r in refs.iter() {
         match kept.last() {
             Some(k) if key(k) == key(r) => {
-                let mut c = *r;
-                c.b.max.w = f32::from_bits(k.idx() + 1);
-                copies.push(c);
+                pairs.push((r.idx(), k.idx()));
+                copies.push(*r);
             }
             _ => kept.push(*r),
         }
@@ -351,6 +548,69 @@ fn dedup_copies(refs: &mut [Ref], same: &[[u32; 3]]) -> usize {
     u
 }
 
+/// Whether a split of cost `A_L N_L + A_R N_R` (in half areas) beats a leaf for a node of `n` references in
+/// `bounds`.
+#[inline]
+fn split_worth(bounds: &B4, n: usize, cost: f32) -> bool {
+    let area = f64::from(bounds.half_area());
+    SAH_TRAVERSAL_COST * area + SAH_INTERSECTION_COST * f64::from(cost) < SAH_INTERSECTION_COST * area * n as f64
+}
+
+/// Builds the subtree of a node of at most [`EXACT_MAX`] references (the same tree as the recursion would, node
+/// `base` first in its `2 n - 1` slots of `nodes`) from a small explicit stack: every node is split by
+/// [`exact_split`] or made a leaf, with no call per node.
+fn build_small(refs: &mut [Ref], nodes: &mut [BvhNode], base: u32, first: u32, bounds: B4, max_leaf: usize) {
+    // (first reference, count, slot in `nodes`, box); a subtree of k references holds at most k - 1 pending
+    // right children.
+    let mut stack = [(0usize, 0usize, 0usize, B4::EMPTY); EXACT_MAX + 1];
+    let mut top = 1;
+    stack[0] = (0, refs.len(), 0, bounds);
+    while top > 0 {
+        top -= 1;
+        let (s, n, slot, b) = stack[top];
+        let (o, aabb) = (first + s as u32, b.aabb());
+        let split = match exact_split(&mut refs[s..s + n]) {
+            Some((cost, m, lb, rb)) if n > max_leaf || split_worth(&b, n, cost) => Some((m, lb, rb)),
+            _ => None,
+        };
+        match split {
+            Some((m, lb, rb)) => {
+                let l = base + slot as u32 + 1;
+                nodes[slot] = BvhNode::internal(&aabb, l, l + 2 * m as u32 - 1);
+                stack[top] = (s + m, n - m, slot + 2 * m, rb);
+                stack[top + 1] = (s, m, slot + 1, lb);
+                top += 2;
+            }
+            None => nodes[slot] = BvhNode::leaf(&aabb, o, n as u32),
+        }
+    }
+}
+
+/// What every node of one build reads.
+struct Ctx<'a> {
+    o: BvhOptions,
+    same: Option<&'a [[u32; 3]]>,
+    /// (copy, kept) triangle indices of the copies dropped ([`dedup_copies`]).
+    copies: &'a std::sync::Mutex<Vec<(u32, u32)>>,
+}
+
+impl Ctx<'_> {
+    /// Bins for a node of `n` references: [`TOP_BINS`] for large nodes, [`BvhOptions::bins`] below, and as many as
+    /// references for small nodes (the same splits for much less sweeping).
+    fn bins_for(&self, n: usize) -> usize {
+        let nb = if n >= TOP_BINS_MIN_REFS { TOP_BINS.max(self.o.bins) } else { self.o.bins };
+        nb.min(n).max(2)
+    }
+}
+
+/// Nodes of at least this many references are binned into [`TOP_BINS`] bins: the binning pass costs the same, and
+/// the planes near the root, which decide most of the SAH cost, are placed twice as finely.
+const TOP_BINS_MIN_REFS: usize = 2048;
+const TOP_BINS: usize = 32;
+
+/// Builds the subtree over `refs` into `nodes` (its `2 n - 1` slots, node `base` first); `first` is the position
+/// of `refs[0]` among all references; `bounds` and `cb` are the box and the centroid box (of `min + max`) of
+/// `refs`; `bins` is this thread's scratch.
 #[allow(clippy::too_many_arguments)]
 fn build_rec(
     refs: &mut [Ref],
@@ -359,26 +619,28 @@ fn build_rec(
     first: u32,
     depth: u32,
     (bounds, cb): (B4, B4),
-    o: &BvhOptions,
-    same: Option<&[[u32; 3]]>,
+    cx: &Ctx<'_>,
+    bins: &mut Bins,
+    tmp: &mut [Ref],
 ) {
     let n = refs.len();
+    let o = &cx.o;
     let leaf = |nodes: &mut [BvhNode]| nodes[0] = BvhNode::leaf(&bounds.aabb(), first, n as u32);
     if n <= 1 {
         leaf(nodes);
         return;
     }
+    if n <= EXACT_MAX {
+        build_small(refs, nodes, base, first, bounds, o.max_leaf);
+        return;
+    }
     let mut split = None;
     if depth < MAX_SAH_DEPTH {
-        // Small nodes get as many bins as references: the same splits for much less sweeping.
-        if let Some((axis, bin, cost, g)) = find_split(refs, &cb, o.bins.min(n).max(2)) {
-            let area = bounds.half_area() as f64;
-            let split_cost = SAH_TRAVERSAL_COST * area + SAH_INTERSECTION_COST * cost as f64;
-            let leaf_cost = SAH_INTERSECTION_COST * area * n as f64;
-            if split_cost < leaf_cost || n > o.max_leaf {
-                let (m, b) = partition_with_bounds(refs, |r| g.bin(r.c2(), axis) < bin);
+        if let Some(sp) = find_split(refs, &cb, cx.bins_for(n), bins) {
+            if split_worth(&bounds, n, sp.cost) || n > o.max_leaf {
+                let (m, lcb, rcb) = partition_split(refs, tmp, &sp.g, sp.axis, sp.bin);
                 if m > 0 && m < n {
-                    split = Some((m, b));
+                    split = Some((m, [sp.left, lcb, sp.right, rcb]));
                 }
             } else {
                 leaf(nodes);
@@ -391,10 +653,14 @@ fn build_rec(
         None if n > o.max_leaf || depth >= MAX_SAH_DEPTH && n > 1 => {
             // Coincident centroids: copies of one triangle keep the first (see the module docs); the boxes of the
             // copies are their kept triangle's, so the bounds stay.
-            if let Some(same) = same.filter(|_| cb.min.truncate() == cb.max.truncate()) {
-                let u = dedup_copies(refs, same);
+            if let Some(same) = cx.same.filter(|_| cb.min.truncate() == cb.max.truncate()) {
+                let mut pairs = Vec::new();
+                let u = dedup_copies(refs, same, &mut pairs);
                 if u < n {
-                    build_rec(&mut refs[..u], nodes, base, first, depth, (bounds, cb), o, None);
+                    // A poisoned lock only means another subtree panicked; its list is still whole.
+                    cx.copies.lock().unwrap_or_else(|e| e.into_inner()).extend(pairs);
+                    let cx = Ctx { o: cx.o, same: None, copies: cx.copies };
+                    build_rec(&mut refs[..u], nodes, base, first, depth, (bounds, cb), &cx, bins, tmp);
                     return;
                 }
             }
@@ -414,14 +680,15 @@ fn build_rec(
     let (_, rest) = nodes.split_at_mut(1);
     let (ln, rn) = rest.split_at_mut(2 * m - 1);
     let (lr, rr) = refs.split_at_mut(m);
+    let (lt, rt) = tmp.split_at_mut(m);
     if n >= o.parallel_threshold {
         rayon::join(
-            || build_rec(lr, ln, base + 1, first, depth + 1, (lb, lcb), o, same),
-            || build_rec(rr, rn, base + 2 * m32, first + m32, depth + 1, (rb, rcb), o, same),
+            || build_rec(lr, ln, base + 1, first, depth + 1, (lb, lcb), cx, bins, lt),
+            || build_rec(rr, rn, base + 2 * m32, first + m32, depth + 1, (rb, rcb), cx, &mut Bins::new(), rt),
         );
     } else {
-        build_rec(lr, ln, base + 1, first, depth + 1, (lb, lcb), o, same);
-        build_rec(rr, rn, base + 2 * m32, first + m32, depth + 1, (rb, rcb), o, same);
+        build_rec(lr, ln, base + 1, first, depth + 1, (lb, lcb), cx, bins, lt);
+        build_rec(rr, rn, base + 2 * m32, first + m32, depth + 1, (rb, rcb), cx, bins, rt);
     }
 }
 
@@ -466,21 +733,21 @@ pub(crate) fn build_sah_tree(
     let mut sparse = vec![BvhNode::default(); 2 * n - 1];
     let o = BvhOptions { bins: o.bins.clamp(2, MAX_BINS), max_leaf: o.max_leaf.max(1), ..*o };
     let bounds = ref_bounds(&refs);
-    build_rec(&mut refs, &mut sparse, 0, 0, 0, bounds, &o, same);
+    let mut tmp = refs.clone();
+    let copies = std::sync::Mutex::new(Vec::new());
+    build_rec(&mut refs, &mut sparse, 0, 0, 0, bounds, &Ctx { o, same, copies: &copies }, &mut Bins::new(), &mut tmp);
     let nodes = compact_sibling_pairs(&sparse);
     let order: Vec<u32> = refs.iter().map(|r| r.idx()).collect();
-    let mut copies = Vec::new();
-    if refs.iter().any(|r| r.kept_plus_one() != 0) {
+    let mut copies = copies.into_inner().unwrap_or_else(|e| e.into_inner());
+    if !copies.is_empty() {
         let mut pos = vec![0u32; n];
         for (p, &id) in order.iter().enumerate() {
             pos[id as usize] = p as u32;
         }
-        copies = refs
-            .iter()
-            .enumerate()
-            .filter(|(_, r)| r.kept_plus_one() != 0)
-            .map(|(p, r)| (p as u32, pos[(r.kept_plus_one() - 1) as usize]))
-            .collect();
+        for c in &mut copies {
+            *c = (pos[c.0 as usize], pos[c.1 as usize]);
+        }
+        copies.sort_unstable();
     }
     (nodes, order, copies)
 }
