@@ -388,6 +388,26 @@ fn real_conference_with_zero_area_triangles_all_structures_agree() {
 }
 
 #[test]
+fn reinsertion_lowers_the_sah_cost_of_architecture_and_changes_no_hit() {
+    use meshchar::accel::bvh::BvhOptions;
+    for (rel, res) in [("dabrovic-sponza/sponza.obj", 48), ("conference/conference.obj", 32)] {
+        let mesh = load(&shared_mesh(rel)).unwrap();
+        let off = Bvh::build_with(&mesh, &BvhOptions { reinsertion: 0.0, ..Default::default() }).unwrap();
+        let on = Bvh::build(&mesh).unwrap();
+        on.validate().unwrap();
+        let (a, b) = (on.sah_cost().unwrap(), off.sah_cost().unwrap());
+        // Measured: Sponza 69.1 to 59.7, the conference room 37.0 to 30.8.
+        assert!(a < 0.95 * b, "{rel}: SAH cost {b} without reinsertion, {a} with");
+        let cam = Camera::frame(&mesh_bounds(&mesh));
+        for kind in [WorkloadKind::Primary, WorkloadKind::Shadow] {
+            let rays = build_workload(kind, &mesh, &cam, res, &off);
+            let bad = meshchar::trace::count_disagreements(&trace(&on, &rays), &trace(&off, &rays));
+            assert_eq!(bad, 0, "{rel} {kind:?}: {bad} hits differ after reinsertion");
+        }
+    }
+}
+
+#[test]
 fn morton_63_bit_lbvh_and_hlbvh_agree_with_brute_force() {
     use meshchar::accel::hlbvh::HlbvhOptions;
     use meshchar::accel::lbvh::LbvhOptions;

@@ -19,6 +19,7 @@
 //! leaf collapse the LBVH and HLBVH use a depth-first numbering (left child at `k + 1`) with leaves of up to
 //! `max_leaf` records. Traversal code must not assume one record per leaf.
 
+mod reinsert;
 mod sah;
 
 #[cfg(feature = "eval")]

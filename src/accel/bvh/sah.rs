@@ -11,8 +11,16 @@
 //! indices, keeps them copies) in no leaf; [`super::BvhTree::copies`] lists them. Subtrees above
 //! [`BvhOptions::parallel_threshold`] triangles are built in parallel (`rayon::join`), and the binning of large
 //! nodes is parallel too; every subtree writes into its own slice of a preallocated array (a subtree of `k`
-//! triangles owns `2k - 1` slots), which a final pass compacts with siblings adjacent. The result does not depend on
-//! the number of threads.
+//! triangles owns `2k - 1` slots), which a final pass compacts with siblings adjacent. Subtrees of at most 8
+//! triangles are split by an exact sweep instead of bins, from a small stack rather than by recursion. The result
+//! does not depend on the number of threads.
+//!
+//! A reinsertion pass ([`BvhOptions::reinsertion`], `reinsert.rs`) then moves subtrees of the built tree to where
+//! they cost less; it changes internal nodes only, never the leaves.
+//!
+//! Speed: each reference's box sits in two SIMD registers whose `w` lanes carry the triangle index as normal floats
+//! (`index_lane`); raw index bits there would be subnormal floats, which made every box operation take x86's slow
+//! path (3-4x the build time on the bunny).
 
 use super::{BvhNode, BvhTree};
 use crate::accel::{
@@ -32,17 +40,24 @@ pub struct BvhOptions {
     pub max_leaf: usize,
     /// Subtrees with at least this many triangles are built in parallel.
     pub parallel_threshold: usize,
+    /// Share of the nodes (those with the largest boxes) that the reinsertion pass after the build tries to move to
+    /// a cheaper place, per round; 0 turns the pass off. The pass lowers the SAH cost of scenes with large,
+    /// overlapping triangles (architecture: Sponza 69 to 60, the conference room 37 to 31) and stops early where
+    /// nothing moves (scans).
+    pub reinsertion: f32,
 }
 
 impl Default for BvhOptions {
     fn default() -> Self {
-        BvhOptions { bins: 16, max_leaf: 8, parallel_threshold: 4096 }
+        BvhOptions { bins: 16, max_leaf: 8, parallel_threshold: 4096, reinsertion: 0.02 }
     }
 }
 
 /// Bins per axis at most (a power of two: bin indices are masked into the arrays).
 const MAX_BINS: usize = 32;
 const MAX_SAH_DEPTH: u32 = 64;
+/// Rounds of the reinsertion pass at most.
+const REINSERTION_ROUNDS: usize = 2;
 const PAR_BIN_THRESHOLD: usize = 65_536;
 
 /// A box in SIMD registers for the builder (`w` lanes are ignored).
@@ -695,10 +710,15 @@ fn build_rec(
 /// Copies the nodes reachable from node 0 of `sparse` into a compact array where the two children of every node
 /// are adjacent (`right = left + 1`, one cache line for both boxes), subtrees in depth-first order.
 pub(crate) fn compact_sibling_pairs(sparse: &[BvhNode]) -> Vec<BvhNode> {
+    compact_sibling_pairs_from(sparse, 0)
+}
+
+/// [`compact_sibling_pairs`] of the tree rooted at node `root` of `sparse` (which comes first in the result).
+pub(crate) fn compact_sibling_pairs_from(sparse: &[BvhNode], root: u32) -> Vec<BvhNode> {
     let mut out: Vec<BvhNode> = Vec::new();
-    let Some(root) = sparse.first() else { return out };
-    out.push(*root);
-    let mut stack = vec![(0u32, 0u32)];
+    let Some(r) = sparse.get(root as usize) else { return out };
+    out.push(*r);
+    let mut stack = vec![(root, 0u32)];
     while let Some((old, new)) = stack.pop() {
         let node = sparse[old as usize];
         if node.is_leaf() {
@@ -762,7 +782,8 @@ impl Bvh {
     /// Builds with explicit options.
     pub fn build_with(mesh: &Mesh, options: &BvhOptions) -> Result<Self, AccelError> {
         let (tris, boxes) = prepare(mesh, "bvh")?;
-        let (nodes, order, copies) = build_sah_tree(&boxes, options, Some(&mesh.indices));
+        let (mut nodes, order, copies) = build_sah_tree(&boxes, options, Some(&mesh.indices));
+        super::reinsert::reinsert(&mut nodes, options.reinsertion, REINSERTION_ROUNDS);
         let tris = order.par_iter().map(|&i| tris[i as usize]).collect();
         Ok(Bvh { tree: BvhTree { nodes, tris, ids: order, copies } })
     }
@@ -799,6 +820,58 @@ impl AccelStructure for Bvh {
 mod tests {
     use super::*;
     use crate::mesh::generate;
+
+    /// The leaves of a tree as (first, count, box bits), sorted.
+    fn leaves(t: &BvhTree) -> Vec<(u32, u32, [u32; 6])> {
+        let mut v: Vec<_> = t
+            .nodes
+            .iter()
+            .filter(|n| n.is_leaf())
+            .map(|n| {
+                let b = [n.min, n.max].concat();
+                (n.left_or_first, n.count(), std::array::from_fn(|i| b[i].to_bits()))
+            })
+            .collect();
+        v.sort_unstable();
+        v
+    }
+
+    #[test]
+    fn reinsertion_keeps_the_leaves_and_never_raises_the_sah_cost() {
+        let scenes = [
+            generate::overlapping_large(3_000, 7),
+            generate::random_soup(5_000, 11),
+            generate::teapot_in_stadium(3),
+            generate::clustered(4_000, 9, 5),
+            generate::flat(2_000, 2),
+            generate::fan_polygon(500),
+            generate::two_triangles(),
+        ];
+        let mut lowered = 0;
+        for mesh in &scenes {
+            let off = Bvh::build_with(mesh, &BvhOptions { reinsertion: 0.0, ..Default::default() }).unwrap();
+            for ratio in [0.02, 0.3] {
+                let on = Bvh::build_with(mesh, &BvhOptions { reinsertion: ratio, ..Default::default() }).unwrap();
+                on.validate().unwrap();
+                assert_eq!(leaves(&on.tree), leaves(&off.tree));
+                assert_eq!(
+                    (on.tree.nodes.len(), &on.tree.ids, &on.tree.copies),
+                    (off.tree.nodes.len(), &off.tree.ids, &off.tree.copies)
+                );
+                // Every internal box is the union of its children's, siblings adjacent.
+                for n in on.tree.nodes.iter().filter(|n| !n.is_leaf()) {
+                    assert_eq!(n.right_or_count, n.left_or_first + 1);
+                    let (l, r) = (on.tree.nodes[n.left_or_first as usize], on.tree.nodes[n.right_or_count as usize]);
+                    assert_eq!(n.aabb(), Aabb::union(&l.aabb(), &r.aabb()));
+                }
+                let (a, b) = (on.tree.sah_cost(), off.tree.sah_cost());
+                assert!(a <= b * (1.0 + 1e-9), "reinsertion raised the SAH cost from {b} to {a}");
+                lowered += usize::from(a < b);
+            }
+        }
+        // The pass does something (on these scenes a little; tests/accel.rs checks Sponza, its case).
+        assert!(lowered >= 4, "reinsertion lowered the SAH cost of {lowered} builds");
+    }
 
     #[test]
     fn validation_refuses_a_copy_that_is_not_one() {
