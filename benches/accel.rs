@@ -6,7 +6,7 @@
 //! * `crates/<scene>/...`: the same build and trace with the crates a Rust user would pick instead (`bvh` 0.13 with
 //!   its rayon build, `obvhs` 0.4 BVH2 with the `medium_build` preset).
 //! * `side_by_side`: one run that prints, per scene (the three above and four scans the builders were never tuned
-//!   on), build Mtris/s, trace Mrays/s (medians of 5), SAH cost (`K_T = K_I = 1`, see `meshchar::accel::sah_cost`)
+//!   on), build Mtris/s, trace Mrays/s (medians of 9), SAH cost (`K_T = K_I = 1`, see `meshchar::accel::sah_cost`)
 //!   and hit agreement with our BVH, for ours, `bvh` 0.13 and `obvhs` 0.4 (medium and fastest presets), then the
 //!   ratios: our binned-SAH BVH against obvhs's medium preset, our LBVH against its fastest (PLOC).
 //!
@@ -284,7 +284,7 @@ fn side_by_side(_: &mut Criterion) {
     if !filters.is_empty() && !filters.iter().any(|f| "side_by_side".contains(f.as_str())) {
         return;
     }
-    const REPS: usize = 5;
+    const REPS: usize = 9;
     println!("\nside by side: primary rays {RES}x{RES}, medians of {REPS}, rayon over rays, SAH with K_T = K_I = 1");
     println!(
         "{:<8} {:<22} {:>12} {:>12} {:>10} {:>14}",
