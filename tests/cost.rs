@@ -577,6 +577,13 @@ fn view_features_tell_inside_from_outside_and_a_view_enters_only_a_model_fitted_
     }
     let plain = CostModel::fit(&samples, "test", "no views").unwrap();
     assert!(plain.structures.iter().all(|s| s.view_box_coef.is_empty()));
+    // Nor do samples that record the framing camera itself (as evaluate's records do since they carry the camera).
+    let mut framed = samples.clone();
+    for s in framed.iter_mut() {
+        s.workload.view = Some(ViewFeatures::framing(s.features.lo, s.features.hi));
+    }
+    let framed = CostModel::fit(&framed, "test", "framing views").unwrap();
+    assert_eq!(framed.structures, plain.structures);
     let shipped = CostModel::shipped().unwrap();
     for model in [&plain, &shipped] {
         assert_eq!(model.predict(&samples[0].features, &w_in), model.predict(&samples[0].features, &w_out));

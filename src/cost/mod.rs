@@ -667,10 +667,14 @@ impl CostModel {
         if samples.is_empty() {
             return Err(CostError::Fit("no samples".into()));
         }
-        // The view enters the laws when some sample records its camera (and not in the size-only model): samples
-        // without one stand for the framing camera. Records of the framing camera alone fit no view coefficient,
-        // so the model is then the one fitted before views existed.
-        let views = geometric && samples.iter().any(|s| s.workload.view.is_some());
+        // The view enters the laws when some sample was seen from another camera than its scene's framing one (and
+        // not in the size-only model): samples without a view stand for the framing camera. Records of the framing
+        // camera alone, recorded or not, fit no view coefficient (there is nothing to learn it from), so the model
+        // is then the one fitted before views existed.
+        let views = geometric
+            && samples
+                .iter()
+                .any(|s| s.workload.view.is_some_and(|v| v != ViewFeatures::framing(s.features.lo, s.features.hi)));
         let mut structures = Vec::new();
         for s in StructureName::ALL {
             if let Some(m) = fit_structure(samples, s, geometric, views)? {
