@@ -95,7 +95,7 @@ pub fn sorted_keys(codes: &[u64]) -> Vec<(u64, u32)> {
     let bits = 64 - top.leading_zeros();
     // A stable sort by code of the pairs in triangle order sorts them by (code, triangle). Codes of up to 32 bits
     // travel packed with their index in one u64 (half the bytes per pass).
-    if bits <= 32 && codes.len() <= u32::MAX as usize + 1 {
+    if bits <= 32 && codes.len() as u64 <= u64::from(u32::MAX) + 1 {
         let mut packed: Vec<u64> = codes.par_iter().enumerate().map(|(i, &c)| (c << 32) | i as u64).collect();
         super::radix::sort_by_key(&mut packed, bits, |x| x >> 32);
         return packed.par_iter().map(|&x| (x >> 32, x as u32)).collect();

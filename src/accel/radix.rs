@@ -55,11 +55,13 @@ where
     let digit_bits = bits.div_ceil(passes);
     let buckets = 1usize << digit_bits;
     let mask = (buckets - 1) as u64;
+    // The passes may cover more than `bits` bits (31 bits: three 11-bit digits); the bits above are ignored.
+    let key_mask = if bits >= 64 { u64::MAX } else { (1u64 << bits) - 1 };
     let chunk = n.div_ceil(MAX_CHUNKS).max(MIN_CHUNK);
     let mut tmp: Vec<T> = vec![T::default(); n];
     let mut shift = 0;
     while shift < bits {
-        let digit = |x: &T| ((key(x) >> shift) & mask) as usize;
+        let digit = |x: &T| (((key(x) & key_mask) >> shift) & mask) as usize;
         let mut counts: Vec<Vec<usize>> = v
             .par_chunks(chunk)
             .map(|c| {
@@ -73,20 +75,28 @@ where
         // A digit shared by every element: this pass would keep the order.
         let single = (0..buckets).any(|d| counts.iter().map(|h| h[d]).sum::<usize>() == n);
         if !single {
+            // Per chunk and digit, the range `offsets[d] .. ends[d]` of the output the scan reserves for the chunk's
+            // elements of digit `d`.
+            let mut ends = counts.clone();
             let mut at = 0;
             for d in 0..buckets {
-                for h in counts.iter_mut() {
+                for (h, e) in counts.iter_mut().zip(ends.iter_mut()) {
                     let c = h[d];
                     h[d] = at;
                     at += c;
+                    e[d] = at;
                 }
             }
             let out = Scatter(tmp.as_mut_ptr());
-            v.par_chunks(chunk).zip(counts.par_iter_mut()).for_each(|(c, offsets)| {
+            v.par_chunks(chunk).zip(counts.par_iter_mut()).zip(ends.par_iter()).for_each(|((c, offsets), ends)| {
                 for x in c {
                     let d = digit(x);
-                    // SAFETY: the offsets of this chunk's digit `d` are the range the scan reserved for exactly the
-                    // elements of `d` in this chunk, all below `n = tmp.len()`, written once each.
+                    // A key that changed between the count and the scatter (`key` not a pure function) would write
+                    // outside the chunk's range: refused before it can.
+                    assert!(offsets[d] < ends[d], "radix sort: the key of an element changed during the sort");
+                    // SAFETY: `offsets[d] < ends[d]`, and the ranges `offsets[d] .. ends[d]` of all chunks and digits
+                    // are disjoint and within `0 .. n = tmp.len()` (an exclusive scan of the counts); each position
+                    // is written once, by the chunk that owns it.
                     unsafe { out.write(offsets[d], *x) };
                     offsets[d] += 1;
                 }
@@ -139,5 +149,31 @@ mod tests {
         let mut got = v;
         sort_by_key(&mut got, 30, |x| x >> 32);
         assert_eq!(got, expect);
+    }
+
+    #[test]
+    fn bits_above_the_width_are_ignored_at_every_length() {
+        // 31 bits take three 11-bit passes (33 bits): bit 31 and up must not take part, as on the small path.
+        let mut seed = 5;
+        for n in [1000usize, 50_000] {
+            let v: Vec<(u64, u32)> = (0..n).map(|i| (lcg(&mut seed) % (1 << 40), i as u32)).collect();
+            let mut expect = v.clone();
+            expect.sort_by_key(|x| x.0 & ((1 << 31) - 1));
+            let mut got = v;
+            sort_by_key(&mut got, 31, |x| x.0);
+            assert_eq!(got, expect, "n {n}");
+        }
+    }
+
+    #[test]
+    #[should_panic(expected = "the key of an element changed")]
+    fn a_key_that_changes_during_the_sort_is_refused_not_written_out_of_range() {
+        use std::sync::atomic::{AtomicU64, Ordering};
+        let calls = AtomicU64::new(0);
+        // Counted, a quarter of the keys are 1; scattered, every key is 1: more elements of digit 1 than the ranges
+        // reserved for them.
+        let n = 50_000u64;
+        let mut v: Vec<u64> = (0..n).collect();
+        sort_by_key(&mut v, 1, |x| u64::from(calls.fetch_add(1, Ordering::Relaxed) >= n || x % 4 == 0));
     }
 }

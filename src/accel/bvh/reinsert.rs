@@ -38,7 +38,7 @@ struct Tree<'a> {
 
 /// A search entry: a key and a node; the heap pops the smallest key first.
 #[derive(PartialEq)]
-struct Entry(f32, u32);
+struct Entry(f64, u32);
 impl Eq for Entry {}
 impl PartialOrd for Entry {
     fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
@@ -94,8 +94,9 @@ impl Tree<'_> {
     /// The node beside which `nb` costs least, and that cost (the growth of the boxes above it plus the area of the
     /// union with it).
     fn best_place(&self, nb: &Aabb, heap: &mut BinaryHeap<Entry>) -> (u32, f64) {
-        let own = nb.half_area();
-        let (mut best, mut best_cost) = (self.root, f32::INFINITY);
+        // In f64: the growth sums differences of nearly equal areas near the root.
+        let own = f64::from(nb.half_area());
+        let (mut best, mut best_cost) = (self.root, f64::INFINITY);
         heap.clear();
         heap.push(Entry(0.0, self.root));
         let mut visits = 0;
@@ -105,12 +106,12 @@ impl Tree<'_> {
             }
             visits += 1;
             let b = self.aabb(x);
-            let u = b.union(nb).half_area();
+            let u = f64::from(b.union(nb).half_area());
             if ci + u < best_cost {
                 (best, best_cost) = (x, ci + u);
             }
             if let Some(c) = self.children(x) {
-                let below = ci + u - b.half_area();
+                let below = ci + u - f64::from(b.half_area());
                 if below + own < best_cost {
                     for k in c {
                         heap.push(Entry(below, k));
@@ -118,7 +119,7 @@ impl Tree<'_> {
                 }
             }
         }
-        (best, f64::from(best_cost))
+        (best, best_cost)
     }
     /// Takes `n` out and puts it back where the internal areas' sum is least; returns whether it moved.
     fn reinsert(&mut self, n: u32, heap: &mut BinaryHeap<Entry>) -> bool {
@@ -145,7 +146,7 @@ impl Tree<'_> {
     /// parent's, so it visits only what it returns and their children).
     fn largest(&self, take: usize) -> Vec<u32> {
         let mut heap = BinaryHeap::new();
-        heap.push(Entry(-self.area(self.root), self.root));
+        heap.push(Entry(-f64::from(self.area(self.root)), self.root));
         let mut out = Vec::with_capacity(take);
         while let Some(Entry(_, i)) = heap.pop() {
             out.push(i);
@@ -153,7 +154,7 @@ impl Tree<'_> {
                 break;
             }
             for c in self.children(i).into_iter().flatten() {
-                heap.push(Entry(-self.area(c), c));
+                heap.push(Entry(-f64::from(self.area(c)), c));
             }
         }
         out

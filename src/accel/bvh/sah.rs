@@ -571,10 +571,12 @@ fn split_worth(bounds: &B4, n: usize, cost: f32) -> bool {
     SAH_TRAVERSAL_COST * area + SAH_INTERSECTION_COST * f64::from(cost) < SAH_INTERSECTION_COST * area * n as f64
 }
 
-/// Builds the subtree of a node of at most [`EXACT_MAX`] references (the same tree as the recursion would, node
-/// `base` first in its `2 n - 1` slots of `nodes`) from a small explicit stack: every node is split by
-/// [`exact_split`] or made a leaf, with no call per node.
-fn build_small(refs: &mut [Ref], nodes: &mut [BvhNode], base: u32, first: u32, bounds: B4, max_leaf: usize) {
+/// Builds the subtree of a node of at most [`EXACT_MAX`] references (node `base` first in its `2 n - 1` slots of
+/// `nodes`) from a small explicit stack, with no call per node: every node is split by [`exact_split`] or made a
+/// leaf. A node that must be split (over [`BvhOptions::max_leaf`]) whose centroids coincide first keeps one of the
+/// copies of each triangle ([`dedup_copies`]), as larger nodes do.
+fn build_small(refs: &mut [Ref], nodes: &mut [BvhNode], base: u32, first: u32, bounds: B4, cx: &Ctx<'_>) {
+    let max_leaf = cx.o.max_leaf;
     // (first reference, count, slot in `nodes`, box); a subtree of k references holds at most k - 1 pending
     // right children.
     let mut stack = [(0usize, 0usize, 0usize, B4::EMPTY); EXACT_MAX + 1];
@@ -583,6 +585,22 @@ fn build_small(refs: &mut [Ref], nodes: &mut [BvhNode], base: u32, first: u32, b
     while top > 0 {
         top -= 1;
         let (s, n, slot, b) = stack[top];
+        if let (true, Some(same)) = (n > max_leaf, cx.same) {
+            let r = &mut refs[s..s + n];
+            let c = r[0].c2().truncate();
+            if r.iter().all(|x| x.c2().truncate() == c) {
+                let mut pairs = Vec::new();
+                let u = dedup_copies(r, same, &mut pairs);
+                if u < n {
+                    // A poisoned lock only means another subtree panicked; its list is still whole.
+                    cx.copies.lock().unwrap_or_else(|e| e.into_inner()).extend(pairs);
+                    // The same node over the triangles kept (the copies' boxes are theirs, so the box stays).
+                    stack[top] = (s, u, slot, b);
+                    top += 1;
+                    continue;
+                }
+            }
+        }
         let (o, aabb) = (first + s as u32, b.aabb());
         let split = match exact_split(&mut refs[s..s + n]) {
             Some((cost, m, lb, rb)) if n > max_leaf || split_worth(&b, n, cost) => Some((m, lb, rb)),
@@ -646,7 +664,7 @@ fn build_rec(
         return;
     }
     if n <= EXACT_MAX {
-        build_small(refs, nodes, base, first, bounds, o.max_leaf);
+        build_small(refs, nodes, base, first, bounds, cx);
         return;
     }
     let mut split = None;
@@ -871,6 +889,20 @@ mod tests {
         }
         // The pass does something (on these scenes a little; tests/accel.rs checks Sponza, its case).
         assert!(lowered >= 4, "reinsertion lowered the SAH cost of {lowered} builds");
+    }
+
+    #[test]
+    fn small_nodes_keep_one_copy_of_a_triangle_too() {
+        // A fan over three points: copies of three distinct triangles (vertex indices), each group with coincident
+        // centroids. With one triangle per leaf every group must be split, so each keeps one copy, also in nodes of
+        // at most 8 references (the small-node path split them apart before it kept copies); with the default 8 per
+        // leaf only groups over 8 are.
+        for (k, max_leaf, copies) in [(5, 1, 2), (8, 1, 5), (30, 1, 27), (30, 8, 27), (8, 8, 0)] {
+            let mesh = generate::fan_polygon(k);
+            let bvh = Bvh::build_with(&mesh, &BvhOptions { max_leaf, ..Default::default() }).unwrap();
+            bvh.validate().unwrap();
+            assert_eq!(bvh.tree.copies.len(), copies, "fan of {k}, max_leaf {max_leaf}");
+        }
     }
 
     #[test]
