@@ -294,34 +294,20 @@ fn find_split(refs: &[Ref], cb: &B4, nb: usize, bins: &mut Bins) -> Option<Split
             continue;
         }
         let (mins, maxs, counts) = (&bins.min[a], &bins.max[a], &bins.n[a]);
-        let mut right_area = [0.0f32; MAX_BINS];
-        let mut right_n = [0u32; MAX_BINS];
-        let (mut lo, mut hi, mut cnt) = (B4::EMPTY.min, B4::EMPTY.max, 0u32);
-        for i in (1..nb).rev() {
-            lo = lo.min(mins[i]);
-            hi = hi.max(maxs[i]);
-            cnt += counts[i];
-            right_area[i] = B4 { min: lo, max: hi }.half_area();
-            right_n[i] = cnt;
-        }
-        let (mut lo, mut hi, mut cnt) = (B4::EMPTY.min, B4::EMPTY.max, 0u32);
-        for i in 1..nb {
-            lo = lo.min(mins[i - 1]);
-            hi = hi.max(maxs[i - 1]);
-            cnt += counts[i - 1];
-            if cnt == 0 || right_n[i] == 0 {
-                continue;
-            }
-            let cost = B4 { min: lo, max: hi }.half_area() * cnt as f32 + right_area[i] * right_n[i] as f32;
-            let imbalance = (2 * cnt as i64 - n).abs();
-            let better = match best {
-                None => true,
-                Some((_, _, bc, bi)) => cost < bc || (cost == bc && imbalance < bi),
-            };
-            if better {
-                best = Some((a, i, cost, imbalance));
-            }
-        }
+        sweep_bins::<B4, MAX_BINS>(
+            nb,
+            |i| (B4 { min: mins[i], max: maxs[i] }, counts[i]),
+            |i, cost, cnt| {
+                let imbalance = (2 * cnt as i64 - n).abs();
+                let better = match best {
+                    None => true,
+                    Some((_, _, bc, bi)) => cost < bc || (cost == bc && imbalance < bi),
+                };
+                if better {
+                    best = Some((a, i, cost, imbalance));
+                }
+            },
+        );
     }
     best.map(|(axis, bin, cost, _)| Split {
         axis,
@@ -474,7 +460,8 @@ fn exact_split(refs: &mut [Ref]) -> Option<(f32, usize, B4, B4)> {
         boxes[i] = r.b;
         let (c2, id) = (r.c2(), u64::from(r.idx()));
         for (a, ca) in c.iter_mut().enumerate() {
-            ca[i] = u64::from(ordered_bits(c2[a])) << 32 | id;
+            // `+ 0.0` folds -0.0 into +0.0: equal centroids tie, and the index decides, as `<` on floats would.
+            ca[i] = u64::from(crate::keys::ordered_bits(c2[a] + 0.0)) << 32 | id;
         }
     }
     // (cost, imbalance, axis, left size); the order of the best axis is recomputed at the end.
@@ -518,17 +505,6 @@ fn exact_split(refs: &mut [Ref]) -> Option<(f32, usize, B4, B4)> {
         }
     }
     Some((cost, m, lb, rb))
-}
-
-/// The bits of `x` as an unsigned integer in the order of the floats (`-0.0` taken as `+0.0`).
-#[inline]
-fn ordered_bits(x: f32) -> u32 {
-    let b = (x + 0.0).to_bits();
-    if b >> 31 != 0 {
-        !b
-    } else {
-        b | 0x8000_0000
-    }
 }
 
 /// The order of `keys` (distinct): `order[rank] = i`, the rank of `i` counted branch-free.
@@ -589,11 +565,8 @@ fn build_small(refs: &mut [Ref], nodes: &mut [BvhNode], base: u32, first: u32, b
             let r = &mut refs[s..s + n];
             let c = r[0].c2().truncate();
             if r.iter().all(|x| x.c2().truncate() == c) {
-                let mut pairs = Vec::new();
-                let u = dedup_copies(r, same, &mut pairs);
+                let u = cx.keep_one_copy(r, same);
                 if u < n {
-                    // A poisoned lock only means another subtree panicked; its list is still whole.
-                    cx.copies.lock().unwrap_or_else(|e| e.into_inner()).extend(pairs);
                     // The same node over the triangles kept (the copies' boxes are theirs, so the box stays).
                     stack[top] = (s, u, slot, b);
                     top += 1;
@@ -628,6 +601,15 @@ struct Ctx<'a> {
 }
 
 impl Ctx<'_> {
+    /// [`dedup_copies`] of `refs` (whose centroids coincide), the pairs added to the build's list; returns the
+    /// number of triangles kept.
+    fn keep_one_copy(&self, refs: &mut [Ref], same: &[[u32; 3]]) -> usize {
+        let mut pairs = Vec::new();
+        let u = dedup_copies(refs, same, &mut pairs);
+        // A poisoned lock only means another subtree panicked; its list is still whole.
+        self.copies.lock().unwrap_or_else(|e| e.into_inner()).extend(pairs);
+        u
+    }
     /// Bins for a node of `n` references: [`TOP_BINS`] for large nodes, [`BvhOptions::bins`] below, and as many as
     /// references for small nodes (the same splits for much less sweeping).
     fn bins_for(&self, n: usize) -> usize {
@@ -687,11 +669,8 @@ fn build_rec(
             // Coincident centroids: copies of one triangle keep the first (see the module docs); the boxes of the
             // copies are their kept triangle's, so the bounds stay.
             if let Some(same) = cx.same.filter(|_| cb.min.truncate() == cb.max.truncate()) {
-                let mut pairs = Vec::new();
-                let u = dedup_copies(refs, same, &mut pairs);
+                let u = cx.keep_one_copy(refs, same);
                 if u < n {
-                    // A poisoned lock only means another subtree panicked; its list is still whole.
-                    cx.copies.lock().unwrap_or_else(|e| e.into_inner()).extend(pairs);
                     let cx = Ctx { o: cx.o, same: None, copies: cx.copies };
                     build_rec(&mut refs[..u], nodes, base, first, depth, (bounds, cb), &cx, bins, tmp);
                     return;
