@@ -54,7 +54,7 @@ use super::{
 use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCounters};
 use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
-use glam::{Vec3, Vec3A};
+use glam::{BVec4A, Vec3, Vec3A, Vec4};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// One kd-tree node (see the module docs): generated from `struct KdNode` of `glsl/include/trace.glsl`, its one
@@ -154,69 +154,206 @@ const MAX_BINS: usize = 64;
 
 /// The best plane of a node over `refs` in `voxel`, `(axis, plane, cost)`; `keep_all`: whether a plane that leaves
 /// one side with every reference (and the other with some) is a candidate.
+///
+/// Of candidates of equal cost the first wins, in the order: per axis x, y, z, the two empty-space cut-offs, then
+/// the bin boundaries from low to high.
 fn find_split(refs: &[KRef], voxel: &Aabb, o: &KdOptions, keep_all: bool) -> Option<(usize, f32, f32)> {
+    // Small nodes get about one bin per reference (at least 4): the same quality for much less sweeping. The bin
+    // arrays are sized to the next power of two, so that small nodes (most of them) clear little.
+    let nb = o.bins.clamp(2, MAX_BINS).min(refs.len().max(4));
+    match nb {
+        0..=8 => find_split_in::<8>(refs, voxel, o, keep_all, nb),
+        9..=16 => find_split_in::<16>(refs, voxel, o, keep_all, nb),
+        17..=32 => find_split_in::<32>(refs, voxel, o, keep_all, nb),
+        _ => find_split_in::<MAX_BINS>(refs, voxel, o, keep_all, nb),
+    }
+}
+
+/// One axis of a node's plane sweep: the voxel's interval on it and the terms of the cost.
+#[derive(Clone, Copy, Debug)]
+struct SweepAxis {
+    /// The voxel's lower and upper bound on the axis.
+    v0: f32,
+    v1: f32,
+    /// Its extent on the axis.
+    e: f32,
+    /// Half area of a child of length `len` along the axis: `len * sm + cr`.
+    sm: f32,
+    cr: f32,
+    kt: f32,
+    ki: f32,
+    /// `1 - empty_bonus`.
+    empty: f32,
+    /// 1 / the voxel's half area.
+    inv_sa: f32,
+    /// The node's references.
+    n: u32,
+    /// Whether a plane that keeps every reference on one side and some on the other is a candidate.
+    keep_all: bool,
+}
+
+impl SweepAxis {
+    /// The cost of a plane at `p` with `nl`, `nr` references, infinite when it is no candidate: outside the voxel's
+    /// interior, or one that keeps every reference on one side and some on the other at the end of a chain of them.
+    #[inline]
+    fn cost(&self, p: f32, nl: u32, nr: u32) -> f32 {
+        let n = self.n;
+        let duplicates = !self.keep_all & ((nl == n) & (nr > 0) | (nr == n) & (nl > 0));
+        let inside = (p > self.v0) & (p < self.v1);
+        let al = (p - self.v0) * self.sm + self.cr;
+        let ar = (self.v1 - p) * self.sm + self.cr;
+        let bonus = if (nl == 0) | (nr == 0) { self.empty } else { 1.0 };
+        let cost = self.kt + self.ki * bonus * (al * nl as f32 + ar * nr as f32) * self.inv_sa;
+        if inside & !duplicates {
+            cost
+        } else {
+            f32::INFINITY
+        }
+    }
+
+    /// The plane of bin boundary `j` of `nb`.
+    #[inline]
+    fn plane(&self, j: usize, nb: usize) -> f32 {
+        self.v0 + self.e * (j as f32 / nb as f32)
+    }
+
+    /// `costs[j]` = [`SweepAxis::cost`] of bin boundary `j` in `1..nb` from the bins' start and end counts;
+    /// `costs[0]` and any entry past `nb - 1` that is written are infinite, the others are left as they are. Four candidates at a time (`glam::Vec4`, SSE or NEON where there is one) when the
+    /// counts are exact in f32 (below 2^24 references), one at a time otherwise; the same arithmetic in the same
+    /// order either way, so the same costs to the bit (tested).
+    fn bin_costs<const B: usize>(&self, start: &[u32; B], end: &[u32; B], nb: usize, costs: &mut [f32; B]) {
+        let (mut nl, mut nr) = (0u32, self.n);
+        if self.n >= 1 << 24 {
+            for j in 1..nb {
+                nl += start[j - 1];
+                nr -= end[j - 1];
+                costs[j] = self.cost(self.plane(j, nb), nl, nr);
+            }
+            return;
+        }
+        let (mut lf, mut rf) = ([0f32; B], [0f32; B]);
+        for j in 1..nb {
+            nl += start[j - 1];
+            nr -= end[j - 1];
+            lf[j] = nl as f32;
+            rf[j] = nr as f32;
+        }
+        let nf = Vec4::splat(self.n as f32);
+        let (v0, v1) = (Vec4::splat(self.v0), Vec4::splat(self.v1));
+        let (zero, nbf) = (Vec4::ZERO, Vec4::splat(nb as f32));
+        for c in (0..nb).step_by(4) {
+            let j = Vec4::new(c as f32, (c + 1) as f32, (c + 2) as f32, (c + 3) as f32);
+            let (l, r) = (Vec4::from_slice(&lf[c..c + 4]), Vec4::from_slice(&rf[c..c + 4]));
+            let p = v0 + self.e * (j / nbf);
+            let duplicates = if self.keep_all {
+                BVec4A::splat(false)
+            } else {
+                (l.cmpeq(nf) & r.cmpgt(zero)) | (r.cmpeq(nf) & l.cmpgt(zero))
+            };
+            let inside = p.cmpgt(v0) & p.cmplt(v1);
+            let al = (p - v0) * self.sm + self.cr;
+            let ar = (v1 - p) * self.sm + self.cr;
+            let bonus = Vec4::select(l.cmpeq(zero) | r.cmpeq(zero), Vec4::splat(self.empty), Vec4::ONE);
+            let cost = self.kt + self.ki * bonus * (al * l + ar * r) * self.inv_sa;
+            let real = j.cmpge(Vec4::ONE) & j.cmplt(nbf);
+            let cost = Vec4::select(inside & !duplicates & real, cost, Vec4::INFINITY);
+            cost.write_to_slice(&mut costs[c..c + 4]);
+        }
+    }
+}
+
+/// The bin indices of lanes already clamped to `[0, nb - 1]`: truncated toward zero, a NaN lane to a value whose
+/// low bits are 0 (the bin of a NaN is 0 either way). One SSE2 conversion on x86-64, lane by lane elsewhere.
+#[inline(always)]
+fn bins(v: Vec3A) -> [u32; 4] {
+    #[cfg(target_arch = "x86_64")]
+    {
+        // SAFETY: SSE2 is part of every x86-64 target; the intrinsic only converts a register.
+        bytemuck::cast(unsafe { std::arch::x86_64::_mm_cvttps_epi32(v.into()) })
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        [v.x as u32, v.y as u32, v.z as u32, 0]
+    }
+}
+
+/// [`find_split`] with `nb <= B` bins (`B` a power of two, at least 4).
+#[inline(always)]
+fn find_split_in<const B: usize>(
+    refs: &[KRef],
+    voxel: &Aabb,
+    o: &KdOptions,
+    keep_all: bool,
+    nb: usize,
+) -> Option<(usize, f32, f32)> {
     let sa = voxel.half_area();
     if sa.is_nan() || sa <= 0.0 {
         return None;
     }
     let n = refs.len();
-    // Small nodes get about one bin per reference (at least 4): the same quality for much less sweeping.
-    let nb = o.bins.clamp(2, MAX_BINS).min(n.max(4));
     let ext = voxel.max - voxel.min;
-    let mut best: Option<(usize, f32, f32)> = None;
-    let mut best_cost = f32::INFINITY;
-    let inv_sa = 1.0 / sa;
-    // Half area of a child along `axis` with length `len`: len * (e_b + e_c) + e_b * e_c.
-    let sums = [ext.y + ext.z, ext.x + ext.z, ext.x + ext.y];
-    let crosses = [ext.y * ext.z, ext.x * ext.z, ext.x * ext.y];
-    let mut consider = |axis: usize, p: f32, nl: usize, nr: usize| {
-        // A plane that keeps every reference on one side and some on the other, at the end of a chain of them.
-        let duplicates = !keep_all && ((nl == n && nr > 0) || (nr == n && nl > 0));
-        if !(p > voxel.min[axis] && p < voxel.max[axis]) || duplicates {
-            return;
-        }
-        let al = (p - voxel.min[axis]) * sums[axis] + crosses[axis];
-        let ar = (voxel.max[axis] - p) * sums[axis] + crosses[axis];
-        let bonus = if nl == 0 || nr == 0 { 1.0 - o.empty_bonus } else { 1.0 };
-        let cost = o.traversal_cost + o.intersection_cost * bonus * (al * nl as f32 + ar * nr as f32) * inv_sa;
-        if cost < best_cost {
-            best_cost = cost;
-            best = Some((axis, p, cost));
-        }
-    };
     // One pass over the references bins all three axes (SIMD), with the references' extent for the cut-offs.
     let kf = |e: f32| if e > 0.0 { nb as f32 / e } else { 0.0 };
     let kv = Vec3A::new(kf(ext.x), kf(ext.y), kf(ext.z));
     let vmin = Vec3A::from(voxel.min);
     let top = Vec3A::splat((nb - 1) as f32);
-    let mut start = [[0u32; MAX_BINS]; 3];
-    let mut end = [[0u32; MAX_BINS]; 3];
+    let mut start = [[0u32; B]; 3];
+    let mut end = [[0u32; B]; 3];
     let (mut lo, mut hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
     for r in refs {
         let (mn, mx) = (Vec3A::from(r.min), Vec3A::from(r.max));
         let b0 = ((mn - vmin) * kv).clamp(Vec3A::ZERO, top);
         let b1 = ((mx - vmin) * kv).clamp(Vec3A::ZERO, top);
+        let (i0, i1) = (bins(b0), bins(b1));
         for a in 0..3 {
-            start[a][b0[a] as u32 as usize] += 1;
-            end[a][b1[a] as u32 as usize] += 1;
+            // The bins lie in [0, nb - 1] after the clamp; the mask only spares the bounds check.
+            start[a][i0[a] as usize & (B - 1)] += 1;
+            end[a][i1[a] as usize & (B - 1)] += 1;
         }
         lo = lo.min(mn);
         hi = hi.max(mx);
     }
+    let mut best: Option<(usize, f32, f32)> = None;
+    let mut best_cost = f32::INFINITY;
+    // Half area of a child along `axis` with length `len`: len * (e_b + e_c) + e_b * e_c.
+    let sums = [ext.y + ext.z, ext.x + ext.z, ext.x + ext.y];
+    let crosses = [ext.y * ext.z, ext.x * ext.z, ext.x * ext.y];
     for axis in 0..3 {
         if ext[axis].is_nan() || ext[axis] <= 0.0 {
             continue;
         }
-        // Empty-space cut-offs exactly at the references' extent.
-        consider(axis, lo[axis], 0, n);
-        consider(axis, hi[axis], n, 0);
-        let mut nl = 0usize;
-        let mut nr = n;
-        for j in 1..nb {
-            nl += start[axis][j - 1] as usize;
-            nr -= end[axis][j - 1] as usize;
-            let p = voxel.min[axis] + ext[axis] * (j as f32 / nb as f32);
-            consider(axis, p, nl, nr);
+        let sweep = SweepAxis {
+            v0: voxel.min[axis],
+            v1: voxel.max[axis],
+            e: ext[axis],
+            sm: sums[axis],
+            cr: crosses[axis],
+            kt: o.traversal_cost,
+            ki: o.intersection_cost,
+            empty: 1.0 - o.empty_bonus,
+            inv_sa: 1.0 / sa,
+            n: n as u32,
+            keep_all,
+        };
+        // Empty-space cut-offs exactly at the references' extent, then the bin boundaries.
+        for (p, nl, nr) in [(lo[axis], 0, n as u32), (hi[axis], n as u32, 0)] {
+            let c = sweep.cost(p, nl, nr);
+            if c < best_cost {
+                best_cost = c;
+                best = Some((axis, p, c));
+            }
+        }
+        let mut costs = [f32::INFINITY; B];
+        sweep.bin_costs(&start[axis], &end[axis], nb, &mut costs);
+        let mut bj = 0;
+        for (j, &c) in costs.iter().enumerate().take(nb).skip(1) {
+            if c < best_cost {
+                best_cost = c;
+                bj = j;
+            }
+        }
+        if bj > 0 {
+            best = Some((axis, sweep.plane(bj, nb), best_cost));
         }
     }
     best
@@ -247,11 +384,10 @@ struct Built {
 }
 
 fn leaf(out: &mut Built, refs: &[KRef]) {
-    let first = out.refs.len() as u32;
-    let mut ids: Vec<u32> = refs.iter().map(|r| r.idx).collect();
-    ids.sort_unstable();
-    out.refs.extend(ids);
-    out.nodes.push(KdNode { split_or_count: refs.len() as u32, flags: LEAF | (first << 2) });
+    let first = out.refs.len();
+    out.refs.extend(refs.iter().map(|r| r.idx));
+    out.refs[first..].sort_unstable();
+    out.nodes.push(KdNode { split_or_count: refs.len() as u32, flags: LEAF | ((first as u32) << 2) });
 }
 
 /// What every subtree of one build shares: the options, the depth limit, and the leaf references made so far
@@ -268,24 +404,53 @@ impl Build<'_> {
     fn over(&self) -> bool {
         self.references.load(Ordering::Relaxed) > self.budget
     }
+
+    /// The split of a node over `refs` in `voxel` at `depth`, or `None` for a leaf (which it then counts).
+    fn decide(&self, refs: &[KRef], voxel: &Aabb, depth: u32, chain: u32) -> Option<(usize, f32)> {
+        let n = refs.len();
+        let o = self.o;
+        let split = if depth < self.max_depth && n > 0 {
+            find_split(refs, voxel, o, chain < o.max_keep_all_chain)
+        } else {
+            None
+        };
+        match split {
+            Some((axis, p, cost)) if cost < o.intersection_cost * n as f32 => Some((axis, p)),
+            _ => {
+                self.references.fetch_add(n, Ordering::Relaxed);
+                None
+            }
+        }
+    }
 }
 
-/// Builds the subtree over `refs` in `voxel` at `depth` into `out`; `chain` counts the splits in a row above that
-/// each gave their child every reference of its parent.
-fn build_rec(refs: Vec<KRef>, voxel: Aabb, depth: u32, chain: u32, b: &Build, out: &mut Built) {
+/// The children's voxels of a split of `voxel` at plane `p` on `axis`.
+fn child_voxels(voxel: &Aabb, axis: usize, p: f32) -> (Aabb, Aabb) {
+    let (mut lv, mut rv) = (*voxel, *voxel);
+    lv.max[axis] = p;
+    rv.min[axis] = p;
+    (lv, rv)
+}
+
+/// Builds the subtree over `refs` in `voxel` at `depth` as depth-first segments (concatenated once, by
+/// [`concat`]); `chain` counts the splits in a row above that each gave their child every reference of its parent.
+/// Subtrees of at least [`KdOptions::parallel_threshold`] references split in parallel; smaller ones are built by
+/// [`build_seq`] on one reference stack.
+fn build_rec(refs: Vec<KRef>, voxel: Aabb, depth: u32, chain: u32, b: &Build) -> Vec<Built> {
     let n = refs.len();
+    let mut out = Built { nodes: Vec::new(), refs: Vec::new() };
     if b.over() {
-        return;
+        return Vec::new();
     }
-    let o = b.o;
-    let keep_all = chain < o.max_keep_all_chain;
-    let split = if depth < b.max_depth && n > 0 { find_split(&refs, &voxel, o, keep_all) } else { None };
-    let Some((axis, p, cost)) = split.filter(|&(_, _, c)| c < o.intersection_cost * n as f32) else {
-        b.references.fetch_add(n, Ordering::Relaxed);
-        leaf(out, &refs);
-        return;
+    if n < b.o.parallel_threshold {
+        let mut stack = refs;
+        build_seq(&mut stack, 0, voxel, depth, chain, b, &mut out);
+        return vec![out];
+    }
+    let Some((axis, p)) = b.decide(&refs, &voxel, depth, chain) else {
+        leaf(&mut out, &refs);
+        return vec![out];
     };
-    let _ = cost;
     let mut left = Vec::with_capacity(n);
     let mut right = Vec::with_capacity(n);
     for r in &refs {
@@ -302,44 +467,82 @@ fn build_rec(refs: Vec<KRef>, voxel: Aabb, depth: u32, chain: u32, b: &Build, ou
     }
     drop(refs);
     let (nl_all, nr_all) = (left.len() == n, right.len() == n);
-    let mut lv = voxel;
-    lv.max[axis] = p;
-    let mut rv = voxel;
-    rv.min[axis] = p;
-    let here = out.nodes.len();
-    out.nodes.push(KdNode { split_or_count: p.to_bits(), flags: axis as u32 });
-    if n >= o.parallel_threshold {
-        let (l, r) = rayon::join(
-            || {
-                let mut a = Built { nodes: Vec::new(), refs: Vec::new() };
-                build_rec(left, lv, depth + 1, if nl_all { chain + 1 } else { 0 }, b, &mut a);
-                a
-            },
-            || {
-                let mut r = Built { nodes: Vec::new(), refs: Vec::new() };
-                build_rec(right, rv, depth + 1, if nr_all { chain + 1 } else { 0 }, b, &mut r);
-                r
-            },
-        );
-        append(out, l);
-        out.nodes[here].flags |= ((out.nodes.len() - here) as u32) << 2;
-        append(out, r);
-    } else {
-        build_rec(left, lv, depth + 1, if nl_all { chain + 1 } else { 0 }, b, out);
-        out.nodes[here].flags |= ((out.nodes.len() - here) as u32) << 2;
-        build_rec(right, rv, depth + 1, if nr_all { chain + 1 } else { 0 }, b, out);
-    }
+    let (lv, rv) = child_voxels(&voxel, axis, p);
+    let (l, r) = rayon::join(
+        || build_rec(left, lv, depth + 1, if nl_all { chain + 1 } else { 0 }, b),
+        || build_rec(right, rv, depth + 1, if nr_all { chain + 1 } else { 0 }, b),
+    );
+    // The right child follows the left subtree (an index too large is rejected after the build).
+    let left_nodes: usize = l.iter().map(|s| s.nodes.len()).sum();
+    let flags = axis as u32 | ((1 + left_nodes) as u32).wrapping_shl(2);
+    out.nodes.push(KdNode { split_or_count: p.to_bits(), flags });
+    let mut segments = Vec::with_capacity(1 + l.len() + r.len());
+    segments.push(out);
+    segments.extend(l);
+    segments.extend(r);
+    segments
 }
 
-fn append(out: &mut Built, sub: Built) {
-    let off = out.refs.len() as u32;
-    out.nodes.extend(sub.nodes.into_iter().map(|mut nd| {
-        if nd.is_leaf() {
-            nd.flags = LEAF | (((nd.flags >> 2) + off) << 2);
+/// [`build_rec`] without allocation: the node's references are `stack[start..]`; its children's are pushed above
+/// them (right, then left, so that the left child's sit on top) and the stack is cut back to `start` on return.
+/// The same tree as the recursive form, node for node.
+fn build_seq(stack: &mut Vec<KRef>, start: usize, voxel: Aabb, depth: u32, chain: u32, b: &Build, out: &mut Built) {
+    if b.over() {
+        stack.truncate(start);
+        return;
+    }
+    let end = stack.len();
+    let n = end - start;
+    let Some((axis, p)) = b.decide(&stack[start..], &voxel, depth, chain) else {
+        leaf(out, &stack[start..]);
+        stack.truncate(start);
+        return;
+    };
+    stack.reserve(2 * n);
+    for i in start..end {
+        let r = stack[i];
+        if goes_right(r.max[axis], p) {
+            let mut c = r;
+            c.min[axis] = c.min[axis].max(p);
+            stack.push(c);
         }
-        nd
-    }));
-    out.refs.extend(sub.refs);
+    }
+    let mid = stack.len();
+    for i in start..end {
+        let r = stack[i];
+        if goes_left(r.min[axis], r.max[axis], p) {
+            let mut c = r;
+            c.max[axis] = c.max[axis].min(p);
+            stack.push(c);
+        }
+    }
+    let (nl, nr) = (stack.len() - mid, mid - end);
+    let (lv, rv) = child_voxels(&voxel, axis, p);
+    let here = out.nodes.len();
+    out.nodes.push(KdNode { split_or_count: p.to_bits(), flags: axis as u32 });
+    build_seq(stack, mid, lv, depth + 1, if nl == n { chain + 1 } else { 0 }, b, out);
+    out.nodes[here].flags |= ((out.nodes.len() - here) as u32) << 2;
+    build_seq(stack, end, rv, depth + 1, if nr == n { chain + 1 } else { 0 }, b, out);
+    stack.truncate(start);
+}
+
+/// The segments of [`build_rec`] as one tree, each leaf's first reference moved by the references before its
+/// segment.
+fn concat(segments: Vec<Built>) -> Built {
+    let nodes = segments.iter().map(|s| s.nodes.len()).sum();
+    let refs = segments.iter().map(|s| s.refs.len()).sum();
+    let mut out = Built { nodes: Vec::with_capacity(nodes), refs: Vec::with_capacity(refs) };
+    for sub in segments {
+        let off = out.refs.len() as u32;
+        out.nodes.extend(sub.nodes.into_iter().map(|mut nd| {
+            if nd.is_leaf() {
+                nd.flags = LEAF | (((nd.flags >> 2) + off) << 2);
+            }
+            nd
+        }));
+        out.refs.extend(sub.refs);
+    }
+    out
 }
 
 impl KdTree {
@@ -358,10 +561,9 @@ impl KdTree {
             })
             .collect();
         let max_depth = (8.0 + 1.3 * (n as f64).log2()).round() as u32;
-        let mut out = Built { nodes: Vec::new(), refs: Vec::new() };
         let budget = o.reference_budget(n);
         let b = Build { o, max_depth, budget, references: AtomicUsize::new(0) };
-        build_rec(refs, bounds, 0, 0, &b, &mut out);
+        let mut out = concat(build_rec(refs, bounds, 0, 0, &b));
         if b.over() {
             return Err(AccelError::OverBudget {
                 structure: "kdtree",
@@ -619,5 +821,79 @@ impl AccelStructure for KdTree {
             }
         }
         Some(sah_cost(self.bounds.surface_area(), items.into_iter()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::SplitMix64;
+
+    /// Bin counts of `n` references over `nb` bins: each reference starts in a bin and ends in the same or a later
+    /// one; with `skew`, most of them in the first or last bin, so that sides with every reference or none occur.
+    fn counts<const B: usize>(g: &mut SplitMix64, n: u32, nb: usize, skew: bool) -> ([u32; B], [u32; B]) {
+        let (mut start, mut end) = ([0u32; B], [0u32; B]);
+        for _ in 0..n {
+            let (s, e) = if skew && g.below(4) > 0 {
+                let b = if g.below(2) == 0 { 0 } else { nb - 1 };
+                (b, b)
+            } else {
+                let s = g.below(nb as u64) as usize;
+                (s, s + g.below((nb - s) as u64) as usize)
+            };
+            start[s] += 1;
+            end[e] += 1;
+        }
+        (start, end)
+    }
+
+    fn check<const B: usize>(g: &mut SplitMix64) {
+        for case in 0..400 {
+            let nb = 2 + g.below(B as u64 - 1) as usize;
+            let n = if case % 7 == 0 { 0 } else { g.below(3 * nb as u64 + 2) as u32 };
+            let (start, end) = counts::<B>(g, n, nb, case % 3 == 0);
+            let v0 = g.range(-10.0, 10.0) as f32;
+            let e = if case % 11 == 0 { 1e-30 } else { g.range(1e-3, 100.0) as f32 };
+            let sweep = SweepAxis {
+                v0,
+                v1: v0 + e,
+                e,
+                sm: g.range(0.0, 50.0) as f32,
+                cr: g.range(0.0, 500.0) as f32,
+                kt: 1.0,
+                ki: g.range(0.5, 3.0) as f32,
+                empty: 1.0 - g.range(0.0, 0.9) as f32,
+                inv_sa: g.range(1e-3, 10.0) as f32,
+                n,
+                keep_all: case % 2 == 0,
+            };
+            let mut fast = [f32::INFINITY; B];
+            sweep.bin_costs(&start, &end, nb, &mut fast);
+            let (mut nl, mut nr) = (0u32, n);
+            assert_eq!(fast[0], f32::INFINITY);
+            for j in 1..nb {
+                nl += start[j - 1];
+                nr -= end[j - 1];
+                let slow = sweep.cost(sweep.plane(j, nb), nl, nr);
+                assert_eq!(fast[j].to_bits(), slow.to_bits(), "case {case}, j {j} of {nb}, n {n}: {sweep:?}");
+            }
+            assert!(fast[nb..].iter().all(|&c| c == f32::INFINITY));
+        }
+    }
+
+    #[test]
+    fn binned_sweep_matches_the_scalar_cost_to_the_bit() {
+        let mut g = SplitMix64::new(7);
+        check::<8>(&mut g);
+        check::<16>(&mut g);
+        check::<32>(&mut g);
+        check::<MAX_BINS>(&mut g);
+    }
+
+    #[test]
+    fn bin_indices_truncate_and_send_nan_to_bin_zero() {
+        let b = bins(Vec3A::new(0.0, 2.999, 63.0));
+        assert_eq!(&b[..3], &[0, 2, 63]);
+        assert_eq!(bins(Vec3A::new(f32::NAN, 1.0, 0.5))[0] as usize & (MAX_BINS - 1), 0);
     }
 }
