@@ -40,39 +40,38 @@ const CHUNK: usize = 1024;
 pub fn trace(accel: &dyn AccelStructure, rays: &RaySet) -> TraceOutcome {
     let start = std::time::Instant::now();
     let mut out = TraceOutcome::default();
-    if rays.any_hit {
-        let parts: Vec<(Vec<bool>, TraceCounters)> = rays
-            .rays
-            .par_chunks(CHUNK)
-            .map(|chunk| {
-                let mut c = TraceCounters::default();
-                let v = chunk.iter().map(|r| accel.occluded(r, &mut c)).collect();
-                (v, c)
-            })
-            .collect();
-        out.occluded.reserve(rays.rays.len());
-        for (v, c) in parts {
-            out.occluded.extend(v);
-            out.counters.add(&c);
-        }
+    // Results are written in place, chunk by chunk, into one vector of the final size (no per-chunk vectors and no
+    // second copy: on cheap rays, 8 box tests each, those cost about a sixth of the trace).
+    out.counters = if rays.any_hit {
+        out.occluded = vec![false; rays.rays.len()];
+        trace_into(&rays.rays, &mut out.occluded, |r, c| accel.occluded(r, c))
     } else {
-        let parts: Vec<(Vec<Option<Hit>>, TraceCounters)> = rays
-            .rays
-            .par_chunks(CHUNK)
-            .map(|chunk| {
-                let mut c = TraceCounters::default();
-                let v = chunk.iter().map(|r| accel.intersect(r, &mut c)).collect();
-                (v, c)
-            })
-            .collect();
-        out.hits.reserve(rays.rays.len());
-        for (v, c) in parts {
-            out.hits.extend(v);
-            out.counters.add(&c);
-        }
-    }
+        out.hits = vec![None; rays.rays.len()];
+        trace_into(&rays.rays, &mut out.hits, |r, c| accel.intersect(r, c))
+    };
     out.seconds = start.elapsed().as_secs_f64();
     out
+}
+
+/// `out[i] = f(rays[i])` in parallel over chunks of [`CHUNK`] rays, the counters summed.
+fn trace_into<T: Send>(
+    rays: &[crate::geom::Ray],
+    out: &mut [T],
+    f: impl Fn(&crate::geom::Ray, &mut TraceCounters) -> T + Sync,
+) -> TraceCounters {
+    rays.par_chunks(CHUNK)
+        .zip(out.par_chunks_mut(CHUNK))
+        .map(|(rays, out)| {
+            let mut c = TraceCounters::default();
+            for (r, o) in rays.iter().zip(out) {
+                *o = f(r, &mut c);
+            }
+            c
+        })
+        .reduce(TraceCounters::default, |mut a, b| {
+            a.add(&b);
+            a
+        })
 }
 
 /// Number of rays on which two outcomes of the same ray set disagree (see [`hits_agree`]; occlusion must be equal).
