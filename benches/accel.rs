@@ -7,8 +7,10 @@
 //!   its rayon build, `obvhs` 0.4 BVH2 with the `medium_build` preset).
 //! * `side_by_side`: one run that prints, per scene (the three above and four scans the builders were never tuned
 //!   on), build Mtris/s, trace Mrays/s (medians of 9), SAH cost (`K_T = K_I = 1`, see `meshchar::accel::sah_cost`)
-//!   and hit agreement with our BVH, for ours, `bvh` 0.13 and `obvhs` 0.4 (medium and fastest presets), then the
-//!   ratios: our binned-SAH BVH against obvhs's medium preset, our LBVH against its fastest (PLOC).
+//!   and hit agreement with our BVH, for our six structures, `bvh` 0.13 and `obvhs` 0.4 (medium and fastest
+//!   presets), then the ratios: our binned-SAH BVH against obvhs's medium preset, our LBVH against its fastest
+//!   (PLOC). The kd-tree's SAH column is its own cost (voxel areas over the root's, `K_T = K_I = 1`), not
+//!   comparable with the BVHs'; the BIH's is over its nodes' boxes; the grid prints none.
 //!
 //! Scenes come from `../shared/meshes`; the bench fails naming the path when they are missing.
 //! Run: `cargo bench --bench accel` (filter with e.g. `-- side_by_side` or `-- build/bunny`).
@@ -306,7 +308,9 @@ fn side_by_side(_: &mut Criterion) {
             println!("{scene:<8} {name:<22} {:>12.2} {:>12.2} {:>10.1} {:>14}", n / bt / 1e6, nr / tt / 1e6, sah, bad)
         };
         row("meshchar bvh", bt, tt, ours.sah_cost().unwrap_or(f64::NAN), 0);
-        for name in [StructureName::Lbvh, StructureName::Hlbvh] {
+        for name in
+            [StructureName::Lbvh, StructureName::Hlbvh, StructureName::KdTree, StructureName::Grid, StructureName::Bih]
+        {
             let (b, s) = median_of(REPS, || build_structure(name, &mesh).unwrap_or_else(|e| panic!("{e}")));
             let (t, o) = median_of(REPS, || trace(s.as_ref(), &rays));
             let bad = meshchar::trace::count_disagreements(&o, &out);
