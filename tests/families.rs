@@ -139,3 +139,58 @@ fn a_family_spec_names_a_generated_scene_wherever_a_path_is_taken() {
     assert!(e.contains("family:city:lots"), "{e}");
     assert!(meshchar::mesh::load_path(std::path::Path::new("family:city:100m")).is_err());
 }
+
+#[test]
+fn a_degenerate_spec_names_a_failure_study_generator_wherever_a_path_is_taken() {
+    use meshchar::mesh::degenerate::{self, parse_spec, Degenerate};
+    use meshchar::mesh::{generate as g, load_mesh, load_path};
+    use std::path::Path;
+    assert_eq!(parse_spec("degenerate:flat:10k:5"), Some(Ok((Degenerate::Flat, 10_000, 5))));
+    assert_eq!(parse_spec("degenerate:All-Equal:1000"), Some(Ok((Degenerate::AllEqual, 1000, 0))));
+    assert_eq!(parse_spec("family:city:10"), None);
+    for bad in ["degenerate:", "degenerate:flat", "degenerate:blob:10", "degenerate:fan:x", "degenerate:fan:1:2:3"] {
+        let e = parse_spec(bad).unwrap().unwrap_err();
+        assert!(e.contains("degenerate:NAME:TRIANGLES") || e.contains("unknown degenerate scene"), "{bad}: {e}");
+    }
+    // The same meshes as the generators the failure study calls, bit for bit.
+    let same = |spec: &str, want: Mesh| {
+        let got = load_mesh(Path::new(spec)).unwrap_or_else(|e| panic!("{spec}: {e}"));
+        assert_eq!(got.name, spec);
+        assert_eq!(bits(&got), bits(&want), "{spec}");
+        let anim = load_path(Path::new(spec)).unwrap();
+        assert_eq!((anim.name.as_str(), anim.frames.len()), (spec, 1));
+        assert_eq!(bits(&anim.frames[0]), bits(&want), "{spec}");
+    };
+    same("degenerate:flat:10000:5", g::flat(10_000, 5));
+    same("degenerate:collinear:1000", g::collinear_centroids(1000));
+    same("degenerate:all-equal:1000", g::all_equal(1000));
+    same("degenerate:zero-area:3000:13", g::zero_area(3000, 13));
+    same("degenerate:overlapping:2000:19", g::overlapping_large(2000, 19));
+    same("degenerate:fan:300", g::fan_polygon(300));
+    same("degenerate:lattice:180400", g::lattice_with_diagonal(300, 400));
+    let soup = g::random_soup(5000, 11);
+    same("degenerate:duplicated:20000:11", g::duplicated(&soup, 4).unwrap());
+    same("degenerate:huge:5000:11", g::scaled(&soup, 1e30).unwrap());
+    same("degenerate:tiny:5000:11", g::scaled(&soup, 1e-30).unwrap());
+    same("degenerate:long-thin:1001:24301", g::long_thin_triangle());
+    // Counts: exact where the module says so, at most the request for the lattice and the duplicated soup.
+    for kind in Degenerate::ALL {
+        for n in [0usize, 1, 2, 3, 7, 451, 1000, 4097] {
+            let m = degenerate::generate(kind, n, 3).unwrap_or_else(|e| panic!("{kind:?} {n}: {e}"));
+            m.validate().unwrap_or_else(|e| panic!("{kind:?} {n}: {e}"));
+            let got = m.triangle_count();
+            match kind {
+                Degenerate::Lattice => {
+                    let k = ((n - n / 451) as f64 / 2.0).sqrt().floor() as usize;
+                    assert_eq!(got, 2 * k * k + n / 451, "{kind:?} {n}");
+                }
+                Degenerate::Duplicated => assert_eq!(got, n / 4 * 4, "{kind:?} {n}"),
+                _ => assert_eq!(got, n, "{kind:?} {n}"),
+            }
+        }
+    }
+    let e = load_path(Path::new("degenerate:flat:100m")).unwrap_err().to_string();
+    assert!(e.contains("degenerate:flat:100m") && e.contains("more than"), "{e}");
+    let e = load_mesh(Path::new("degenerate:flat:lots")).unwrap_err().to_string();
+    assert!(e.contains("degenerate:flat:lots"), "{e}");
+}

@@ -112,28 +112,34 @@ pub fn parse_spec(s: &str) -> Option<Result<(Family, usize, u64), String>> {
             return Err(usage());
         }
         let family: Family = parts[0].parse()?;
-        let count = parts[1].trim().replace('_', "").to_ascii_lowercase();
-        let (digits, scale) = match count.strip_suffix('k') {
-            Some(d) => (d, 1_000u64),
-            None => match count.strip_suffix('m') {
-                Some(d) => (d, 1_000_000),
-                None => (count.as_str(), 1),
-            },
-        };
-        let n = digits
-            .parse::<u64>()
-            .ok()
-            .and_then(|d| d.checked_mul(scale))
-            .ok_or_else(|| format!("{}: the triangle count {:?} is not a whole number", usage(), parts[1]))?;
-        let n = usize::try_from(n).map_err(|_| format!("{}: {n} triangles is too many", usage()))?;
-        let seed = match parts.get(2) {
-            Some(t) => {
-                t.trim().parse::<u64>().map_err(|_| format!("{}: the seed {t:?} is not a whole number", usage()))?
-            }
-            None => 0,
-        };
+        let (n, seed) = count_and_seed(&parts[1..], &usage())?;
         Ok((family, n, seed))
     })())
+}
+
+/// The `TRIANGLES[:SEED]` part of a scene spec (`TRIANGLES` with optional `_` separators and a `k` or `m` suffix;
+/// seed 0 when left out); `usage` heads the error.
+pub(crate) fn count_and_seed(parts: &[&str], usage: &str) -> Result<(usize, u64), String> {
+    let raw = parts.first().copied().unwrap_or("");
+    let count = raw.trim().replace('_', "").to_ascii_lowercase();
+    let (digits, scale) = match count.strip_suffix('k') {
+        Some(d) => (d, 1_000u64),
+        None => match count.strip_suffix('m') {
+            Some(d) => (d, 1_000_000),
+            None => (count.as_str(), 1),
+        },
+    };
+    let n = digits
+        .parse::<u64>()
+        .ok()
+        .and_then(|d| d.checked_mul(scale))
+        .ok_or_else(|| format!("{usage}: the triangle count {raw:?} is not a whole number"))?;
+    let n = usize::try_from(n).map_err(|_| format!("{usage}: {n} triangles is too many"))?;
+    let seed = match parts.get(1) {
+        Some(t) => t.trim().parse::<u64>().map_err(|_| format!("{usage}: the seed {t:?} is not a whole number"))?,
+        None => 0,
+    };
+    Ok((n, seed))
 }
 
 /// A scene of `family` with exactly `triangles` triangles from `seed` (see the module docs).

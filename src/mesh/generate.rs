@@ -299,13 +299,25 @@ pub fn teapot_in_stadium(seed: u64) -> Mesh {
 
 /// One sliver across the scene plus some normal geometry: triangle 0 runs from `(0,0,0)` to `(1,1,1)` along the
 /// diagonal of the unit cube and is `1e-4` wide; it is followed by the 1,000 triangles of
-/// `random_soup(1000, 0x5eed)`.
+/// `random_soup(1000, 0x5eed)` (`long_thin(1001, 0x5eed)`).
 pub fn long_thin_triangle() -> Mesh {
+    Mesh { name: "long_thin_triangle".into(), ..long_thin(1001, 0x5eed) }
+}
+
+/// [`long_thin_triangle`] with `n` triangles in all: the sliver followed by `random_soup(n - 1, seed)` (an empty
+/// mesh for `n = 0`).
+///
+/// # Panics
+///
+/// If `n > MAX_SOUP_TRIANGLES`.
+pub fn long_thin(n: usize, seed: u64) -> Mesh {
+    check_count(n);
     let sliver = [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [1.0001, 1.0, 1.0]];
-    let rest = random_soup(1000, 0x5eed);
-    let tris =
-        std::iter::once(sliver).chain((0..rest.triangle_count()).map(|i| rest.triangle(i).map(|v| v.to_array())));
-    soup("long_thin_triangle".into(), tris)
+    let rest = random_soup(n.saturating_sub(1), seed);
+    let tris = std::iter::once(sliver)
+        .take(n.min(1))
+        .chain((0..rest.triangle_count()).map(|i| rest.triangle(i).map(|v| v.to_array())));
+    soup(format!("long_thin(n={n}, seed={seed})"), tris)
 }
 
 /// `n` large overlapping triangles: every vertex is uniform in the unit cube, so a typical triangle spans a good part

@@ -100,7 +100,13 @@ const MAX_QUOTE: usize = 80;
 /// The format comes from the extension (case-insensitive); for any other extension the first bytes decide (see
 /// [`detect_format`]). The mesh is named after the path. Every error names the file and, where there is one, the
 /// place in it; anything but a regular file is refused before it is opened (see the module documentation).
+///
+/// A path that does not exist and reads as a generated scene's spec (`family:NAME:TRIANGLES[:SEED]`,
+/// `degenerate:NAME:TRIANGLES[:SEED]`) is that scene, named by the spec (see [`generated_scene`]).
 pub fn load_mesh(path: &Path) -> Result<Mesh, MeshError> {
+    if let Some(generated) = generated_scene(path) {
+        return generated;
+    }
     let bytes = read_regular_file(path)?;
     let format = detect_format(path, &bytes).ok_or_else(|| MeshError::UnknownFormat { path: path.to_path_buf() })?;
     parse_mesh(&path.display().to_string(), &bytes, format)
@@ -259,18 +265,10 @@ pub fn load_animation(paths: &[PathBuf]) -> Result<Animation, MeshError> {
 /// name; other entries are ignored. A directory without such entries is an error naming it, and so is a frame entry
 /// that is not a regular file (see [`frame_files`]). The animation is named after the path.
 ///
-/// A path that does not exist and reads `family:NAME:TRIANGLES[:SEED]` is a generated scene of a family
-/// ([`super::families::parse_spec`], [`super::families::generate`]), named by the spec: every tool that loads scenes
-/// takes them, and a record naming one regenerates the same mesh bit for bit.
+/// A path that does not exist and reads as a generated scene's spec is that scene ([`generated_scene`]).
 pub fn load_path(path: &Path) -> Result<Animation, MeshError> {
-    if !path.exists() {
-        let spec = path.to_string_lossy();
-        if let Some(parsed) = super::families::parse_spec(&spec) {
-            let (family, n, seed) = parsed.map_err(|reason| MeshError::Invalid { file: spec.to_string(), reason })?;
-            let mut mesh = super::families::generate(family, n, seed)?;
-            mesh.name = spec.to_string();
-            return Animation::new(spec.to_string(), vec![mesh]);
-        }
+    if let Some(generated) = generated_scene(path) {
+        return Animation::new(path.to_string_lossy().to_string(), vec![generated?]);
     }
     if path.is_dir() {
         let frames = frame_files(path)?;
@@ -285,6 +283,35 @@ pub fn load_path(path: &Path) -> Result<Animation, MeshError> {
     }
     let m = load_mesh(path)?;
     Animation::new(path.display().to_string(), vec![m])
+}
+
+/// The generated scene a path names when it does not exist and reads `family:NAME:TRIANGLES[:SEED]` (a scene family,
+/// [`super::families::parse_spec`]) or `degenerate:NAME:TRIANGLES[:SEED]` (a degenerate scene,
+/// [`super::degenerate::parse_spec`]), named by the spec; `None` for any other path. Every tool that loads scenes
+/// takes them, and a record naming one regenerates the same mesh bit for bit.
+pub fn generated_scene(path: &Path) -> Option<Result<Mesh, MeshError>> {
+    if path.exists() {
+        return None;
+    }
+    let spec = path.to_string_lossy();
+    let invalid = |reason| MeshError::Invalid { file: spec.to_string(), reason };
+    let mesh = if let Some(parsed) = super::families::parse_spec(&spec) {
+        parsed.map_err(invalid).and_then(|(family, n, seed)| super::families::generate(family, n, seed))
+    } else {
+        let parsed = super::degenerate::parse_spec(&spec)?;
+        parsed.map_err(invalid).and_then(|(kind, n, seed)| super::degenerate::generate(kind, n, seed))
+    };
+    // Errors name the spec as given.
+    Some(
+        mesh.map(|mut m| {
+            m.name = spec.to_string();
+            m
+        })
+        .map_err(|e| match e {
+            MeshError::Invalid { reason, .. } => MeshError::Invalid { file: spec.to_string(), reason },
+            other => other,
+        }),
+    )
 }
 
 /// The `.obj` and `.ply` files of a directory, sorted by file name.

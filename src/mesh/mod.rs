@@ -3,9 +3,10 @@
 //! A [`Mesh`] is a list of f32 vertex positions and a list of `u32` index triples, with an optional object id per
 //! triangle (kept when an OBJ file with several objects is merged). An [`Animation`] is an ordered list of frames that
 //! share one topology. Loaders live in [`load`]; synthetic scenes in [`generate`], whole scenes of a kind
-//! (interiors, cities, ...) in [`families`] (re-exported by [`generate`]); [`default_scene`] and [`default_teapot`]
+//! (interiors, cities, ...) in [`families`] (re-exported by [`generate`]), degenerate scenes by name in [`degenerate`]; [`default_scene`] and [`default_teapot`]
 //! are compiled into the crate.
 
+pub mod degenerate;
 mod embedded;
 mod error;
 pub mod families;
@@ -14,7 +15,7 @@ pub mod load;
 
 pub use embedded::{default_scene, default_teapot};
 pub use error::MeshError;
-pub use load::{load_animation, load_mesh, load_path, parse_mesh, MeshFormat};
+pub use load::{generated_scene, load_animation, load_mesh, load_path, parse_mesh, MeshFormat};
 
 use glam::Vec3;
 
