@@ -292,3 +292,112 @@ fn the_decision_cost_is_weighed_against_the_chosen_frame() {
     let c = SelectionCost::new(1.0, 1.0, 1, None, 1);
     assert_eq!((c.share, c.within_goal), (None, None));
 }
+
+#[test]
+fn box_crossings_are_the_cauchy_crofton_mean_and_count_coincident_copies_once_for_the_bvh() {
+    use meshchar::cost::Crossings;
+    // One triangle filling the face z = 0 of the unit square's box: its box is the scene's, so every line meeting
+    // the scene meets it: 1 crossing.
+    let one = Mesh::new("one", vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], vec![[0, 1, 2]]).unwrap();
+    assert_eq!(Crossings::of_mesh(&one), Crossings { all: 1.0, distinct: 1.0 });
+    // Two unit triangles in opposite corners of a 2x2x1 box (the generator's `two_triangles`): each box is the face
+    // z = const of a unit square, area 2 of the scene's 2 (2 + 2 + 4) = 16.
+    let two = generate::two_triangles();
+    let c = Crossings::of_mesh(&two);
+    assert!((c.all - 4.0 / 16.0).abs() < 1e-12 && c.distinct == c.all, "{c:?}");
+    // A fan over three points: ceil(n / 3) copies of one index triple and zero-area legs; the distinct triples are
+    // three, whatever n.
+    let fan = generate::fan_polygon(3000);
+    let c = Crossings::of_mesh(&fan);
+    assert!(c.all > 900.0 && c.distinct < 3.0, "{c:?}");
+    // Copies with their own vertices are distinct triples: all-equal counts every copy for the BVH too.
+    let c = Crossings::of_mesh(&generate::all_equal(100));
+    assert_eq!((c.all, c.distinct), (100.0, 100.0));
+    // Below Crossings::DISTINCT_FROM the distinct count is not taken apart.
+    let c = Crossings::of_mesh(&generate::random_soup(1000, 3));
+    assert!(c.all < Crossings::DISTINCT_FROM && c.distinct == c.all, "{c:?}");
+    // The mesh bounds carry them; feature bounds cannot.
+    assert_eq!(BuildBounds::of_mesh(&fan).unwrap().box_crossings, Some(Crossings::of_mesh(&fan)));
+    let f = features_cpu(&fan, &Params::default()).unwrap();
+    assert_eq!(BuildBounds::of_features(&f).box_crossings, None);
+}
+
+#[test]
+fn the_overlap_floor_bounds_primary_rays_of_hierarchies_only() {
+    use meshchar::cost::{overlap_floor, Crossings, PRIMARY_BOX_TESTS_PER_CROSSING, PRIMARY_TESTS_PER_CROSSING};
+    let c = Some(Crossings { all: 500.0, distinct: 2.0 });
+    let f = |s, k| overlap_floor(s, k, c);
+    assert_eq!(f(StructureName::Lbvh, WorkloadKind::Primary).prim_tests, 500.0 * PRIMARY_TESTS_PER_CROSSING);
+    assert_eq!(f(StructureName::Lbvh, WorkloadKind::Primary).box_tests, 500.0 * PRIMARY_BOX_TESTS_PER_CROSSING);
+    assert_eq!(f(StructureName::Bvh, WorkloadKind::Primary).prim_tests, 2.0 * PRIMARY_TESTS_PER_CROSSING);
+    assert_eq!(f(StructureName::KdTree, WorkloadKind::Primary).box_tests, 0.0);
+    assert!(f(StructureName::KdTree, WorkloadKind::Primary).prim_tests > 0.0);
+    assert_eq!(f(StructureName::Grid, WorkloadKind::Primary), Default::default());
+    assert_eq!(f(StructureName::Lbvh, WorkloadKind::Shadow), Default::default());
+    assert_eq!(f(StructureName::Lbvh, WorkloadKind::Diffuse), Default::default());
+    assert_eq!(overlap_floor(StructureName::Lbvh, WorkloadKind::Primary, None), Default::default());
+    // The model's predictions take the floor: counts at least it, and a trace no cheaper than without it.
+    let model = CostModel::shipped().expect("shipped model");
+    let m = generate::overlapping_large(2000, 1);
+    let feats = features_cpu(&m, &Params::default()).unwrap();
+    let w = meshchar::cost::Workload {
+        kind: WorkloadKind::Primary,
+        rays_per_frame: 65536,
+        frames: 1,
+        builds: 1,
+        view: None,
+    };
+    let crossings = Some(Crossings::of_mesh(&m));
+    let plain = model.predict(&feats, &w);
+    let floored = model.predict_floored(&feats, &w, &|s| overlap_floor(s, WorkloadKind::Primary, crossings));
+    for (p, q) in plain.iter().zip(&floored) {
+        let fl = overlap_floor(p.structure, WorkloadKind::Primary, crossings);
+        assert_eq!(q.box_tests_per_ray, p.box_tests_per_ray.max(fl.box_tests), "{}", p.structure);
+        assert_eq!(q.prim_tests_per_ray, p.prim_tests_per_ray.max(fl.prim_tests), "{}", p.structure);
+        assert!(q.trace_ms >= p.trace_ms && q.build_ms == p.build_ms, "{}", p.structure);
+    }
+    assert!(floored.iter().zip(&plain).any(|(q, p)| q.trace_ms > 2.0 * p.trace_ms), "the floor changed nothing");
+}
+
+/// Box plus triangle tests per ray of `s` over 32 x 32 primary rays from the framing camera: deterministic.
+fn tests_per_ray(s: StructureName, m: &Mesh) -> Option<f64> {
+    use meshchar::trace::workload::{mesh_bounds, primary_rays};
+    use meshchar::trace::{trace, Camera, RaySet};
+    let accel = meshchar::accel::build_structure(s, m).ok()?;
+    let rays = RaySet {
+        kind: WorkloadKind::Primary,
+        rays: primary_rays(&Camera::frame(&mesh_bounds(m)), 32, 32),
+        any_hit: false,
+    };
+    let out = trace(accel.as_ref(), &rays);
+    Some((out.counters.box_tests + out.counters.prim_tests) as f64 / rays.rays.len() as f64)
+}
+
+#[test]
+fn on_overlapping_and_coincident_triangles_the_calibrated_policy_picks_no_runaway_traversal() {
+    // The three primary-ray catastrophes of docs/data/degenerate-primary.jsonl before the overlap floor: the BVH
+    // at 6.9x the grid on overlapping triangles, the LBVH over the trace budget on a fan, the LBVH at 69x the grid
+    // on zero-area triangles. Judged by counted tests per ray (deterministic), not by time: the chosen structure
+    // makes at most 4 times the tests of the structure with the fewest among those the budget keeps.
+    let model = CostModel::shipped().expect("shipped model");
+    let policy = PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 };
+    for m in [generate::overlapping_large(2000, 1), generate::fan_polygon(20_000), generate::zero_area(20_000, 1)] {
+        let params = Params::default();
+        let c = cpu::fast(&m, &params).expect("characterization");
+        let f = features_cpu(&m, &params).expect("features");
+        let bounds = BuildBounds::of_mesh(&m).expect("bounds");
+        let (frames, features) = (std::slice::from_ref(&c), std::slice::from_ref(&f));
+        let sel =
+            select_for_scene_within(&m.name, frames, features, policy, &workload(), Some(bounds), Budget::default());
+        let chosen = sel.selection.structure;
+        let kept: Vec<StructureName> = StructureName::ALL
+            .into_iter()
+            .filter(|s| !sel.selection.excluded.iter().any(|e| e.structure == *s))
+            .collect();
+        let counts: Vec<(StructureName, f64)> =
+            kept.iter().filter_map(|&s| tests_per_ray(s, &m).map(|t| (s, t))).collect();
+        let least = counts.iter().map(|c| c.1).fold(f64::INFINITY, f64::min);
+        let mine = counts.iter().find(|c| c.0 == chosen).map(|c| c.1).expect("the chosen structure builds");
+        assert!(mine <= 4.0 * least.max(1.0), "{}: chose {chosen} at {mine:.1} tests per ray; {counts:?}", m.name);
+    }
+}

@@ -172,6 +172,7 @@ fn known_samples_with_rays(count: u64, rays: impl Fn(u64) -> u64) -> (Vec<Sample
             baseline: Some(StructureName::Grid),
             driver: Vec::new(),
             frame_features: Vec::new(),
+            crossings: None,
         });
     }
     (samples, truth)

@@ -105,6 +105,7 @@ fn known_samples() -> Vec<Sample> {
             baseline: None,
             driver,
             frame_features: Vec::new(),
+            crossings: None,
         });
     }
     for (k, n) in [500usize, 2_000, 6_000].into_iter().enumerate() {
@@ -152,6 +153,7 @@ fn known_samples() -> Vec<Sample> {
             baseline: None,
             driver,
             frame_features: feats,
+            crossings: None,
         });
     }
     out

@@ -91,6 +91,9 @@ pub mod registry;
 mod sample;
 pub mod view;
 
+pub mod overlap;
+pub use overlap::{overlap_floor, Crossings, TestFloor, PRIMARY_BOX_TESTS_PER_CROSSING, PRIMARY_TESTS_PER_CROSSING};
+
 use crate::accel::device::{DeviceRecord, TraceBackend};
 use crate::accel::StructureName;
 use crate::characterize::features::Derived;
@@ -371,10 +374,19 @@ impl StructureModel {
     /// `w.view` enters the test-count laws (`None` counts as zeros here: [`CostModel::predict`] first resolves a
     /// missing view to the framing camera).
     pub fn predict(&self, d: &Derived, n: u64, w: &Workload) -> Prediction {
+        self.predict_floored(d, n, w, TestFloor::default())
+    }
+
+    /// [`StructureModel::predict`] with the box and triangle tests per ray at least `floor` (bounds the caller knows
+    /// from the scene, such as the selection's overlap floor, [`overlap_floor`]); the trace time follows from the
+    /// floored counts.
+    pub fn predict_floored(&self, d: &Derived, n: u64, w: &Workload, floor: TestFloor) -> Prediction {
         let x = phi(d, w.kind);
         let v = w.view.map_or([0.0; 3], |v| v.row());
         let bx = (dot(&self.box_coef, &x) + dot(&self.view_box_coef, &v)).clamp(-30.0, 30.0).exp();
         let pr = (dot(&self.prim_coef, &x) + dot(&self.view_prim_coef, &v)).clamp(-30.0, 30.0).exp();
+        // A NaN floor (never given) must not poison the counts: f64::max ignores it.
+        let (bx, pr) = (bx.max(floor.box_tests), pr.max(floor.prim_tests));
         let ns = dot(&self.trace_price, &price_row(w.kind, bx, pr));
         let per_build = (self.build_ln_a + self.build_exponent * (n.max(1) as f64).ln()).exp();
         let build_ms = per_build * w.builds as f64;
@@ -611,6 +623,16 @@ impl CostModel {
     /// A workload without a view is predicted for the framing camera of the features' bounds
     /// ([`ViewFeatures::framing`]), the oracle's default camera.
     pub fn predict(&self, f: &Features, w: &Workload) -> Vec<Prediction> {
+        self.predict_floored(f, w, &|_| TestFloor::default())
+    }
+
+    /// [`CostModel::predict`] with each structure's tests per ray at least `floor(structure)`.
+    pub fn predict_floored(
+        &self,
+        f: &Features,
+        w: &Workload,
+        floor: &dyn Fn(StructureName) -> TestFloor,
+    ) -> Vec<Prediction> {
         let d = f.derived();
         // Only a model fitted with views reads them: the others skip the framing camera's slab tests.
         let w = if self.structures.iter().any(|m| !m.view_box_coef.is_empty() || !m.view_prim_coef.is_empty()) {
@@ -618,7 +640,8 @@ impl CostModel {
         } else {
             *w
         };
-        self.structures.iter().map(|m| m.predict(&d, f.total_triangles.max(f.triangles), &w)).collect()
+        let n = f.total_triangles.max(f.triangles);
+        self.structures.iter().map(|m| m.predict_floored(&d, n, &w, floor(m.structure))).collect()
     }
 
     /// Predicted costs of every calibrated driver structure ([`driver`]) for a scene and a workload.

@@ -75,9 +75,20 @@ pub struct Sample {
     /// Features of every measured frame of an animation (empty for one frame, or when not computed): the drift of
     /// an updated driver structure is measured against them.
     pub frame_features: Vec<Features>,
+    /// The first frame's box crossings (`None` when not computed): the policies' overlap floor
+    /// ([`super::overlap_floor`]) reads them.
+    pub crossings: Option<super::Crossings>,
 }
 
 impl Sample {
+    /// The model's predictions for this sample's scene and workload, with the overlap floor of
+    /// [`Sample::crossings`] (what the calibrated policy predicts with the mesh at hand).
+    pub fn predict(&self, model: &super::CostModel) -> Vec<super::Prediction> {
+        model.predict_floored(&self.features, &self.workload, &|s| {
+            super::overlap_floor(s, self.workload.kind, self.crossings)
+        })
+    }
+
     /// The measurement of one structure.
     pub fn get(&self, s: StructureName) -> Option<&Measured> {
         self.measured.iter().find(|m| m.structure == s)

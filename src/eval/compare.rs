@@ -156,7 +156,7 @@ fn measured_best(smp: &Sample) -> (Named, Named) {
 /// the project's structure by [`choose`], then the driver structure that [`crate::select::driver`] picks, chosen
 /// overall when predicted cheaper (for an animation with its per-frame update plan).
 fn policy_candidate(model: &CostModel, smp: &Sample, tie_margin: f64) -> (Option<String>, Option<String>) {
-    let preds = model.predict(&smp.features, &smp.workload);
+    let preds = smp.predict(model);
     let frames: Vec<crate::characterize::Features> =
         if smp.frame_features.is_empty() { vec![smp.features.clone()] } else { smp.frame_features.clone() };
     // The project's side as the policy weighs it: for an animation, its per-frame plan.
@@ -292,15 +292,14 @@ pub fn compare(samples: &[Sample], tie_margin: f64, device: &str) -> Result<Comp
         let train: Vec<Sample> = samples.iter().filter(|s| s.scene != *scene).cloned().collect();
         let Ok(model) = CostModel::fit(&train, device, "leave-one-out") else { continue };
         for (i, smp) in samples.iter().enumerate().filter(|(_, s)| s.scene == *scene) {
-            let preds = model.predict(&smp.features, &smp.workload);
+            let preds = smp.predict(&model);
             if let Some(c) = choose(&preds, tie_margin) {
                 let t = preds.iter().find(|p| p.structure == c).map_or(0.0, |p| p.total_ms);
                 held[i] = Some((c, t));
             }
         }
     }
-    let ins: Vec<Option<StructureName>> =
-        samples.iter().map(|smp| choose(&full.predict(&smp.features, &smp.workload), tie_margin)).collect();
+    let ins: Vec<Option<StructureName>> = samples.iter().map(|smp| choose(&smp.predict(&full), tie_margin)).collect();
     let rows = samples
         .iter()
         .enumerate()
@@ -404,7 +403,7 @@ fn held_out_choices(
         let train: Vec<Sample> = samples.iter().zip(&keys).filter(|(_, k)| *k != g).map(|(s, _)| s.clone()).collect();
         let Ok(model) = fit(&train) else { continue };
         for (i, smp) in samples.iter().enumerate().filter(|(i, _)| keys[*i] == *g) {
-            out[i] = choose(&model.predict(&smp.features, &smp.workload), tie_margin);
+            out[i] = choose(&smp.predict(&model), tie_margin);
         }
     }
     out
@@ -503,7 +502,7 @@ pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> B
         policies.push(run("calibrated", "family_out", held_out_choices(samples, &family, &full, tie_margin)));
     }
     let ins: Vec<Option<StructureName>> = match full(samples) {
-        Ok(m) => samples.iter().map(|s| choose(&m.predict(&s.features, &s.workload), tie_margin)).collect(),
+        Ok(m) => samples.iter().map(|s| choose(&s.predict(&m), tie_margin)).collect(),
         Err(_) => vec![None; samples.len()],
     };
     policies.push(run("calibrated", "in_sample", ins));

@@ -459,6 +459,7 @@ impl OracleRecord {
             baseline: baseline.or(recorded),
             driver,
             frame_features: Vec::new(),
+            crossings: None,
         }
     }
 }
@@ -541,8 +542,8 @@ pub fn read_jsonl(path: &Path) -> Result<Vec<OracleRecord>, RecordError> {
 /// name of each scene loaded.
 pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str)) -> Result<Vec<Sample>, RecordError> {
     // Per scene: the features of its frames, as far as computed.
-    let mut cache: std::collections::HashMap<String, (crate::mesh::Animation, Vec<Features>)> =
-        std::collections::HashMap::new();
+    type Loaded = (crate::mesh::Animation, Vec<Features>, crate::cost::Crossings);
+    let mut cache: std::collections::HashMap<String, Loaded> = std::collections::HashMap::new();
     let mut out = Vec::new();
     for file in files {
         let name = file.display().to_string();
@@ -553,9 +554,10 @@ pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str))
                 let scene = crate::mesh::load_path(Path::new(&rec.mesh)).map_err(|e| scene_err(e.to_string()))?;
                 let first = scene.frames.first().ok_or_else(|| scene_err("the scene has no frames".into()))?;
                 let f = features_cpu(first, params).map_err(|e| scene_err(format!("features: {e}")))?;
-                cache.insert(rec.mesh.clone(), (scene, vec![f]));
+                let crossings = crate::cost::Crossings::of_mesh(first);
+                cache.insert(rec.mesh.clone(), (scene, vec![f], crossings));
             }
-            let (scene, feats) = cache.get_mut(&rec.mesh).ok_or_else(|| scene_err("not loaded".into()))?;
+            let (scene, feats, crossings) = cache.get_mut(&rec.mesh).ok_or_else(|| scene_err("not loaded".into()))?;
             let wanted = if rec.frames_measured > 1 && !rec.driver_structures.is_empty() {
                 rec.frames_measured.min(scene.frames.len())
             } else {
@@ -567,6 +569,7 @@ pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str))
                 feats.push(f);
             }
             let mut sample = rec.sample(feats[0].clone(), None);
+            sample.crossings = Some(*crossings);
             if wanted > 1 {
                 sample.frame_features = feats[..wanted].to_vec();
             }

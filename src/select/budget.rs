@@ -51,6 +51,7 @@
 use super::Structure;
 use crate::characterize::features::{exponent, SIZE_BINS};
 use crate::characterize::Features;
+use crate::cost::Crossings;
 use crate::geom::{Aabb, Polygon, Triangle};
 use crate::mesh::{Mesh, MeshError};
 use glam::{DVec3, Vec3};
@@ -207,6 +208,9 @@ pub struct BuildBounds {
     /// The kd-tree's bytes at [`BuildBounds::kdtree_references`]: nodes (about one per reference), references,
     /// triangle records, boxes and ids; an estimate.
     pub kdtree_bytes: u64,
+    /// Overlap: the triangle boxes a random line through the scene's box crosses, on average (see the module docs,
+    /// "Overlap"); `None` from features alone.
+    pub box_crossings: Option<Crossings>,
 }
 
 impl BuildBounds {
@@ -255,7 +259,11 @@ impl BuildBounds {
             g = g.saturating_add(c);
             k = k.saturating_add(if t.is_degenerate() { 1 } else { c.saturating_mul(KD_FACTOR) });
         }
-        Ok(BuildBounds::finish(n as u64, "mesh", &grid, g, Bound::Upper, k))
+        let crossings = Crossings::of(mesh, records.iter().map(|(_, b)| *b), &scene);
+        Ok(BuildBounds {
+            box_crossings: Some(crossings),
+            ..BuildBounds::finish(n as u64, "mesh", &grid, g, Bound::Upper, k)
+        })
     }
 
     /// The bounds from a scene's features alone (see the module docs), with the grid's default rule.
@@ -315,6 +323,7 @@ impl BuildBounds {
             grid_bytes: 0,
             kdtree_references: 0,
             kdtree_bytes: 0,
+            box_crossings: None,
         }
     }
 
@@ -335,6 +344,7 @@ impl BuildBounds {
             kdtree_references: k,
             // Nodes of 8 bytes (about one per reference), 4-byte references, records, 24-byte boxes, 4-byte ids.
             kdtree_bytes: k.saturating_mul(12).saturating_add(tri).saturating_add(n.saturating_mul(28)),
+            box_crossings: None,
         }
     }
 
@@ -369,6 +379,10 @@ impl BuildBounds {
             grid_bytes: pick(self.grid_bytes, o.grid_bytes),
             kdtree_references: pick(self.kdtree_references, o.kdtree_references),
             kdtree_bytes: pick(self.kdtree_bytes, o.kdtree_bytes),
+            box_crossings: match (self.box_crossings, o.box_crossings) {
+                (Some(a), Some(b)) => Some(a.max(b)),
+                (a, b) => a.or(b),
+            },
         }
     }
 }

@@ -11,7 +11,7 @@
 use super::{Policy, SceneSummary, Selection, ThesisPolicy};
 use crate::accel::StructureName;
 use crate::characterize::Features;
-use crate::cost::{CostModel, Prediction, ViewFeatures, Workload};
+use crate::cost::{overlap_floor, CostModel, Prediction, ViewFeatures, Workload};
 
 /// The calibrated choice among predictions: the smallest predicted total, then, within `tie_margin` (relative) of
 /// it, the smallest predicted build. `None` for no predictions.
@@ -234,12 +234,15 @@ impl CalibratedPolicy {
         }
     }
 
-    /// Predictions for a scene (first frame's features), `None` without features.
+    /// Predictions for a scene (first frame's features), `None` without features; with the mesh's
+    /// [`crate::select::BuildBounds`], primary rays' triangle tests are floored by the overlap
+    /// ([`crate::cost::overlap_floor`]).
     pub fn predictions(&self, scene: &SceneSummary<'_>) -> Option<Vec<Prediction>> {
         let f = scene.features.first()?;
         let mut w = self.workload(scene.features.len());
         w.view = self.camera.map(|c| ViewFeatures::of(&c, f.lo, f.hi));
-        Some(self.model.predict(f, &w))
+        let crossings = scene.build_bounds.as_ref().and_then(|b| b.box_crossings);
+        Some(self.model.predict_floored(f, &w, &|s| overlap_floor(s, self.kind, crossings)))
     }
 }
 

@@ -18,6 +18,7 @@ pub mod driver;
 mod report;
 mod thesis;
 
+pub use crate::cost::Crossings;
 pub use budget::{Budget, BuildBounds, Exclusion};
 #[cfg(feature = "eval")]
 pub(crate) use calibrated::planned_total;
