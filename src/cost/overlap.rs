@@ -33,19 +33,14 @@ impl Crossings {
     /// The crossings of a mesh's triangles, `boxes` their boxes in mesh order, `scene` their union (one pass, plus a
     /// hash of the vertex-index triples from [`Crossings::DISTINCT_FROM`] on).
     pub fn of(mesh: &Mesh, boxes: impl Iterator<Item = Aabb> + Clone, scene: &Aabb) -> Crossings {
-        let s = scene.surface_area() as f64;
+        let s = scene.surface_area();
         if s.is_nan() || s <= 0.0 {
             return Crossings { all: 0.0, distinct: 0.0 };
         }
-        let all = boxes.clone().map(|b| b.surface_area() as f64).sum::<f64>() / s;
+        let all = boxes.clone().map(|b| b.surface_area()).sum::<f64>() / s;
         let distinct = if all >= Self::DISTINCT_FROM {
             let mut seen = std::collections::HashSet::with_capacity(mesh.indices.len());
-            boxes
-                .zip(&mesh.indices)
-                .filter(|(_, t)| seen.insert(**t))
-                .map(|(b, _)| b.surface_area() as f64)
-                .sum::<f64>()
-                / s
+            boxes.zip(&mesh.indices).filter(|(_, t)| seen.insert(**t)).map(|(b, _)| b.surface_area()).sum::<f64>() / s
         } else {
             all
         };
