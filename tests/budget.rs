@@ -294,29 +294,38 @@ fn the_decision_cost_is_weighed_against_the_chosen_frame() {
 }
 
 #[test]
-fn box_crossings_are_the_cauchy_crofton_mean_and_count_coincident_copies_once_for_the_bvh() {
+fn box_crossings_are_projected_areas_and_count_coincident_copies_once_for_the_bvh() {
+    use glam::Vec3;
     use meshchar::cost::Crossings;
-    // One triangle filling the face z = 0 of the unit square's box: its box is the scene's, so every line meeting
-    // the scene meets it: 1 crossing.
+    // One triangle filling the face z = 0 of its box: the box is the scene's, so every line meeting the scene meets
+    // it, from any direction.
     let one = Mesh::new("one", vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], vec![[0, 1, 2]]).unwrap();
-    assert_eq!(Crossings::of_mesh(&one), Crossings { all: 1.0, distinct: 1.0 });
-    // Two unit triangles in opposite corners of a 2x2x1 box (the generator's `two_triangles`): each box is the face
-    // z = const of a unit square, area 2 of the scene's 2 (2 + 2 + 4) = 16.
-    let two = generate::two_triangles();
-    let c = Crossings::of_mesh(&two);
-    assert!((c.all - 4.0 / 16.0).abs() < 1e-12 && c.distinct == c.all, "{c:?}");
+    let c = Crossings::of_mesh(&one);
+    assert_eq!((c.mean(), c.along(Vec3::Z), c.along(Vec3::new(1.0, 2.0, 3.0))), (1.0, (1.0, 1.0), (1.0, 1.0)));
+    // Two unit triangles in opposite corners of a 2x2x1 box (`two_triangles`): boxes of face areas [0, 0, 1] each,
+    // the scene's [2, 2, 4]. Cauchy-Crofton: 2 / 8; along z: 2 / 4; along x: no triangle box has area across x.
+    let c = Crossings::of_mesh(&generate::two_triangles());
+    assert_eq!((c.mean(), c.along(Vec3::Z).0, c.along(Vec3::X).0), (0.25, 0.5, 0.0));
     // A fan over three points: ceil(n / 3) copies of one index triple and zero-area legs; the distinct triples are
     // three, whatever n.
-    let fan = generate::fan_polygon(3000);
-    let c = Crossings::of_mesh(&fan);
-    assert!(c.all > 900.0 && c.distinct < 3.0, "{c:?}");
+    let c = Crossings::of_mesh(&generate::fan_polygon(3000));
+    let (all, distinct) = c.along(Vec3::Z);
+    assert!(c.mean() > 900.0 && all > 900.0 && distinct < 3.0, "{c:?}");
     // Copies with their own vertices are distinct triples: all-equal counts every copy for the BVH too.
     let c = Crossings::of_mesh(&generate::all_equal(100));
-    assert_eq!((c.all, c.distinct), (100.0, 100.0));
+    assert_eq!((c.mean(), c.along(Vec3::Z)), (100.0, (100.0, 100.0)));
     // Below Crossings::DISTINCT_FROM the distinct count is not taken apart.
     let c = Crossings::of_mesh(&generate::random_soup(1000, 3));
-    assert!(c.all < Crossings::DISTINCT_FROM && c.distinct == c.all, "{c:?}");
-    // The mesh bounds carry them; feature bounds cannot.
+    assert!(c.mean() < Crossings::DISTINCT_FROM && c.distinct_faces == c.faces, "{c:?}");
+    // Per ray of a camera: the crossings along its forward direction times the share of its rays on the box.
+    let b = scene_box(&one);
+    let (lo, hi) = (b.min.to_array(), b.max.to_array());
+    let cam = meshchar::trace::Camera::frame(&b);
+    let r = Crossings::of_mesh(&one).per_ray(&cam, lo, hi);
+    let cover = meshchar::cost::ViewFeatures::of(&cam, lo, hi).coverage;
+    assert!(r.all > 0.0 && (r.all - cover).abs() < 1e-12 && r.distinct == r.all, "{r:?} {cover}");
+    // The mesh bounds carry the crossings; feature bounds cannot.
+    let fan = generate::fan_polygon(3000);
     assert_eq!(BuildBounds::of_mesh(&fan).unwrap().box_crossings, Some(Crossings::of_mesh(&fan)));
     let f = features_cpu(&fan, &Params::default()).unwrap();
     assert_eq!(BuildBounds::of_features(&f).box_crossings, None);
@@ -324,17 +333,23 @@ fn box_crossings_are_the_cauchy_crofton_mean_and_count_coincident_copies_once_fo
 
 #[test]
 fn the_overlap_floor_bounds_primary_rays_of_hierarchies_only() {
-    use meshchar::cost::{overlap_floor, Crossings, PRIMARY_BOX_TESTS_PER_CROSSING, PRIMARY_TESTS_PER_CROSSING};
-    let c = Some(Crossings { all: 500.0, distinct: 2.0 });
+    use meshchar::cost::{overlap_floor, primary_tests_per_crossing, Crossings, RayCrossings};
+    let c = Some(RayCrossings { all: 500.0, distinct: 2.0 });
     let f = |s, k| overlap_floor(s, k, c);
-    assert_eq!(f(StructureName::Lbvh, WorkloadKind::Primary).prim_tests, 500.0 * PRIMARY_TESTS_PER_CROSSING);
-    assert_eq!(f(StructureName::Lbvh, WorkloadKind::Primary).box_tests, 500.0 * PRIMARY_BOX_TESTS_PER_CROSSING);
-    assert_eq!(f(StructureName::Bvh, WorkloadKind::Primary).prim_tests, 2.0 * PRIMARY_TESTS_PER_CROSSING);
+    for s in [StructureName::Lbvh, StructureName::Hlbvh, StructureName::Bih, StructureName::KdTree] {
+        let (b, p) = primary_tests_per_crossing(s);
+        assert!(p > 0.0, "{s}");
+        assert_eq!(f(s, WorkloadKind::Primary).box_tests, 500.0 * b, "{s}");
+        assert_eq!(f(s, WorkloadKind::Primary).prim_tests, 500.0 * p, "{s}");
+        assert_eq!(f(s, WorkloadKind::Shadow), Default::default());
+        assert_eq!(f(s, WorkloadKind::Diffuse), Default::default());
+    }
+    // The BVH counts distinct triangles; a kd-tree floors no node visits; the grid gets no floor.
+    let (b, p) = primary_tests_per_crossing(StructureName::Bvh);
+    assert_eq!(f(StructureName::Bvh, WorkloadKind::Primary).prim_tests, 2.0 * p);
+    assert_eq!(f(StructureName::Bvh, WorkloadKind::Primary).box_tests, 2.0 * b);
     assert_eq!(f(StructureName::KdTree, WorkloadKind::Primary).box_tests, 0.0);
-    assert!(f(StructureName::KdTree, WorkloadKind::Primary).prim_tests > 0.0);
     assert_eq!(f(StructureName::Grid, WorkloadKind::Primary), Default::default());
-    assert_eq!(f(StructureName::Lbvh, WorkloadKind::Shadow), Default::default());
-    assert_eq!(f(StructureName::Lbvh, WorkloadKind::Diffuse), Default::default());
     assert_eq!(overlap_floor(StructureName::Lbvh, WorkloadKind::Primary, None), Default::default());
     // The model's predictions take the floor: counts at least it, and a trace no cheaper than without it.
     let model = CostModel::shipped().expect("shipped model");
@@ -347,11 +362,12 @@ fn the_overlap_floor_bounds_primary_rays_of_hierarchies_only() {
         builds: 1,
         view: None,
     };
-    let crossings = Some(Crossings::of_mesh(&m));
+    let b = scene_box(&m);
+    let rc = Some(Crossings::of_mesh(&m).per_ray(&meshchar::trace::Camera::frame(&b), feats.lo, feats.hi));
     let plain = model.predict(&feats, &w);
-    let floored = model.predict_floored(&feats, &w, &|s| overlap_floor(s, WorkloadKind::Primary, crossings));
+    let floored = model.predict_floored(&feats, &w, &|s| overlap_floor(s, WorkloadKind::Primary, rc));
     for (p, q) in plain.iter().zip(&floored) {
-        let fl = overlap_floor(p.structure, WorkloadKind::Primary, crossings);
+        let fl = overlap_floor(p.structure, WorkloadKind::Primary, rc);
         assert_eq!(q.box_tests_per_ray, p.box_tests_per_ray.max(fl.box_tests), "{}", p.structure);
         assert_eq!(q.prim_tests_per_ray, p.prim_tests_per_ray.max(fl.prim_tests), "{}", p.structure);
         assert!(q.trace_ms >= p.trace_ms && q.build_ms == p.build_ms, "{}", p.structure);

@@ -1,70 +1,158 @@
-//! Overlap: how many triangle boxes a ray through the scene crosses, and the floor it puts under a hierarchy's
-//! triangle tests per primary ray.
+//! Overlap: how many triangle boxes a primary ray crosses, and the floor it puts under a hierarchy's tests per ray.
 //!
 //! The count laws of the model are log-linear in the characterization's features, none of which sees triangles
 //! that overlap or coincide: on 2,000 large triangles with vertices uniform in a cube the model predicted 1.4
 //! triangle tests per ray for the BVH where it makes 153, and picked it at 6.9x the grid's total
-//! (`docs/cost-model.md`, "No catastrophe"). [`Crossings`] measures that overlap exactly from the mesh, and
+//! (`docs/cost-model.md`, "No catastrophe"). [`Crossings`] measures the overlap exactly from the mesh,
+//! [`Crossings::per_ray`] turns it into the boxes a camera's ray crosses on average ([`RayCrossings`]), and
 //! [`overlap_floor`] bounds the hierarchies' box and triangle tests per primary ray from below with it.
+//!
+//! # Crossings of a view
+//!
+//! A line of direction `d` meets an axis-aligned box of extents `e` with probability proportional to the box's area
+//! projected along `d`, `|d_x| e_y e_z + |d_y| e_x e_z + |d_z| e_x e_y`, among parallel lines spread uniformly
+//! over the scene's box. So the mean number of triangle boxes crossed by a line along `d` that meets the scene's box
+//! is the sum of the triangle boxes' projected areas over the scene box's, and a camera's ray crosses that many
+//! times the share of its rays that meet the scene's box ([`crate::cost::ViewFeatures::coverage`]). Averaged over
+//! every direction, the first factor is the Cauchy-Crofton ratio `sum_i S(box_i) / S(scene)` ([`Crossings::mean`]).
+//! A perspective camera's rays are taken parallel to its forward direction.
 
+use super::ViewFeatures;
 use crate::accel::StructureName;
-use crate::geom::{Aabb, WorkloadKind};
+use crate::geom::{Aabb, Camera, WorkloadKind};
 use crate::mesh::Mesh;
+use glam::Vec3;
 
-/// The mean number of triangle boxes a random line meeting the scene's box crosses: `sum_i S(box_i) / S(scene)`,
-/// `S` a box's surface area (Cauchy-Crofton: a random line meeting a convex body `A` meets a convex body `B`
-/// inside it with probability `S(B) / S(A)`). 0 to 169 on every shared mesh and generated family (3.5 on the bunny,
-/// 16.4 on Sponza, 169 on the engineering family at 200K triangles); hundreds to thousands where triangles overlap
-/// heavily or coincide. A flat scene's box has the area of its two faces; a scene of
-/// zero area (a line, a point) counts 0.
+/// A scene's triangle boxes as projected areas (see the module docs): the sums, over the triangles' boxes, of their
+/// face areas `[e_y e_z, e_x e_z, e_x e_y]`, the same over the distinct vertex-index triples, and the scene box's.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Crossings {
+    /// Face areas summed over every triangle's box.
+    pub faces: [f64; 3],
+    /// The same over the distinct vertex-index triples (in order): the binned-SAH BVH keeps one of coincident
+    /// copies of a triangle, so its rays cross only these. Counted apart only when [`Crossings::mean`] is at least
+    /// [`Crossings::DISTINCT_FROM`] (a hash of every triple); equal to [`Crossings::faces`] below.
+    pub distinct_faces: [f64; 3],
+    /// The scene box's face areas.
+    pub scene: [f64; 3],
+}
+
+/// The triangle boxes a camera's primary ray crosses on average ([`Crossings::per_ray`]): over every triangle, and
+/// over the distinct vertex-index triples (what the binned-SAH BVH holds).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct RayCrossings {
     /// Over every triangle.
     pub all: f64,
-    /// Over the distinct vertex-index triples (in order): the binned-SAH BVH keeps one of coincident copies of a
-    /// triangle, so its rays cross only these. Counted only when [`Crossings::all`] is at least
-    /// [`Crossings::DISTINCT_FROM`] (a hash of every triple); equal to it below.
+    /// Over the distinct vertex-index triples.
     pub distinct: f64,
 }
 
+fn face_areas(b: &Aabb) -> [f64; 3] {
+    let e = (b.max - b.min).as_dvec3();
+    [e.y * e.z, e.x * e.z, e.x * e.y]
+}
+
+fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
 impl Crossings {
-    /// [`Crossings::all`] from which [`Crossings::distinct`] is counted apart.
+    /// [`Crossings::mean`] from which [`Crossings::distinct_faces`] is counted apart.
     pub const DISTINCT_FROM: f64 = 16.0;
 
     /// The crossings of a mesh's triangles, `boxes` their boxes in mesh order, `scene` their union (one pass, plus a
     /// hash of the vertex-index triples from [`Crossings::DISTINCT_FROM`] on).
     pub fn of(mesh: &Mesh, boxes: impl Iterator<Item = Aabb> + Clone, scene: &Aabb) -> Crossings {
-        let s = scene.surface_area();
-        if s.is_nan() || s <= 0.0 {
-            return Crossings { all: 0.0, distinct: 0.0 };
-        }
-        let all = boxes.clone().map(|b| b.surface_area()).sum::<f64>() / s;
-        let distinct = if all >= Self::DISTINCT_FROM {
+        let faces = boxes.clone().fold([0.0; 3], |s, b| add(s, face_areas(&b)));
+        let mut c = Crossings { faces, distinct_faces: faces, scene: face_areas(scene) };
+        if !scene.is_empty() && c.mean() >= Self::DISTINCT_FROM {
             let mut seen = std::collections::HashSet::with_capacity(mesh.indices.len());
-            boxes.zip(&mesh.indices).filter(|(_, t)| seen.insert(**t)).map(|(b, _)| b.surface_area()).sum::<f64>() / s
-        } else {
-            all
-        };
-        Crossings { all, distinct }
+            c.distinct_faces = boxes
+                .zip(&mesh.indices)
+                .filter(|(_, t)| seen.insert(**t))
+                .fold([0.0; 3], |s, (b, _)| add(s, face_areas(&b)));
+        }
+        c
+    }
+
+    /// The crossings of a mesh, its triangles' boxes computed here (what [`crate::select::BuildBounds::of_mesh`]
+    /// records).
+    pub fn of_mesh(mesh: &Mesh) -> Crossings {
+        let boxes: Vec<Aabb> = (0..mesh.triangle_count()).map(|i| Aabb::of_triangle(&mesh.triangle(i))).collect();
+        let scene = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
+        Crossings::of(mesh, boxes.iter().copied(), &scene)
+    }
+
+    /// Over every direction: `sum_i S(box_i) / S(scene)` (Cauchy-Crofton), 0 for a scene box of no area. 0 to 169
+    /// on every shared mesh and generated family (3.5 on the bunny, 16.4 on Sponza, 169 on the engineering family
+    /// at 200K triangles); hundreds to thousands where triangles overlap heavily or coincide.
+    pub fn mean(&self) -> f64 {
+        ratio(self.faces, self.scene, [1.0; 3])
+    }
+
+    /// Along the direction `d`, for lines that meet the scene's box: `(all, distinct)`.
+    pub fn along(&self, d: Vec3) -> (f64, f64) {
+        let w = d.abs().as_dvec3().to_array();
+        (ratio(self.faces, self.scene, w), ratio(self.distinct_faces, self.scene, w))
+    }
+
+    /// Per primary ray of `camera` over the box `lo`..`hi` (the one [`ViewFeatures::of`] reads): the crossings
+    /// along its forward direction times the share of its rays that meet the box.
+    pub fn per_ray(&self, camera: &Camera, lo: [f32; 3], hi: [f32; 3]) -> RayCrossings {
+        let coverage = ViewFeatures::of(camera, lo, hi).coverage;
+        let (all, distinct) = self.along(camera.forward);
+        RayCrossings { all: all * coverage, distinct: distinct * coverage }
     }
 
     /// The larger of two, figure by figure.
     pub fn max(self, o: Crossings) -> Crossings {
-        Crossings { all: self.all.max(o.all), distinct: self.distinct.max(o.distinct) }
+        let m = |a: [f64; 3], b: [f64; 3]| [a[0].max(b[0]), a[1].max(b[1]), a[2].max(b[2])];
+        Crossings {
+            faces: m(self.faces, o.faces),
+            distinct_faces: m(self.distinct_faces, o.distinct_faces),
+            scene: m(self.scene, o.scene),
+        }
     }
 }
 
-/// Least triangle tests per primary ray of a hierarchy per triangle box a random line crosses ([`Crossings`]): the
-/// lower envelope, rounded down, of the measured ratio on the training records (`docs/data/oracle-*.jsonl` and
-/// `docs/data/families-*.jsonl`, primary rays, every structure but the grid, scenes with at least 8 crossings),
-/// whose least is 0.064 (Sponza's kd-tree: 1.04 tests per ray at 16.4 crossings). Checked, not fitted, on the
-/// degenerate generators (`docs/data/degenerate-*.jsonl`).
-pub const PRIMARY_TESTS_PER_CROSSING: f64 = 0.06;
+/// `sum_a w_a f_a / sum_a w_a s_a`, 0 when the denominator is not positive and finite.
+fn ratio(f: [f64; 3], s: [f64; 3], w: [f64; 3]) -> f64 {
+    let den: f64 = (0..3).map(|a| w[a] * s[a]).sum();
+    if den.is_finite() && den > 0.0 {
+        (0..3).map(|a| w[a] * f[a]).sum::<f64>() / den
+    } else {
+        0.0
+    }
+}
 
-/// Least box tests per primary ray of a bounding-volume hierarchy (BVH, LBVH, HLBVH, BIH) per crossing: the same
-/// envelope of box tests, whose least is 0.141 (the engineering family at 200K triangles, framing view: 23.8 box
-/// tests per ray at 168.6 crossings, by the BVH).
-pub const PRIMARY_BOX_TESTS_PER_CROSSING: f64 = 0.14;
+/// Least tests per primary ray per crossed triangle box ([`RayCrossings`]), `(box, triangle)`, of each structure:
+/// the lower envelope of the measured ratio on the training records (`docs/data/oracle-primary.jsonl` and
+/// `docs/data/families-primary.jsonl`, the 33 scenes and views whose rays cross at least 4 boxes),
+/// rounded down to two significant digits, with where the least was found (`docs/cost-model.md` lists them).
+/// Read off the training records only; checked, not fitted, on the degenerate generators
+/// (`docs/data/degenerate-*.jsonl`). The kd-tree floors no box tests (one that cannot split overlapping triangles
+/// visits one node), the grid nothing (its cells, not the triangles' boxes, bound what a ray visits).
+pub fn primary_tests_per_crossing(structure: StructureName) -> (f64, f64) {
+    match structure {
+        StructureName::Bvh => BVH,
+        StructureName::KdTree => (0.0, KDTREE_PRIM),
+        StructureName::Bih => BIH,
+        StructureName::Lbvh => LBVH,
+        StructureName::Hlbvh => HLBVH,
+        _ => (0.0, 0.0),
+    }
+}
+
+// The envelopes (see primary_tests_per_crossing), `(box, triangle)` per crossing, and where the least was found:
+// BVH box 0.395 (engineering 200K, grazing), triangle 0.0645 (city 200K, inside); kd-tree triangle 0.171
+// (Sponza); BIH box 0.938 (engineering 200K, grazing), triangle 0.433 (engineering 2K, inside); LBVH box 1.48
+// (engineering 200K, grazing), triangle 0.0944 (engineering 2K, inside); HLBVH box 0.665 (engineering 200K,
+// grazing), triangle 0.0692 (engineering 2K, inside).
+const BVH: (f64, f64) = (0.39, 0.064);
+const KDTREE_PRIM: f64 = 0.17;
+const BIH: (f64, f64) = (0.93, 0.43);
+const LBVH: (f64, f64) = (1.4, 0.094);
+const HLBVH: (f64, f64) = (0.66, 0.069);
 
 /// Lower bounds on a structure's tests per ray, for [`crate::cost::StructureModel::predict_floored`].
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -75,32 +163,17 @@ pub struct TestFloor {
     pub prim_tests: f64,
 }
 
-/// The overlap floor of `structure`'s tests per ray, for primary rays with the scene's [`Crossings`] at hand (the
-/// distinct triangles' for the binned-SAH BVH, which keeps one of coincident copies; all of them for the others):
-/// triangle tests at least [`PRIMARY_TESTS_PER_CROSSING`] times the crossings for every structure but the grid
-/// (whose cells, not the triangles' boxes, bound what a ray visits), box tests at least
-/// [`PRIMARY_BOX_TESTS_PER_CROSSING`] times them for the bounding-volume hierarchies (a kd-tree that cannot split
-/// overlapping triangles visits one node). Zero otherwise. Shadow and diffuse rays get none: on the training
-/// records some make no triangle test at all where many boxes overlap, so no such envelope exists for them.
-pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Crossings>) -> TestFloor {
+/// The overlap floor of `structure`'s tests per ray for primary rays whose [`RayCrossings`] are at hand: its
+/// factors of [`primary_tests_per_crossing`] times the crossings (the distinct triangles' for the binned-SAH BVH,
+/// which keeps one of coincident copies; all of them for the others). Zero otherwise. Shadow and diffuse rays get
+/// none: on the training records some make no triangle test at all where many boxes overlap, so no such envelope
+/// exists for them.
+pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
     let Some(c) = c else { return TestFloor::default() };
-    if kind != WorkloadKind::Primary || structure == StructureName::Grid {
+    if kind != WorkloadKind::Primary {
         return TestFloor::default();
     }
     let x = if structure == StructureName::Bvh { c.distinct } else { c.all };
-    let bvh_like = !matches!(structure, StructureName::KdTree);
-    TestFloor {
-        box_tests: if bvh_like { PRIMARY_BOX_TESTS_PER_CROSSING * x } else { 0.0 },
-        prim_tests: PRIMARY_TESTS_PER_CROSSING * x,
-    }
-}
-
-impl Crossings {
-    /// The crossings of a mesh, its triangles' boxes computed here (what [`crate::select::BuildBounds::of_mesh`]
-    /// records).
-    pub fn of_mesh(mesh: &Mesh) -> Crossings {
-        let boxes: Vec<Aabb> = (0..mesh.triangle_count()).map(|i| Aabb::of_triangle(&mesh.triangle(i))).collect();
-        let scene = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
-        Crossings::of(mesh, boxes.iter().copied(), &scene)
-    }
+    let (b, p) = primary_tests_per_crossing(structure);
+    TestFloor { box_tests: b * x, prim_tests: p * x }
 }

@@ -75,9 +75,9 @@ pub struct Sample {
     /// Features of every measured frame of an animation (empty for one frame, or when not computed): the drift of
     /// an updated driver structure is measured against them.
     pub frame_features: Vec<Features>,
-    /// The first frame's box crossings (`None` when not computed): the policies' overlap floor
-    /// ([`super::overlap_floor`]) reads them.
-    pub crossings: Option<super::Crossings>,
+    /// The triangle boxes the record's primary rays cross on average (the first frame's [`super::Crossings`] for
+    /// its camera; `None` when not computed): the policies' overlap floor ([`super::overlap_floor`]) reads them.
+    pub crossings: Option<super::RayCrossings>,
 }
 
 impl Sample {

@@ -388,11 +388,14 @@ impl Baselines {
 
 /// Selections of a model fitted without each group (`group` of a sample: its scene or its family) on the samples
 /// of that group; `None` where the fit failed or the model predicts nothing.
+/// `geometric`: whether the predictions take the scene's overlap floor ([`Sample::predict`]); the size-only model
+/// must not, as the floor reads the geometry.
 fn held_out_choices(
     samples: &[Sample],
     group: &dyn Fn(&Sample) -> String,
     fit: &dyn Fn(&[Sample]) -> Result<CostModel, CostError>,
     tie_margin: f64,
+    geometric: bool,
 ) -> Vec<Option<StructureName>> {
     let keys: Vec<String> = samples.iter().map(group).collect();
     let mut groups = keys.clone();
@@ -403,7 +406,8 @@ fn held_out_choices(
         let train: Vec<Sample> = samples.iter().zip(&keys).filter(|(_, k)| *k != g).map(|(s, _)| s.clone()).collect();
         let Ok(model) = fit(&train) else { continue };
         for (i, smp) in samples.iter().enumerate().filter(|(i, _)| keys[*i] == *g) {
-            out[i] = choose(&smp.predict(&model), tie_margin);
+            let preds = if geometric { smp.predict(&model) } else { model.predict(&smp.features, &smp.workload) };
+            out[i] = choose(&preds, tie_margin);
         }
     }
     out
@@ -492,14 +496,14 @@ pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> B
     let mut policies = vec![
         run("thesis", "recorded", samples.iter().map(|s| s.baseline).collect()),
         run("best_single", "hindsight", best_single(samples, &workloads)),
-        run("size_only", "scene_out", held_out_choices(samples, &scene, &size, tie_margin)),
+        run("size_only", "scene_out", held_out_choices(samples, &scene, &size, tie_margin, false)),
     ];
     if distinct.len() > 1 {
-        policies.push(run("size_only", "family_out", held_out_choices(samples, &family, &size, tie_margin)));
+        policies.push(run("size_only", "family_out", held_out_choices(samples, &family, &size, tie_margin, false)));
     }
-    policies.push(run("calibrated", "scene_out", held_out_choices(samples, &scene, &full, tie_margin)));
+    policies.push(run("calibrated", "scene_out", held_out_choices(samples, &scene, &full, tie_margin, true)));
     if distinct.len() > 1 {
-        policies.push(run("calibrated", "family_out", held_out_choices(samples, &family, &full, tie_margin)));
+        policies.push(run("calibrated", "family_out", held_out_choices(samples, &family, &full, tie_margin, true)));
     }
     let ins: Vec<Option<StructureName>> = match full(samples) {
         Ok(m) => samples.iter().map(|s| choose(&s.predict(&m), tie_margin)).collect(),
