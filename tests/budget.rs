@@ -324,6 +324,25 @@ fn box_crossings_are_projected_areas_and_count_coincident_copies_once_for_the_bv
     let r = Crossings::of_mesh(&one).per_ray(&cam, lo, hi);
     let cover = meshchar::cost::ViewFeatures::of(&cam, lo, hi).coverage;
     assert!(r.all > 0.0 && (r.all - cover).abs() < 1e-12 && r.distinct == r.all, "{r:?} {cover}");
+    // Zero-area triangles: the lattice's 400 collinear ones along its diagonal are all of its crossings along z
+    // but the squares', and none of the non-degenerate ones (what the kd-tree holds as boxes).
+    let lat = Crossings::of_mesh(&generate::lattice_with_diagonal(30, 400));
+    let w = |f: [f64; 3]| f[2] / lat.scene[2];
+    assert!((w(lat.faces) - 402.0).abs() < 1e-9 && (w(lat.nondegenerate_faces) - 2.0).abs() < 1e-9, "{lat:?}");
+    // The distinct triples are counted apart whenever some direction could see many boxes, even where the mean over
+    // all directions is small: a box 100 long in x and 1 x 1 across (spanned by a zero-area segment) holding 30
+    // copies of one triangle that fills its cross-section. Along x: 31 boxes, 2 distinct; the mean is 231 / 201.
+    let mut pos = vec![[0.0, 0.0, 0.0], [100.0, 1.0, 1.0]];
+    pos.extend([[50.0, 0.0, 0.0], [50.0, 1.0, 0.0], [50.0, 0.0, 1.0]]);
+    let mut tris = vec![[0u32, 1, 0]];
+    tris.extend(std::iter::repeat_n([2u32, 3, 4], 30));
+    let thin = Crossings::of_mesh(&Mesh::new("copies", pos, tris).unwrap());
+    assert!(thin.mean() < Crossings::DISTINCT_FROM && thin.most() >= Crossings::DISTINCT_FROM, "{thin:?}");
+    assert_eq!(thin.along(Vec3::X), (31.0, 2.0), "{thin:?}");
+    // Merged bounds of several frames keep the first frame's crossings (the policy floors the first frame).
+    let (a, b) = (generate::fan_polygon(300), generate::random_soup(300, 1));
+    let merged = BuildBounds::of_frames(&[a.clone(), b]).unwrap().unwrap();
+    assert_eq!(merged.box_crossings, Some(Crossings::of_mesh(&a)));
     // The mesh bounds carry the crossings; feature bounds cannot.
     let fan = generate::fan_polygon(3000);
     assert_eq!(BuildBounds::of_mesh(&fan).unwrap().box_crossings, Some(Crossings::of_mesh(&fan)));
@@ -334,13 +353,15 @@ fn box_crossings_are_projected_areas_and_count_coincident_copies_once_for_the_bv
 #[test]
 fn the_overlap_floor_bounds_primary_rays_of_hierarchies_only() {
     use meshchar::cost::{overlap_floor, primary_tests_per_crossing, Crossings, RayCrossings};
-    let c = Some(RayCrossings { all: 500.0, distinct: 2.0 });
+    let c = Some(RayCrossings { all: 500.0, distinct: 2.0, nondegenerate: 100.0 });
     let f = |s, k| overlap_floor(s, k, c);
     for s in [StructureName::Lbvh, StructureName::Hlbvh, StructureName::Bih, StructureName::KdTree] {
         let (b, p) = primary_tests_per_crossing(s);
+        // The kd-tree holds zero-area triangles as points: only the others' boxes count for it.
+        let x = if s == StructureName::KdTree { 100.0 } else { 500.0 };
         assert!(p > 0.0, "{s}");
-        assert_eq!(f(s, WorkloadKind::Primary).box_tests, 500.0 * b, "{s}");
-        assert_eq!(f(s, WorkloadKind::Primary).prim_tests, 500.0 * p, "{s}");
+        assert_eq!(f(s, WorkloadKind::Primary).box_tests, x * b, "{s}");
+        assert_eq!(f(s, WorkloadKind::Primary).prim_tests, x * p, "{s}");
         assert_eq!(f(s, WorkloadKind::Shadow), Default::default());
         assert_eq!(f(s, WorkloadKind::Diffuse), Default::default());
     }

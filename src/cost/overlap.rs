@@ -16,6 +16,15 @@
 //! times the share of its rays that meet the scene's box ([`crate::cost::ViewFeatures::coverage`]). Averaged over
 //! every direction, the first factor is the Cauchy-Crofton ratio `sum_i S(box_i) / S(scene)` ([`Crossings::mean`]).
 //! A perspective camera's rays are taken parallel to its forward direction.
+//!
+//! # Where the floor applies, and where not yet
+//!
+//! The calibrated policy's predictions for a scene (`CalibratedPolicy::predictions`: the first frame, static
+//! choice) and `evaluate --compare-policies` take it, from the first frame's crossings. Not yet: the per-frame
+//! plan of an animation (`plan_frames`, `FrameRule`), the driver's structures (which have no test counts), and the
+//! trade-off study's selections (which pass no mesh bounds). The distinct triples are found with a hash set of
+//! every triple when some direction crosses at least [`Crossings::DISTINCT_FROM`] boxes: about 20 bytes per
+//! triangle for the length of the pass.
 
 use super::ViewFeatures;
 use crate::accel::StructureName;
@@ -30,21 +39,28 @@ pub struct Crossings {
     /// Face areas summed over every triangle's box.
     pub faces: [f64; 3],
     /// The same over the distinct vertex-index triples (in order): the binned-SAH BVH keeps one of coincident
-    /// copies of a triangle, so its rays cross only these. Counted apart only when [`Crossings::mean`] is at least
-    /// [`Crossings::DISTINCT_FROM`] (a hash of every triple); equal to [`Crossings::faces`] below.
+    /// copies of a triangle, so its rays cross only these. Counted apart only when [`Crossings::most`] is at least
+    /// [`Crossings::DISTINCT_FROM`] (a hash of every triple); equal to [`Crossings::faces`] below, where no floor
+    /// can matter.
     pub distinct_faces: [f64; 3],
+    /// The same over the triangles of non-zero area: the kd-tree stores a zero-area triangle as a point, so its
+    /// rays never cross such a box.
+    pub nondegenerate_faces: [f64; 3],
     /// The scene box's face areas.
     pub scene: [f64; 3],
 }
 
-/// The triangle boxes a camera's primary ray crosses on average ([`Crossings::per_ray`]): over every triangle, and
-/// over the distinct vertex-index triples (what the binned-SAH BVH holds).
+/// The triangle boxes a camera's primary ray crosses on average ([`Crossings::per_ray`]): over every triangle, over
+/// the distinct vertex-index triples (what the binned-SAH BVH holds), and over the triangles of non-zero area (what
+/// the kd-tree holds as boxes).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct RayCrossings {
     /// Over every triangle.
     pub all: f64,
     /// Over the distinct vertex-index triples.
     pub distinct: f64,
+    /// Over the triangles of non-zero area.
+    pub nondegenerate: f64,
 }
 
 fn face_areas(b: &Aabb) -> [f64; 3] {
@@ -57,20 +73,24 @@ fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 }
 
 impl Crossings {
-    /// [`Crossings::mean`] from which [`Crossings::distinct_faces`] is counted apart.
+    /// [`Crossings::most`] from which [`Crossings::distinct_faces`] is counted apart.
     pub const DISTINCT_FROM: f64 = 16.0;
 
-    /// The crossings of a mesh's triangles, `boxes` their boxes in mesh order, `scene` their union (one pass, plus a
-    /// hash of the vertex-index triples from [`Crossings::DISTINCT_FROM`] on).
-    pub fn of(mesh: &Mesh, boxes: impl Iterator<Item = Aabb> + Clone, scene: &Aabb) -> Crossings {
-        let faces = boxes.clone().fold([0.0; 3], |s, b| add(s, face_areas(&b)));
-        let mut c = Crossings { faces, distinct_faces: faces, scene: face_areas(scene) };
-        if !scene.is_empty() && c.mean() >= Self::DISTINCT_FROM {
+    /// The crossings of a mesh's triangles, `boxes` their boxes in mesh order with whether the triangle has zero
+    /// area, `scene` their union (one pass, plus a hash of the vertex-index triples from
+    /// [`Crossings::DISTINCT_FROM`] on).
+    pub fn of(mesh: &Mesh, boxes: impl Iterator<Item = (Aabb, bool)> + Clone, scene: &Aabb) -> Crossings {
+        let (faces, nondegenerate_faces) = boxes.clone().fold(([0.0; 3], [0.0; 3]), |(s, t), (b, degenerate)| {
+            let f = face_areas(&b);
+            (add(s, f), if degenerate { t } else { add(t, f) })
+        });
+        let mut c = Crossings { faces, distinct_faces: faces, nondegenerate_faces, scene: face_areas(scene) };
+        if !scene.is_empty() && c.most() >= Self::DISTINCT_FROM {
             let mut seen = std::collections::HashSet::with_capacity(mesh.indices.len());
             c.distinct_faces = boxes
                 .zip(&mesh.indices)
                 .filter(|(_, t)| seen.insert(**t))
-                .fold([0.0; 3], |s, (b, _)| add(s, face_areas(&b)));
+                .fold([0.0; 3], |s, ((b, _), _)| add(s, face_areas(&b)));
         }
         c
     }
@@ -78,9 +98,22 @@ impl Crossings {
     /// The crossings of a mesh, its triangles' boxes computed here (what [`crate::select::BuildBounds::of_mesh`]
     /// records).
     pub fn of_mesh(mesh: &Mesh) -> Crossings {
-        let boxes: Vec<Aabb> = (0..mesh.triangle_count()).map(|i| Aabb::of_triangle(&mesh.triangle(i))).collect();
-        let scene = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
+        let boxes: Vec<(Aabb, bool)> = (0..mesh.triangle_count())
+            .map(|i| {
+                let v = mesh.triangle(i);
+                (Aabb::of_triangle(&v), crate::geom::Triangle::new(&v).is_degenerate())
+            })
+            .collect();
+        let scene = boxes.iter().fold(Aabb::EMPTY, |a, (b, _)| a.union(b));
         Crossings::of(mesh, boxes.iter().copied(), &scene)
+    }
+
+    /// The most crossings along any direction: the largest of the three face ratios (each `along` is a weighted
+    /// mean of them).
+    pub fn most(&self) -> f64 {
+        (0..3)
+            .map(|a| ratio(self.faces, self.scene, std::array::from_fn(|b| (a == b) as u8 as f64)))
+            .fold(0.0, f64::max)
     }
 
     /// Over every direction: `sum_i S(box_i) / S(scene)` (Cauchy-Crofton), 0 for a scene box of no area. 0 to 169
@@ -100,17 +133,12 @@ impl Crossings {
     /// along its forward direction times the share of its rays that meet the box.
     pub fn per_ray(&self, camera: &Camera, lo: [f32; 3], hi: [f32; 3]) -> RayCrossings {
         let coverage = ViewFeatures::of(camera, lo, hi).coverage;
+        let w = camera.forward.abs().as_dvec3().to_array();
         let (all, distinct) = self.along(camera.forward);
-        RayCrossings { all: all * coverage, distinct: distinct * coverage }
-    }
-
-    /// The larger of two, figure by figure.
-    pub fn max(self, o: Crossings) -> Crossings {
-        let m = |a: [f64; 3], b: [f64; 3]| [a[0].max(b[0]), a[1].max(b[1]), a[2].max(b[2])];
-        Crossings {
-            faces: m(self.faces, o.faces),
-            distinct_faces: m(self.distinct_faces, o.distinct_faces),
-            scene: m(self.scene, o.scene),
+        RayCrossings {
+            all: all * coverage,
+            distinct: distinct * coverage,
+            nondegenerate: ratio(self.nondegenerate_faces, self.scene, w) * coverage,
         }
     }
 }
@@ -165,7 +193,8 @@ pub struct TestFloor {
 
 /// The overlap floor of `structure`'s tests per ray for primary rays whose [`RayCrossings`] are at hand: its
 /// factors of [`primary_tests_per_crossing`] times the crossings (the distinct triangles' for the binned-SAH BVH,
-/// which keeps one of coincident copies; all of them for the others). Zero otherwise. Shadow and diffuse rays get
+/// which keeps one of coincident copies; those of non-zero area for the kd-tree, which stores zero-area triangles
+/// as points; all of them for the others). Zero otherwise. Shadow and diffuse rays get
 /// none: on the training records some make no triangle test at all where many boxes overlap, so no such envelope
 /// exists for them.
 pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
@@ -173,7 +202,11 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
     if kind != WorkloadKind::Primary {
         return TestFloor::default();
     }
-    let x = if structure == StructureName::Bvh { c.distinct } else { c.all };
+    let x = match structure {
+        StructureName::Bvh => c.distinct,
+        StructureName::KdTree => c.nondegenerate,
+        _ => c.all,
+    };
     let (b, p) = primary_tests_per_crossing(structure);
     TestFloor { box_tests: b * x, prim_tests: p * x }
 }

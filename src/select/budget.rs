@@ -208,8 +208,9 @@ pub struct BuildBounds {
     /// The kd-tree's bytes at [`BuildBounds::kdtree_references`]: nodes (about one per reference), references,
     /// triangle records, boxes and ids; an estimate.
     pub kdtree_bytes: u64,
-    /// Overlap: the triangle boxes a random line through the scene's box crosses, on average (see the module docs,
-    /// "Overlap"); `None` from features alone.
+    /// Overlap: the triangle boxes' projected areas against the scene box's ([`Crossings`], `crate::cost::overlap`),
+    /// from which the calibrated policy floors its primary-ray test counts; `None` from features alone. Of the
+    /// first frame when bounds of several frames are merged ([`BuildBounds::max`]).
     pub box_crossings: Option<Crossings>,
 }
 
@@ -259,7 +260,7 @@ impl BuildBounds {
             g = g.saturating_add(c);
             k = k.saturating_add(if t.is_degenerate() { 1 } else { c.saturating_mul(KD_FACTOR) });
         }
-        let crossings = Crossings::of(mesh, records.iter().map(|(_, b)| *b), &scene);
+        let crossings = Crossings::of(mesh, records.iter().map(|(t, b)| (*b, t.is_degenerate())), &scene);
         Ok(BuildBounds {
             box_crossings: Some(crossings),
             ..BuildBounds::finish(n as u64, "mesh", &grid, g, Bound::Upper, k)
@@ -379,10 +380,8 @@ impl BuildBounds {
             grid_bytes: pick(self.grid_bytes, o.grid_bytes),
             kdtree_references: pick(self.kdtree_references, o.kdtree_references),
             kdtree_bytes: pick(self.kdtree_bytes, o.kdtree_bytes),
-            box_crossings: match (self.box_crossings, o.box_crossings) {
-                (Some(a), Some(b)) => Some(a.max(b)),
-                (a, b) => a.or(b),
-            },
+            // The first frame's: the calibrated policy floors the first frame's predictions.
+            box_crossings: self.box_crossings.or(o.box_crossings),
         }
     }
 }
