@@ -192,5 +192,10 @@ fn a_degenerate_spec_names_a_failure_study_generator_wherever_a_path_is_taken() 
     let e = load_path(Path::new("degenerate:flat:100m")).unwrap_err().to_string();
     assert!(e.contains("degenerate:flat:100m") && e.contains("more than"), "{e}");
     let e = load_mesh(Path::new("degenerate:flat:lots")).unwrap_err().to_string();
-    assert!(e.contains("degenerate:flat:lots"), "{e}");
+    assert!(e.contains("degenerate:flat:lots") && e.contains("not a whole number"), "{e}");
+    // A count past u64 is too large, not malformed.
+    for big in ["degenerate:flat:99999999999999999999", "family:city:18446744073709551615k"] {
+        let e = load_mesh(Path::new(big)).unwrap_err().to_string();
+        assert!(e.contains("too large"), "{big}: {e}");
+    }
 }

@@ -129,11 +129,15 @@ pub(crate) fn count_and_seed(parts: &[&str], usage: &str) -> Result<(usize, u64)
             None => (count.as_str(), 1),
         },
     };
+    let whole = !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit());
+    if !whole {
+        return Err(format!("{usage}: the triangle count {raw:?} is not a whole number"));
+    }
     let n = digits
         .parse::<u64>()
         .ok()
         .and_then(|d| d.checked_mul(scale))
-        .ok_or_else(|| format!("{usage}: the triangle count {raw:?} is not a whole number"))?;
+        .ok_or_else(|| format!("{usage}: the triangle count {raw:?} is too large"))?;
     let n = usize::try_from(n).map_err(|_| format!("{usage}: {n} triangles is too many"))?;
     let seed = match parts.get(1) {
         Some(t) => t.trim().parse::<u64>().map_err(|_| format!("{usage}: the seed {t:?} is not a whole number"))?,
