@@ -24,7 +24,7 @@ mod cli;
 #[command(name = "build_bvh", args_override_self = true)]
 #[command(mut_arg("json", |a| a.help("One JSON object instead of text")))]
 struct Args {
-    /// A mesh (OBJ or PLY)
+    /// A mesh (OBJ or PLY), or a generated scene: family:NAME:TRIANGLES[:SEED] or degenerate:NAME:TRIANGLES[:SEED]
     #[arg(value_name = "FILE")]
     file: PathBuf,
     /// The builder

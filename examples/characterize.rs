@@ -42,8 +42,9 @@ mod cli;
             hit spawn them)")
 }))]
 struct Args {
-    /// A mesh (.obj, .ply): a static scene; or a directory: the frames of an animation, in name order, a dynamic
-    /// scene with one report per frame. None: the embedded default scene
+    /// None: the embedded default scene. A mesh (.obj, .ply): a static scene; or a directory: the frames of an
+    /// animation, in name order, a dynamic scene with one report per frame; or a generated scene,
+    /// family:NAME:TRIANGLES[:SEED] or degenerate:NAME:TRIANGLES[:SEED]
     #[arg(value_name = "FILE|DIR")]
     paths: Vec<PathBuf>,
     #[command(flatten)]

@@ -55,7 +55,8 @@ mod cli;
 #[command(mut_arg("resolution", |a| a.help("N x N primary rays per frame (1024: as in the thesis)")))]
 #[command(mut_arg("policy", |a| a.help("The selection policy whose choice is `selected` and `regret`")))]
 struct Args {
-    /// Mesh files, or directories of frame files (animations)
+    /// Mesh files, directories of frame files (animations), or generated scenes (family:NAME:TRIANGLES[:SEED],
+    /// degenerate:NAME:TRIANGLES[:SEED])
     #[arg(value_name = "FILE|DIR", required_unless_present = "compare_policies")]
     inputs: Vec<PathBuf>,
     #[command(flatten)]

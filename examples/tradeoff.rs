@@ -43,7 +43,8 @@ Writes into DIR:
   tradeoff.json              every number
   tradeoff.md                the tables (per workload, and the least work per scene)")]
 struct Args {
-    /// Mesh files, or directories of frame files (animations) [default: the scenes of the oracle files]
+    /// Mesh files, directories of frame files (animations), or generated scenes (family:NAME:TRIANGLES[:SEED],
+    /// degenerate:NAME:TRIANGLES[:SEED]) [default: the scenes of the oracle files]
     #[arg(value_name = "FILE|DIR", required_unless_present = "oracle")]
     inputs: Vec<PathBuf>,
     /// Where to write
