@@ -321,7 +321,9 @@ fn box_crossings_are_projected_areas_and_count_coincident_copies_once_for_the_bv
     let b = scene_box(&one);
     let (lo, hi) = (b.min.to_array(), b.max.to_array());
     let cam = meshchar::trace::Camera::frame(&b);
-    let r = Crossings::of_mesh(&one).per_ray(&cam, lo, hi);
+    let r = Crossings::of_mesh(&one).per_ray(Some(&cam), lo, hi);
+    // No camera: the framing camera of the box, which `cam` is.
+    assert_eq!(Crossings::of_mesh(&one).per_ray(None, lo, hi), r);
     let cover = meshchar::cost::ViewFeatures::of(&cam, lo, hi).coverage;
     assert!(r.all > 0.0 && (r.all - cover).abs() < 1e-12 && r.distinct == r.all, "{r:?} {cover}");
     // Zero-area triangles: the lattice's 400 collinear ones along its diagonal are all of its crossings along z
@@ -384,7 +386,7 @@ fn the_overlap_floor_bounds_primary_rays_of_hierarchies_only() {
         view: None,
     };
     let b = scene_box(&m);
-    let rc = Some(Crossings::of_mesh(&m).per_ray(&meshchar::trace::Camera::frame(&b), feats.lo, feats.hi));
+    let rc = Some(Crossings::of_mesh(&m).per_ray(Some(&meshchar::trace::Camera::frame(&b)), feats.lo, feats.hi));
     let plain = model.predict(&feats, &w);
     let floored = model.predict_floored(&feats, &w, &|s| overlap_floor(s, WorkloadKind::Primary, rc));
     for (p, q) in plain.iter().zip(&floored) {

@@ -129,15 +129,23 @@ impl Crossings {
         (ratio(self.faces, self.scene, w), ratio(self.distinct_faces, self.scene, w))
     }
 
-    /// Per primary ray of `camera` over the box `lo`..`hi` (the one [`ViewFeatures::of`] reads): the crossings
-    /// along its forward direction times the share of its rays that meet the box.
-    pub fn per_ray(&self, camera: &Camera, lo: [f32; 3], hi: [f32; 3]) -> RayCrossings {
+    /// Per primary ray of `camera` (`None`: the framing camera of the box, [`super::view::framing_camera`]) over
+    /// the box `lo`..`hi` (the one [`ViewFeatures::of`] reads): the crossings along its forward direction times the
+    /// share of its rays that meet the box.
+    pub fn per_ray(&self, camera: Option<&Camera>, lo: [f32; 3], hi: [f32; 3]) -> RayCrossings {
+        let framing;
+        let camera = match camera {
+            Some(c) => c,
+            None => {
+                framing = super::view::framing_camera(lo, hi);
+                &framing
+            }
+        };
         let coverage = ViewFeatures::of(camera, lo, hi).coverage;
         let w = camera.forward.abs().as_dvec3().to_array();
-        let (all, distinct) = self.along(camera.forward);
         RayCrossings {
-            all: all * coverage,
-            distinct: distinct * coverage,
+            all: ratio(self.faces, self.scene, w) * coverage,
+            distinct: ratio(self.distinct_faces, self.scene, w) * coverage,
             nondegenerate: ratio(self.nondegenerate_faces, self.scene, w) * coverage,
         }
     }

@@ -38,6 +38,11 @@ pub struct ViewFeatures {
     pub distance: f64,
 }
 
+/// The camera the policy assumes without a view: [`Camera::frame`] of the box `lo`..`hi`.
+pub fn framing_camera(lo: [f32; 3], hi: [f32; 3]) -> Camera {
+    Camera::frame(&Aabb { min: Vec3::from_array(lo), max: Vec3::from_array(hi) })
+}
+
 impl ViewFeatures {
     /// The features of `camera` over the box `lo`..`hi` (an empty or non-finite box is the unit cube at the origin).
     pub fn of(camera: &Camera, lo: [f32; 3], hi: [f32; 3]) -> Self {
@@ -69,8 +74,7 @@ impl ViewFeatures {
 
     /// The framing camera's features for the box ([`Camera::frame`]): what the policy assumes without a view.
     pub fn framing(lo: [f32; 3], hi: [f32; 3]) -> Self {
-        let b = Aabb { min: Vec3::from_array(lo), max: Vec3::from_array(hi) };
-        Self::of(&Camera::frame(&b), lo, hi)
+        Self::of(&framing_camera(lo, hi), lo, hi)
     }
 
     /// The model's row, in [`VIEW_FEATURE_NAMES`] order.

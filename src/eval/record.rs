@@ -569,11 +569,8 @@ pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str))
                 feats.push(f);
             }
             let mut sample = rec.sample(feats[0].clone(), None);
-            let (lo, hi) = (feats[0].lo, feats[0].hi);
-            let camera = rec.camera.as_ref().map(|c| c.camera()).unwrap_or_else(|| {
-                Camera::frame(&crate::geom::Aabb::new(glam::Vec3::from_array(lo), glam::Vec3::from_array(hi)))
-            });
-            sample.crossings = Some(crossings.per_ray(&camera, lo, hi));
+            let camera = rec.camera.as_ref().map(|c| c.camera());
+            sample.crossings = Some(crossings.per_ray(camera.as_ref(), feats[0].lo, feats[0].hi));
             if wanted > 1 {
                 sample.frame_features = feats[..wanted].to_vec();
             }

@@ -241,14 +241,11 @@ impl CalibratedPolicy {
         let f = scene.features.first()?;
         let mut w = self.workload(scene.features.len());
         w.view = self.camera.map(|c| ViewFeatures::of(&c, f.lo, f.hi));
-        let camera = self.camera.unwrap_or_else(|| {
-            crate::geom::Camera::frame(&crate::geom::Aabb::new(
-                glam::Vec3::from_array(f.lo),
-                glam::Vec3::from_array(f.hi),
-            ))
-        });
-        let crossings =
-            scene.build_bounds.as_ref().and_then(|b| b.box_crossings).map(|c| c.per_ray(&camera, f.lo, f.hi));
+        let crossings = scene
+            .build_bounds
+            .as_ref()
+            .and_then(|b| b.box_crossings)
+            .map(|c| c.per_ray(self.camera.as_ref(), f.lo, f.hi));
         Some(self.model.predict_floored(f, &w, &|s| overlap_floor(s, self.kind, crossings)))
     }
 }
