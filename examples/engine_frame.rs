@@ -1615,6 +1615,10 @@ fn frames(
         rays_per_frame: u64::from(args.workload.resolution).pow(2),
         tie_margin: args.tie_margin.tie_margin,
         structures: &structures,
+        // The meshes live in the engine's device buffers and only the features come back to the host, not the
+        // triangle boxes' crossings: no overlap floor here (with the LBVH the only builder, a floor could not
+        // change which structure a rebuild takes).
+        crossings: None,
     };
     let rays_per_frame = u64::from(args.workload.resolution).pow(2);
     let driver = match (engine.ray_query, model.get_driver(DriverFlags::Update)) {

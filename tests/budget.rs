@@ -353,30 +353,51 @@ fn box_crossings_are_projected_areas_and_count_coincident_copies_once_for_the_bv
 }
 
 #[test]
-fn the_overlap_floor_bounds_primary_rays_of_hierarchies_only() {
-    use meshchar::cost::{overlap_floor, primary_tests_per_crossing, Crossings, RayCrossings};
+fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
+    use meshchar::cost::{overlap_floor, primary_tests_per_crossing, tests_per_crossing, Crossings, RayCrossings};
     let c = Some(RayCrossings { all: 500.0, distinct: 2.0, nondegenerate: 100.0 });
     let f = |s, k| overlap_floor(s, k, c);
+    let kinds = [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse];
     for s in [StructureName::Lbvh, StructureName::Hlbvh, StructureName::Bih, StructureName::KdTree] {
-        let (b, p) = primary_tests_per_crossing(s);
         // The kd-tree holds zero-area triangles as points: only the others' boxes count for it.
         let x = if s == StructureName::KdTree { 100.0 } else { 500.0 };
-        assert!(p > 0.0, "{s}");
-        assert_eq!(f(s, WorkloadKind::Primary).box_tests, x * b, "{s}");
-        assert_eq!(f(s, WorkloadKind::Primary).prim_tests, x * p, "{s}");
-        assert_eq!(f(s, WorkloadKind::Shadow), Default::default());
-        assert_eq!(f(s, WorkloadKind::Diffuse), Default::default());
+        assert_eq!(tests_per_crossing(s, WorkloadKind::Primary), primary_tests_per_crossing(s), "{s}");
+        for k in kinds {
+            let (b, p) = tests_per_crossing(s, k);
+            assert!(p > 0.0 && (b > 0.0) == (s != StructureName::KdTree), "{s} {k:?}: {b} {p}");
+            assert_eq!(f(s, k).box_tests, x * b, "{s} {k:?}");
+            assert_eq!(f(s, k).prim_tests, x * p, "{s} {k:?}");
+        }
+        // A shadow ray stops at its first hit and a secondary ray starts on the surface: the training records
+        // show fewer tests per crossing for them than for primary rays, never more.
+        for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
+            let ((b, p), (b0, p0)) = (tests_per_crossing(s, k), primary_tests_per_crossing(s));
+            assert!(b <= b0 && p <= p0, "{s} {k:?}");
+        }
     }
     // The BVH counts distinct triangles; a kd-tree floors no node visits; the grid gets no floor.
-    let (b, p) = primary_tests_per_crossing(StructureName::Bvh);
-    assert_eq!(f(StructureName::Bvh, WorkloadKind::Primary).prim_tests, 2.0 * p);
-    assert_eq!(f(StructureName::Bvh, WorkloadKind::Primary).box_tests, 2.0 * b);
-    assert_eq!(f(StructureName::KdTree, WorkloadKind::Primary).box_tests, 0.0);
-    assert_eq!(f(StructureName::Grid, WorkloadKind::Primary), Default::default());
-    assert_eq!(overlap_floor(StructureName::Lbvh, WorkloadKind::Primary, None), Default::default());
+    for k in kinds {
+        let (b, p) = tests_per_crossing(StructureName::Bvh, k);
+        assert_eq!(f(StructureName::Bvh, k).prim_tests, 2.0 * p);
+        assert_eq!(f(StructureName::Bvh, k).box_tests, 2.0 * b);
+        assert_eq!(f(StructureName::KdTree, k).box_tests, 0.0);
+        assert_eq!(f(StructureName::Grid, k), Default::default());
+        assert_eq!(overlap_floor(StructureName::Lbvh, k, None), Default::default());
+    }
+    // Secondary rays are given the crossings over every direction; primary rays those along the camera.
+    let m = generate::overlapping_large(2000, 1);
+    let b = scene_box(&m);
+    let cr = Crossings::of_mesh(&m);
+    let (lo, hi) = (b.min.to_array(), b.max.to_array());
+    let cam = meshchar::trace::Camera::frame(&b);
+    assert_eq!(cr.for_workload(WorkloadKind::Primary, Some(&cam), lo, hi), cr.per_ray(Some(&cam), lo, hi));
+    for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
+        assert_eq!(cr.for_workload(k, Some(&cam), lo, hi), cr.isotropic());
+    }
+    assert_eq!(cr.isotropic().all, cr.mean());
+    assert!(cr.isotropic().all > 100.0, "{:?}", cr.isotropic());
     // The model's predictions take the floor: counts at least it, and a trace no cheaper than without it.
     let model = CostModel::shipped().expect("shipped model");
-    let m = generate::overlapping_large(2000, 1);
     let feats = features_cpu(&m, &Params::default()).unwrap();
     let w = meshchar::cost::Workload {
         kind: WorkloadKind::Primary,
@@ -385,8 +406,7 @@ fn the_overlap_floor_bounds_primary_rays_of_hierarchies_only() {
         builds: 1,
         view: None,
     };
-    let b = scene_box(&m);
-    let rc = Some(Crossings::of_mesh(&m).per_ray(Some(&meshchar::trace::Camera::frame(&b)), feats.lo, feats.hi));
+    let rc = Some(cr.per_ray(Some(&cam), feats.lo, feats.hi));
     let plain = model.predict(&feats, &w);
     let floored = model.predict_floored(&feats, &w, &|s| overlap_floor(s, WorkloadKind::Primary, rc));
     for (p, q) in plain.iter().zip(&floored) {
@@ -398,18 +418,40 @@ fn the_overlap_floor_bounds_primary_rays_of_hierarchies_only() {
     assert!(floored.iter().zip(&plain).any(|(q, p)| q.trace_ms > 2.0 * p.trace_ms), "the floor changed nothing");
 }
 
-/// Box plus triangle tests per ray of `s` over 32 x 32 primary rays from the framing camera: deterministic.
-fn tests_per_ray(s: StructureName, m: &Mesh) -> Option<f64> {
-    use meshchar::trace::workload::{mesh_bounds, primary_rays};
-    use meshchar::trace::{trace, Camera, RaySet};
+/// Box plus triangle tests per ray of `s` over the rays of `kind` from 32 x 32 primary rays of the framing camera
+/// (secondary rays from the reference BVH's hits): deterministic.
+fn tests_per_ray(s: StructureName, m: &Mesh, kind: WorkloadKind) -> Option<f64> {
+    use meshchar::trace::workload::{build_workload, mesh_bounds};
+    use meshchar::trace::{trace, Camera};
     let accel = meshchar::accel::build_structure(s, m).ok()?;
-    let rays = RaySet {
-        kind: WorkloadKind::Primary,
-        rays: primary_rays(&Camera::frame(&mesh_bounds(m)), 32, 32),
-        any_hit: false,
-    };
+    let reference = meshchar::accel::build_structure(StructureName::Bvh, m).ok()?;
+    let rays = build_workload(kind, m, &Camera::frame(&mesh_bounds(m)), 32, reference.as_ref());
     let out = trace(accel.as_ref(), &rays);
-    Some((out.counters.box_tests + out.counters.prim_tests) as f64 / rays.rays.len() as f64)
+    Some((out.counters.box_tests + out.counters.prim_tests) as f64 / rays.rays.len().max(1) as f64)
+}
+
+/// The calibrated policy's choice for `m` under `kind` at 256 x 256 rays, and whether its tests per ray stay within
+/// 4 times the fewest among the structures the budget keeps (the counts, for the message).
+fn choice_within_4x_of_fewest_tests(m: &Mesh, kind: WorkloadKind) -> (StructureName, bool, Vec<(StructureName, f64)>) {
+    let model = CostModel::shipped().expect("shipped model");
+    let policy = PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 };
+    let params = Params::default();
+    let c = cpu::fast(m, &params).expect("characterization");
+    let f = features_cpu(m, &params).expect("features");
+    let bounds = BuildBounds::of_mesh(m).expect("bounds");
+    let (frames, features) = (std::slice::from_ref(&c), std::slice::from_ref(&f));
+    let w = TargetWorkload { kind, ..workload() };
+    let sel = select_for_scene_within(&m.name, frames, features, policy, &w, Some(bounds), Budget::default());
+    let chosen = sel.selection.structure;
+    let kept: Vec<StructureName> = StructureName::ALL
+        .into_iter()
+        .filter(|s| !sel.selection.excluded.iter().any(|e| e.structure == *s))
+        .collect();
+    let counts: Vec<(StructureName, f64)> =
+        kept.iter().filter_map(|&s| tests_per_ray(s, m, kind).map(|t| (s, t))).collect();
+    let least = counts.iter().map(|c| c.1).fold(f64::INFINITY, f64::min);
+    let mine = counts.iter().find(|c| c.0 == chosen).map(|c| c.1).expect("the chosen structure builds");
+    (chosen, mine <= 4.0 * least.max(1.0), counts)
 }
 
 #[test]
@@ -418,25 +460,19 @@ fn on_overlapping_and_coincident_triangles_the_calibrated_policy_picks_no_runawa
     // at 6.9x the grid on overlapping triangles, the LBVH over the trace budget on a fan, the LBVH at 69x the grid
     // on zero-area triangles. Judged by counted tests per ray (deterministic), not by time: the chosen structure
     // makes at most 4 times the tests of the structure with the fewest among those the budget keeps.
-    let model = CostModel::shipped().expect("shipped model");
-    let policy = PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 };
     for m in [generate::overlapping_large(2000, 1), generate::fan_polygon(20_000), generate::zero_area(20_000, 1)] {
-        let params = Params::default();
-        let c = cpu::fast(&m, &params).expect("characterization");
-        let f = features_cpu(&m, &params).expect("features");
-        let bounds = BuildBounds::of_mesh(&m).expect("bounds");
-        let (frames, features) = (std::slice::from_ref(&c), std::slice::from_ref(&f));
-        let sel =
-            select_for_scene_within(&m.name, frames, features, policy, &workload(), Some(bounds), Budget::default());
-        let chosen = sel.selection.structure;
-        let kept: Vec<StructureName> = StructureName::ALL
-            .into_iter()
-            .filter(|s| !sel.selection.excluded.iter().any(|e| e.structure == *s))
-            .collect();
-        let counts: Vec<(StructureName, f64)> =
-            kept.iter().filter_map(|&s| tests_per_ray(s, &m).map(|t| (s, t))).collect();
-        let least = counts.iter().map(|c| c.1).fold(f64::INFINITY, f64::min);
-        let mine = counts.iter().find(|c| c.0 == chosen).map(|c| c.1).expect("the chosen structure builds");
-        assert!(mine <= 4.0 * least.max(1.0), "{}: chose {chosen} at {mine:.1} tests per ray; {counts:?}", m.name);
+        let (chosen, ok, counts) = choice_within_4x_of_fewest_tests(&m, WorkloadKind::Primary);
+        assert!(ok, "{}: chose {chosen}; tests per ray {counts:?}", m.name);
+    }
+}
+
+#[test]
+fn on_overlapping_triangles_the_calibrated_policy_picks_no_runaway_traversal_for_secondary_rays() {
+    // The secondary-ray catastrophes of docs/data/degenerate-{shadow,diffuse}.jsonl before the floor reached them:
+    // the BVH at 2.1x (shadow) and 9.8x (diffuse) the grid's total on 2,000 large overlapping triangles.
+    let m = generate::overlapping_large(2000, 1);
+    for kind in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
+        let (chosen, ok, counts) = choice_within_4x_of_fewest_tests(&m, kind);
+        assert!(ok, "{} {kind:?}: chose {chosen}; tests per ray {counts:?}", m.name);
     }
 }

@@ -92,7 +92,7 @@ mod sample;
 pub mod view;
 
 pub mod overlap;
-pub use overlap::{overlap_floor, primary_tests_per_crossing, Crossings, RayCrossings, TestFloor};
+pub use overlap::{overlap_floor, primary_tests_per_crossing, tests_per_crossing, Crossings, RayCrossings, TestFloor};
 
 use crate::accel::device::{DeviceRecord, TraceBackend};
 use crate::accel::StructureName;

@@ -1,11 +1,11 @@
-//! Overlap: how many triangle boxes a primary ray crosses, and the floor it puts under a hierarchy's tests per ray.
+//! Overlap: how many triangle boxes a ray crosses, and the floor it puts under a hierarchy's tests per ray.
 //!
 //! The count laws of the model are log-linear in the characterization's features, none of which sees triangles
 //! that overlap or coincide: on 2,000 large triangles with vertices uniform in a cube the model predicted 1.4
 //! triangle tests per ray for the BVH where it makes 153, and picked it at 6.9x the grid's total
 //! (`docs/cost-model.md`, "No catastrophe"). [`Crossings`] measures the overlap exactly from the mesh,
-//! [`Crossings::per_ray`] turns it into the boxes a camera's ray crosses on average ([`RayCrossings`]), and
-//! [`overlap_floor`] bounds the hierarchies' box and triangle tests per primary ray from below with it.
+//! [`Crossings::for_workload`] turns it into the boxes a ray of a workload crosses on average ([`RayCrossings`]),
+//! and [`overlap_floor`] bounds the hierarchies' box and triangle tests per ray from below with it.
 //!
 //! # Crossings of a view
 //!
@@ -15,16 +15,24 @@
 //! is the sum of the triangle boxes' projected areas over the scene box's, and a camera's ray crosses that many
 //! times the share of its rays that meet the scene's box ([`crate::cost::ViewFeatures::coverage`]). Averaged over
 //! every direction, the first factor is the Cauchy-Crofton ratio `sum_i S(box_i) / S(scene)` ([`Crossings::mean`]).
-//! A perspective camera's rays are taken parallel to its forward direction.
+//! A perspective camera's rays are taken parallel to its forward direction ([`Crossings::per_ray`]).
+//!
+//! # Secondary rays
+//!
+//! Shadow and diffuse rays start at the primary hits, inside the scene's box, in directions the camera does not
+//! fix (toward the light; about the surface normal): they are given the mean over every direction
+//! ([`Crossings::isotropic`]), with no coverage factor. The factors per crossing ([`tests_per_crossing`]) are read
+//! off the training records of each workload separately: a shadow ray stops at its first hit and a diffuse ray
+//! leaves the surface, so neither crosses what a full line would, and the envelope says how much less at least.
 //!
 //! # Where the floor applies, and where not yet
 //!
 //! The calibrated policy's predictions for a scene (`CalibratedPolicy::predictions`: the first frame, static
-//! choice) and `evaluate --compare-policies` take it, from the first frame's crossings. Not yet: the per-frame
-//! plan of an animation (`plan_frames`, `FrameRule`), the driver's structures (which have no test counts), and the
-//! trade-off study's selections (which pass no mesh bounds). The distinct triples are found with a hash set of
-//! every triple when some direction crosses at least [`Crossings::DISTINCT_FROM`] boxes: about 20 bytes per
-//! triangle for the length of the pass.
+//! choice), the per-frame plan of an animation (`plan_frames`, `FrameRule::crossings`) and `evaluate
+//! --compare-policies` take it, from the first frame's crossings, for all three workloads. Not yet: the driver's
+//! structures (which have no test counts), and the trade-off study's selections (which pass no mesh bounds). The distinct triples are found
+//! with a hash set of every triple when some direction crosses at least [`Crossings::DISTINCT_FROM`] boxes: about 20
+//! bytes per triangle for the length of the pass.
 
 use super::ViewFeatures;
 use crate::accel::StructureName;
@@ -50,9 +58,9 @@ pub struct Crossings {
     pub scene: [f64; 3],
 }
 
-/// The triangle boxes a camera's primary ray crosses on average ([`Crossings::per_ray`]): over every triangle, over
-/// the distinct vertex-index triples (what the binned-SAH BVH holds), and over the triangles of non-zero area (what
-/// the kd-tree holds as boxes).
+/// The triangle boxes a ray crosses on average ([`Crossings::per_ray`] for a camera's primary rays,
+/// [`Crossings::isotropic`] for secondary rays): over every triangle, over the distinct vertex-index triples (what
+/// the binned-SAH BVH holds), and over the triangles of non-zero area (what the kd-tree holds as boxes).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct RayCrossings {
     /// Over every triangle.
@@ -129,6 +137,24 @@ impl Crossings {
         (ratio(self.faces, self.scene, w), ratio(self.distinct_faces, self.scene, w))
     }
 
+    /// Over every direction ([`Crossings::mean`]), for all three kinds of triangle: what a secondary ray is given.
+    pub fn isotropic(&self) -> RayCrossings {
+        RayCrossings {
+            all: ratio(self.faces, self.scene, [1.0; 3]),
+            distinct: ratio(self.distinct_faces, self.scene, [1.0; 3]),
+            nondegenerate: ratio(self.nondegenerate_faces, self.scene, [1.0; 3]),
+        }
+    }
+
+    /// Per ray of a workload: [`Crossings::per_ray`] of `camera` for primary rays, [`Crossings::isotropic`] for
+    /// shadow and diffuse rays (which start at the primary hits, in directions the camera does not fix).
+    pub fn for_workload(&self, kind: WorkloadKind, camera: Option<&Camera>, lo: [f32; 3], hi: [f32; 3]) -> RayCrossings {
+        match kind {
+            WorkloadKind::Primary => self.per_ray(camera, lo, hi),
+            WorkloadKind::Shadow | WorkloadKind::Diffuse => self.isotropic(),
+        }
+    }
+
     /// Per primary ray of `camera` (`None`: the framing camera of the box, [`super::view::framing_camera`]) over
     /// the box `lo`..`hi` (the one [`ViewFeatures::of`] reads): the crossings along its forward direction times the
     /// share of its rays that meet the box.
@@ -190,6 +216,39 @@ const BIH: (f64, f64) = (0.93, 0.43);
 const LBVH: (f64, f64) = (1.4, 0.094);
 const HLBVH: (f64, f64) = (0.66, 0.069);
 
+/// Least tests per crossed triangle box ([`RayCrossings`]), `(box, triangle)`, of each structure for a workload:
+/// [`primary_tests_per_crossing`] for primary rays; for shadow and diffuse rays the lower envelope of the measured
+/// ratio to [`Crossings::isotropic`] on the training records of that workload (`docs/data/oracle-<w>.jsonl` and
+/// `docs/data/families-<w>.jsonl`, the scenes and views with at least one hit whose isotropic crossings are at least
+/// 4: 56 shadow, 46 diffuse), rounded down to two significant digits. Read off the training records only; checked,
+/// not fitted, on the degenerate generators. As for primary rays, the kd-tree floors no box tests and the grid
+/// nothing.
+pub fn tests_per_crossing(structure: StructureName, kind: WorkloadKind) -> (f64, f64) {
+    let table = match kind {
+        WorkloadKind::Primary => return primary_tests_per_crossing(structure),
+        WorkloadKind::Shadow => &SHADOW,
+        WorkloadKind::Diffuse => &DIFFUSE,
+    };
+    match structure {
+        StructureName::Bvh => table[0],
+        StructureName::KdTree => (0.0, table[1].1),
+        StructureName::Bih => table[2],
+        StructureName::Lbvh => table[3],
+        StructureName::Hlbvh => table[4],
+        _ => (0.0, 0.0),
+    }
+}
+
+// The secondary rays' envelopes (see tests_per_crossing), `(box, triangle)` per isotropic crossing for the BVH,
+// kd-tree (triangle only), BIH, LBVH and HLBVH, and where the least was found. Shadow: BVH box 0.167 (Sponza),
+// triangle 0.0049 (interior 2K, framing); kd-tree triangle 0.0075 (interior 20K, framing); BIH 0.195 (interior
+// 20K, framing) / 0.0096 (interior 2K, framing); LBVH 0.294 (interior 200K, framing) / 0.0051 (interior 20K,
+// framing); HLBVH 0.208 (Sponza) / 0.0040 (interior 20K, framing). Diffuse: BVH 0.147 (Sponza) / 0.0061 (interior
+// 2K, grazing); kd-tree triangle 0.0074 (Sponza); BIH 0.281 / 0.0625 (Sponza); LBVH 0.299 (Sponza) / 0.0052
+// (interior 2K, grazing); HLBVH 0.180 / 0.0070 (Sponza).
+const SHADOW: [(f64, f64); 5] = [(0.16, 0.0049), (0.0, 0.0075), (0.19, 0.0096), (0.29, 0.0051), (0.20, 0.0040)];
+const DIFFUSE: [(f64, f64); 5] = [(0.14, 0.0061), (0.0, 0.0074), (0.28, 0.062), (0.29, 0.0052), (0.18, 0.0070)];
+
 /// Lower bounds on a structure's tests per ray, for [`crate::cost::StructureModel::predict_floored`].
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct TestFloor {
@@ -199,22 +258,17 @@ pub struct TestFloor {
     pub prim_tests: f64,
 }
 
-/// The overlap floor of `structure`'s tests per ray for primary rays whose [`RayCrossings`] are at hand: its
-/// factors of [`primary_tests_per_crossing`] times the crossings (the distinct triangles' for the binned-SAH BVH,
-/// which keeps one of coincident copies; those of non-zero area for the kd-tree, which stores zero-area triangles
-/// as points; all of them for the others). Zero otherwise. Shadow and diffuse rays get
-/// none: on the training records some make no triangle test at all where many boxes overlap, so no such envelope
-/// exists for them.
+/// The overlap floor of `structure`'s tests per ray of the workload `kind` whose [`RayCrossings`] are at hand
+/// ([`Crossings::for_workload`]): its factors of [`tests_per_crossing`] times the crossings (the distinct
+/// triangles' for the binned-SAH BVH, which keeps one of coincident copies; those of non-zero area for the kd-tree,
+/// which stores zero-area triangles as points; all of them for the others). Zero without crossings.
 pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
     let Some(c) = c else { return TestFloor::default() };
-    if kind != WorkloadKind::Primary {
-        return TestFloor::default();
-    }
     let x = match structure {
         StructureName::Bvh => c.distinct,
         StructureName::KdTree => c.nondegenerate,
         _ => c.all,
     };
-    let (b, p) = primary_tests_per_crossing(structure);
+    let (b, p) = tests_per_crossing(structure, kind);
     TestFloor { box_tests: b * x, prim_tests: p * x }
 }

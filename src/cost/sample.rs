@@ -75,8 +75,8 @@ pub struct Sample {
     /// Features of every measured frame of an animation (empty for one frame, or when not computed): the drift of
     /// an updated driver structure is measured against them.
     pub frame_features: Vec<Features>,
-    /// The triangle boxes the record's primary rays cross on average (the first frame's [`super::Crossings`] for
-    /// its camera; `None` when not computed): the policies' overlap floor ([`super::overlap_floor`]) reads them.
+    /// The triangle boxes the record's rays cross on average (the first frame's [`super::Crossings`] for its
+    /// workload and camera, [`super::Crossings::for_workload`]; `None` when not computed): the policies' overlap floor ([`super::overlap_floor`]) reads them.
     pub crossings: Option<super::RayCrossings>,
 }
 

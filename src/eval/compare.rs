@@ -160,8 +160,14 @@ fn policy_candidate(model: &CostModel, smp: &Sample, tie_margin: f64) -> (Option
     let frames: Vec<crate::characterize::Features> =
         if smp.frame_features.is_empty() { vec![smp.features.clone()] } else { smp.frame_features.clone() };
     // The project's side as the policy weighs it: for an animation, its per-frame plan.
-    let planned =
-        crate::select::planned_total(model, &frames, smp.workload.kind, smp.workload.rays_per_frame, tie_margin);
+    let planned = crate::select::planned_total(
+        model,
+        &frames,
+        smp.workload.kind,
+        smp.workload.rays_per_frame,
+        tie_margin,
+        smp.crossings,
+    );
     let own = choose(&preds, tie_margin).map(|c| {
         let single = preds.iter().find(|p| p.structure == c).map_or(0.0, |p| p.total_ms);
         (c, planned.unwrap_or(single))

@@ -570,7 +570,7 @@ pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str))
             }
             let mut sample = rec.sample(feats[0].clone(), None);
             let camera = rec.camera.as_ref().map(|c| c.camera());
-            sample.crossings = Some(crossings.per_ray(camera.as_ref(), feats[0].lo, feats[0].hi));
+            sample.crossings = Some(crossings.for_workload(rec.workload, camera.as_ref(), feats[0].lo, feats[0].hi));
             if wanted > 1 {
                 sample.frame_features = feats[..wanted].to_vec();
             }

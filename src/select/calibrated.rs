@@ -11,7 +11,7 @@
 use super::{Policy, SceneSummary, Selection, ThesisPolicy};
 use crate::accel::StructureName;
 use crate::characterize::Features;
-use crate::cost::{overlap_floor, CostModel, Prediction, ViewFeatures, Workload};
+use crate::cost::{overlap_floor, CostModel, Prediction, RayCrossings, ViewFeatures, Workload};
 
 /// The calibrated choice among predictions: the smallest predicted total, then, within `tie_margin` (relative) of
 /// it, the smallest predicted build. `None` for no predictions.
@@ -77,26 +77,28 @@ pub(crate) fn planned_total(
     kind: crate::geom::WorkloadKind,
     rays_per_frame: u64,
     tie_margin: f64,
+    crossings: Option<RayCrossings>,
 ) -> Option<f64> {
     if features.len() < 2 {
         return None;
     }
-    let plan = plan_frames(model, features, kind, rays_per_frame, tie_margin);
+    let plan = plan_frames(model, features, kind, rays_per_frame, tie_margin, crossings);
     (!plan.is_empty()).then(|| plan.iter().map(|d| d.update_ms + d.trace_ms).sum())
 }
 
 /// Per-frame rebuild-or-refit plan for an animation with per-frame `features` and `rays_per_frame` rays of `kind`
 /// per frame: greedy, frame by frame, the cheaper of rebuilding with the calibrated choice and refitting the tree in
 /// use (BVH family only, and only with a refit model). Each step is [`FrameRule::decide`] over all calibrated
-/// structures.
+/// structures, with the overlap floor of `crossings` ([`FrameRule::crossings`]; `None`: none).
 pub fn plan_frames(
     model: &CostModel,
     features: &[Features],
     kind: crate::geom::WorkloadKind,
     rays_per_frame: u64,
     tie_margin: f64,
+    crossings: Option<RayCrossings>,
 ) -> Vec<FrameDecision> {
-    let rule = FrameRule { model, kind, rays_per_frame, tie_margin, structures: &[] };
+    let rule = FrameRule { model, kind, rays_per_frame, tie_margin, structures: &[], crossings };
     let mut out = Vec::new();
     let mut built: Option<(usize, StructureName)> = None;
     for (i, f) in features.iter().enumerate() {
@@ -123,6 +125,10 @@ pub struct FrameRule<'a> {
     pub tie_margin: f64,
     /// The structures a rebuild may choose from (the builders the caller has); empty: every calibrated structure.
     pub structures: &'a [StructureName],
+    /// The triangle boxes a ray of the workload crosses in the scene ([`crate::cost::Crossings::for_workload`] of
+    /// the first frame, as the static choice takes them): every frame's predictions are floored by them
+    /// ([`overlap_floor`]). `None`: no floor (a caller without the mesh's boxes).
+    pub crossings: Option<RayCrossings>,
 }
 
 impl FrameRule<'_> {
@@ -139,7 +145,7 @@ impl FrameRule<'_> {
         built: Option<(&Features, StructureName)>,
     ) -> Option<FrameDecision> {
         let w = Workload { kind: self.kind, rays_per_frame: self.rays_per_frame, frames: 1, builds: 1, view: None };
-        let preds = self.model.predict(now, &w);
+        let preds = self.model.predict_floored(now, &w, &|s| overlap_floor(s, self.kind, self.crossings));
         let allowed: Vec<Prediction> = preds
             .iter()
             .filter(|p| self.structures.is_empty() || self.structures.contains(&p.structure))
@@ -196,8 +202,8 @@ pub struct CalibratedPolicy {
     pub driver: bool,
     /// The engine's camera, when it gives one: the first frame's predictions read its [`ViewFeatures`] (a model
     /// calibrated with views weighs them; see [`crate::cost::view`]). `None` (the default): the framing camera of
-    /// the scene's bounds, the oracle's default. The per-frame rule of an animation ([`FrameRule`]) does not read
-    /// it yet.
+    /// the scene's bounds, the oracle's default. The per-frame rule of an animation ([`FrameRule`]) reads it only
+    /// through the overlap floor's crossings ([`CalibratedPolicy::crossings`]).
     pub camera: Option<crate::geom::Camera>,
 }
 
@@ -235,18 +241,23 @@ impl CalibratedPolicy {
     }
 
     /// Predictions for a scene (first frame's features), `None` without features; with the mesh's
-    /// [`crate::select::BuildBounds`], primary rays' triangle tests are floored by the overlap
+    /// [`crate::select::BuildBounds`], the hierarchies' tests per ray are floored by the overlap
     /// ([`crate::cost::overlap_floor`]).
     pub fn predictions(&self, scene: &SceneSummary<'_>) -> Option<Vec<Prediction>> {
         let f = scene.features.first()?;
         let mut w = self.workload(scene.features.len());
         w.view = self.camera.map(|c| ViewFeatures::of(&c, f.lo, f.hi));
-        let crossings = scene
-            .build_bounds
-            .as_ref()
-            .and_then(|b| b.box_crossings)
-            .map(|c| c.per_ray(self.camera.as_ref(), f.lo, f.hi));
+        let crossings = self.crossings(scene);
         Some(self.model.predict_floored(f, &w, &|s| overlap_floor(s, self.kind, crossings)))
+    }
+
+    /// The triangle boxes a ray of the workload crosses in the scene's first frame
+    /// ([`crate::cost::Crossings::for_workload`] with [`CalibratedPolicy::camera`]), `None` without the mesh's
+    /// [`crate::select::BuildBounds`] or features.
+    pub fn crossings(&self, scene: &SceneSummary<'_>) -> Option<RayCrossings> {
+        let f = scene.features.first()?;
+        let c = scene.build_bounds.as_ref()?.box_crossings?;
+        Some(c.for_workload(self.kind, self.camera.as_ref(), f.lo, f.hi))
     }
 }
 
@@ -322,7 +333,14 @@ impl Policy for CalibratedPolicy {
             ));
         }
         if scene.features.len() > 1 {
-            let plan = plan_frames(&self.model, scene.features, self.kind, self.rays_per_frame, self.tie_margin);
+            let plan = plan_frames(
+                &self.model,
+                scene.features,
+                self.kind,
+                self.rays_per_frame,
+                self.tie_margin,
+                self.crossings(scene),
+            );
             let refits = plan.iter().filter(|d| d.action == FrameAction::Refit).count();
             let total: f64 = plan.iter().map(|d| d.update_ms + d.trace_ms).sum();
             reasons.push(format!(
@@ -337,7 +355,14 @@ impl Policy for CalibratedPolicy {
         let mut driver = None;
         if self.driver {
             let own = preds.iter().find(|p| p.structure == choice).map(|p| {
-                let t = planned_total(&self.model, scene.features, self.kind, self.rays_per_frame, self.tie_margin);
+                let t = planned_total(
+                    &self.model,
+                    scene.features,
+                    self.kind,
+                    self.rays_per_frame,
+                    self.tie_margin,
+                    self.crossings(scene),
+                );
                 (choice, t.unwrap_or(p.total_ms))
             });
             match super::driver::choose_driver(&self.model, scene.features, &w, own) {
@@ -378,6 +403,7 @@ mod tests {
             rays_per_frame: 1 << 20,
             tie_margin: 0.05,
             structures: &only,
+            crossings: None,
         };
         let first = rule.decide(0, &f[0], None).expect("a decision");
         assert_eq!((first.frame, first.action, first.structure), (0, FrameAction::Rebuild, StructureName::Lbvh));
@@ -408,7 +434,7 @@ mod tests {
     fn plan_frames_is_frame_rule_over_every_structure() {
         let model = CostModel::shipped().expect("shipped model");
         let f = exploding_features();
-        let plan = plan_frames(&model, &f, WorkloadKind::Primary, 1 << 20, 0.05);
+        let plan = plan_frames(&model, &f, WorkloadKind::Primary, 1 << 20, 0.05, None);
         assert_eq!(plan.len(), f.len());
         let rule = FrameRule {
             model: &model,
@@ -416,6 +442,7 @@ mod tests {
             rays_per_frame: 1 << 20,
             tie_margin: 0.05,
             structures: &[],
+            crossings: None,
         };
         let mut built: Option<usize> = None;
         for (i, d) in plan.iter().enumerate() {
