@@ -8,11 +8,14 @@
 //!     [--camera EX,EY,EZ,TX,TY,TZ[,FOV]] [--charts DIR] [--policy thesis|calibrated] [--cost-model FILE]
 //!     [--tie-margin X] [--oracle-cache FILE] [--trace-backend cpu|vulkan] [--max-tests-per-ray TESTS] [--help]
 //! cargo run --release --example evaluate -- --compare-policies FILE.jsonl ... [--charts DIR] [--json]
+//!     [--frames-sweep F,F,...] [--proxy]
 //! ```
 //!
 //! With `--compare-policies`, nothing is measured: the cached oracle results are read back, the thesis policy's
 //! recorded selections and the calibrated policy (fitted on all scenes, and leave-one-scene-out) are scored side by
-//! side.
+//! side. `--proxy` adds the deterministic proxy (`meshchar::eval::proxy`): two per-test prices are measured in
+//! isolation (milliseconds), and the policies are scored again with every trace time replaced by the counted tests
+//! times those prices.
 
 use anyhow::Context as _;
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
@@ -26,6 +29,7 @@ use meshchar::cost::{CostModel, Prediction};
 use meshchar::eval::chart::BarChart;
 use meshchar::eval::compare::compare;
 use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, RefitCandidate, TraceBackend};
+use meshchar::eval::proxy::{agreement, proxied, Agreement, TestPrices};
 use meshchar::eval::record::{load_samples as load_oracle_samples, tracer_of};
 use meshchar::eval::{OracleConfig, Rebuild, SceneEvaluation};
 use meshchar::geom::WorkloadKind;
@@ -117,6 +121,12 @@ struct Args {
     /// that the policies are scored where the build amortizes (for instance 1,10,100,1000)
     #[arg(long, value_name = "F,F,...", value_parser = args::list(clap::value_parser!(u64).range(1..)))]
     frames_sweep: Option<args::List<u64>>,
+    /// With --compare-policies: also score the policies against the deterministic proxy (every structure's counted
+    /// box and triangle tests times per-test prices measured in isolation on this machine, the builds as measured)
+    /// and print how well the proxy agrees with the measured truth (meshchar::eval::proxy); with --json, a second
+    /// line {"proxy": {"prices", "agreement", "comparison"}}
+    #[arg(long, requires = "compare_policies")]
+    proxy: bool,
     /// Where the rays are traced: `cpu` (the counting CPU tracer, host wall time) or `vulkan` (the device traversal
     /// kernel on the Vulkan device, GPU timestamps; structures are built on the host and uploaded, the upload
     /// timed apart; every ray's hit is checked against the CPU reference). MESHCHAR_DEVICE picks the device
@@ -514,6 +524,38 @@ fn print_baselines(b: &meshchar::eval::compare::Baselines) {
     }
 }
 
+/// `--proxy`: the prices, the agreement with the measured truth, and the policies scored against the proxy.
+fn print_proxy(prices: &TestPrices, a: &Agreement, pc: &meshchar::eval::compare::Comparison) {
+    println!(
+        "\ndeterministic proxy: counted tests x prices measured in isolation ({:.2} ns per box test, {:.2} ns per \
+         triangle test, medians of {}), builds as measured; within noise = within 2% of the best",
+        prices.box_ns, prices.triangle_ns, prices.repeats
+    );
+    println!(
+        "agreement over {} samples: same best {:.1}%, the proxy's best within the measured noise {:.1}%, its mean \
+         regret judged by the measurement {:.1}%",
+        a.samples,
+        100.0 * a.same_best,
+        100.0 * a.best_within_noise,
+        100.0 * a.mean_regret_of_proxy_best
+    );
+    println!("measured / proxy trace time per structure (median, RMS of the log, traces):");
+    for (s, n, med, rms) in &a.trace_ratio {
+        println!("  {s:<7} {med:>7.2}x  {rms:>5.2}  {n}");
+    }
+    println!(
+        "against the proxy: calibrated held out (LOO) mean regret {:.1}% (worst {:.1}%, {}), accuracy {:.1}%; \
+         calibrated in sample {:.1}%; thesis {:.1}%",
+        100.0 * pc.calibrated_held_out.mean_regret,
+        100.0 * pc.calibrated_held_out.worst_regret,
+        pc.calibrated_held_out.worst,
+        100.0 * pc.calibrated_held_out.accuracy,
+        100.0 * pc.calibrated_in_sample.mean_regret,
+        100.0 * pc.baseline.mean_regret
+    );
+    print_baselines(&pc.baselines);
+}
+
 fn compare_policies(args: &Args) -> anyhow::Result<()> {
     let bar = Progress::new("compare-policies", None, args.json.json);
     // One tracer per comparison: the calibrated policy is fitted on these records, so they must describe one
@@ -537,8 +579,19 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
         None => samples,
     };
     let c = compare(&samples, args.tie_margin.tie_margin, &device)?;
+    let proxy = if args.proxy {
+        let prices = TestPrices::measure(21);
+        let p = proxied(&samples, &prices, 0.02);
+        let agree = agreement(&samples, &p);
+        Some((prices, agree, compare(&p, args.tie_margin.tie_margin, &device)?))
+    } else {
+        None
+    };
     if args.json.json {
         println!("{}", serde_json::json!(c));
+        if let Some((prices, agree, pc)) = &proxy {
+            println!("{}", serde_json::json!({"proxy": {"prices": prices, "agreement": agree, "comparison": pc}}));
+        }
     } else {
         println!(
             "{:<44} {:<8} {:>7} | {:>7} {:>7} | {:>7} {:>7} | {:>7} {:>7}",
@@ -619,6 +672,9 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
             );
         }
         print_baselines(&c.baselines);
+        if let Some((prices, a, pc)) = &proxy {
+            print_proxy(prices, a, pc);
+        }
     }
     if let Some(dir) = &args.charts {
         // One chart per workload (a scene's bars side by side: thesis, calibrated held out).

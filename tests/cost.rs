@@ -610,3 +610,60 @@ fn a_static_sample_stands_for_more_frames_with_the_same_build_and_trace() {
     }
     assert_eq!(out[6], samples[2]);
 }
+
+#[test]
+fn the_proxy_replaces_every_trace_by_counted_tests_times_the_prices() {
+    use meshchar::eval::proxy::{agreement, proxied, TestPrices};
+    let (samples, _) = known_samples(12);
+    let prices = TestPrices { box_ns: 2.0, triangle_ns: 5.0, repeats: 1 };
+    let p = proxied(&samples, &prices, 0.02);
+    assert_eq!(p.len(), samples.len());
+    for (s, q) in samples.iter().zip(&p) {
+        let rays = s.workload.rays_per_frame as f64;
+        for (m, n) in s.measured.iter().zip(&q.measured) {
+            let ns = 2.0 * m.box_tests_per_ray + 5.0 * m.prim_tests_per_ray;
+            assert_eq!(n.trace_ns_per_ray, ns);
+            assert_eq!(n.trace_ms, ns * rays * 1e-6);
+            assert_eq!(
+                (n.build_ms, n.box_tests_per_ray, n.prim_tests_per_ray),
+                (m.build_ms, m.box_tests_per_ray, m.prim_tests_per_ray)
+            );
+            assert_eq!(n.total_ms, m.build_ms + n.trace_ms);
+        }
+        // Within noise under the proxy: within 2% of the best total, the best included.
+        let best = q.best().unwrap().total_ms;
+        for n in &q.measured {
+            assert_eq!(n.within_noise_of_best, n.total_ms <= best * 1.02, "{}", n.structure);
+        }
+    }
+    // Samples compared with themselves agree exactly.
+    let same = agreement(&samples, &samples);
+    assert_eq!(
+        (same.samples, same.same_best, same.best_within_noise, same.mean_regret_of_proxy_best),
+        (12, 1.0, 1.0, 0.0)
+    );
+    assert!(
+        same.trace_ratio.iter().all(|(_, n, med, rms)| *n == 12 && *med == 1.0 && *rms == 0.0),
+        "{:?}",
+        same.trace_ratio
+    );
+    let a = agreement(&samples, &p);
+    assert_eq!(a.samples, 12);
+    for (name, n, med, _) in &a.trace_ratio {
+        assert_eq!(*n, 12, "{name}");
+        assert!(med.is_finite() && *med > 0.0, "{name}: {med}");
+    }
+    // The proxy's best judged by the measurement: its regret is the measured regret of that structure.
+    let expect: f64 =
+        samples.iter().zip(&p).map(|(s, q)| s.regret(q.best().unwrap().structure).unwrap()).sum::<f64>() / 12.0;
+    assert!((a.mean_regret_of_proxy_best - expect).abs() < 1e-12);
+}
+
+#[test]
+fn the_proxy_prices_are_measured_positive_and_finite() {
+    let p = meshchar::eval::proxy::TestPrices::measure(3);
+    assert_eq!(p.repeats, 3);
+    assert!(p.box_ns.is_finite() && p.box_ns > 0.0, "{p:?}");
+    assert!(p.triangle_ns.is_finite() && p.triangle_ns > 0.0, "{p:?}");
+    assert_eq!(p.ns_per_ray(2.0, 3.0), 2.0 * p.box_ns + 3.0 * p.triangle_ns);
+}

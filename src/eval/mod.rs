@@ -7,6 +7,7 @@ pub mod chart;
 pub mod compare;
 pub mod failure_study;
 pub mod oracle;
+pub mod proxy;
 pub mod record;
 pub mod render;
 pub mod tradeoff;
