@@ -443,10 +443,8 @@ fn choice_within_4x_of_fewest_tests(m: &Mesh, kind: WorkloadKind) -> (StructureN
     let w = TargetWorkload { kind, ..workload() };
     let sel = select_for_scene_within(&m.name, frames, features, policy, &w, Some(bounds), Budget::default());
     let chosen = sel.selection.structure;
-    let kept: Vec<StructureName> = StructureName::ALL
-        .into_iter()
-        .filter(|s| !sel.selection.excluded.iter().any(|e| e.structure == *s))
-        .collect();
+    let kept: Vec<StructureName> =
+        StructureName::ALL.into_iter().filter(|s| !sel.selection.excluded.iter().any(|e| e.structure == *s)).collect();
     let counts: Vec<(StructureName, f64)> =
         kept.iter().filter_map(|&s| tests_per_ray(s, m, kind).map(|t| (s, t))).collect();
     let least = counts.iter().map(|c| c.1).fold(f64::INFINITY, f64::min);

@@ -148,7 +148,13 @@ impl Crossings {
 
     /// Per ray of a workload: [`Crossings::per_ray`] of `camera` for primary rays, [`Crossings::isotropic`] for
     /// shadow and diffuse rays (which start at the primary hits, in directions the camera does not fix).
-    pub fn for_workload(&self, kind: WorkloadKind, camera: Option<&Camera>, lo: [f32; 3], hi: [f32; 3]) -> RayCrossings {
+    pub fn for_workload(
+        &self,
+        kind: WorkloadKind,
+        camera: Option<&Camera>,
+        lo: [f32; 3],
+        hi: [f32; 3],
+    ) -> RayCrossings {
         match kind {
             WorkloadKind::Primary => self.per_ray(camera, lo, hi),
             WorkloadKind::Shadow | WorkloadKind::Diffuse => self.isotropic(),
