@@ -133,7 +133,8 @@ fn process(
     };
     // The build bounds from the meshes themselves (tighter than the features'): no structure whose grid or kd-tree
     // references would exceed the default budget is a candidate.
-    let bounds = BuildBounds::of_frames(&scene.frames)?;
+    // The crossings of the overlap floor are counted on the image of the camera the policy is given.
+    let bounds = BuildBounds::of_frames_viewed(&scene.frames, workload.camera.as_ref())?;
     let chosen =
         select_for_scene_within(&scene.name, &results, &features, policy, &workload, bounds, Budget::default());
     let select_ms = t1.elapsed().as_secs_f64() * 1e3;

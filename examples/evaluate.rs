@@ -258,7 +258,8 @@ fn select(
         camera: config.camera,
     };
     // The build bounds from the meshes (tighter than the features'): over-budget structures are no candidates.
-    let bounds = BuildBounds::of_frames(&scene.frames)?;
+    // The crossings of the overlap floor are counted on the image of the camera the policy is given.
+    let bounds = BuildBounds::of_frames_viewed(&scene.frames, workload.camera.as_ref())?;
     let chosen = select_for_scene_within(&scene.name, &chars, &features, choice, &workload, bounds, Budget::default());
     let (sel, preds) = (chosen.selection, chosen.predicted);
     let name = sel.structure;

@@ -7,7 +7,7 @@ use meshchar::accel::kdtree::{KdOptions, KdTree};
 use meshchar::accel::{AccelError, AccelStructure, StructureName};
 use meshchar::characterize::{cpu, features_cpu, Params};
 use meshchar::cost::CostModel;
-use meshchar::geom::{Aabb, WorkloadKind};
+use meshchar::geom::{Aabb, Camera, WorkloadKind};
 use meshchar::mesh::{generate, Mesh};
 use meshchar::select::budget::{Bound, GridRule};
 use meshchar::select::{
@@ -321,11 +321,23 @@ fn box_crossings_are_projected_areas_and_count_coincident_copies_once_for_the_bv
     let b = scene_box(&one);
     let (lo, hi) = (b.min.to_array(), b.max.to_array());
     let cam = meshchar::trace::Camera::frame(&b);
-    let r = Crossings::of_mesh(&one).per_ray(Some(&cam), lo, hi);
+    // Without a view counted on the image (the parallel estimate):
+    let parallel = Crossings { view: None, ..Crossings::of_mesh(&one) };
+    let r = parallel.per_ray(Some(&cam), lo, hi);
     // No camera: the framing camera of the box, which `cam` is.
-    assert_eq!(Crossings::of_mesh(&one).per_ray(None, lo, hi), r);
+    assert_eq!(parallel.per_ray(None, lo, hi), r);
     let cover = meshchar::cost::ViewFeatures::of(&cam, lo, hi).coverage;
     assert!(r.all > 0.0 && (r.all - cover).abs() < 1e-12 && r.distinct == r.all, "{r:?} {cover}");
+    // With the framing camera's view (what of_mesh counts): its count on the image, for that camera only.
+    let viewed = Crossings::of_mesh(&one);
+    let v = viewed.view.expect("a view");
+    assert!(v.framing && v.camera == cam, "{v:?}");
+    let boxes = [meshchar::geom::Aabb::of_triangle(&one.triangle(0))];
+    assert_eq!(v.all, meshchar::cost::screen_crossings(&boxes, &cam));
+    assert_eq!(viewed.per_ray(None, lo, hi).all, v.all);
+    assert_eq!(viewed.per_ray(Some(&cam), lo, hi).all, v.all);
+    let other = meshchar::trace::Camera { eye: cam.eye * 2.0, ..cam };
+    assert_eq!(viewed.per_ray(Some(&other), lo, hi), parallel.per_ray(Some(&other), lo, hi));
     // Zero-area triangles: the lattice's 400 collinear ones along its diagonal are all of its crossings along z
     // but the squares', and none of the non-degenerate ones (what the kd-tree holds as boxes).
     let lat = Crossings::of_mesh(&generate::lattice_with_diagonal(30, 400));
@@ -353,9 +365,55 @@ fn box_crossings_are_projected_areas_and_count_coincident_copies_once_for_the_bv
 }
 
 #[test]
+fn screen_crossings_count_each_box_by_its_share_of_the_image() {
+    use meshchar::cost::screen_crossings;
+    use meshchar::geom::Aabb;
+    let v = glam::Vec3::new;
+    // At the origin looking down -z with a 90-degree field of view: the image spans x / depth and y / depth in
+    // [-1, 1].
+    let cam = meshchar::trace::Camera {
+        eye: v(0.0, 0.0, 0.0),
+        forward: v(0.0, 0.0, -1.0),
+        right: v(1.0, 0.0, 0.0),
+        up: v(0.0, 1.0, 0.0),
+        tan_half_fov: 1.0,
+    };
+    let b = |lo: [f32; 3], hi: [f32; 3]| Aabb { min: glam::Vec3::from(lo), max: glam::Vec3::from(hi) };
+    let share = |x: Aabb| screen_crossings(&[x], &cam);
+    // Filling the image, a quarter of it, clipped to it, behind the eye, holding the eye.
+    assert_eq!(share(b([-1.0, -1.0, -2.0], [1.0, 1.0, -1.0])), 1.0);
+    assert_eq!(share(b([0.0, 0.0, -1.0], [1.0, 1.0, -1.0])), 0.25);
+    assert_eq!(share(b([0.0, 0.0, -1.0], [2.0, 1.0, -1.0])), 0.25);
+    assert_eq!(share(b([-1.0, -1.0, 1.0], [1.0, 1.0, 2.0])), 0.0);
+    assert_eq!(share(b([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0])), 1.0);
+    // Straddling the eye's plane: the part in front, cut at the near plane, projects towards the image's edge.
+    assert_eq!(share(b([1.0, -0.5, -1.0], [2.0, 0.5, 1.0])), 0.0, "beside the view");
+    let s = share(b([-0.5, 0.1, -1.0], [0.5, 0.5, 1.0]));
+    assert!((s - 0.45).abs() < 1e-6, "above the eye, in view: {s}");
+    // Boxes add up; non-finite coordinates count nothing; the order of the boxes does not change the sum's bits.
+    let many: Vec<Aabb> = (0..10_000).map(|i| b([0.0, 0.0, -1.0 - i as f32], [1.0, 1.0, -1.0 - i as f32])).collect();
+    let sum = screen_crossings(&many, &cam);
+    assert!((sum - many.iter().map(|x| share(*x)).sum::<f64>()).abs() < 1e-9, "{sum}");
+    assert_eq!(screen_crossings(&many, &cam), sum);
+    assert_eq!(share(b([0.0, 0.0, -1.0], [f32::INFINITY, 1.0, -1.0])), 0.0);
+    assert_eq!(screen_crossings(&[], &cam), 0.0);
+    // A close camera looking into dense geometry sees far more than the parallel estimate: the engineering
+    // family's fans of slivers from its close-up preset.
+    let m =
+        meshchar::mesh::families::generate(meshchar::mesh::families::Family::Engineering, 20_000, 1).expect("family");
+    let bx = scene_box(&m);
+    let close = meshchar::trace::views::View::CloseUp.camera(&bx);
+    let c = meshchar::cost::Crossings::of_mesh_viewed(&m, Some(&close));
+    let (lo, hi) = (bx.min.to_array(), bx.max.to_array());
+    let counted = c.per_ray(Some(&close), lo, hi).all;
+    let parallel = meshchar::cost::Crossings { view: None, ..c }.per_ray(Some(&close), lo, hi).all;
+    assert!(counted > 3.0 * parallel, "counted {counted}, parallel {parallel}");
+}
+
+#[test]
 fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     use meshchar::cost::{overlap_floor, primary_tests_per_crossing, tests_per_crossing, Crossings, RayCrossings};
-    let c = Some(RayCrossings { all: 500.0, distinct: 2.0, nondegenerate: 100.0 });
+    let c = Some(RayCrossings { all: 500.0, distinct: 2.0, nondegenerate: 100.0, image: 0.0 });
     let f = |s, k| overlap_floor(s, k, c);
     let kinds = [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse];
     for s in [StructureName::Lbvh, StructureName::Hlbvh, StructureName::Bih, StructureName::KdTree] {
@@ -392,9 +450,39 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     let cam = meshchar::trace::Camera::frame(&b);
     assert_eq!(cr.for_workload(WorkloadKind::Primary, Some(&cam), lo, hi), cr.per_ray(Some(&cam), lo, hi));
     for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
-        assert_eq!(cr.for_workload(k, Some(&cam), lo, hi), cr.isotropic());
+        let r = cr.for_workload(k, Some(&cam), lo, hi);
+        assert_eq!(RayCrossings { image: 0.0, ..r }, cr.isotropic());
     }
     assert_eq!(cr.isotropic().all, cr.mean());
+    // Secondary rays also get the camera's count on its image, when the view is of that camera.
+    assert_eq!(cr.for_workload(WorkloadKind::Primary, None, lo, hi).image, 0.0);
+    assert_eq!(cr.for_workload(WorkloadKind::Shadow, None, lo, hi).image, cr.view.expect("framing view").all);
+    assert_eq!(cr.for_workload(WorkloadKind::Diffuse, Some(&cam), lo, hi).image, cr.view.unwrap().all);
+    let elsewhere = meshchar::trace::Camera { eye: cam.eye * 3.0, ..cam };
+    assert_eq!(cr.for_workload(WorkloadKind::Diffuse, Some(&elsewhere), lo, hi).image, 0.0);
+    // The secondary floor is the larger of the isotropic one and the image's, scaled by the distinct share.
+    use meshchar::cost::secondary_tests_per_image_crossing;
+    let with_image = RayCrossings { all: 500.0, distinct: 2.0, nondegenerate: 100.0, image: 1000.0 };
+    for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
+        for s in StructureName::ALL {
+            let fl = overlap_floor(s, k, Some(with_image));
+            let base = overlap_floor(s, k, c);
+            let x = match s {
+                StructureName::Bvh => 2.0,
+                StructureName::KdTree => 100.0,
+                _ => 500.0,
+            };
+            let (bi, pi) = secondary_tests_per_image_crossing(s, k);
+            assert_eq!(fl.box_tests, base.box_tests.max(bi * (1000.0 * x / 500.0)), "{s} {k:?}");
+            assert_eq!(fl.prim_tests, base.prim_tests.max(pi * (1000.0 * x / 500.0)), "{s} {k:?}");
+            assert_eq!(
+                (bi > 0.0, pi > 0.0),
+                (!matches!(s, StructureName::Grid | StructureName::KdTree), s != StructureName::Grid),
+                "{s}"
+            );
+        }
+        assert_eq!(secondary_tests_per_image_crossing(StructureName::Bvh, WorkloadKind::Primary), (0.0, 0.0));
+    }
     assert!(cr.isotropic().all > 100.0, "{:?}", cr.isotropic());
     // The model's predictions take the floor: counts at least it, and a trace no cheaper than without it.
     let model = CostModel::shipped().expect("shipped model");
@@ -418,35 +506,41 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     assert!(floored.iter().zip(&plain).any(|(q, p)| q.trace_ms > 2.0 * p.trace_ms), "the floor changed nothing");
 }
 
-/// Box plus triangle tests per ray of `s` over the rays of `kind` from 32 x 32 primary rays of the framing camera
-/// (secondary rays from the reference BVH's hits): deterministic.
-fn tests_per_ray(s: StructureName, m: &Mesh, kind: WorkloadKind) -> Option<f64> {
+/// Box plus triangle tests per ray of `s` over the rays of `kind` from 32 x 32 primary rays of `camera` (`None`:
+/// the framing camera; secondary rays from the reference BVH's hits): deterministic.
+fn tests_per_ray(s: StructureName, m: &Mesh, kind: WorkloadKind, camera: Option<&Camera>) -> Option<f64> {
+    use meshchar::trace::trace;
     use meshchar::trace::workload::{build_workload, mesh_bounds};
-    use meshchar::trace::{trace, Camera};
     let accel = meshchar::accel::build_structure(s, m).ok()?;
     let reference = meshchar::accel::build_structure(StructureName::Bvh, m).ok()?;
-    let rays = build_workload(kind, m, &Camera::frame(&mesh_bounds(m)), 32, reference.as_ref());
+    let cam = camera.copied().unwrap_or_else(|| Camera::frame(&mesh_bounds(m)));
+    let rays = build_workload(kind, m, &cam, 32, reference.as_ref());
     let out = trace(accel.as_ref(), &rays);
     Some((out.counters.box_tests + out.counters.prim_tests) as f64 / rays.rays.len().max(1) as f64)
 }
 
-/// The calibrated policy's choice for `m` under `kind` at 256 x 256 rays, and whether its tests per ray stay within
-/// 4 times the fewest among the structures the budget keeps (the counts, for the message).
-fn choice_within_4x_of_fewest_tests(m: &Mesh, kind: WorkloadKind) -> (StructureName, bool, Vec<(StructureName, f64)>) {
+/// The calibrated policy's choice for `m` under `kind` at 256 x 256 rays from `camera` (`None`: the framing one),
+/// and whether its tests per ray stay within 4 times the fewest among the structures the budget keeps (the counts,
+/// for the message).
+fn choice_within_4x_of_fewest_tests(
+    m: &Mesh,
+    kind: WorkloadKind,
+    camera: Option<&Camera>,
+) -> (StructureName, bool, Vec<(StructureName, f64)>) {
     let model = CostModel::shipped().expect("shipped model");
     let policy = PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 };
     let params = Params::default();
     let c = cpu::fast(m, &params).expect("characterization");
     let f = features_cpu(m, &params).expect("features");
-    let bounds = BuildBounds::of_mesh(m).expect("bounds");
+    let bounds = BuildBounds::of_mesh_viewed(m, camera).expect("bounds");
     let (frames, features) = (std::slice::from_ref(&c), std::slice::from_ref(&f));
-    let w = TargetWorkload { kind, ..workload() };
+    let w = TargetWorkload { kind, camera: camera.copied(), ..workload() };
     let sel = select_for_scene_within(&m.name, frames, features, policy, &w, Some(bounds), Budget::default());
     let chosen = sel.selection.structure;
     let kept: Vec<StructureName> =
         StructureName::ALL.into_iter().filter(|s| !sel.selection.excluded.iter().any(|e| e.structure == *s)).collect();
     let counts: Vec<(StructureName, f64)> =
-        kept.iter().filter_map(|&s| tests_per_ray(s, m, kind).map(|t| (s, t))).collect();
+        kept.iter().filter_map(|&s| tests_per_ray(s, m, kind, camera).map(|t| (s, t))).collect();
     let least = counts.iter().map(|c| c.1).fold(f64::INFINITY, f64::min);
     let mine = counts.iter().find(|c| c.0 == chosen).map(|c| c.1).expect("the chosen structure builds");
     (chosen, mine <= 4.0 * least.max(1.0), counts)
@@ -459,7 +553,7 @@ fn on_overlapping_and_coincident_triangles_the_calibrated_policy_picks_no_runawa
     // on zero-area triangles. Judged by counted tests per ray (deterministic), not by time: the chosen structure
     // makes at most 4 times the tests of the structure with the fewest among those the budget keeps.
     for m in [generate::overlapping_large(2000, 1), generate::fan_polygon(20_000), generate::zero_area(20_000, 1)] {
-        let (chosen, ok, counts) = choice_within_4x_of_fewest_tests(&m, WorkloadKind::Primary);
+        let (chosen, ok, counts) = choice_within_4x_of_fewest_tests(&m, WorkloadKind::Primary, None);
         assert!(ok, "{}: chose {chosen}; tests per ray {counts:?}", m.name);
     }
 }
@@ -470,7 +564,21 @@ fn on_overlapping_triangles_the_calibrated_policy_picks_no_runaway_traversal_for
     // the BVH at 2.1x (shadow) and 9.8x (diffuse) the grid's total on 2,000 large overlapping triangles.
     let m = generate::overlapping_large(2000, 1);
     for kind in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
-        let (chosen, ok, counts) = choice_within_4x_of_fewest_tests(&m, kind);
+        let (chosen, ok, counts) = choice_within_4x_of_fewest_tests(&m, kind, None);
         assert!(ok, "{} {kind:?}: chose {chosen}; tests per ray {counts:?}", m.name);
+    }
+}
+
+#[test]
+fn seen_close_up_the_engineering_family_gets_no_runaway_traversal() {
+    // The families' worst records (docs/data/families-*.jsonl): fans of long slivers seen close up, where the BVH
+    // family's traversal explodes and the grid wins; the crossings counted on the camera's image see it, the
+    // parallel estimate does not. Counted tests per ray, as above.
+    let m =
+        meshchar::mesh::families::generate(meshchar::mesh::families::Family::Engineering, 20_000, 1).expect("family");
+    let close = meshchar::trace::views::View::CloseUp.camera(&scene_box(&m));
+    for kind in [WorkloadKind::Primary, WorkloadKind::Diffuse] {
+        let (chosen, ok, counts) = choice_within_4x_of_fewest_tests(&m, kind, Some(&close));
+        assert!(ok, "{} {kind:?} close up: chose {chosen}; tests per ray {counts:?}", m.name);
     }
 }

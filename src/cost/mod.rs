@@ -92,7 +92,10 @@ mod sample;
 pub mod view;
 
 pub mod overlap;
-pub use overlap::{overlap_floor, primary_tests_per_crossing, tests_per_crossing, Crossings, RayCrossings, TestFloor};
+pub use overlap::{
+    overlap_floor, primary_tests_per_crossing, screen_crossings, secondary_tests_per_image_crossing,
+    tests_per_crossing, Crossings, RayCrossings, TestFloor, ViewCrossings,
+};
 
 use crate::accel::device::{DeviceRecord, TraceBackend};
 use crate::accel::StructureName;

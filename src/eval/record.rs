@@ -554,7 +554,14 @@ pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str))
                 let scene = crate::mesh::load_path(Path::new(&rec.mesh)).map_err(|e| scene_err(e.to_string()))?;
                 let first = scene.frames.first().ok_or_else(|| scene_err("the scene has no frames".into()))?;
                 let f = features_cpu(first, params).map_err(|e| scene_err(format!("features: {e}")))?;
-                let crossings = crate::cost::Crossings::of_mesh(first);
+                let boxes: Vec<(crate::geom::Aabb, bool)> = (0..first.triangle_count())
+                    .map(|i| {
+                        let v = first.triangle(i);
+                        (crate::geom::Aabb::of_triangle(&v), crate::geom::Triangle::new(&v).is_degenerate())
+                    })
+                    .collect();
+                let b = boxes.iter().fold(crate::geom::Aabb::EMPTY, |a, (b, _)| a.union(b));
+                let crossings = crate::cost::Crossings::of(first, boxes.into_iter(), &b);
                 cache.insert(rec.mesh.clone(), (scene, vec![f], crossings));
             }
             let (scene, feats, crossings) = cache.get_mut(&rec.mesh).ok_or_else(|| scene_err("not loaded".into()))?;
@@ -570,7 +577,16 @@ pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str))
             }
             let mut sample = rec.sample(feats[0].clone(), None);
             let camera = rec.camera.as_ref().map(|c| c.camera());
-            sample.crossings = Some(crossings.for_workload(rec.workload, camera.as_ref(), feats[0].lo, feats[0].hi));
+            // The record's camera counted on its image, what the policy computes from the mesh for the camera it
+            // is given.
+            let viewed = {
+                let m = &scene.frames[0];
+                let boxes: Vec<crate::geom::Aabb> =
+                    (0..m.triangle_count()).map(|i| crate::geom::Aabb::of_triangle(&m.triangle(i))).collect();
+                let b = boxes.iter().fold(crate::geom::Aabb::EMPTY, |a, b| a.union(b));
+                crossings.viewed_from(&boxes, &b, camera.as_ref())
+            };
+            sample.crossings = Some(viewed.for_workload(rec.workload, camera.as_ref(), feats[0].lo, feats[0].hi));
             if wanted > 1 {
                 sample.frame_features = feats[..wanted].to_vec();
             }
