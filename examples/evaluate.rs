@@ -27,7 +27,7 @@ use meshchar::accel::{AccelStructure, StructureName};
 use meshchar::characterize::{Characterizer, Params};
 use meshchar::cost::{CostModel, Prediction};
 use meshchar::eval::chart::BarChart;
-use meshchar::eval::compare::compare;
+use meshchar::eval::compare::{compare, score};
 use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, RefitCandidate, TraceBackend};
 use meshchar::eval::proxy::{agreement, proxied, Agreement, TestPrices};
 use meshchar::eval::record::{load_samples as load_oracle_samples, tracer_of};
@@ -121,6 +121,9 @@ struct Args {
     /// that the policies are scored where the build amortizes (for instance 1,10,100,1000)
     #[arg(long, value_name = "F,F,...", value_parser = args::list(clap::value_parser!(u64).range(1..)))]
     frames_sweep: Option<args::List<u64>>,
+    /// (With --compare-policies, --cost-model FILE adds that calibration as it is, not refitted, scored on the
+    /// records: how a calibration fitted on other scenes does on these.)
+    ///
     /// With --compare-policies: also score the policies against the deterministic proxy (every structure's counted
     /// box and triangle tests times per-test prices measured in isolation on this machine, the builds as measured)
     /// and print how well the proxy agrees with the measured truth (meshchar::eval::proxy); with --json, a second
@@ -580,6 +583,19 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
         None => samples,
     };
     let c = compare(&samples, args.tie_margin.tie_margin, &device)?;
+    // With --cost-model: that calibration as it is, fitted on other records (no refit), scored on these.
+    let fixed = match &args.policy.cost_model {
+        Some(path) => {
+            let model =
+                args.policy.cost_model_for(args::trace_target(tracer.as_ref().and_then(|t| t.device.as_ref())))?;
+            let picks: Vec<_> = samples
+                .iter()
+                .map(|s| meshchar::select::choose(&s.predict(&model), args.tie_margin.tie_margin))
+                .collect();
+            Some((path.display().to_string(), score(samples.iter().zip(picks))))
+        }
+        None => None,
+    };
     let proxy = if args.proxy {
         let prices = TestPrices::measure(21);
         let p = proxied(&samples, &prices, 0.02);
@@ -590,6 +606,9 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
     };
     if args.json.json {
         println!("{}", serde_json::json!(c));
+        if let Some((file, sc)) = &fixed {
+            println!("{}", serde_json::json!({"fixed_cost_model": {"file": file, "score": sc}}));
+        }
         if let Some((prices, agree, pc)) = &proxy {
             println!("{}", serde_json::json!({"proxy": {"prices": prices, "agreement": agree, "comparison": pc}}));
         }
@@ -633,6 +652,19 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
                 100.0 * s.worst_regret,
                 s.worst
             );
+        }
+        if let Some((file, sc)) = &fixed {
+            println!(
+                "{:<34} {:>6} {:>8.1}% {:>11.1}% {:>11.1}% {:>11.1}%  {}",
+                "calibrated, as given",
+                sc.scored,
+                100.0 * sc.accuracy,
+                100.0 * sc.within_noise,
+                100.0 * sc.mean_regret,
+                100.0 * sc.worst_regret,
+                sc.worst
+            );
+            println!("(as given: --cost-model {file}, not refitted on these records)");
         }
         println!("(tie margin {:.2}; leave-one-out holds out every workload of a scene together)", c.tie_margin);
         if let Some(k) = &c.candidates {

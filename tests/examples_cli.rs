@@ -779,3 +779,40 @@ fn text_of(out: &Output) -> String {
     let (a, b) = text(out);
     format!("{a}{b}")
 }
+
+/// `evaluate --compare-policies ... --cost-model FILE --proxy --json`: the comparison, then the given calibration
+/// scored as it is, then the deterministic proxy, one JSON line each, on records of generated scenes (no mesh files).
+#[test]
+fn compare_policies_scores_a_given_calibration_and_the_proxy() {
+    let dir = inputs("compare-fixed-proxy");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    // The families at 2K and 20K triangles, four views each: two sizes, so that the comparison's fits are defined.
+    let text_in = std::fs::read_to_string(root.join("docs/data/families-primary.jsonl")).expect("family records");
+    let lines: Vec<&str> = text_in.lines().filter(|l| l.contains(":2k:1\"") || l.contains(":20k:1\"")).collect();
+    assert_eq!(lines.len(), 56, "seven families, two sizes, four views");
+    let file = dir.join("records.jsonl");
+    std::fs::write(&file, lines.join("\n") + "\n").unwrap();
+    let model = root.join("assets/cost-model-cpu.json");
+    let out = run("evaluate", &["--compare-policies", arg(&file), "--cost-model", arg(&model), "--proxy", "--json"]);
+    let (stdout, stderr) = text(&out);
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    let json: Vec<serde_json::Value> = stdout.lines().map(|l| serde_json::from_str(l).expect("a JSON line")).collect();
+    assert_eq!(json.len(), 3, "{stdout}");
+    let fixed = &json[1]["fixed_cost_model"];
+    assert_eq!(fixed["file"], serde_json::json!(arg(&model)));
+    assert_eq!(fixed["score"]["scored"].as_u64().unwrap() + fixed["score"]["failed"].as_u64().unwrap(), 56, "{fixed}");
+    let regret = fixed["score"]["mean_regret"].as_f64().unwrap();
+    assert!(regret.is_finite() && regret >= 0.0, "{fixed}");
+    let proxy = &json[2]["proxy"];
+    for price in ["box_ns", "triangle_ns"] {
+        let p = proxy["prices"][price].as_f64().unwrap();
+        assert!(p.is_finite() && p > 0.0, "{proxy}");
+    }
+    assert_eq!(proxy["agreement"]["samples"].as_u64(), Some(56), "{proxy}");
+    assert!(proxy["comparison"]["calibrated_held_out"]["scored"].as_u64().is_some(), "{proxy}");
+    // Without --json, the rows are named.
+    let out = run("evaluate", &["--compare-policies", arg(&file), "--cost-model", arg(&model), "--proxy"]);
+    let (stdout, _) = text(&out);
+    assert!(stdout.contains("calibrated, as given") && stdout.contains("deterministic proxy"), "{stdout}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
