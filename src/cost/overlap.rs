@@ -370,11 +370,16 @@ const HLBVH: (f64, f64) = (0.28, 0.086);
 /// not fitted, on the degenerate generators. As for primary rays, the kd-tree floors no box tests and the grid
 /// nothing.
 pub fn tests_per_crossing(structure: StructureName, kind: WorkloadKind) -> (f64, f64) {
-    let table = match kind {
-        WorkloadKind::Primary => return primary_tests_per_crossing(structure),
-        WorkloadKind::Shadow => &SHADOW,
-        WorkloadKind::Diffuse => &DIFFUSE,
-    };
+    match kind {
+        WorkloadKind::Primary => primary_tests_per_crossing(structure),
+        WorkloadKind::Shadow => from_table(&SHADOW, structure),
+        WorkloadKind::Diffuse => from_table(&DIFFUSE, structure),
+    }
+}
+
+/// A structure's `(box, triangle)` factors from a table in the order BVH, kd-tree, BIH, LBVH, HLBVH (the kd-tree's
+/// box factor is never used; the grid has none).
+fn from_table(table: &[(f64, f64); 5], structure: StructureName) -> (f64, f64) {
     match structure {
         StructureName::Bvh => table[0],
         StructureName::KdTree => (0.0, table[1].1),
@@ -401,18 +406,10 @@ const DIFFUSE: [(f64, f64); 5] = [(0.14, 0.0061), (0.0, 0.0074), (0.28, 0.062), 
 /// 4 (`docs/data/oracle-<w>.jsonl` and `docs/data/families-<w>.jsonl`), rounded down to two significant digits.
 /// Zero for primary rays (their floor counts the image directly), the grid, and the kd-tree's box tests.
 pub fn secondary_tests_per_image_crossing(structure: StructureName, kind: WorkloadKind) -> (f64, f64) {
-    let table = match kind {
-        WorkloadKind::Primary => return (0.0, 0.0),
-        WorkloadKind::Shadow => &SHADOW_IMAGE,
-        WorkloadKind::Diffuse => &DIFFUSE_IMAGE,
-    };
-    match structure {
-        StructureName::Bvh => table[0],
-        StructureName::KdTree => (0.0, table[1].1),
-        StructureName::Bih => table[2],
-        StructureName::Lbvh => table[3],
-        StructureName::Hlbvh => table[4],
-        _ => (0.0, 0.0),
+    match kind {
+        WorkloadKind::Primary => (0.0, 0.0),
+        WorkloadKind::Shadow => from_table(&SHADOW_IMAGE, structure),
+        WorkloadKind::Diffuse => from_table(&DIFFUSE_IMAGE, structure),
     }
 }
 

@@ -251,6 +251,12 @@ impl CalibratedPolicy {
         Some(self.model.predict_floored(f, &w, &|s| overlap_floor(s, self.kind, crossings)))
     }
 
+    /// The per-frame plan of an animation's frames ([`plan_frames`] with this policy's settings and the first
+    /// frame's crossings).
+    fn plan(&self, scene: &SceneSummary<'_>) -> Vec<FrameDecision> {
+        plan_frames(&self.model, scene.features, self.kind, self.rays_per_frame, self.tie_margin, self.crossings(scene))
+    }
+
     /// The triangle boxes a ray of the workload crosses in the scene's first frame
     /// ([`crate::cost::Crossings::for_workload`] with [`CalibratedPolicy::camera`]), `None` without the mesh's
     /// [`crate::select::BuildBounds`] or features.
@@ -333,14 +339,7 @@ impl Policy for CalibratedPolicy {
             ));
         }
         if scene.features.len() > 1 {
-            let plan = plan_frames(
-                &self.model,
-                scene.features,
-                self.kind,
-                self.rays_per_frame,
-                self.tie_margin,
-                self.crossings(scene),
-            );
+            let plan = self.plan(scene);
             let refits = plan.iter().filter(|d| d.action == FrameAction::Refit).count();
             let total: f64 = plan.iter().map(|d| d.update_ms + d.trace_ms).sum();
             reasons.push(format!(
