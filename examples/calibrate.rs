@@ -72,6 +72,10 @@ struct Args {
     /// Device name stored in the file [default: the CPU, or the Vulkan device with --trace-backend vulkan]
     #[arg(long, value_name = "NAME")]
     device: Option<String>,
+    /// Ridge on the test-count laws' coefficients (meshchar::cost::RIDGE by default): larger values shrink the
+    /// geometric and view coefficients towards the size-only model
+    #[arg(long, value_name = "R", default_value_t = meshchar::cost::RIDGE, value_parser = args::nonnegative_number)]
+    ridge: f64,
     /// With --from-oracle the records' own tracer is used (vulkan here refuses CPU records)
     #[command(flatten)]
     trace_backend: TraceBackendArg,
@@ -229,7 +233,8 @@ fn run(args: Args) -> anyhow::Result<()> {
             args.oracle.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" ")
         )
     };
-    let mut model = CostModel::fit(&samples, &device, &source)?;
+    let source = if args.ridge == meshchar::cost::RIDGE { source } else { format!("{source}, ridge {}", args.ridge) };
+    let mut model = CostModel::fit_with_ridge(&samples, &device, &source, args.ridge)?;
     model.trace_backend = backend;
     model.trace_device = record;
     if backend == TraceBackend::Vulkan && samples.iter().any(|s| !s.driver.is_empty()) {

@@ -667,3 +667,20 @@ fn the_proxy_prices_are_measured_positive_and_finite() {
     assert!(p.triangle_ns.is_finite() && p.triangle_ns > 0.0, "{p:?}");
     assert_eq!(p.ns_per_ray(2.0, 3.0), 2.0 * p.box_ns + 3.0 * p.triangle_ns);
 }
+
+#[test]
+fn a_larger_ridge_shrinks_the_count_laws_and_a_bad_one_is_refused() {
+    let (samples, _) = known_samples(40);
+    let plain = CostModel::fit(&samples, "test", "synthetic").unwrap();
+    let same = CostModel::fit_with_ridge(&samples, "test", "synthetic", meshchar::cost::RIDGE).unwrap();
+    assert_eq!(plain.structures, same.structures);
+    let norm = |m: &CostModel| -> f64 {
+        m.structures.iter().map(|s| s.box_coef[1..].iter().chain(&s.prim_coef[1..]).map(|c| c * c).sum::<f64>()).sum()
+    };
+    let strong = CostModel::fit_with_ridge(&samples, "test", "synthetic", 100.0).unwrap();
+    assert!(norm(&strong) < norm(&plain), "{} {}", norm(&strong), norm(&plain));
+    for bad in [-1.0, f64::NAN, f64::INFINITY] {
+        let e = CostModel::fit_with_ridge(&samples, "test", "synthetic", bad).unwrap_err().to_string();
+        assert!(e.contains("ridge"), "{bad}: {e}");
+    }
+}

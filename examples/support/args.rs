@@ -190,6 +190,11 @@ pub fn positive_number(s: &str) -> Result<f64, String> {
     s.parse().ok().filter(|x: &f64| x.is_finite() && *x > 0.0).ok_or_else(|| "needs a positive number".into())
 }
 
+/// A finite number at least zero (`calibrate --ridge`).
+pub fn nonnegative_number(s: &str) -> Result<f64, String> {
+    s.parse().ok().filter(|x: &f64| x.is_finite() && *x >= 0.0).ok_or_else(|| "needs a finite number at least 0".into())
+}
+
 /// The significance of a test, in `(0, 1)`.
 pub fn alpha(s: &str) -> Result<f64, String> {
     s.parse().ok().filter(|x: &f64| *x > 0.0 && *x < 1.0).ok_or_else(|| "needs a number in (0, 1)".into())

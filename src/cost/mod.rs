@@ -678,7 +678,17 @@ impl CostModel {
     /// Fits a model on oracle samples (see the module docs). Structures with fewer than 3 valid samples are left
     /// out. The driver structures are fitted apart ([`CostModel::fit_driver`]).
     pub fn fit(samples: &[Sample], device: &str, source: &str) -> Result<CostModel, CostError> {
-        Self::fit_on(samples, device, source, true)
+        Self::fit_on(samples, device, source, true, RIDGE)
+    }
+
+    /// [`CostModel::fit`] with another ridge than [`RIDGE`] on the test-count laws' coefficients (`calibrate
+    /// --ridge`): larger values shrink the geometric and view coefficients towards the size-only model. A ridge
+    /// that is negative or not finite is an error.
+    pub fn fit_with_ridge(samples: &[Sample], device: &str, source: &str, ridge: f64) -> Result<CostModel, CostError> {
+        if !(ridge.is_finite() && ridge >= 0.0) {
+            return Err(CostError::Fit(format!("the ridge must be a finite number at least 0, not {ridge}")));
+        }
+        Self::fit_on(samples, device, source, true, ridge)
     }
 
     /// The size-only model: [`CostModel::fit`] with every geometric feature left out of the test-count laws (their
@@ -686,10 +696,16 @@ impl CostModel {
     /// the frames alone ([`SIZE_FEATURES`] of [`FEATURE_NAMES`]). Against the full model it measures what the
     /// scene's geometry adds to the choice (the thesis's first hypothesis).
     pub fn fit_size_only(samples: &[Sample], device: &str, source: &str) -> Result<CostModel, CostError> {
-        Self::fit_on(samples, device, source, false)
+        Self::fit_on(samples, device, source, false, RIDGE)
     }
 
-    fn fit_on(samples: &[Sample], device: &str, source: &str, geometric: bool) -> Result<CostModel, CostError> {
+    fn fit_on(
+        samples: &[Sample],
+        device: &str,
+        source: &str,
+        geometric: bool,
+        ridge: f64,
+    ) -> Result<CostModel, CostError> {
         if samples.is_empty() {
             return Err(CostError::Fit("no samples".into()));
         }
@@ -703,7 +719,7 @@ impl CostModel {
                 .any(|s| s.workload.view.is_some_and(|v| v != ViewFeatures::framing(s.features.lo, s.features.hi)));
         let mut structures = Vec::new();
         for s in StructureName::ALL {
-            if let Some(m) = fit_structure(samples, s, geometric, views)? {
+            if let Some(m) = fit_structure(samples, s, geometric, views, ridge)? {
                 structures.push(m);
             }
         }
@@ -911,6 +927,7 @@ fn fit_structure(
     s: StructureName,
     geometric: bool,
     views: bool,
+    ridge_value: f64,
 ) -> Result<Option<StructureModel>, CostError> {
     let rows: Vec<(&Sample, &Measured)> = samples
         .iter()
@@ -945,7 +962,7 @@ fn fit_structure(
             row
         })
         .collect();
-    let mut ridge = vec![RIDGE; p + if views { VIEW_FEATURE_NAMES.len() } else { 0 }];
+    let mut ridge = vec![ridge_value; p + if views { VIEW_FEATURE_NAMES.len() } else { 0 }];
     ridge[0] = 0.0;
     let lbox: Vec<f64> = rows.iter().map(|(_, m)| m.box_tests_per_ray.max(1e-3).ln()).collect();
     let lprim: Vec<f64> = rows.iter().map(|(_, m)| m.prim_tests_per_ray.max(1e-3).ln()).collect();
