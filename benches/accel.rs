@@ -12,6 +12,10 @@
 //!   (PLOC). The kd-tree's SAH column is its own cost (voxel areas over the root's, `K_T = K_I = 1`), not
 //!   comparable with the BVHs'; the BIH's is over its nodes' boxes; the grid prints none.
 //!
+//! * `screen_crossings/<scene>`: the overlap floor's count of triangle boxes on a camera's image
+//!   (`meshchar::cost::screen_crossings`, framing camera) and the whole `BuildBounds::of_mesh_viewed` pass it is
+//!   part of, on the three scenes above and the generated engineering family at 200K triangles seen close up.
+//!
 //! Scenes come from `../shared/meshes`; the bench fails naming the path when they are missing.
 //! Run: `cargo bench --bench accel` (filter with e.g. `-- side_by_side` or `-- build/bunny`).
 
@@ -219,6 +223,33 @@ fn bench_trace(c: &mut Criterion) {
     }
 }
 
+fn bench_screen_crossings(c: &mut Criterion) {
+    use meshchar::geom::Aabb;
+    let mut all = scenes();
+    let family = meshchar::mesh::families::generate(meshchar::mesh::families::Family::Engineering, 200_000, 1)
+        .unwrap_or_else(|e| panic!("{e}"));
+    all.push(("engineering-200k", family));
+    for (scene, mesh) in all {
+        let boxes: Vec<Aabb> = (0..mesh.triangle_count()).map(|i| Aabb::of_triangle(&mesh.triangle(i))).collect();
+        let b = boxes.iter().fold(Aabb::EMPTY, |a, x| a.union(x));
+        let camera = if scene == "engineering-200k" {
+            meshchar::trace::views::View::CloseUp.camera(&b)
+        } else {
+            meshchar::trace::Camera::frame(&b)
+        };
+        let mut g = c.benchmark_group(format!("screen_crossings/{scene}"));
+        g.sample_size(10).warm_up_time(Duration::from_millis(500)).measurement_time(Duration::from_secs(2));
+        g.throughput(Throughput::Elements(mesh.triangle_count() as u64));
+        g.bench_function("count", |x| x.iter(|| meshchar::cost::screen_crossings(&boxes, &camera)));
+        g.bench_function("build_bounds", |x| {
+            x.iter(|| {
+                meshchar::select::BuildBounds::of_mesh_viewed(&mesh, Some(&camera)).unwrap_or_else(|e| panic!("{e}"))
+            })
+        });
+        g.finish();
+    }
+}
+
 fn bench_crates(c: &mut Criterion) {
     for (scene, mesh) in scenes() {
         let rays = rays_for(&mesh);
@@ -371,5 +402,5 @@ fn side_by_side(_: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, side_by_side, bench_build, bench_trace, bench_crates);
+criterion_group!(benches, side_by_side, bench_build, bench_trace, bench_crates, bench_screen_crossings);
 criterion_main!(benches);

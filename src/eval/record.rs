@@ -541,8 +541,10 @@ pub fn read_jsonl(path: &Path) -> Result<Vec<OracleRecord>, RecordError> {
 /// ([`Sample::frame_features`], against which an updated structure's drift is measured). `progress` receives the
 /// name of each scene loaded.
 pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str)) -> Result<Vec<Sample>, RecordError> {
-    // Per scene: the features of its frames, as far as computed.
-    type Loaded = (crate::mesh::Animation, Vec<Features>, crate::cost::Crossings);
+    // Per scene: the features of its frames, as far as computed, and the first frame's crossings per camera met
+    // (the three workloads of a view share one).
+    type Views = Vec<(Option<crate::geom::Camera>, crate::cost::Crossings)>;
+    type Loaded = (crate::mesh::Animation, Vec<Features>, Views);
     let mut cache: std::collections::HashMap<String, Loaded> = std::collections::HashMap::new();
     let mut out = Vec::new();
     for file in files {
@@ -554,17 +556,9 @@ pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str))
                 let scene = crate::mesh::load_path(Path::new(&rec.mesh)).map_err(|e| scene_err(e.to_string()))?;
                 let first = scene.frames.first().ok_or_else(|| scene_err("the scene has no frames".into()))?;
                 let f = features_cpu(first, params).map_err(|e| scene_err(format!("features: {e}")))?;
-                let boxes: Vec<(crate::geom::Aabb, bool)> = (0..first.triangle_count())
-                    .map(|i| {
-                        let v = first.triangle(i);
-                        (crate::geom::Aabb::of_triangle(&v), crate::geom::Triangle::new(&v).is_degenerate())
-                    })
-                    .collect();
-                let b = boxes.iter().fold(crate::geom::Aabb::EMPTY, |a, (b, _)| a.union(b));
-                let crossings = crate::cost::Crossings::of(first, boxes.into_iter(), &b);
-                cache.insert(rec.mesh.clone(), (scene, vec![f], crossings));
+                cache.insert(rec.mesh.clone(), (scene, vec![f], Vec::new()));
             }
-            let (scene, feats, crossings) = cache.get_mut(&rec.mesh).ok_or_else(|| scene_err("not loaded".into()))?;
+            let (scene, feats, views) = cache.get_mut(&rec.mesh).ok_or_else(|| scene_err("not loaded".into()))?;
             let wanted = if rec.frames_measured > 1 && !rec.driver_structures.is_empty() {
                 rec.frames_measured.min(scene.frames.len())
             } else {
@@ -579,12 +573,13 @@ pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str))
             let camera = rec.camera.as_ref().map(|c| c.camera());
             // The record's camera counted on its image, what the policy computes from the mesh for the camera it
             // is given.
-            let viewed = {
-                let m = &scene.frames[0];
-                let boxes: Vec<crate::geom::Aabb> =
-                    (0..m.triangle_count()).map(|i| crate::geom::Aabb::of_triangle(&m.triangle(i))).collect();
-                let b = boxes.iter().fold(crate::geom::Aabb::EMPTY, |a, b| a.union(b));
-                crossings.viewed_from(&boxes, &b, camera.as_ref())
+            let viewed = match views.iter().find(|v| v.0 == camera) {
+                Some(v) => v.1,
+                None => {
+                    let c = crate::cost::Crossings::of_mesh_viewed(&scene.frames[0], camera.as_ref());
+                    views.push((camera, c));
+                    c
+                }
             };
             sample.crossings = Some(viewed.for_workload(rec.workload, camera.as_ref(), feats[0].lo, feats[0].hi));
             if wanted > 1 {

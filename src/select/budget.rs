@@ -225,16 +225,10 @@ impl BuildBounds {
 
     /// [`BuildBounds::of_mesh_with`] under the grid's default rule, with the crossings of `camera`'s primary rays
     /// counted on its image ([`Crossings::viewed_from`]; `None`: the framing camera, what the policy assumes
-    /// without one): a second O(n) pass ([`crate::cost::screen_crossings`]: 6 ms of the 41 ms this takes for
-    /// 200,000 triangles on the 2-core VM).
+    /// without one), from the same triangle boxes ([`crate::cost::screen_crossings`]: 5.2 ms of this pass's 40
+    /// ms for 200,000 triangles on the 2-core VM, `cargo bench --bench accel -- screen_crossings`).
     pub fn of_mesh_viewed(mesh: &Mesh, camera: Option<&crate::geom::Camera>) -> Result<BuildBounds, MeshError> {
-        let mut b = BuildBounds::of_mesh_with(mesh, &GridRule::default())?;
-        if let Some(c) = b.box_crossings {
-            let boxes: Vec<Aabb> = (0..mesh.triangle_count()).map(|i| Aabb::of_triangle(&mesh.triangle(i))).collect();
-            let scene = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
-            b.box_crossings = Some(c.viewed_from(&boxes, &scene, camera));
-        }
-        Ok(b)
+        BuildBounds::of_mesh_counted(mesh, &GridRule::default(), Some(camera))
     }
 
     /// The largest bounds over the frames of a scene ([`BuildBounds::of_mesh`] of each, [`BuildBounds::max`]);
@@ -264,31 +258,44 @@ impl BuildBounds {
         Ok(out)
     }
 
-    /// [`BuildBounds::of_mesh`] under a given grid rule.
+    /// [`BuildBounds::of_mesh`] under a given grid rule, without a camera's view of the crossings.
     pub fn of_mesh_with(mesh: &Mesh, rule: &GridRule) -> Result<BuildBounds, MeshError> {
+        BuildBounds::of_mesh_counted(mesh, rule, None)
+    }
+
+    /// The one pass over the triangles behind [`BuildBounds::of_mesh_with`] and [`BuildBounds::of_mesh_viewed`]:
+    /// `view` is `Some(camera)` to count the crossings on that camera's image (`Some(None)`: the framing camera).
+    fn of_mesh_counted(
+        mesh: &Mesh,
+        rule: &GridRule,
+        view: Option<Option<&crate::geom::Camera>>,
+    ) -> Result<BuildBounds, MeshError> {
         mesh.validate()?;
         let n = mesh.triangle_count();
         let mut scene = Aabb::EMPTY;
-        let records: Vec<(Triangle, Aabb)> = (0..n)
+        let (tris, boxes): (Vec<Triangle>, Vec<Aabb>) = (0..n)
             .map(|i| {
                 let v = mesh.triangle(i);
                 let b = Aabb::of_triangle(&v);
                 scene = scene.union(&b);
                 (Triangle::new(&v), b)
             })
-            .collect();
+            .unzip();
         if n == 0 || !(scene.max - scene.min).is_finite() {
             // Empty, or too wide for the grid (it refuses such bounds itself): nothing to bound.
             return Ok(BuildBounds::empty(n as u64, "mesh"));
         }
         let grid = Cells::new(rule, &scene, n);
         let (mut g, mut k) = (0u64, 0u64);
-        for (t, b) in &records {
+        for (t, b) in tris.iter().zip(&boxes) {
             let c = grid.triangle_cells(t, b);
             g = g.saturating_add(c);
             k = k.saturating_add(if t.is_degenerate() { 1 } else { c.saturating_mul(KD_FACTOR) });
         }
-        let crossings = Crossings::of(mesh, records.iter().map(|(t, b)| (*b, t.is_degenerate())), &scene);
+        let mut crossings = Crossings::of(mesh, boxes.iter().zip(&tris).map(|(b, t)| (*b, t.is_degenerate())), &scene);
+        if let Some(camera) = view {
+            crossings = crossings.viewed_from(&boxes, &scene, camera);
+        }
         Ok(BuildBounds {
             box_crossings: Some(crossings),
             ..BuildBounds::finish(n as u64, "mesh", &grid, g, Bound::Upper, k)
