@@ -510,3 +510,32 @@ fn degenerate_scenes_build_with_bounded_work() {
         }
     }
 }
+
+/// The parallel tracer returns, ray for ray, what one serial pass over the rays returns, and its counters are the
+/// sums of the per-ray counters (closest hit and any hit, on more rays than one rayon piece takes).
+#[test]
+fn parallel_trace_equals_serial_loop() {
+    let mesh = soup(3000, 0.05, 17);
+    let bvh = Bvh::build(&mesh).unwrap();
+    let cam = Camera::frame(&mesh_bounds(&mesh));
+    let primary = RaySet {
+        kind: WorkloadKind::Primary,
+        rays: meshchar::trace::workload::primary_rays(&cam, 97, 89),
+        any_hit: false,
+    };
+    let mut shadow = primary.clone();
+    shadow.any_hit = true;
+    let got = trace(&bvh, &primary);
+    let mut want = TraceCounters::default();
+    let hits: Vec<_> = primary.rays.iter().map(|r| bvh.intersect(r, &mut want)).collect();
+    assert_eq!(got.hits.len(), hits.len());
+    assert!(got.hits.iter().zip(&hits).all(|(a, b)| hits_agree(a, b)));
+    assert!(hits.iter().any(Option::is_some) && hits.iter().any(Option::is_none));
+    assert_eq!(got.counters, want);
+    let got = trace(&bvh, &shadow);
+    let mut want = TraceCounters::default();
+    let occluded: Vec<bool> = shadow.rays.iter().map(|r| bvh.occluded(r, &mut want)).collect();
+    assert_eq!(got.occluded, occluded);
+    assert!(got.hits.is_empty());
+    assert_eq!(got.counters, want);
+}

@@ -33,45 +33,53 @@ impl TraceOutcome {
     }
 }
 
-/// Rays per rayon task.
-const CHUNK: usize = 1024;
-
-/// Traces every ray of `rays` through `accel` in parallel (rayon over chunks of rays) and times it.
+/// Traces every ray of `rays` through `accel` in parallel (rayon over rays) and times it.
 pub fn trace(accel: &dyn AccelStructure, rays: &RaySet) -> TraceOutcome {
     let start = std::time::Instant::now();
     let mut out = TraceOutcome::default();
-    // Results are written in place, chunk by chunk, into one vector of the final size (no per-chunk vectors and no
-    // second copy: on cheap rays, 8 box tests each, those cost about a sixth of the trace).
     out.counters = if rays.any_hit {
-        out.occluded = vec![false; rays.rays.len()];
         trace_into(&rays.rays, &mut out.occluded, |r, c| accel.occluded(r, c))
     } else {
-        out.hits = vec![None; rays.rays.len()];
         trace_into(&rays.rays, &mut out.hits, |r, c| accel.intersect(r, c))
     };
     out.seconds = start.elapsed().as_secs_f64();
     out
 }
 
-/// `out[i] = f(rays[i])` in parallel over chunks of [`CHUNK`] rays, the counters summed.
+/// Counters of one rayon piece of the trace, added to the total when the piece ends.
+struct PieceCounters<'a> {
+    counters: TraceCounters,
+    total: &'a std::sync::Mutex<TraceCounters>,
+}
+
+impl Drop for PieceCounters<'_> {
+    fn drop(&mut self) {
+        // A poisoned lock means another piece panicked; that panic is what propagates, so its counters do not matter.
+        if let Ok(mut t) = self.total.lock() {
+            t.add(&self.counters);
+        }
+    }
+}
+
+/// `out = rays.map(f)` in parallel, the counters summed.
+///
+/// The results are collected straight into `out` (rayon writes each piece in place, with no initialisation pass
+/// and no per-piece vectors), and the counters are kept per rayon piece and summed once per piece. On cheap rays
+/// (8 box tests each, Sponza and the conference room at 256x256, two threads) this is 7-11% faster than writing
+/// chunks of 1,024 rays into a vector filled beforehand (medians of 31, interleaved).
 fn trace_into<T: Send>(
     rays: &[crate::geom::Ray],
-    out: &mut [T],
+    out: &mut Vec<T>,
     f: impl Fn(&crate::geom::Ray, &mut TraceCounters) -> T + Sync,
 ) -> TraceCounters {
-    rays.par_chunks(CHUNK)
-        .zip(out.par_chunks_mut(CHUNK))
-        .map(|(rays, out)| {
-            let mut c = TraceCounters::default();
-            for (r, o) in rays.iter().zip(out) {
-                *o = f(r, &mut c);
-            }
-            c
-        })
-        .reduce(TraceCounters::default, |mut a, b| {
-            a.add(&b);
-            a
-        })
+    let total = std::sync::Mutex::new(TraceCounters::default());
+    rays.par_iter()
+        .map_init(
+            || PieceCounters { counters: TraceCounters::default(), total: &total },
+            |piece, r| f(r, &mut piece.counters),
+        )
+        .collect_into_vec(out);
+    total.into_inner().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Number of rays on which two outcomes of the same ray set disagree (see [`hits_agree`]; occlusion must be equal).
