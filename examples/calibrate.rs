@@ -4,8 +4,13 @@
 //!
 //! ```text
 //! cargo run --release --example calibrate -- [--out FILE] [--from-oracle FILE.jsonl ...] [--scene PATH ...]
-//!     [--resolution N] [--repeats R] [--refit DIR ...] [--device NAME] [--trace-backend cpu|vulkan] [--help]
+//!     [--resolution N] [--repeats R] [--refit DIR ...] [--device NAME] [--trace-backend cpu|vulkan]
+//!     [--ridge R | --ridge-cv [--tie-margin X]] [--help]
 //! ```
+//!
+//! `--ridge R` sets the shrinkage of the test-count laws; `--ridge-cv` chooses it inside the samples by holding
+//! out each family (or each scene) in turn (`meshchar::eval::compare::fit_ridge_by_cv`) and prints every
+//! candidate's held-out regret. On the shipped 84 oracle records it chooses the default, 0.05.
 //!
 //! With `--trace-backend vulkan` the oracle traces on the Vulkan device (`evaluate_scene_on` with a
 //! `DeviceOracle`) and the file records the device (name, type, driver, driver version, UUID), which the calibrated
@@ -76,6 +81,15 @@ struct Args {
     /// geometric and view coefficients towards the size-only model
     #[arg(long, value_name = "R", default_value_t = meshchar::cost::RIDGE, value_parser = args::nonnegative_number)]
     ridge: f64,
+    /// Choose the ridge by cross-validation inside the samples instead (meshchar::eval::compare::fit_ridge_by_cv:
+    /// each family, or each scene when the samples span fewer than 3 families, held out in turn; the ridge of
+    /// meshchar::eval::compare::CV_RIDGES whose held-out selections have the least mean regret); prints each ridge's
+    /// held-out regret
+    #[arg(long, conflicts_with = "ridge")]
+    ridge_cv: bool,
+    /// With --ridge-cv: the calibrated policy's tie margin used to score the held-out selections
+    #[command(flatten)]
+    tie: args::TieMarginArg,
     /// With --from-oracle the records' own tracer is used (vulkan here refuses CPU records)
     #[command(flatten)]
     trace_backend: TraceBackendArg,
@@ -234,7 +248,16 @@ fn run(args: Args) -> anyhow::Result<()> {
         )
     };
     let source = if args.ridge == meshchar::cost::RIDGE { source } else { format!("{source}, ridge {}", args.ridge) };
-    let mut model = CostModel::fit_with_ridge(&samples, &device, &source, args.ridge)?;
+    let mut model = if args.ridge_cv {
+        let cv = meshchar::eval::compare::fit_ridge_by_cv(&samples, &device, &source, args.tie.tie_margin)?;
+        for (r, regret) in &cv.inner_regret {
+            eprintln!("ridge {r}: mean regret held out by {} {:.1}%", cv.groups, 100.0 * regret);
+        }
+        eprintln!("chosen ridge: {}", cv.ridge);
+        cv.model
+    } else {
+        CostModel::fit_with_ridge(&samples, &device, &source, args.ridge)?
+    };
     model.trace_backend = backend;
     model.trace_device = record;
     if backend == TraceBackend::Vulkan && samples.iter().any(|s| !s.driver.is_empty()) {

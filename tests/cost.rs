@@ -466,6 +466,8 @@ fn the_baselines_are_scored_on_the_same_samples_by_workload_and_family() {
             "size_only family_out",
             "calibrated scene_out",
             "calibrated family_out",
+            "calibrated_cv scene_out",
+            "calibrated_cv family_out",
             "calibrated in_sample"
         ]
     );
@@ -683,4 +685,62 @@ fn a_larger_ridge_shrinks_the_count_laws_and_a_bad_one_is_refused() {
         let e = CostModel::fit_with_ridge(&samples, "test", "synthetic", bad).unwrap_err().to_string();
         assert!(e.contains("ridge"), "{bad}: {e}");
     }
+}
+
+/// The family records at 2K and 20K triangles (`docs/data/families-primary.jsonl`, 56 records of seven families
+/// seen from four cameras), read back as samples (the scenes are generated, no mesh file is read).
+fn small_family_samples() -> Vec<Sample> {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("docs/data/families-primary.jsonl")).expect("family records");
+    let lines: Vec<&str> = text.lines().filter(|l| l.contains(":2k:1\"") || l.contains(":20k:1\"")).collect();
+    assert_eq!(lines.len(), 56, "seven families, two sizes, four views");
+    let dir = std::env::temp_dir().join(format!("meshchar-cv-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("records.jsonl");
+    std::fs::write(&file, lines.join("\n") + "\n").unwrap();
+    let samples = meshchar::eval::record::load_samples(&[file], &Params::default(), &|_| {}).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    samples
+}
+
+#[test]
+fn the_cross_validated_ridge_is_the_one_whose_held_out_selections_regret_least() {
+    use meshchar::eval::compare::{family_of, fit_ridge_by_cv, score, CV_RIDGES};
+    let samples = small_family_samples();
+    let cv = fit_ridge_by_cv(&samples, "test", "families", 0.05).unwrap();
+    assert_eq!(cv.groups, "family");
+    assert_eq!(cv.inner_regret.iter().map(|x| x.0).collect::<Vec<_>>(), CV_RIDGES.to_vec());
+    let distinct = |v: &[(f64, f64)]| v.iter().any(|x| x.1 != v[0].1);
+    assert!(distinct(&cv.inner_regret), "the ridges select alike here: {:?}", cv.inner_regret);
+    // Each ridge's held-out regret, by hand: fit without one family, select on it, score all.
+    let mut families: Vec<String> = samples.iter().map(|s| family_of(&s.scene)).collect();
+    families.sort();
+    families.dedup();
+    assert_eq!(families.len(), 7);
+    for &(r, regret) in &cv.inner_regret {
+        let mut choices = vec![None; samples.len()];
+        for f in &families {
+            let train: Vec<Sample> = samples.iter().filter(|s| family_of(&s.scene) != *f).cloned().collect();
+            let m = CostModel::fit_with_ridge(&train, "test", "by hand", r).unwrap();
+            for (i, s) in samples.iter().enumerate().filter(|(_, s)| family_of(&s.scene) == *f) {
+                choices[i] = choose(&s.predict(&m), 0.05);
+            }
+        }
+        let want = score(samples.iter().zip(&choices).map(|(s, c)| (s, *c)));
+        assert!((want.mean_regret - regret).abs() < 1e-12, "ridge {r}: {regret} vs {}", want.mean_regret);
+    }
+    // The chosen one regrets least (the smaller on a tie), and the model is the plain fit with it on everything.
+    let least = cv.inner_regret.iter().map(|x| x.1).fold(f64::INFINITY, f64::min);
+    assert_eq!(cv.ridge, cv.inner_regret.iter().find(|x| x.1 == least).unwrap().0);
+    let plain = CostModel::fit_with_ridge(&samples, "test", "families", cv.ridge).unwrap();
+    assert_eq!(cv.model.structures, plain.structures);
+    assert!(cv.model.source.contains(&format!("ridge {} by leave-one-family-out", cv.ridge)), "{}", cv.model.source);
+    // Two families: held out by scene instead. One scene: nothing to hold out, the default ridge.
+    let two: Vec<Sample> = samples.iter().filter(|s| families[..2].contains(&family_of(&s.scene))).cloned().collect();
+    let cv = fit_ridge_by_cv(&two, "test", "two families", 0.05).unwrap();
+    assert_eq!((cv.groups, cv.inner_regret.len()), ("scene", CV_RIDGES.len()));
+    let (mut one, _) = known_samples_with_rays(24, |i| 10u64.pow(3 + (i % 7) as u32));
+    one.iter_mut().for_each(|s| s.scene = "family:city:1000:0".into());
+    let cv = fit_ridge_by_cv(&one, "test", "one scene", 0.05).unwrap();
+    assert_eq!((cv.ridge, cv.groups, cv.inner_regret.len()), (meshchar::cost::RIDGE, "scene", 0));
 }

@@ -810,6 +810,20 @@ fn compare_policies_scores_a_given_calibration_and_the_proxy() {
     }
     assert_eq!(proxy["agreement"]["samples"].as_u64(), Some(56), "{proxy}");
     assert!(proxy["comparison"]["calibrated_held_out"]["scored"].as_u64().is_some(), "{proxy}");
+    let cv: Vec<&serde_json::Value> = json[0]["baselines"]["policies"]
+        .as_array()
+        .map(|p| p.iter().filter(|p| p["policy"] == "calibrated_cv").collect())
+        .unwrap_or_default();
+    assert_eq!(cv.len(), 2, "calibrated_cv held out by scene and by family: {}", json[0]);
+    // The calibration with its ridge chosen by cross-validation, and the flag that cannot go with --ridge.
+    let fitted = dir.join("cv.json");
+    let out = run("calibrate", &["--from-oracle", arg(&file), "--no-refit", "--ridge-cv", "--out", arg(&fitted)]);
+    let (stdout, stderr) = text(&out);
+    assert!(out.status.success() && stderr.contains("chosen ridge"), "{stdout}\n{stderr}");
+    let written: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&fitted).unwrap()).unwrap();
+    assert!(written["source"].as_str().unwrap().contains("by leave-one-family-out"), "{written}");
+    let out = run("calibrate", &["--from-oracle", arg(&file), "--no-refit", "--ridge-cv", "--ridge", "1"]);
+    assert_eq!(out.status.code(), Some(2), "{:?}", text(&out));
     // Without --json, the rows are named.
     let out = run("evaluate", &["--compare-policies", arg(&file), "--cost-model", arg(&model), "--proxy"]);
     let (stdout, _) = text(&out);

@@ -357,7 +357,8 @@ pub fn workload_of(smp: &Sample) -> String {
 /// One policy's selections over the samples and their scores, overall, by workload and by family.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct PolicyRun {
-    /// `thesis`, `best_single`, `size_only` or `calibrated`.
+    /// `thesis`, `best_single`, `size_only`, `calibrated` or `calibrated_cv` (the calibrated model with its ridge
+    /// chosen by cross-validation inside its training samples, [`fit_ridge_by_cv`]).
     pub policy: String,
     /// How it was fitted: `recorded` (the thesis policy's recorded choice), `hindsight` (the best single structure
     /// per workload, chosen on all samples), `in_sample`, `scene_out` (fitted without the sample's scene) or
@@ -381,7 +382,8 @@ pub struct Baselines {
     /// Per sample: its workload ([`workload_of`]).
     pub workloads: Vec<String>,
     /// The policies, in the order: thesis (recorded), best single structure (hindsight), size-only and calibrated
-    /// (each leave-one-scene-out and, with more than one family, leave-one-family-out), calibrated in sample.
+    /// (each leave-one-scene-out and, with more than one family, leave-one-family-out), calibrated with the ridge
+    /// chosen by cross-validation (the same two hold-outs), calibrated in sample.
     pub policies: Vec<PolicyRun>,
 }
 
@@ -417,6 +419,65 @@ fn held_out_choices(
         }
     }
     out
+}
+
+/// The ridges [`fit_ridge_by_cv`] tries, smallest first: [`crate::cost::RIDGE`] and then a factor of about 4 to
+/// 5 apart up to 100, where the geometric coefficients are mostly shrunk away (the range of the fixed-ridge sweep
+/// in `docs/cost-model.md`).
+pub const CV_RIDGES: [f64; 6] = [crate::cost::RIDGE, 0.2, 1.0, 5.0, 20.0, 100.0];
+
+/// A model whose ridge was chosen by cross-validation inside its own training samples ([`fit_ridge_by_cv`]).
+#[derive(Clone, Debug)]
+pub struct CvFit {
+    /// The model, fitted on all the samples with [`CvFit::ridge`].
+    pub model: CostModel,
+    /// The chosen ridge: the one of [`CV_RIDGES`] with the least mean held-out regret (ties: the smaller).
+    pub ridge: f64,
+    /// `family` or `scene`: the groups held out in turn.
+    pub groups: &'static str,
+    /// Per ridge of [`CV_RIDGES`], the mean regret of the selections on the held-out groups (infinite when none
+    /// could be scored).
+    pub inner_regret: Vec<(f64, f64)>,
+}
+
+/// Fits the calibrated model with the ridge chosen inside `samples` alone: for every ridge of [`CV_RIDGES`], each
+/// group of samples is held out in turn (its family when the samples span at least 3 families ([`family_of`]),
+/// else its scene), a model with that ridge is fitted on the others and selects (tie margin `tie_margin`) on the
+/// held-out group; the ridge whose held-out selections have the least mean regret is kept and the model refitted
+/// on all the samples with it. With fewer than two groups nothing can be held out and the ridge is
+/// [`crate::cost::RIDGE`]. Nothing outside `samples` is read, so wrapped in another hold-out (as
+/// [`compare_baselines`] does) the held-out scene or family never sees its own records, the ridge's choice
+/// included.
+pub fn fit_ridge_by_cv(samples: &[Sample], device: &str, source: &str, tie_margin: f64) -> Result<CvFit, CostError> {
+    let mut families: Vec<String> = samples.iter().map(|s| family_of(&s.scene)).collect();
+    families.sort();
+    families.dedup();
+    let by_family = families.len() >= 3;
+    let groups = if by_family { "family" } else { "scene" };
+    let key = |s: &Sample| if by_family { family_of(&s.scene) } else { s.scene.clone() };
+    let mut distinct: Vec<String> = samples.iter().map(&key).collect();
+    distinct.sort();
+    distinct.dedup();
+    let mut inner_regret = Vec::new();
+    if distinct.len() >= 2 {
+        for r in CV_RIDGES {
+            let fit = |t: &[Sample]| CostModel::fit_with_ridge(t, device, "cross-validation", r);
+            let choices = held_out_choices(samples, &key, &fit, tie_margin, true);
+            let sc = score(samples.iter().zip(&choices).map(|(s, c)| (s, *c)));
+            inner_regret.push((r, if sc.scored > 0 { sc.mean_regret } else { f64::INFINITY }));
+        }
+    }
+    let ridge = inner_regret
+        .iter()
+        .filter(|x| x.1.is_finite())
+        .fold(None, |b: Option<(f64, f64)>, &x| match b {
+            Some(b) if b.1 <= x.1 => Some(b),
+            _ => Some(x),
+        })
+        .map_or(crate::cost::RIDGE, |b| b.0);
+    let source = format!("{source}, ridge {ridge} by leave-one-{groups}-out");
+    let model = CostModel::fit_with_ridge(samples, device, &source, ridge)?;
+    Ok(CvFit { model, ridge, groups, inner_regret })
 }
 
 /// Per workload, the structure with the least mean regret over the samples of that workload (ties: the first in
@@ -485,7 +546,8 @@ fn policy_run(
 /// The calibrated policy against four baselines on the same samples: the thesis policy (its recorded choices),
 /// the best single structure per workload chosen in hindsight, the size-only model ([`CostModel::fit_size_only`])
 /// and the calibrated model, each of the last two fitted leave-one-scene-out and, when the samples span more than
-/// one family ([`family_of`]), leave-one-family-out; and the calibrated model in sample.
+/// one family ([`family_of`]), leave-one-family-out; the calibrated model with its ridge chosen by cross-validation
+/// inside each training set ([`fit_ridge_by_cv`]), held out the same two ways; and the calibrated model in sample.
 pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> Baselines {
     let families: Vec<String> = samples.iter().map(|s| family_of(&s.scene)).collect();
     let workloads: Vec<String> = samples.iter().map(workload_of).collect();
@@ -510,6 +572,12 @@ pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> B
     policies.push(run("calibrated", "scene_out", held_out_choices(samples, &scene, &full, tie_margin, true)));
     if distinct.len() > 1 {
         policies.push(run("calibrated", "family_out", held_out_choices(samples, &family, &full, tie_margin, true)));
+    }
+    let cv =
+        |t: &[Sample]| fit_ridge_by_cv(t, device, "held out, ridge by cross-validation", tie_margin).map(|c| c.model);
+    policies.push(run("calibrated_cv", "scene_out", held_out_choices(samples, &scene, &cv, tie_margin, true)));
+    if distinct.len() > 1 {
+        policies.push(run("calibrated_cv", "family_out", held_out_choices(samples, &family, &cv, tie_margin, true)));
     }
     let ins: Vec<Option<StructureName>> = match full(samples) {
         Ok(m) => samples.iter().map(|s| choose(&s.predict(&m), tie_margin)).collect(),
