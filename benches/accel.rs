@@ -9,8 +9,8 @@
 //!   on), build Mtris/s, trace Mrays/s (medians of 9), SAH cost (`K_T = K_I = 1`, see `meshchar::accel::sah_cost`)
 //!   and hit agreement with our BVH, for our six structures, `bvh` 0.13 and `obvhs` 0.4 (medium and fastest
 //!   presets), then the ratios: our binned-SAH BVH against obvhs's medium preset, our LBVH against its fastest
-//!   (PLOC). The BVH/medium trace ratio is measured twice: with the two traces alternating (27 of each, medians;
-//!   the headline column) and from the two blocks of 9 timed one after the other ("in sequence"). The kd-tree's SAH column is its own cost (voxel areas over the root's, `K_T = K_I = 1`), not
+//!   (PLOC). Each ratio is measured twice: with ours and obvhs's alternating (19 builds, 27 traces of each, medians;
+//!   the headline) and, in parentheses, from the two blocks of 9 timed one after the other. The kd-tree's SAH column is its own cost (voxel areas over the root's, `K_T = K_I = 1`), not
 //!   comparable with the BVHs'; the BIH's is over its nodes' boxes; the grid prints none.
 //!
 //! * `screen_crossings/<scene>`: the overlap floor's count of triangle boxes on a camera's image
@@ -292,16 +292,28 @@ fn median_of<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     (times[times.len() / 2], last.expect("at least one repeat"))
 }
 
-/// Medians of `reps` timings of `a` and of `b`, run alternately (a, b, a, b, ...).
+/// Medians of `reps` timings of `a` and of `b`, run alternately in the order a b b a a b b a ... (so that neither
+/// always runs first).
 fn interleaved<A, B>(reps: usize, mut a: impl FnMut() -> A, mut b: impl FnMut() -> B) -> (f64, f64) {
     let (mut ta, mut tb) = (Vec::new(), Vec::new());
-    for _ in 0..reps {
+    let mut time_a = |ta: &mut Vec<f64>| {
         let t = Instant::now();
         std::hint::black_box(a());
         ta.push(t.elapsed().as_secs_f64());
+    };
+    let mut time_b = |tb: &mut Vec<f64>| {
         let t = Instant::now();
         std::hint::black_box(b());
         tb.push(t.elapsed().as_secs_f64());
+    };
+    for i in 0..reps {
+        if i % 2 == 0 {
+            time_a(&mut ta);
+            time_b(&mut tb);
+        } else {
+            time_b(&mut tb);
+            time_a(&mut ta);
+        }
     }
     ta.sort_by(f64::total_cmp);
     tb.sort_by(f64::total_cmp);
@@ -394,39 +406,67 @@ fn side_by_side(_: &mut Criterion) {
             rays.rays.par_iter().map(|r| obvhs_crate::closest(&fb, &ft, &fid, r)).collect::<Vec<_>>()
         });
         row("obvhs 0.4 (fastest)", b, t, obvhs_crate::sah(&fb), disagreements(&out.hits, &hits));
-        ratios.push((
+        // The build ratios again with the builds alternating, as the trace's.
+        let (ours_b, theirs_b) = interleaved(
+            2 * REPS + 1,
+            || build_structure(StructureName::Bvh, &mesh).unwrap_or_else(|e| panic!("{e}")),
+            || obvhs_crate::build(&otris),
+        );
+        let (ours_l, theirs_f) = interleaved(
+            2 * REPS + 1,
+            || build_structure(StructureName::Lbvh, &mesh).unwrap_or_else(|e| panic!("{e}")),
+            || obvhs_crate::build_fastest(&otris),
+        );
+        ratios.push(Ratios {
             scene,
-            medium.0 / bt,
-            theirs_t / ours_t,
-            medium.1 / tt,
-            ours.sah_cost().unwrap_or(f64::NAN),
-            medium.2,
-            b / lbvh.0,
-            lbvh.1,
-            obvhs_crate::sah(&fb),
-        ));
+            build: (theirs_b / ours_b, medium.0 / bt),
+            trace: (theirs_t / ours_t, medium.1 / tt),
+            sah: (ours.sah_cost().unwrap_or(f64::NAN), medium.2),
+            lbvh_build: (theirs_f / ours_l, b / lbvh.0),
+            lbvh_sah: (lbvh.1, obvhs_crate::sah(&fb)),
+        });
     }
     println!(
-        "\nratios (speed of ours / speed of obvhs, > 1 is faster; measured in this run, {} threads; the trace ratio \
-         from alternating traces, then from the two blocks above)",
-        rayon::current_num_threads()
+        "\nratios (speed of ours / speed of obvhs, > 1 is faster; measured in this run, {} threads): each from the two \
+         alternating ({} builds, {} traces of each), then in parentheses from the two blocks above",
+        rayon::current_num_threads(),
+        2 * REPS + 1,
+        3 * REPS
     );
     println!(
-        "{:<10} {:>22} {:>22} {:>22} {:>18} {:>22} {:>18}",
+        "{:<10} {:>22} {:>22} {:>18} {:>22} {:>18}",
         "scene",
         "bvh / medium build",
         "bvh / medium trace",
-        "(in sequence)",
         "SAH bvh, medium",
         "lbvh / fastest build",
         "SAH lbvh, fastest"
     );
-    for (scene, build, tr, seq, sb, sm, lb, sl, sf) in ratios {
+    let pair = |(a, b): (f64, f64)| format!("{a:.2}x ({b:.2}x)");
+    for r in ratios {
         println!(
-            "{scene:<10} {:>21.2}x {:>21.2}x {:>21.2}x {:>8.1}, {:>7.1} {:>21.2}x {:>8.1}, {:>7.1}",
-            build, tr, seq, sb, sm, lb, sl, sf
+            "{:<10} {:>22} {:>22} {:>8.1}, {:>7.1} {:>22} {:>8.1}, {:>7.1}",
+            r.scene,
+            pair(r.build),
+            pair(r.trace),
+            r.sah.0,
+            r.sah.1,
+            pair(r.lbvh_build),
+            r.lbvh_sah.0,
+            r.lbvh_sah.1
         );
     }
+}
+
+/// One scene's ratios of [`side_by_side`]: speeds of ours over obvhs's, `(alternating, in sequence)`, and SAH costs
+/// `(ours, obvhs's)`.
+struct Ratios {
+    scene: &'static str,
+    build: (f64, f64),
+    trace: (f64, f64),
+    sah: (f64, f64),
+    lbvh_build: (f64, f64),
+    lbvh_sah: (f64, f64),
 }
 
 criterion_group!(benches, side_by_side, bench_build, bench_trace, bench_crates, bench_screen_crossings);

@@ -5,12 +5,13 @@
 //! ```text
 //! cargo run --release --example calibrate -- [--out FILE] [--from-oracle FILE.jsonl ...] [--scene PATH ...]
 //!     [--resolution N] [--repeats R] [--refit DIR ...] [--device NAME] [--trace-backend cpu|vulkan]
-//!     [--ridge R | --ridge-cv [--tie-margin X]] [--help]
+//!     [--ridge R | --ridge-cv] [--tie-margin X] [--help]
 //! ```
 //!
 //! `--ridge R` sets the shrinkage of the test-count laws; `--ridge-cv` chooses it inside the samples by holding
 //! out each family (or each scene) in turn (`meshchar::eval::compare::fit_ridge_by_cv`) and prints every
-//! candidate's held-out regret. On the shipped 84 oracle records it chooses the default, 0.05.
+//! candidate's held-out regret (`--tie-margin` is the calibrated policy's tie margin those selections use; it
+//! matters only with `--ridge-cv`). On the shipped 84 oracle records it chooses the default, 0.05.
 //!
 //! With `--trace-backend vulkan` the oracle traces on the Vulkan device (`evaluate_scene_on` with a
 //! `DeviceOracle`) and the file records the device (name, type, driver, driver version, UUID), which the calibrated
@@ -87,7 +88,7 @@ struct Args {
     /// held-out regret
     #[arg(long, conflicts_with = "ridge")]
     ridge_cv: bool,
-    /// With --ridge-cv: the calibrated policy's tie margin used to score the held-out selections
+    /// With --ridge-cv: the calibrated policy's tie margin used to score the held-out selections (not used otherwise)
     #[command(flatten)]
     tie: args::TieMarginArg,
     /// With --from-oracle the records' own tracer is used (vulkan here refuses CPU records)
