@@ -454,6 +454,9 @@ fn the_baselines_are_scored_on_the_same_samples_by_workload_and_family() {
     }
     assert_eq!(family_of("family:city:1000:3"), "city");
     assert_eq!(family_of("bunny.obj"), "mesh");
+    // A directory of frames is an animation wherever the command runs (the path need not exist from here).
+    assert_eq!(family_of("../elsewhere/bart/kitchen"), "animation");
+    assert_eq!(family_of("degenerate:fan:2000:1"), "mesh");
     assert_eq!(workload_of(&samples[1]), "shadow");
     let b = compare_baselines(&samples, 0.0, "test");
     let names: Vec<String> = b.policies.iter().map(|p| format!("{} {}", p.policy, p.holdout)).collect();

@@ -335,12 +335,14 @@ pub fn compare(samples: &[Sample], tie_margin: f64, device: &str) -> Result<Comp
 }
 
 /// The family a sample's scene belongs to, for leave-one-family-out: a generated scene's family
-/// (`family:NAME:...`, [`crate::mesh::families::parse_spec`]); otherwise `animation` for a directory of frames and
-/// `mesh` for a file (the shared scans, models and interiors).
+/// (`family:NAME:...`, [`crate::mesh::families::parse_spec`]); otherwise `animation` for a directory of frames (a
+/// path that is a directory, or, wherever the command runs, one with no extension that names no generator, as
+/// records name the BART animations) and `mesh` for anything else (mesh files, the degenerate generators).
 pub fn family_of(scene: &str) -> String {
+    let path = std::path::Path::new(scene);
     match crate::mesh::families::parse_spec(scene) {
         Some(Ok((f, _, _))) => f.name().to_string(),
-        _ if std::path::Path::new(scene).is_dir() => "animation".to_string(),
+        _ if path.is_dir() || (path.extension().is_none() && !scene.contains(':')) => "animation".to_string(),
         _ => "mesh".to_string(),
     }
 }
