@@ -510,6 +510,22 @@ fn print_baselines(b: &meshchar::eval::compare::Baselines) {
             s.worst
         );
     }
+    for p in b.policies.iter().filter(|p| !p.ridges.is_empty()) {
+        let mut by_ridge: Vec<(f64, usize)> = Vec::new();
+        for (_, r) in &p.ridges {
+            match by_ridge.iter_mut().find(|x| x.0 == *r) {
+                Some(x) => x.1 += 1,
+                None => by_ridge.push((*r, 1)),
+            }
+        }
+        by_ridge.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let list: Vec<String> = if p.ridges.len() <= 12 {
+            p.ridges.iter().map(|(g, r)| format!("{g} {r}")).collect()
+        } else {
+            by_ridge.iter().map(|(r, n)| format!("{r} for {n}")).collect()
+        };
+        println!("{} ({}): ridge chosen without each group: {}", p.policy, p.holdout, list.join(", "));
+    }
     for (what, pick) in [("workload", 0), ("family", 1)] {
         let keys: Vec<String> = match b.policies.first() {
             Some(p) => (if pick == 0 { &p.by_workload } else { &p.by_family }).iter().map(|k| k.0.clone()).collect(),

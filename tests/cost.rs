@@ -749,7 +749,7 @@ fn the_cross_validated_ridge_is_the_one_whose_held_out_selections_regret_least()
 }
 
 #[test]
-fn a_held_out_familys_own_records_take_no_part_in_its_model() {
+fn a_held_out_familys_own_records_take_no_part_in_its_ridge_or_its_model() {
     use meshchar::eval::compare::{compare_baselines, family_of};
     let samples = small_family_samples();
     let held = "city";
@@ -778,15 +778,34 @@ fn a_held_out_familys_own_records_take_no_part_in_its_model() {
             .map(|(_, c)| *c)
             .collect::<Vec<_>>()
     };
-    // Held out by family, the city's selections come from models fitted on the other families alone (the ridge's
-    // choice reads only what the fit is given: the_cross_validated_ridge_... above).
+    // Held out by family, the city's selections come from models fitted on the other families alone.
     for policy in ["calibrated", "calibrated_cv"] {
         assert_eq!(choices(&a, policy, "family_out", true), choices(&b, policy, "family_out", true), "{policy}");
     }
+    // Each family's ridge is the one chosen on the other families' records alone, so the city's own records,
+    // changed, leave its ridge as it was.
+    let ridges = |x: &meshchar::eval::compare::Baselines| x.get("calibrated_cv", "family_out").unwrap().ridges.clone();
+    let (ra, rb) = (ridges(&a), ridges(&b));
+    assert_eq!(ra.iter().map(|r| r.0.as_str()).collect::<Vec<_>>(), families_of(&samples));
+    for (g, r) in &ra {
+        let train: Vec<Sample> = samples.iter().filter(|s| family_of(&s.scene) != *g).cloned().collect();
+        let want = meshchar::eval::compare::fit_ridge_by_cv(&train, "test", "by hand", 0.05).unwrap().ridge;
+        assert_eq!(*r, want, "{g}");
+    }
+    assert_eq!(ra.iter().find(|r| r.0 == held), rb.iter().find(|r| r.0 == held));
+    assert!(a.get("calibrated", "family_out").unwrap().ridges.is_empty());
     // The change is seen where the city's records are in the training set.
     assert!(
         choices(&a, "calibrated_cv", "family_out", false) != choices(&b, "calibrated_cv", "family_out", false)
             || choices(&a, "calibrated", "in_sample", true) != choices(&b, "calibrated", "in_sample", true),
         "the changed records moved nothing"
     );
+}
+
+/// The distinct families of `samples`, sorted.
+fn families_of(samples: &[Sample]) -> Vec<String> {
+    let mut f: Vec<String> = samples.iter().map(|s| meshchar::eval::compare::family_of(&s.scene)).collect();
+    f.sort();
+    f.dedup();
+    f
 }

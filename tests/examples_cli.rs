@@ -815,6 +815,10 @@ fn compare_policies_scores_a_given_calibration_and_the_proxy() {
         .map(|p| p.iter().filter(|p| p["policy"] == "calibrated_cv").collect())
         .unwrap_or_default();
     assert_eq!(cv.len(), 2, "calibrated_cv held out by scene and by family: {}", json[0]);
+    for run in &cv {
+        let ridges = run["ridges"].as_array().expect("the ridge chosen without each group");
+        assert!(!ridges.is_empty() && ridges.iter().all(|r| r[1].as_f64().is_some_and(|x| x > 0.0)), "{run}");
+    }
     // The calibration with its ridge chosen by cross-validation, and the flag that cannot go with --ridge.
     let fitted = dir.join("cv.json");
     let out = run("calibrate", &["--from-oracle", arg(&file), "--no-refit", "--ridge-cv", "--out", arg(&fitted)]);
@@ -828,5 +832,6 @@ fn compare_policies_scores_a_given_calibration_and_the_proxy() {
     let out = run("evaluate", &["--compare-policies", arg(&file), "--cost-model", arg(&model), "--proxy"]);
     let (stdout, _) = text(&out);
     assert!(stdout.contains("calibrated, as given") && stdout.contains("deterministic proxy"), "{stdout}");
+    assert!(stdout.contains("calibrated_cv (family_out): ridge chosen without each group: city "), "{stdout}");
     let _ = std::fs::remove_dir_all(&dir);
 }

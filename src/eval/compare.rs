@@ -374,6 +374,10 @@ pub struct PolicyRun {
     pub by_workload: Vec<(String, PolicyScore)>,
     /// Per family ([`family_of`]), sorted by name.
     pub by_family: Vec<(String, PolicyScore)>,
+    /// For `calibrated_cv`: per held-out group (scene or family, sorted by name), the ridge chosen inside the
+    /// training records without it ([`fit_ridge_by_cv`]); empty for the other policies.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub ridges: Vec<(String, f64)>,
 }
 
 /// The selection against four baselines (see [`compare_baselines`]).
@@ -542,6 +546,7 @@ fn policy_run(
         by_workload: by(workloads),
         by_family: by(families),
         choices,
+        ridges: Vec::new(),
     }
 }
 
@@ -575,11 +580,25 @@ pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> B
     if distinct.len() > 1 {
         policies.push(run("calibrated", "family_out", held_out_choices(samples, &family, &full, tie_margin, true)));
     }
-    let cv =
-        |t: &[Sample]| fit_ridge_by_cv(t, device, "held out, ridge by cross-validation", tie_margin).map(|c| c.model);
-    policies.push(run("calibrated_cv", "scene_out", held_out_choices(samples, &scene, &cv, tie_margin, true)));
+    // The ridge each fit chose, under the name of the group its training records lack.
+    let cv_run = |holdout: &str, group: &dyn Fn(&Sample) -> String| -> PolicyRun {
+        let mut all: Vec<String> = samples.iter().map(group).collect();
+        all.sort();
+        all.dedup();
+        let ridges = std::cell::RefCell::new(Vec::new());
+        let cv = |t: &[Sample]| {
+            let fit = fit_ridge_by_cv(t, device, "held out, ridge by cross-validation", tie_margin)?;
+            for g in all.iter().filter(|g| !t.iter().any(|s| group(s) == **g)) {
+                ridges.borrow_mut().push((g.clone(), fit.ridge));
+            }
+            Ok(fit.model)
+        };
+        let choices = held_out_choices(samples, group, &cv, tie_margin, true);
+        PolicyRun { ridges: ridges.into_inner(), ..run("calibrated_cv", holdout, choices) }
+    };
+    policies.push(cv_run("scene_out", &scene));
     if distinct.len() > 1 {
-        policies.push(run("calibrated_cv", "family_out", held_out_choices(samples, &family, &cv, tie_margin, true)));
+        policies.push(cv_run("family_out", &family));
     }
     let ins: Vec<Option<StructureName>> = match full(samples) {
         Ok(m) => samples.iter().map(|s| choose(&s.predict(&m), tie_margin)).collect(),
