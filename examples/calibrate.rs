@@ -8,9 +8,9 @@
 //!     [--ridge R | --ridge-cv] [--tie-margin X] [--help]
 //! ```
 //!
-//! `--ridge R` sets the shrinkage of the test-count laws; `--ridge-cv` chooses it inside the samples by holding
-//! out each family (or each scene) in turn (`meshchar::eval::compare::fit_ridge_by_cv`) and prints every
-//! candidate's held-out regret (`--tie-margin` is the calibrated policy's tie margin those selections use; it
+//! `--ridge R` sets the shrinkage of the test-count laws; `--ridge-cv` chooses it, and whether the laws take the
+//! crossings (`meshchar::cost::crossings_feature`), inside the samples by holding out each family (or each scene)
+//! in turn (`meshchar::eval::compare::fit_ridge_by_cv`) and prints every candidate's held-out regret (`--tie-margin` is the calibrated policy's tie margin those selections use; it
 //! matters only with `--ridge-cv`). On the shipped 84 oracle records it chooses the default, 0.05.
 //!
 //! With `--trace-backend vulkan` the oracle traces on the Vulkan device (`evaluate_scene_on` with a
@@ -82,10 +82,10 @@ struct Args {
     /// geometric and view coefficients towards the size-only model
     #[arg(long, value_name = "R", default_value_t = meshchar::cost::RIDGE, value_parser = args::nonnegative_number)]
     ridge: f64,
-    /// Choose the ridge by cross-validation inside the samples instead (meshchar::eval::compare::fit_ridge_by_cv:
-    /// each family, or each scene when the samples span fewer than 3 families, held out in turn; the ridge of
-    /// meshchar::eval::compare::CV_RIDGES whose held-out selections have the least mean regret); prints each ridge's
-    /// held-out regret
+    /// Choose the ridge, and whether the count laws take the crossings, by cross-validation inside the samples
+    /// instead (meshchar::eval::compare::fit_ridge_by_cv: each family, or each scene when the samples span fewer
+    /// than 3 families, held out in turn; the candidate whose held-out selections have the least mean regret);
+    /// prints each candidate's held-out regret
     #[arg(long, conflicts_with = "ridge")]
     ridge_cv: bool,
     /// With --ridge-cv: the calibrated policy's tie margin used to score the held-out selections (not used otherwise)
@@ -251,10 +251,11 @@ fn run(args: Args) -> anyhow::Result<()> {
     let source = if args.ridge == meshchar::cost::RIDGE { source } else { format!("{source}, ridge {}", args.ridge) };
     let mut model = if args.ridge_cv {
         let cv = meshchar::eval::compare::fit_ridge_by_cv(&samples, &device, &source, args.tie.tie_margin)?;
-        for (r, regret) in &cv.inner_regret {
-            eprintln!("ridge {r}: mean regret held out by {} {:.1}%", cv.groups, 100.0 * regret);
+        for (r, crossings, regret) in &cv.inner_regret {
+            let with = if *crossings { ", with the crossings" } else { "" };
+            eprintln!("ridge {r}{with}: mean regret held out by {} {:.1}%", cv.groups, 100.0 * regret);
         }
-        eprintln!("chosen ridge: {}", cv.ridge);
+        eprintln!("chosen ridge: {}{}", cv.ridge, if cv.crossings { ", with the crossings" } else { "" });
         cv.model
     } else {
         CostModel::fit_with_ridge(&samples, &device, &source, args.ridge)?

@@ -511,20 +511,27 @@ fn print_baselines(b: &meshchar::eval::compare::Baselines) {
         );
     }
     for p in b.policies.iter().filter(|p| !p.ridges.is_empty()) {
-        let mut by_ridge: Vec<(f64, usize)> = Vec::new();
-        for (_, r) in &p.ridges {
-            match by_ridge.iter_mut().find(|x| x.0 == *r) {
-                Some(x) => x.1 += 1,
-                None => by_ridge.push((*r, 1)),
+        // "20" or "20+x" (with the crossings), per group or counted.
+        let name = |r: f64, x: bool| format!("{r}{}", if x { "+x" } else { "" });
+        let mut by_choice: Vec<(f64, bool, usize)> = Vec::new();
+        for &(_, r, x) in &p.ridges {
+            match by_choice.iter_mut().find(|c| c.0 == r && c.1 == x) {
+                Some(c) => c.2 += 1,
+                None => by_choice.push((r, x, 1)),
             }
         }
-        by_ridge.sort_by(|a, b| a.0.total_cmp(&b.0));
+        by_choice.sort_by(|a, b| a.1.cmp(&b.1).then(a.0.total_cmp(&b.0)));
         let list: Vec<String> = if p.ridges.len() <= 12 {
-            p.ridges.iter().map(|(g, r)| format!("{g} {r}")).collect()
+            p.ridges.iter().map(|(g, r, x)| format!("{g} {}", name(*r, *x))).collect()
         } else {
-            by_ridge.iter().map(|(r, n)| format!("{r} for {n}")).collect()
+            by_choice.iter().map(|(r, x, n)| format!("{} for {n}", name(*r, *x))).collect()
         };
-        println!("{} ({}): ridge chosen without each group: {}", p.policy, p.holdout, list.join(", "));
+        println!(
+            "{} ({}): ridge chosen without each group (+x: with the crossings): {}",
+            p.policy,
+            p.holdout,
+            list.join(", ")
+        );
     }
     for (what, pick) in [("workload", 0), ("family", 1)] {
         let keys: Vec<String> = match b.policies.first() {

@@ -712,36 +712,44 @@ fn the_cross_validated_ridge_is_the_one_whose_held_out_selections_regret_least()
     let samples = small_family_samples();
     let cv = fit_ridge_by_cv(&samples, "test", "families", 0.05).unwrap();
     assert_eq!(cv.groups, "family");
-    assert_eq!(cv.inner_regret.iter().map(|x| x.0).collect::<Vec<_>>(), CV_RIDGES.to_vec());
-    let distinct = |v: &[(f64, f64)]| v.iter().any(|x| x.1 != v[0].1);
-    assert!(distinct(&cv.inner_regret), "the ridges select alike here: {:?}", cv.inner_regret);
-    // Each ridge's held-out regret, by hand: fit without one family, select on it, score all.
+    // Every ridge without the crossings, then every ridge with them.
+    let tried: Vec<(f64, bool)> = cv.inner_regret.iter().map(|x| (x.0, x.1)).collect();
+    let want: Vec<(f64, bool)> =
+        [false, true].into_iter().flat_map(|x| CV_RIDGES.into_iter().map(move |r| (r, x))).collect();
+    assert_eq!(tried, want);
+    let distinct = |v: &[(f64, bool, f64)]| v.iter().any(|x| x.2 != v[0].2);
+    assert!(distinct(&cv.inner_regret), "the candidates select alike here: {:?}", cv.inner_regret);
+    // Each candidate's held-out regret, by hand: fit without one family, select on it, score all.
     let mut families: Vec<String> = samples.iter().map(|s| family_of(&s.scene)).collect();
     families.sort();
     families.dedup();
     assert_eq!(families.len(), 7);
-    for &(r, regret) in &cv.inner_regret {
+    for &(r, x, regret) in &cv.inner_regret {
         let mut choices = vec![None; samples.len()];
         for f in &families {
             let train: Vec<Sample> = samples.iter().filter(|s| family_of(&s.scene) != *f).cloned().collect();
-            let m = CostModel::fit_with_ridge(&train, "test", "by hand", r).unwrap();
+            let m = CostModel::fit_with(&train, "test", "by hand", r, x).unwrap();
+            assert_eq!(m.structures.iter().all(|s| s.crossing_coef.len() == 2), x);
             for (i, s) in samples.iter().enumerate().filter(|(_, s)| family_of(&s.scene) == *f) {
                 choices[i] = choose(&s.predict(&m), 0.05);
             }
         }
         let want = score(samples.iter().zip(&choices).map(|(s, c)| (s, *c)));
-        assert!((want.mean_regret - regret).abs() < 1e-12, "ridge {r}: {regret} vs {}", want.mean_regret);
+        assert!((want.mean_regret - regret).abs() < 1e-12, "ridge {r} {x}: {regret} vs {}", want.mean_regret);
     }
-    // The chosen one regrets least (the smaller on a tie), and the model is the plain fit with it on everything.
-    let least = cv.inner_regret.iter().map(|x| x.1).fold(f64::INFINITY, f64::min);
-    assert_eq!(cv.ridge, cv.inner_regret.iter().find(|x| x.1 == least).unwrap().0);
-    let plain = CostModel::fit_with_ridge(&samples, "test", "families", cv.ridge).unwrap();
+    // The chosen one regrets least (the first tried on a tie), and the model is the plain fit with it on everything.
+    let least = cv.inner_regret.iter().map(|x| x.2).fold(f64::INFINITY, f64::min);
+    let first = cv.inner_regret.iter().find(|x| x.2 == least).unwrap();
+    assert_eq!((cv.ridge, cv.crossings), (first.0, first.1));
+    let plain = CostModel::fit_with(&samples, "test", "families", cv.ridge, cv.crossings).unwrap();
     assert_eq!(cv.model.structures, plain.structures);
-    assert!(cv.model.source.contains(&format!("ridge {} by leave-one-family-out", cv.ridge)), "{}", cv.model.source);
+    let with = if cv.crossings { ", with the crossings" } else { "" };
+    let named = format!("ridge {}{with} by leave-one-family-out", cv.ridge);
+    assert!(cv.model.source.contains(&named), "{}", cv.model.source);
     // Two families: held out by scene instead. One scene: nothing to hold out, the default ridge.
     let two: Vec<Sample> = samples.iter().filter(|s| families[..2].contains(&family_of(&s.scene))).cloned().collect();
     let cv = fit_ridge_by_cv(&two, "test", "two families", 0.05).unwrap();
-    assert_eq!((cv.groups, cv.inner_regret.len()), ("scene", CV_RIDGES.len()));
+    assert_eq!((cv.groups, cv.inner_regret.len()), ("scene", 2 * CV_RIDGES.len()));
     let (mut one, _) = known_samples_with_rays(24, |i| 10u64.pow(3 + (i % 7) as u32));
     one.iter_mut().for_each(|s| s.scene = "family:city:1000:0".into());
     let cv = fit_ridge_by_cv(&one, "test", "one scene", 0.05).unwrap();
@@ -787,10 +795,10 @@ fn a_held_out_familys_own_records_take_no_part_in_its_ridge_or_its_model() {
     let ridges = |x: &meshchar::eval::compare::Baselines| x.get("calibrated_cv", "family_out").unwrap().ridges.clone();
     let (ra, rb) = (ridges(&a), ridges(&b));
     assert_eq!(ra.iter().map(|r| r.0.as_str()).collect::<Vec<_>>(), families_of(&samples));
-    for (g, r) in &ra {
+    for (g, r, x) in &ra {
         let train: Vec<Sample> = samples.iter().filter(|s| family_of(&s.scene) != *g).cloned().collect();
-        let want = meshchar::eval::compare::fit_ridge_by_cv(&train, "test", "by hand", 0.05).unwrap().ridge;
-        assert_eq!(*r, want, "{g}");
+        let want = meshchar::eval::compare::fit_ridge_by_cv(&train, "test", "by hand", 0.05).unwrap();
+        assert_eq!((*r, *x), (want.ridge, want.crossings), "{g}");
     }
     assert_eq!(ra.iter().find(|r| r.0 == held), rb.iter().find(|r| r.0 == held));
     assert!(a.get("calibrated", "family_out").unwrap().ridges.is_empty());
@@ -808,4 +816,40 @@ fn families_of(samples: &[Sample]) -> Vec<String> {
     f.sort();
     f.dedup();
     f
+}
+
+#[test]
+fn a_fit_with_the_crossings_reads_them_and_one_without_ignores_them() {
+    use meshchar::cost::{crossings_feature, RayCrossings, TestFloor};
+    // Box tests that grow as (1 + crossings)^0.7 over the known laws: the fit with the crossings finds the exponent.
+    let (mut samples, _) = known_samples(60);
+    for (i, s) in samples.iter_mut().enumerate() {
+        let x = [0.0, 3.0, 40.0, 700.0, 9.0][i % 5] * (1.0 + (i % 7) as f64);
+        s.crossings = Some(RayCrossings { all: x, distinct: x, nondegenerate: x, image: 0.0 });
+        for m in s.measured.iter_mut() {
+            m.box_tests_per_ray *= (1.0 + x).powf(0.7);
+        }
+    }
+    let with = CostModel::fit_with(&samples, "test", "synthetic", meshchar::cost::RIDGE, true).unwrap();
+    for st in &with.structures {
+        assert_eq!(st.crossing_coef.len(), 2, "{}", st.structure);
+        assert!((st.crossing_coef[0] - 0.7).abs() < 0.05, "{}: {:?}", st.structure, st.crossing_coef);
+        assert!(st.crossing_coef[1].abs() < 0.05, "{}: {:?}", st.structure, st.crossing_coef);
+    }
+    let without = CostModel::fit_with(&samples, "test", "synthetic", meshchar::cost::RIDGE, false).unwrap();
+    assert!(without.structures.iter().all(|s| s.crossing_coef.is_empty()));
+    assert_eq!(without.structures, CostModel::fit_with_ridge(&samples, "test", "synthetic", 0.05).unwrap().structures);
+    // Predictions read the crossings from the floor given, and only with the coefficients.
+    let (f, w) = (&samples[0].features, &samples[0].workload);
+    let at = |m: &CostModel, x: f64| {
+        m.predict_floored(f, w, &|_| TestFloor { crossings: x, ..TestFloor::default() })[0].box_tests_per_ray
+    };
+    assert!((at(&with, 99.0) / at(&with, 0.0) - 100f64.powf(with.structures[0].crossing_coef[0])).abs() < 1e-9);
+    assert_eq!(at(&without, 99.0), at(&without, 0.0));
+    // The count read: all of it for primary rays, the larger of it and the image's for secondary rays.
+    let c = Some(RayCrossings { all: 5.0, distinct: 1.0, nondegenerate: 2.0, image: 30.0 });
+    assert_eq!(crossings_feature(WorkloadKind::Primary, c), 5.0);
+    assert_eq!(crossings_feature(WorkloadKind::Shadow, c), 30.0);
+    assert_eq!(crossings_feature(WorkloadKind::Diffuse, None), 0.0);
+    assert_eq!(meshchar::cost::overlap_floor(StructureName::Bvh, WorkloadKind::Diffuse, c).crossings, 30.0);
 }

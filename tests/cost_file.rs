@@ -485,3 +485,29 @@ fn the_shipped_lavapipe_file_is_canonical_and_chosen_on_lavapipe_only() {
     let m = CostModel::for_trace_target(None, TraceTarget::Cpu).unwrap();
     assert_eq!(CostModel { chosen_as: None, ..m }, shipped());
 }
+
+#[test]
+fn crossing_coefficients_are_none_or_two_in_range_and_round_trip() {
+    // Two, in range: written and read back as they are.
+    let mut m = shipped();
+    m.structures[2].crossing_coef = vec![0.5, -0.25];
+    let back = CostModel::from_json(&m.to_json()).unwrap();
+    assert_eq!(back.structures[2].crossing_coef, vec![0.5, -0.25]);
+    // The shipped file has none, and writes none.
+    assert!(shipped().structures.iter().all(|s| s.crossing_coef.is_empty()));
+    assert!(!shipped().to_json().contains("crossing_coef"));
+    // One, or three: an error naming the field.
+    for bad in [json!([0.5]), json!([0.5, 0.5, 0.5])] {
+        let e = refused(|v| v["structures"][2]["crossing_coef"] = bad.clone());
+        assert_invalid(&e, "structures[2] (grid).crossing_coef", Some(StructureName::Grid));
+    }
+    let e = refused(|v| v["structures"][2]["crossing_coef"] = json!([0.5, 1e4]));
+    assert_invalid(&e, "structures[2] (grid).crossing_coef[1] (prim)", Some(StructureName::Grid));
+    let mut m = shipped();
+    m.structures[2].crossing_coef = vec![f64::NAN, 0.0];
+    assert_invalid(
+        &m.validate().unwrap_err(),
+        "structures[2] (grid).crossing_coef[0] (box)",
+        Some(StructureName::Grid),
+    );
+}

@@ -832,6 +832,9 @@ fn compare_policies_scores_a_given_calibration_and_the_proxy() {
     let out = run("evaluate", &["--compare-policies", arg(&file), "--cost-model", arg(&model), "--proxy"]);
     let (stdout, _) = text(&out);
     assert!(stdout.contains("calibrated, as given") && stdout.contains("deterministic proxy"), "{stdout}");
-    assert!(stdout.contains("calibrated_cv (family_out): ridge chosen without each group: city "), "{stdout}");
+    assert!(
+        stdout.contains("calibrated_cv (family_out): ridge chosen without each group (+x: with the crossings): city "),
+        "{stdout}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -320,6 +320,7 @@ fn paper_model() -> meshchar::cost::CostModel {
         trace_price: vec![ns_per_ray, ns_per_ray, ns_per_ray, 0.0, 0.0, 0.0, 0.0],
         view_box_coef: Vec::new(),
         view_prim_coef: Vec::new(),
+        crossing_coef: Vec::new(),
         fit: FitError::default(),
     };
     let m = CostModel {

@@ -75,6 +75,9 @@
 //!   [`StructureModel::predict`] clamps `theta . phi` to `±30`; with every `|phi_j| <= 45` (`ln n <= ln 2^64`, the
 //!   shares in `[0, 1]`, the size exponents below 24), a slope above 1000 would cross the whole clamp range within
 //!   0.06 units of a feature, which is no count model. The shipped coefficients are below 8 in magnitude.
+//! * `view_box_coef` and `view_prim_coef` are absent or have one coefficient per [`VIEW_FEATURE_NAMES`];
+//!   `crossing_coef` is absent or has two (`box`, `prim`: of `ln(1 + crossings)`, [`crossings_feature`]); each
+//!   of magnitude at most [`COEF_LIMIT`], for the same reason.
 //! * `trace_price` has one price per [`PRICE_NAMES`], each `>= 0` (ns per ray or per test: the fit is
 //!   non-negative least squares, and a negative price would make more work cheaper) and at most
 //!   [`PRICE_LIMIT_NS`] (1 ms: the devices in scope pay 1 to 40 ns per test, so a larger price is a unit error),
@@ -93,7 +96,7 @@ pub mod view;
 
 pub mod overlap;
 pub use overlap::{
-    overlap_floor, primary_tests_per_crossing, screen_crossings, secondary_tests_per_image_crossing,
+    crossings_feature, overlap_floor, primary_tests_per_crossing, screen_crossings, secondary_tests_per_image_crossing,
     tests_per_crossing, Crossings, RayCrossings, TestFloor, ViewCrossings,
 };
 
@@ -347,6 +350,11 @@ pub struct StructureModel {
     /// The view's coefficients in the triangle-test law, as `view_box_coef`.
     #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
     pub view_prim_coef: Vec<f64>,
+    /// The coefficients of `ln(1 + crossings)` ([`TestFloor::crossings`]: the triangle boxes a ray of the workload
+    /// crosses) in the box-test and the triangle-test laws, `[box, prim]`, each of magnitude at most
+    /// [`COEF_LIMIT`]; or none (a calibration fitted without them, [`CostModel::fit_with`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
+    pub crossing_coef: Vec<f64>,
     /// Fit errors on the calibration samples.
     pub fit: FitError,
 }
@@ -386,8 +394,16 @@ impl StructureModel {
     pub fn predict_floored(&self, d: &Derived, n: u64, w: &Workload, floor: TestFloor) -> Prediction {
         let x = phi(d, w.kind);
         let v = w.view.map_or([0.0; 3], |v| v.row());
-        let bx = (dot(&self.box_coef, &x) + dot(&self.view_box_coef, &v)).clamp(-30.0, 30.0).exp();
-        let pr = (dot(&self.prim_coef, &x) + dot(&self.view_prim_coef, &v)).clamp(-30.0, 30.0).exp();
+        let (cb, cp) = match self.crossing_coef[..] {
+            [b, p] => {
+                // f64::max ignores a NaN count: it enters as none.
+                let xc = (1.0 + floor.crossings.max(0.0)).ln();
+                (b * xc, p * xc)
+            }
+            _ => (0.0, 0.0),
+        };
+        let bx = (dot(&self.box_coef, &x) + dot(&self.view_box_coef, &v) + cb).clamp(-30.0, 30.0).exp();
+        let pr = (dot(&self.prim_coef, &x) + dot(&self.view_prim_coef, &v) + cp).clamp(-30.0, 30.0).exp();
         // A NaN floor (never given) must not poison the counts: f64::max ignores it.
         let (bx, pr) = (bx.max(floor.box_tests), pr.max(floor.prim_tests));
         let ns = dot(&self.trace_price, &price_row(w.kind, bx, pr));
@@ -685,10 +701,25 @@ impl CostModel {
     /// --ridge`): larger values shrink the geometric and view coefficients towards the size-only model. A ridge
     /// that is negative or not finite is an error.
     pub fn fit_with_ridge(samples: &[Sample], device: &str, source: &str, ridge: f64) -> Result<CostModel, CostError> {
+        Self::fit_with(samples, device, source, ridge, false)
+    }
+
+    /// [`CostModel::fit_with_ridge`], and with `crossings` the test-count laws also take `ln(1 + crossings)`
+    /// ([`StructureModel::crossing_coef`]) from each sample's [`Sample::crossings`] (none counts as 0): the
+    /// triangle boxes a ray of the workload crosses ([`TestFloor::crossings`]), which the predictions then read
+    /// from the floor they are given ([`CostModel::predict_floored`]; [`CostModel::predict`] gives none, so such a
+    /// model predicts as for a scene whose rays cross nothing).
+    pub fn fit_with(
+        samples: &[Sample],
+        device: &str,
+        source: &str,
+        ridge: f64,
+        crossings: bool,
+    ) -> Result<CostModel, CostError> {
         if !(ridge.is_finite() && ridge >= 0.0) {
             return Err(CostError::Fit(format!("the ridge must be a finite number at least 0, not {ridge}")));
         }
-        Self::fit_on(samples, device, source, true, ridge)
+        Self::fit_on_with(samples, device, source, true, ridge, crossings)
     }
 
     /// The size-only model: [`CostModel::fit`] with every geometric feature left out of the test-count laws (their
@@ -706,6 +737,17 @@ impl CostModel {
         geometric: bool,
         ridge: f64,
     ) -> Result<CostModel, CostError> {
+        Self::fit_on_with(samples, device, source, geometric, ridge, false)
+    }
+
+    fn fit_on_with(
+        samples: &[Sample],
+        device: &str,
+        source: &str,
+        geometric: bool,
+        ridge: f64,
+        crossings: bool,
+    ) -> Result<CostModel, CostError> {
         if samples.is_empty() {
             return Err(CostError::Fit("no samples".into()));
         }
@@ -719,7 +761,7 @@ impl CostModel {
                 .any(|s| s.workload.view.is_some_and(|v| v != ViewFeatures::framing(s.features.lo, s.features.hi)));
         let mut structures = Vec::new();
         for s in StructureName::ALL {
-            if let Some(m) = fit_structure(samples, s, geometric, views, ridge)? {
+            if let Some(m) = fit_structure(samples, s, geometric, views, geometric && crossings, ridge)? {
                 structures.push(m);
             }
         }
@@ -746,7 +788,9 @@ impl CostModel {
         };
         let mut se = Vec::new();
         for smp in samples {
-            let preds = m.predict(&smp.features, &smp.workload);
+            // With crossing coefficients the sample's crossings enter (and its floor with them); without, the plain
+            // prediction, as before they existed.
+            let preds = if crossings { smp.predict(&m) } else { m.predict(&smp.features, &smp.workload) };
             for p in preds {
                 if let Some(meas) = smp.get(p.structure).filter(|x| x.valid && x.total_ms > 0.0) {
                     se.push((p.total_ms / meas.total_ms).ln());
@@ -895,6 +939,16 @@ fn check_structure(i: usize, s: &StructureModel) -> Result<(), CostError> {
             check_number(st, at(&format!("{name}[{j}] ({f})")), c, -COEF_LIMIT..=COEF_LIMIT, "a coefficient")?;
         }
     }
+    if !s.crossing_coef.is_empty() && s.crossing_coef.len() != 2 {
+        return Err(invalid(
+            st,
+            at("crossing_coef"),
+            format!("{} coefficients, expected none or two (box, prim)", s.crossing_coef.len()),
+        ));
+    }
+    for (j, (&c, f)) in s.crossing_coef.iter().zip(["box", "prim"]).enumerate() {
+        check_number(st, at(&format!("crossing_coef[{j}] ({f})")), c, -COEF_LIMIT..=COEF_LIMIT, "a coefficient")?;
+    }
     if s.trace_price.len() != PRICE_NAMES.len() {
         return Err(invalid(
             st,
@@ -927,6 +981,7 @@ fn fit_structure(
     s: StructureName,
     geometric: bool,
     views: bool,
+    crossings: bool,
     ridge_value: f64,
 ) -> Result<Option<StructureModel>, CostError> {
     let rows: Vec<(&Sample, &Measured)> = samples
@@ -959,15 +1014,22 @@ fn fit_structure(
             if views {
                 row.extend(resolve_view(&smp.features, &smp.workload).view.map_or([0.0; 3], |v| v.row()));
             }
+            if crossings {
+                row.push((1.0 + overlap::crossings_feature(smp.workload.kind, smp.crossings)).ln());
+            }
             row
         })
         .collect();
-    let mut ridge = vec![ridge_value; p + if views { VIEW_FEATURE_NAMES.len() } else { 0 }];
+    let nv = if views { VIEW_FEATURE_NAMES.len() } else { 0 };
+    let mut ridge = vec![ridge_value; p + nv + crossings as usize];
     ridge[0] = 0.0;
     let lbox: Vec<f64> = rows.iter().map(|(_, m)| m.box_tests_per_ray.max(1e-3).ln()).collect();
     let lprim: Vec<f64> = rows.iter().map(|(_, m)| m.prim_tests_per_ray.max(1e-3).ln()).collect();
     let mut box_coef = linalg::weighted_ridge(&x, &lbox, &ones, &ridge).ok_or_else(|| err("box tests"))?;
     let mut prim_coef = linalg::weighted_ridge(&x, &lprim, &ones, &ridge).ok_or_else(|| err("triangle tests"))?;
+    let crossing_box = if crossings { box_coef.pop() } else { None };
+    let crossing_prim = if crossings { prim_coef.pop() } else { None };
+    let crossing_coef: Vec<f64> = crossing_box.into_iter().chain(crossing_prim).collect();
     let view_box_coef = box_coef.split_off(p);
     let view_prim_coef = prim_coef.split_off(p);
     // Prices.
@@ -985,12 +1047,22 @@ fn fit_structure(
         trace_price: c,
         view_box_coef,
         view_prim_coef,
+        crossing_coef,
         fit: FitError::default(),
     };
     let (mut eb, mut ebox, mut eprim, mut etc, mut et, mut etot) = (vec![], vec![], vec![], vec![], vec![], vec![]);
     for (smp, meas) in &rows {
         let w = resolve_view(&smp.features, &smp.workload);
-        let pr = m.predict(&smp.features.derived(), smp.features.total_triangles.max(smp.features.triangles), &w);
+        let floor = TestFloor {
+            crossings: overlap::crossings_feature(smp.workload.kind, smp.crossings),
+            ..TestFloor::default()
+        };
+        let pr = m.predict_floored(
+            &smp.features.derived(),
+            smp.features.total_triangles.max(smp.features.triangles),
+            &w,
+            floor,
+        );
         let lr = |a: f64, b: f64| (a.max(1e-12) / b.max(1e-12)).ln();
         eb.push(lr(pr.build_ms_per_build, meas.build_ms_per_build));
         ebox.push(lr(pr.box_tests_per_ray, meas.box_tests_per_ray.max(1e-3)));

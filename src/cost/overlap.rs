@@ -433,13 +433,28 @@ pub fn secondary_tests_per_image_crossing(structure: StructureName, kind: Worklo
 const SHADOW_IMAGE: [(f64, f64); 5] = [(0.074, 0.011), (0.0, 0.011), (0.30, 0.068), (0.16, 0.010), (0.13, 0.010)];
 const DIFFUSE_IMAGE: [(f64, f64); 5] = [(0.17, 0.0082), (0.0, 0.0099), (0.37, 0.083), (0.39, 0.0096), (0.24, 0.0094)];
 
-/// Lower bounds on a structure's tests per ray, for [`crate::cost::StructureModel::predict_floored`].
+/// Lower bounds on a structure's tests per ray, for [`crate::cost::StructureModel::predict_floored`], and the
+/// crossings they come from.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct TestFloor {
     /// Box tests (node visits) per ray.
     pub box_tests: f64,
     /// Triangle tests per ray.
     pub prim_tests: f64,
+    /// The triangle boxes a ray of the workload crosses ([`crossings_feature`]; 0 without crossings), which a model
+    /// fitted with crossings reads ([`crate::cost::StructureModel::crossing_coef`]).
+    pub crossings: f64,
+}
+
+/// The crossings a model fitted with crossings reads for a workload: for primary rays the count of
+/// [`RayCrossings::all`] (on the camera's image when counted there), for shadow and diffuse rays the larger of it
+/// (over every direction) and [`RayCrossings::image`]; 0 without crossings. The same for every structure.
+pub fn crossings_feature(kind: WorkloadKind, c: Option<RayCrossings>) -> f64 {
+    match c {
+        None => 0.0,
+        Some(c) if kind == WorkloadKind::Primary => c.all.max(0.0),
+        Some(c) => c.all.max(c.image).max(0.0),
+    }
 }
 
 /// The overlap floor of `structure`'s tests per ray of the workload `kind` whose [`RayCrossings`] are at hand
@@ -450,13 +465,14 @@ pub struct TestFloor {
 /// image's count (scaled by the same share of distinct or non-degenerate triangles). Zero without crossings.
 pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
     let Some(c) = c else { return TestFloor::default() };
+    let crossings = crossings_feature(kind, Some(c));
     let x = match structure {
         StructureName::Bvh => c.distinct,
         StructureName::KdTree => c.nondegenerate,
         _ => c.all,
     };
     let (b, p) = tests_per_crossing(structure, kind);
-    let mut f = TestFloor { box_tests: b * x, prim_tests: p * x };
+    let mut f = TestFloor { box_tests: b * x, prim_tests: p * x, crossings };
     if kind != WorkloadKind::Primary && c.image > 0.0 {
         let y = if c.all > 0.0 { c.image * x / c.all } else { 0.0 };
         let (bi, pi) = secondary_tests_per_image_crossing(structure, kind);

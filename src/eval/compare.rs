@@ -375,9 +375,10 @@ pub struct PolicyRun {
     /// Per family ([`family_of`]), sorted by name.
     pub by_family: Vec<(String, PolicyScore)>,
     /// For `calibrated_cv`: per held-out group (scene or family, sorted by name), the ridge chosen inside the
-    /// training records without it ([`fit_ridge_by_cv`]); empty for the other policies.
+    /// training records without it and whether the laws take the crossings ([`fit_ridge_by_cv`]); empty for the
+    /// other policies.
     #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub ridges: Vec<(String, f64)>,
+    pub ridges: Vec<(String, f64, bool)>,
 }
 
 /// The selection against four baselines (see [`compare_baselines`]).
@@ -432,28 +433,33 @@ fn held_out_choices(
 /// in `docs/cost-model.md`).
 pub const CV_RIDGES: [f64; 6] = [crate::cost::RIDGE, 0.2, 1.0, 5.0, 20.0, 100.0];
 
-/// A model whose ridge was chosen by cross-validation inside its own training samples ([`fit_ridge_by_cv`]).
+/// A model whose ridge (and whether its laws take the crossings) was chosen by cross-validation inside its own
+/// training samples ([`fit_ridge_by_cv`]).
 #[derive(Clone, Debug)]
 pub struct CvFit {
-    /// The model, fitted on all the samples with [`CvFit::ridge`].
+    /// The model, fitted on all the samples with [`CvFit::ridge`] and [`CvFit::crossings`].
     pub model: CostModel,
-    /// The chosen ridge: the one of [`CV_RIDGES`] with the least mean held-out regret (ties: the smaller).
+    /// The chosen ridge, one of [`CV_RIDGES`].
     pub ridge: f64,
+    /// Whether the chosen laws take the crossings ([`CostModel::fit_with`]).
+    pub crossings: bool,
     /// `family` or `scene`: the groups held out in turn.
     pub groups: &'static str,
-    /// Per ridge of [`CV_RIDGES`], the mean regret of the selections on the held-out groups (infinite when none
-    /// could be scored).
-    pub inner_regret: Vec<(f64, f64)>,
+    /// Per candidate, in the order tried (every ridge of [`CV_RIDGES`] without the crossings, then with them):
+    /// `(ridge, crossings, mean regret of the selections on the held-out groups)`, the regret infinite when none
+    /// could be scored.
+    pub inner_regret: Vec<(f64, bool, f64)>,
 }
 
-/// Fits the calibrated model with the ridge chosen inside `samples` alone: for every ridge of [`CV_RIDGES`], each
+/// Fits the calibrated model with its ridge, and whether its test-count laws take the crossings, chosen inside
+/// `samples` alone: for every candidate (each ridge of [`CV_RIDGES`], without the crossings and with them), each
 /// group of samples is held out in turn (its family when the samples span at least 3 families ([`family_of`]),
-/// else its scene), a model with that ridge is fitted on the others and selects (tie margin `tie_margin`) on the
-/// held-out group; the ridge whose held-out selections have the least mean regret is kept and the model refitted
-/// on all the samples with it. With fewer than two groups nothing can be held out and the ridge is
-/// [`crate::cost::RIDGE`]. Nothing outside `samples` is read, so wrapped in another hold-out (as
-/// [`compare_baselines`] does) the held-out scene or family never sees its own records, the ridge's choice
-/// included.
+/// else its scene), a model is fitted on the others and selects (tie margin `tie_margin`) on the held-out group;
+/// the candidate whose held-out selections have the least mean regret is kept (on a tie the first tried: the
+/// smaller ridge, and without the crossings before with them) and the model refitted on all the samples with it.
+/// With fewer than two groups nothing can be held out and the model is [`CostModel::fit`]'s. Nothing outside
+/// `samples` is read, so wrapped in another hold-out (as [`compare_baselines`] does) the held-out scene or family
+/// never sees its own records, the choice included.
 pub fn fit_ridge_by_cv(samples: &[Sample], device: &str, source: &str, tie_margin: f64) -> Result<CvFit, CostError> {
     let mut families: Vec<String> = samples.iter().map(|s| family_of(&s.scene)).collect();
     families.sort();
@@ -461,29 +467,32 @@ pub fn fit_ridge_by_cv(samples: &[Sample], device: &str, source: &str, tie_margi
     let by_family = families.len() >= 3;
     let groups = if by_family { "family" } else { "scene" };
     let key = |s: &Sample| if by_family { family_of(&s.scene) } else { s.scene.clone() };
-    let mut distinct: Vec<String> = samples.iter().map(&key).collect();
+    let mut distinct: Vec<String> = samples.iter().map(key).collect();
     distinct.sort();
     distinct.dedup();
     let mut inner_regret = Vec::new();
     if distinct.len() >= 2 {
-        for r in CV_RIDGES {
-            let fit = |t: &[Sample]| CostModel::fit_with_ridge(t, device, "cross-validation", r);
-            let choices = held_out_choices(samples, &key, &fit, tie_margin, true);
-            let sc = score(samples.iter().zip(&choices).map(|(s, c)| (s, *c)));
-            inner_regret.push((r, if sc.scored > 0 { sc.mean_regret } else { f64::INFINITY }));
+        for crossings in [false, true] {
+            for r in CV_RIDGES {
+                let fit = |t: &[Sample]| CostModel::fit_with(t, device, "cross-validation", r, crossings);
+                let choices = held_out_choices(samples, &key, &fit, tie_margin, true);
+                let sc = score(samples.iter().zip(&choices).map(|(s, c)| (s, *c)));
+                inner_regret.push((r, crossings, if sc.scored > 0 { sc.mean_regret } else { f64::INFINITY }));
+            }
         }
     }
-    let ridge = inner_regret
+    let (ridge, crossings) = inner_regret
         .iter()
-        .filter(|x| x.1.is_finite())
-        .fold(None, |b: Option<(f64, f64)>, &x| match b {
-            Some(b) if b.1 <= x.1 => Some(b),
+        .filter(|x| x.2.is_finite())
+        .fold(None, |b: Option<(f64, bool, f64)>, &x| match b {
+            Some(b) if b.2 <= x.2 => Some(b),
             _ => Some(x),
         })
-        .map_or(crate::cost::RIDGE, |b| b.0);
-    let source = format!("{source}, ridge {ridge} by leave-one-{groups}-out");
-    let model = CostModel::fit_with_ridge(samples, device, &source, ridge)?;
-    Ok(CvFit { model, ridge, groups, inner_regret })
+        .map_or((crate::cost::RIDGE, false), |b| (b.0, b.1));
+    let with = if crossings { ", with the crossings" } else { "" };
+    let source = format!("{source}, ridge {ridge}{with} by leave-one-{groups}-out");
+    let model = CostModel::fit_with(samples, device, &source, ridge, crossings)?;
+    Ok(CvFit { model, ridge, crossings, groups, inner_regret })
 }
 
 /// Per workload, the structure with the least mean regret over the samples of that workload (ties: the first in
@@ -589,7 +598,7 @@ pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> B
         let cv = |t: &[Sample]| {
             let fit = fit_ridge_by_cv(t, device, "held out, ridge by cross-validation", tie_margin)?;
             for g in all.iter().filter(|g| !t.iter().any(|s| group(s) == **g)) {
-                ridges.borrow_mut().push((g.clone(), fit.ridge));
+                ridges.borrow_mut().push((g.clone(), fit.ridge, fit.crossings));
             }
             Ok(fit.model)
         };
