@@ -22,6 +22,10 @@
 //! (device independent); `a_s, b_s, c_s` are the device's constants. The physical reading: builds are linear to
 //! `n log n`; a ray's cost is its node visits and its triangle tests, each at a device-specific price; the counts
 //! grow with `ln n` for hierarchies and with triangles per cell for a grid, and shrink where space is empty.
+//! A calibration fitted with views adds the camera's features to `phi` ([`ViewFeatures`]); one fitted with the
+//! crossings ([`CostModel::fit_with`]) adds `ln(1 + crossings)` ([`crossings_feature`]: the triangle boxes a ray
+//! crosses) with coefficients of its own; and the predictions take each count at least at its overlap floor
+//! ([`overlap_floor`]) when the caller gives one.
 //!
 //! # Fit
 //!
