@@ -20,7 +20,7 @@ pub struct GridOptions {
     /// Cell references always allowed, however few the triangles (default `2^25`, 128 MiB of references): see
     /// [`GridOptions::reference_budget`].
     pub min_reference_budget: usize,
-    /// Largest size of the grid in bytes, as [`AccelStructure::memory_bytes`] counts it (cell starts, references,
+    /// Largest size of the grid in bytes, as [`crate::accel::AccelStructure::memory_bytes`] counts it (cell starts, references,
     /// triangle records); default 4 GiB. A larger grid fails with [`AccelError::OverBudget`] before its reference
     /// array is allocated.
     pub max_bytes: usize,

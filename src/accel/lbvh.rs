@@ -71,7 +71,7 @@ impl Default for LbvhOptions {
 pub const MAX_COLLAPSE_LEAF: u32 = 64;
 
 /// Morton codes of docs/spec.md for every triangle, in mesh order ([`crate::keys::morton_codes`] over the keys of
-/// the mesh, computed once). The mesh must be valid (see [`prepare`]).
+/// the mesh, computed once). The mesh must be valid (see [`crate::accel::prepare`]).
 pub fn morton_codes(mesh: &Mesh, bits: MortonBits, structure: &'static str) -> Result<Vec<u64>, AccelError> {
     let n = mesh.triangle_count();
     if n == 0 {
