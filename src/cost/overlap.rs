@@ -135,16 +135,15 @@ impl Crossings {
     /// ([`Crossings::with_view`]; `None`: the framing camera of the mesh's box, what the policy assumes without a
     /// camera). [`crate::select::BuildBounds::of_mesh_viewed`] records the same.
     pub fn of_mesh_viewed(mesh: &Mesh, camera: Option<&Camera>) -> Crossings {
-        let boxes: Vec<(Aabb, bool)> = (0..mesh.triangle_count())
+        let (boxes, degenerate): (Vec<Aabb>, Vec<bool>) = (0..mesh.triangle_count())
             .map(|i| {
                 let v = mesh.triangle(i);
                 (Aabb::of_triangle(&v), crate::geom::Triangle::new(&v).is_degenerate())
             })
-            .collect();
-        let scene = boxes.iter().fold(Aabb::EMPTY, |a, (b, _)| a.union(b));
-        let c = Crossings::of(mesh, boxes.iter().copied(), &scene);
-        let only: Vec<Aabb> = boxes.into_iter().map(|(b, _)| b).collect();
-        c.viewed_from(&only, &scene, camera)
+            .unzip();
+        let scene = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
+        let c = Crossings::of(mesh, boxes.iter().copied().zip(degenerate), &scene);
+        c.viewed_from(&boxes, &scene, camera)
     }
 
     /// [`Crossings::of_mesh_viewed`] from the framing camera.

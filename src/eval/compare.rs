@@ -401,14 +401,18 @@ impl Baselines {
     }
 }
 
+/// A fit for [`held_out_choices`]: the held-out group's name and the other samples, to a model.
+type GroupFit<'a> = dyn Fn(&str, &[Sample]) -> Result<CostModel, CostError> + 'a;
+
 /// Selections of a model fitted without each group (`group` of a sample: its scene or its family) on the samples
-/// of that group; `None` where the fit failed or the model predicts nothing.
+/// of that group (`fit` gets the group's name and the other samples); `None` where the fit failed or the model
+/// predicts nothing.
 /// `geometric`: whether the predictions take the scene's overlap floor ([`Sample::predict`]); the size-only model
 /// must not, as the floor reads the geometry.
 fn held_out_choices(
     samples: &[Sample],
     group: &dyn Fn(&Sample) -> String,
-    fit: &dyn Fn(&[Sample]) -> Result<CostModel, CostError>,
+    fit: &GroupFit<'_>,
     tie_margin: f64,
     geometric: bool,
 ) -> Vec<Option<StructureName>> {
@@ -419,7 +423,7 @@ fn held_out_choices(
     let mut out = vec![None; samples.len()];
     for g in &groups {
         let train: Vec<Sample> = samples.iter().zip(&keys).filter(|(_, k)| *k != g).map(|(s, _)| s.clone()).collect();
-        let Ok(model) = fit(&train) else { continue };
+        let Ok(model) = fit(g, &train) else { continue };
         for (i, smp) in samples.iter().enumerate().filter(|(i, _)| keys[*i] == *g) {
             let preds = if geometric { smp.predict(&model) } else { model.predict(&smp.features, &smp.workload) };
             out[i] = choose(&preds, tie_margin);
@@ -474,7 +478,7 @@ pub fn fit_ridge_by_cv(samples: &[Sample], device: &str, source: &str, tie_margi
     if distinct.len() >= 2 {
         for crossings in [false, true] {
             for r in CV_RIDGES {
-                let fit = |t: &[Sample]| CostModel::fit_with(t, device, "cross-validation", r, crossings);
+                let fit = |_: &str, t: &[Sample]| CostModel::fit_with(t, device, "cross-validation", r, crossings);
                 let choices = held_out_choices(samples, &key, &fit, tie_margin, true);
                 let sc = score(samples.iter().zip(&choices).map(|(s, c)| (s, *c)));
                 inner_regret.push((r, crossings, if sc.scored > 0 { sc.mean_regret } else { f64::INFINITY }));
@@ -571,8 +575,8 @@ pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> B
         samples.iter().zip(&families).map(|(s, f)| (s.scene.as_str(), f.as_str())).collect();
     let scene = |s: &Sample| s.scene.clone();
     let family = |s: &Sample| fam_of.get(s.scene.as_str()).map_or_else(String::new, |f| f.to_string());
-    let full = |t: &[Sample]| CostModel::fit(t, device, "held out");
-    let size = |t: &[Sample]| CostModel::fit_size_only(t, device, "held out, size only");
+    let full = |_: &str, t: &[Sample]| CostModel::fit(t, device, "held out");
+    let size = |_: &str, t: &[Sample]| CostModel::fit_size_only(t, device, "held out, size only");
     let mut distinct = families.clone();
     distinct.sort();
     distinct.dedup();
@@ -589,17 +593,12 @@ pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> B
     if distinct.len() > 1 {
         policies.push(run("calibrated", "family_out", held_out_choices(samples, &family, &full, tie_margin, true)));
     }
-    // The ridge each fit chose, under the name of the group its training records lack.
+    // The ridge each fit chose, under the name of the group it was fitted without.
     let cv_run = |holdout: &str, group: &dyn Fn(&Sample) -> String| -> PolicyRun {
-        let mut all: Vec<String> = samples.iter().map(group).collect();
-        all.sort();
-        all.dedup();
         let ridges = std::cell::RefCell::new(Vec::new());
-        let cv = |t: &[Sample]| {
+        let cv = |g: &str, t: &[Sample]| {
             let fit = fit_ridge_by_cv(t, device, "held out, ridge by cross-validation", tie_margin)?;
-            for g in all.iter().filter(|g| !t.iter().any(|s| group(s) == **g)) {
-                ridges.borrow_mut().push((g.clone(), fit.ridge, fit.crossings));
-            }
+            ridges.borrow_mut().push((g.to_string(), fit.ridge, fit.crossings));
             Ok(fit.model)
         };
         let choices = held_out_choices(samples, group, &cv, tie_margin, true);
@@ -609,7 +608,7 @@ pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> B
     if distinct.len() > 1 {
         policies.push(cv_run("family_out", &family));
     }
-    let ins: Vec<Option<StructureName>> = match full(samples) {
+    let ins: Vec<Option<StructureName>> = match CostModel::fit(samples, device, "held out") {
         Ok(m) => samples.iter().map(|s| choose(&s.predict(&m), tie_margin)).collect(),
         Err(_) => vec![None; samples.len()],
     };
