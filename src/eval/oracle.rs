@@ -724,8 +724,9 @@ pub struct SceneEvaluation {
     /// Rays that hit something in the reference (closest-hit workloads) or were occluded (any-hit), over every
     /// measured frame.
     pub reference_hits: u64,
-    /// Why no best structure is named, when none is (the reference finds no hit: every structure's trace is a miss
-    /// and measures no intersection work, so the totals cannot rank structures for this workload).
+    /// Why no best structure is named, when none is: the workload traces no ray (secondary rays of a camera whose
+    /// primary rays all miss), so the totals are builds alone. Rays that all miss (`reference_hits` 0) still rank
+    /// the structures: a miss costs every node and cell the ray visits on its way out.
     pub no_best_reason: Option<String>,
     /// Where the rays were traced.
     pub trace_backend: TraceBackend,
@@ -1432,11 +1433,14 @@ pub fn evaluate_scene_on(
             }
         })
         .collect();
-    let no_best_reason = (reference_hits == 0).then(|| {
-        format!(
-            "the reference finds no hit on any of the {rays_total} rays: every trace is a miss and measures no \
-             intersection work, so no structure is named best"
-        )
+    // Rays that all miss still measure work (a ray that hits nothing visits every node and cell on its way out:
+    // zero-area triangles, coordinates where the f32 test finds no hit), so they rank the structures as any other
+    // rays do; a workload that traces no ray at all (secondary rays of a camera that sees nothing) leaves the
+    // builds alone, which rank nothing for tracing.
+    let no_best_reason = (rays_total == 0).then(|| {
+        "the workload traces no ray (no primary ray hits the scene, so there are no secondary rays): the totals are \
+         builds alone, so no structure is named best"
+            .to_string()
     });
     let best = results
         .iter()

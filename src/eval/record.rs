@@ -231,7 +231,7 @@ pub struct OracleRecord {
     pub frames_measured: usize,
     /// Scene name (the path it was loaded from).
     pub mesh: String,
-    /// Why no best structure is named (the reference finds no hit), when none is.
+    /// Why no best structure is named (the workload traces no ray), when none is.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub no_best_reason: Option<String>,
     /// The structure with the smallest median total.
