@@ -780,10 +780,24 @@ mod compile {
         s
     }
 
+    /// Host alignments above the fields' own, by struct name: a BVH node (32 bytes) aligned to 32 never straddles
+    /// two 64-byte cache lines, so a traversal step reads one line instead of two; with the allocator's 16-byte
+    /// alignment half the nodes of an array straddle one (measured: 12% of the CPU trace time on Sponza, one
+    /// thread). The device layout is unchanged (the size is a multiple of the alignment: no padding).
+    const HOST_ALIGN: &[(&str, u32)] = &[("BvhNode", 32)];
+
     /// Emits a `#[repr(C)]` struct and its `PushConstants` impl.
     fn emit_struct(out: &mut String, indent: &str, rust_name: &str, doc: &str, layout: &Layout) {
         doc_lines(out, indent, doc);
-        let _ = writeln!(out, "{indent}#[repr(C)]");
+        match HOST_ALIGN.iter().find(|(name, _)| *name == rust_name) {
+            Some(&(_, align)) => {
+                assert!(layout.size % align == 0, "{rust_name}: size {} is no multiple of {align}", layout.size);
+                let _ = writeln!(out, "{indent}#[repr(C, align({align}))]");
+            }
+            None => {
+                let _ = writeln!(out, "{indent}#[repr(C)]");
+            }
+        }
         let default = if layout.default { "Default, " } else { "" };
         let _ = writeln!(
             out,

@@ -45,7 +45,8 @@ pub const LEAF_FLAG: u32 = crate::gpu::shaders::layout::BVH_LEAF_FLAG;
 pub use crate::gpu::shaders::BvhNode;
 
 const _: () = assert!(std::mem::size_of::<BvhNode>() == 32);
-const _: () = assert!(std::mem::align_of::<BvhNode>() == 4);
+// 32: a node never straddles two cache lines (see `HOST_ALIGN` in build.rs).
+const _: () = assert!(std::mem::align_of::<BvhNode>() == 32);
 
 impl BvhNode {
     /// An internal node.

@@ -125,7 +125,7 @@ const _: () = assert!(std::mem::size_of::<BihNode>() == 12);
 
 /// `struct BvhNode` of `glsl/include/bvh.glsl` (in the shaders bvh_collapse_cost, bvh_compact, bvh_leaves, bvh_parents,
 /// hlbvh_roots, hlbvh_scan, hlbvh_top, lbvh_karras, trace).
-#[repr(C)]
+#[repr(C, align(32))]
 #[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct BvhNode {
     /// Lower corner of the box. `vec3` at byte 0.
