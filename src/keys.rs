@@ -335,9 +335,11 @@ pub fn quantize(s: [f32; 3], lo: [f32; 3], scale: [f32; 3], bits: MortonBits) ->
     let top = ((1u32 << bits.per_axis()) - 1) as f32;
     let mut q = [0u32; 3];
     for a in 0..3 {
-        let v = ((s[a] - lo[a]) * scale[a]).floor().min(top);
-        // v is in [0, 2^b - 1]: (s - lo) >= 0 and scale >= 0, and both are finite for validated input.
-        q[a] = v as u32;
+        // `(x).min(top) as u32` is `floor(x).min(top) as u32` for every x: the cast truncates towards zero, which is
+        // the floor for x >= 0, and saturates at 0 below 1 where the floor's result would too (a NaN gives `top`
+        // both ways, through `min`). It spares the floor, a library call on x86-64 without SSE4.1 (an eighth of the
+        // Morton codes' time). x is in [0, 2^b - 1] anyway: (s - lo) >= 0, scale >= 0, finite for validated input.
+        q[a] = ((s[a] - lo[a]) * scale[a]).min(top) as u32;
     }
     q
 }

@@ -213,6 +213,10 @@ fn combine(axis: usize, clip: [f32; 2], l: Sub, r: Sub) -> Sub {
 impl Bih {
     /// Builds with explicit options.
     pub fn build_with(mesh: &Mesh, o: &BihOptions) -> Result<Self, AccelError> {
+        crate::in_pool(|| Self::build_here(mesh, o))
+    }
+
+    fn build_here(mesh: &Mesh, o: &BihOptions) -> Result<Self, AccelError> {
         let (tris, boxes) = prepare(mesh, "bih")?;
         if tris.is_empty() {
             return Ok(Bih::default());

@@ -84,6 +84,10 @@ pub fn grid_resolution(bounds: &Aabb, n: usize, o: &GridOptions) -> (Aabb, [u32;
 impl Grid {
     /// Builds with explicit options.
     pub fn build_with(mesh: &Mesh, o: &GridOptions) -> Result<Self, AccelError> {
+        crate::in_pool(|| Self::build_here(mesh, o))
+    }
+
+    fn build_here(mesh: &Mesh, o: &GridOptions) -> Result<Self, AccelError> {
         let (tris, boxes) = prepare(mesh, "grid")?;
         let n = tris.len();
         if n == 0 {

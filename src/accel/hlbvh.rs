@@ -287,6 +287,10 @@ pub(crate) fn top_tree(
 impl Hlbvh {
     /// Builds with explicit options.
     pub fn build_with(mesh: &Mesh, o: &HlbvhOptions) -> Result<Self, AccelError> {
+        crate::in_pool(|| Self::build_here(mesh, o))
+    }
+
+    fn build_here(mesh: &Mesh, o: &HlbvhOptions) -> Result<Self, AccelError> {
         let (tris, boxes) = prepare(mesh, "hlbvh")?;
         let codes = morton_codes(mesh, o.bits, "hlbvh")?;
         let keys = sorted_keys(&codes);

@@ -548,6 +548,10 @@ fn concat(segments: Vec<Built>) -> Built {
 impl KdTree {
     /// Builds with explicit options.
     pub fn build_with(mesh: &Mesh, o: &KdOptions) -> Result<Self, AccelError> {
+        crate::in_pool(|| Self::build_here(mesh, o))
+    }
+
+    fn build_here(mesh: &Mesh, o: &KdOptions) -> Result<Self, AccelError> {
         let (mut tris, mut boxes) = prepare(mesh, "kdtree")?;
         let n = tris.len();
         if n == 0 {

@@ -370,6 +370,10 @@ pub struct Lbvh {
 impl Lbvh {
     /// Builds with explicit options.
     pub fn build_with(mesh: &Mesh, o: &LbvhOptions) -> Result<Self, AccelError> {
+        crate::in_pool(|| Self::build_here(mesh, o))
+    }
+
+    fn build_here(mesh: &Mesh, o: &LbvhOptions) -> Result<Self, AccelError> {
         check_mesh(mesh, "lbvh")?;
         let codes = morton_codes(mesh, o.bits, "lbvh")?;
         let keys = sorted_keys(&codes);

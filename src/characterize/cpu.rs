@@ -1125,8 +1125,12 @@ pub fn fast_with(mesh: &Mesh, params: &Params, scratch: &mut Scratch) -> Result<
     run_fast(mesh, params, Some(scratch))
 }
 
-/// [`fast`] and [`fast_with`].
+/// [`fast`] and [`fast_with`], as one job of the thread pool ([`crate::in_pool`]).
 fn run_fast(mesh: &Mesh, params: &Params, scratch: Option<&mut Scratch>) -> Result<Characterization, CharError> {
+    crate::in_pool(|| run_fast_here(mesh, params, scratch))
+}
+
+fn run_fast_here(mesh: &Mesh, params: &Params, scratch: Option<&mut Scratch>) -> Result<Characterization, CharError> {
     let start = Instant::now();
     params.validate()?;
     let stride = params.sample_stride as usize;

@@ -778,6 +778,10 @@ pub struct Bvh {
 impl Bvh {
     /// Builds with explicit options.
     pub fn build_with(mesh: &Mesh, options: &BvhOptions) -> Result<Self, AccelError> {
+        crate::in_pool(|| Self::build_here(mesh, options))
+    }
+
+    fn build_here(mesh: &Mesh, options: &BvhOptions) -> Result<Self, AccelError> {
         let (tris, boxes) = prepare(mesh, "bvh")?;
         let (mut nodes, order, copies) = build_sah_tree(&boxes, options, Some(&mesh.indices));
         super::reinsert::reinsert(&mut nodes, options.reinsertion, REINSERTION_ROUNDS);
