@@ -380,6 +380,27 @@ pub fn morton(q: [u32; 3], bits: MortonBits) -> u64 {
 mod tests {
     use super::*;
 
+    #[test]
+    fn quantize_equals_the_floor_it_no_longer_calls() {
+        // The saturating cast of min(x, top) is floor(x).min(top) as u32 for every x, the edges included.
+        let mut xs = vec![0.0f32, -0.0, 0.5, 0.999_999_9, 1.0, 1.5, -0.5, -1.0, -1.5, -1e30, 1e30, f32::NAN];
+        xs.extend([f32::INFINITY, f32::NEG_INFINITY, f32::MIN_POSITIVE, -f32::MIN_POSITIVE, 1023.5, 1024.0, 2097150.5]);
+        let mut seed = 11u64;
+        for _ in 0..100_000 {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            xs.push(f32::from_bits((seed >> 32) as u32));
+        }
+        for bits in [MortonBits::Bits30, MortonBits::Bits63] {
+            let t = ((1u32 << bits.per_axis()) - 1) as f32;
+            for &x in &xs {
+                // With lo = 0 and scale = 1 the quantizer sees x itself ((x - 0) * 1 is x, -0 included).
+                let want = x.floor().min(t) as u32;
+                let got = quantize([x; 3], [0.0; 3], [1.0; 3], bits);
+                assert_eq!(got, [want; 3], "x {x:e} ({:#x}), {bits:?}", x.to_bits());
+            }
+        }
+    }
+
     fn morton_slow(q: [u32; 3], b: u32) -> u64 {
         let mut m = 0u64;
         for i in 0..b {
