@@ -853,3 +853,52 @@ fn a_fit_with_the_crossings_reads_them_and_one_without_ignores_them() {
     assert_eq!(crossings_feature(WorkloadKind::Diffuse, None), 0.0);
     assert_eq!(meshchar::cost::overlap_floor(StructureName::Bvh, WorkloadKind::Diffuse, c).crossings, 30.0);
 }
+
+#[test]
+fn a_caller_without_a_count_reads_the_calibrations_mean_of_the_crossings() {
+    use meshchar::cost::{RayCrossings, TestFloor};
+    let (mut samples, _) = known_samples(60);
+    for (i, s) in samples.iter_mut().enumerate() {
+        let x = [0.0, 3.0, 40.0, 700.0, 9.0][i % 5] * (1.0 + (i % 7) as f64);
+        s.crossings = Some(RayCrossings { all: x, distinct: x, nondegenerate: x, image: 0.0 });
+        for m in s.measured.iter_mut() {
+            m.box_tests_per_ray *= (1.0 + x).powf(0.7);
+        }
+    }
+    let with = CostModel::fit_with(&samples, "test", "synthetic", meshchar::cost::RIDGE, true).unwrap();
+    // The mean of ln(1 + crossings) per kind over the samples of that kind (every structure is valid in each here).
+    for (k, kind) in [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse].into_iter().enumerate() {
+        let v: Vec<f64> = samples
+            .iter()
+            .filter(|s| s.workload.kind == kind)
+            .map(|s| (1.0 + meshchar::cost::crossings_feature(kind, s.crossings)).ln())
+            .collect();
+        let want = v.iter().sum::<f64>() / v.len() as f64;
+        for st in &with.structures {
+            assert!((st.crossing_mean[k] - want).abs() < 1e-12, "{} {kind:?}: {:?}", st.structure, st.crossing_mean);
+        }
+    }
+    // Without a count (no floor given, or none known) a prediction reads that mean: the same as a count of e^mean - 1.
+    let (f, w) = (&samples[0].features, &samples[0].workload);
+    let k = match w.kind {
+        WorkloadKind::Primary => 0,
+        WorkloadKind::Shadow => 1,
+        WorkloadKind::Diffuse => 2,
+    };
+    let typical = with.structures[0].crossing_mean[k].exp() - 1.0;
+    let at = |m: &CostModel, x: f64| {
+        m.predict_floored(f, w, &|_| TestFloor { crossings: x, ..TestFloor::default() })[0].box_tests_per_ray
+    };
+    let unknown = with.predict(f, w)[0].box_tests_per_ray;
+    assert!((unknown / at(&with, typical) - 1.0).abs() < 1e-9, "{unknown} against {}", at(&with, typical));
+    assert_eq!(at(&with, f64::NAN), unknown);
+    assert!(TestFloor::default().crossings.is_nan());
+    assert!(meshchar::cost::overlap_floor(StructureName::Bvh, w.kind, None).crossings.is_nan());
+    // A file written before the means (none) reads an unknown count as 0, as it did.
+    let mut old = with.clone();
+    old.structures.iter_mut().for_each(|s| s.crossing_mean.clear());
+    assert_eq!(old.predict(f, w)[0].box_tests_per_ray, at(&with, 0.0));
+    // A model without crossing coefficients has no means and ignores the count.
+    let without = CostModel::fit_with(&samples, "test", "synthetic", meshchar::cost::RIDGE, false).unwrap();
+    assert!(without.structures.iter().all(|s| s.crossing_mean.is_empty()));
+}

@@ -511,3 +511,33 @@ fn crossing_coefficients_are_none_or_two_in_range_and_round_trip() {
         Some(StructureName::Grid),
     );
 }
+
+#[test]
+fn crossing_means_are_none_or_three_in_range_and_only_with_coefficients() {
+    let mut m = shipped();
+    m.structures[2].crossing_coef = vec![0.5, -0.25];
+    m.structures[2].crossing_mean = vec![1.5, 2.0, 0.0];
+    let back = CostModel::from_json(&m.to_json()).unwrap();
+    assert_eq!(back.structures[2].crossing_mean, vec![1.5, 2.0, 0.0]);
+    assert!(!shipped().to_json().contains("crossing_mean"));
+    // Two, or four: an error naming the field; a negative or a huge mean names the value.
+    for bad in [json!([1.0, 1.0]), json!([1.0, 1.0, 1.0, 1.0])] {
+        let e = CostModel::from_json(&{
+            let mut v: serde_json::Value = serde_json::from_str(&m.to_json()).unwrap();
+            v["structures"][2]["crossing_mean"] = bad.clone();
+            v.to_string()
+        })
+        .unwrap_err();
+        assert_invalid(&e, "structures[2] (grid).crossing_mean", Some(StructureName::Grid));
+    }
+    for (j, bad) in [(0, -0.5), (2, 46.0)] {
+        let mut b = m.clone();
+        b.structures[2].crossing_mean[j] = bad;
+        let name = ["primary", "shadow", "diffuse"][j];
+        let field = format!("structures[2] (grid).crossing_mean[{j}] ({name})");
+        assert_invalid(&b.validate().unwrap_err(), &field, Some(StructureName::Grid));
+    }
+    // Means without coefficients: refused, a model without them reads no count.
+    let e = refused(|v| v["structures"][2]["crossing_mean"] = json!([1.0, 1.0, 1.0]));
+    assert_invalid(&e, "structures[2] (grid).crossing_mean", Some(StructureName::Grid));
+}

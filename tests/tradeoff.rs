@@ -321,6 +321,7 @@ fn paper_model() -> meshchar::cost::CostModel {
         view_box_coef: Vec::new(),
         view_prim_coef: Vec::new(),
         crossing_coef: Vec::new(),
+        crossing_mean: Vec::new(),
         fit: FitError::default(),
     };
     let m = CostModel {

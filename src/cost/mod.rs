@@ -82,6 +82,9 @@
 //! * `view_box_coef` and `view_prim_coef` are absent or have one coefficient per [`VIEW_FEATURE_NAMES`];
 //!   `crossing_coef` is absent or has two (`box`, `prim`: of `ln(1 + crossings)`, [`crossings_feature`]); each
 //!   of magnitude at most [`COEF_LIMIT`], for the same reason.
+//! * `crossing_mean` is absent, or has three values (primary, shadow, diffuse) when `crossing_coef` is present: the
+//!   calibration's mean `ln(1 + crossings)` per kind, read for a caller without a count; each in `[0, 45]` (a ray
+//!   crosses at most every triangle box, and `ln(1 + 2^64) < 45`).
 //! * `trace_price` has one price per [`PRICE_NAMES`], each `>= 0` (ns per ray or per test: the fit is
 //!   non-negative least squares, and a negative price would make more work cheaper) and at most
 //!   [`PRICE_LIMIT_NS`] (1 ms: the devices in scope pay 1 to 40 ns per test, so a larger price is a unit error),
@@ -282,6 +285,15 @@ pub fn phi(d: &Derived, kind: WorkloadKind) -> Vec<f64> {
     ]
 }
 
+/// Position of a workload kind in per-kind arrays ([`StructureModel::crossing_mean`]): primary, shadow, diffuse.
+fn kind_index(kind: WorkloadKind) -> usize {
+    match kind {
+        WorkloadKind::Primary => 0,
+        WorkloadKind::Shadow => 1,
+        WorkloadKind::Diffuse => 2,
+    }
+}
+
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
@@ -359,6 +371,13 @@ pub struct StructureModel {
     /// [`COEF_LIMIT`]; or none (a calibration fitted without them, [`CostModel::fit_with`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
     pub crossing_coef: Vec<f64>,
+    /// With [`StructureModel::crossing_coef`]: per workload kind (primary, shadow, diffuse), the mean of
+    /// `ln(1 + crossings)` over the calibration's samples of that kind, in `[0, 45]`; what a prediction reads when the
+    /// caller has no count ([`TestFloor::crossings`] NaN: features alone, no mesh), so that it predicts for the
+    /// calibration's typical scene instead of one whose rays cross nothing. Absent in files written before it
+    /// (such a file reads an unknown count as 0).
+    #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
+    pub crossing_mean: Vec<f64>,
     /// Fit errors on the calibration samples.
     pub fit: FitError,
 }
@@ -400,8 +419,12 @@ impl StructureModel {
         let v = w.view.map_or([0.0; 3], |v| v.row());
         let (cb, cp) = match self.crossing_coef[..] {
             [b, p] => {
-                // f64::max ignores a NaN count: it enters as none.
-                let xc = (1.0 + floor.crossings.max(0.0)).ln();
+                // An unknown count (NaN) reads the calibration's mean for the kind (0 in files without one).
+                let xc = if floor.crossings.is_nan() {
+                    self.crossing_mean.get(kind_index(w.kind)).copied().unwrap_or(0.0)
+                } else {
+                    (1.0 + floor.crossings.max(0.0)).ln()
+                };
                 (b * xc, p * xc)
             }
             _ => (0.0, 0.0),
@@ -711,8 +734,9 @@ impl CostModel {
     /// [`CostModel::fit_with_ridge`], and with `crossings` the test-count laws also take `ln(1 + crossings)`
     /// ([`StructureModel::crossing_coef`]) from each sample's [`Sample::crossings`] (none counts as 0): the
     /// triangle boxes a ray of the workload crosses ([`TestFloor::crossings`]), which the predictions then read
-    /// from the floor they are given ([`CostModel::predict_floored`]; [`CostModel::predict`] gives none, so such a
-    /// model predicts as for a scene whose rays cross nothing).
+    /// from the floor they are given ([`CostModel::predict_floored`]). A caller without a count ([`CostModel::predict`],
+    /// a floor of [`TestFloor::default`]) gets the samples' mean per workload kind
+    /// ([`StructureModel::crossing_mean`]).
     pub fn fit_with(
         samples: &[Sample],
         device: &str,
@@ -953,6 +977,17 @@ fn check_structure(i: usize, s: &StructureModel) -> Result<(), CostError> {
     for (j, (&c, f)) in s.crossing_coef.iter().zip(["box", "prim"]).enumerate() {
         check_number(st, at(&format!("crossing_coef[{j}] ({f})")), c, -COEF_LIMIT..=COEF_LIMIT, "a coefficient")?;
     }
+    if !s.crossing_mean.is_empty() && (s.crossing_coef.is_empty() || s.crossing_mean.len() != 3) {
+        let why = if s.crossing_coef.is_empty() {
+            "present without crossing_coef: a model without crossing coefficients reads no count".to_string()
+        } else {
+            format!("{} means, expected none or three (primary, shadow, diffuse)", s.crossing_mean.len())
+        };
+        return Err(invalid(st, at("crossing_mean"), why));
+    }
+    for (j, (&c, f)) in s.crossing_mean.iter().zip(["primary", "shadow", "diffuse"]).enumerate() {
+        check_number(st, at(&format!("crossing_mean[{j}] ({f})")), c, 0.0..=45.0, "a mean of ln(1 + crossings)")?;
+    }
     if s.trace_price.len() != PRICE_NAMES.len() {
         return Err(invalid(
             st,
@@ -1034,6 +1069,25 @@ fn fit_structure(
     let crossing_box = if crossings { box_coef.pop() } else { None };
     let crossing_prim = if crossings { prim_coef.pop() } else { None };
     let crossing_coef: Vec<f64> = crossing_box.into_iter().chain(crossing_prim).collect();
+    // The feature's mean per kind over these rows (all rows for a kind without any), for callers without a count.
+    let crossing_mean: Vec<f64> = if crossings {
+        let feature = |smp: &Sample| (1.0 + overlap::crossings_feature(smp.workload.kind, smp.crossings)).ln();
+        let all = rows.iter().map(|(smp, _)| feature(smp)).sum::<f64>() / rows.len() as f64;
+        [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse]
+            .iter()
+            .map(|&k| {
+                let v: Vec<f64> =
+                    rows.iter().filter(|(smp, _)| smp.workload.kind == k).map(|(smp, _)| feature(smp)).collect();
+                if v.is_empty() {
+                    all
+                } else {
+                    v.iter().sum::<f64>() / v.len() as f64
+                }
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
     let view_box_coef = box_coef.split_off(p);
     let view_prim_coef = prim_coef.split_off(p);
     // Prices.
@@ -1052,6 +1106,7 @@ fn fit_structure(
         view_box_coef,
         view_prim_coef,
         crossing_coef,
+        crossing_mean,
         fit: FitError::default(),
     };
     let (mut eb, mut ebox, mut eprim, mut etc, mut et, mut etot) = (vec![], vec![], vec![], vec![], vec![], vec![]);

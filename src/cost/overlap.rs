@@ -433,16 +433,23 @@ const SHADOW_IMAGE: [(f64, f64); 5] = [(0.074, 0.011), (0.0, 0.011), (0.30, 0.06
 const DIFFUSE_IMAGE: [(f64, f64); 5] = [(0.17, 0.0082), (0.0, 0.0099), (0.37, 0.083), (0.39, 0.0096), (0.24, 0.0094)];
 
 /// Lower bounds on a structure's tests per ray, for [`crate::cost::StructureModel::predict_floored`], and the
-/// crossings they come from.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// crossings they come from. The default floors nothing and knows no crossings (`crossings` NaN).
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TestFloor {
     /// Box tests (node visits) per ray.
     pub box_tests: f64,
     /// Triangle tests per ray.
     pub prim_tests: f64,
-    /// The triangle boxes a ray of the workload crosses ([`crossings_feature`]; 0 without crossings), which a model
-    /// fitted with crossings reads ([`crate::cost::StructureModel::crossing_coef`]).
+    /// The triangle boxes a ray of the workload crosses ([`crossings_feature`]), which a model fitted with crossings
+    /// reads ([`crate::cost::StructureModel::crossing_coef`]); NaN when the caller has no count (no mesh at hand:
+    /// such a model then reads its training records' mean, [`crate::cost::StructureModel::crossing_mean`]).
     pub crossings: f64,
+}
+
+impl Default for TestFloor {
+    fn default() -> Self {
+        TestFloor { box_tests: 0.0, prim_tests: 0.0, crossings: f64::NAN }
+    }
 }
 
 /// The crossings a model fitted with crossings reads for a workload: for primary rays the count of
@@ -461,7 +468,8 @@ pub fn crossings_feature(kind: WorkloadKind, c: Option<RayCrossings>) -> f64 {
 /// triangles' for the binned-SAH BVH, which keeps one of coincident copies; those of non-zero area for the kd-tree,
 /// which stores zero-area triangles as points; all of them for the others); for secondary rays with
 /// [`RayCrossings::image`], the larger of that and the factors of [`secondary_tests_per_image_crossing`] times the
-/// image's count (scaled by the same share of distinct or non-degenerate triangles). Zero without crossings.
+/// image's count (scaled by the same share of distinct or non-degenerate triangles). Without crossings, no floor and
+/// no count ([`TestFloor::default`]).
 pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
     let Some(c) = c else { return TestFloor::default() };
     let crossings = crossings_feature(kind, Some(c));
