@@ -433,8 +433,9 @@ const SHADOW_IMAGE: [(f64, f64); 5] = [(0.074, 0.011), (0.0, 0.011), (0.30, 0.06
 const DIFFUSE_IMAGE: [(f64, f64); 5] = [(0.17, 0.0082), (0.0, 0.0099), (0.37, 0.083), (0.39, 0.0096), (0.24, 0.0094)];
 
 /// Lower bounds on a structure's tests per ray, for [`crate::cost::StructureModel::predict_floored`], and the
-/// crossings they come from. The default floors nothing and knows no crossings (`crossings` NaN).
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// crossings they come from. The default floors nothing and knows no crossings (`crossings` NaN; two unknown counts
+/// are equal).
+#[derive(Clone, Copy, Debug)]
 pub struct TestFloor {
     /// Box tests (node visits) per ray.
     pub box_tests: f64,
@@ -449,6 +450,13 @@ pub struct TestFloor {
 impl Default for TestFloor {
     fn default() -> Self {
         TestFloor { box_tests: 0.0, prim_tests: 0.0, crossings: f64::NAN }
+    }
+}
+
+impl PartialEq for TestFloor {
+    fn eq(&self, o: &Self) -> bool {
+        let same_count = self.crossings == o.crossings || (self.crossings.is_nan() && o.crossings.is_nan());
+        self.box_tests == o.box_tests && self.prim_tests == o.prim_tests && same_count
     }
 }
 
