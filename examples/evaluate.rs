@@ -493,23 +493,35 @@ fn print_baselines(b: &meshchar::eval::compare::Baselines) {
         f.join(", ")
     });
     println!(
-        "{:<34} {:>6} {:>6} {:>9} {:>12} {:>12} {:>12}  worst at",
-        "policy (how fitted)", "scored", "failed", "accuracy", "within noise", "mean regret", "worst regret"
+        "{:<34} {:>6} {:>6} {:>9} {:>12} {:>12} {:>12} {:>12}  worst at",
+        "policy (how fitted)",
+        "scored",
+        "failed",
+        "accuracy",
+        "within noise",
+        "mean regret",
+        "beyond noise",
+        "worst regret"
     );
     for p in &b.policies {
         let s = &p.overall;
         println!(
-            "{:<34} {:>6} {:>6} {:>8.1}% {:>11.1}% {:>11.1}% {:>11.1}%  {}",
+            "{:<34} {:>6} {:>6} {:>8.1}% {:>11.1}% {:>11.1}% {:>11.1}% {:>11.1}%  {}",
             format!("{} ({})", p.policy, p.holdout),
             s.scored,
             s.failed,
             100.0 * s.accuracy,
             100.0 * s.within_noise,
             100.0 * s.mean_regret,
+            100.0 * s.mean_regret_beyond_noise,
             100.0 * s.worst_regret,
             s.worst
         );
     }
+    println!(
+        "(beyond noise: the regret the 95% intervals vouch for, 0 where the selection's interval overlaps the \
+         best's; the raw regret where a record has no intervals)"
+    );
     for p in b.policies.iter().filter(|p| !p.ridges.is_empty()) {
         // "20" or "20+x" (with the crossings), per group or counted.
         let name = |r: f64, x: bool| format!("{r}{}", if x { "+x" } else { "" });

@@ -161,6 +161,7 @@ fn known_samples_with_rays(count: u64, rays: impl Fn(u64) -> u64) -> (Vec<Sample
                     box_tests_per_ray: bx,
                     prim_tests_per_ray: pr,
                     within_noise_of_best: false,
+                    total_ms_ci95: None,
                 }
             })
             .collect();
@@ -901,4 +902,35 @@ fn a_caller_without_a_count_reads_the_calibrations_mean_of_the_crossings() {
     // A model without crossing coefficients has no means and ignores the count.
     let without = CostModel::fit_with(&samples, "test", "synthetic", meshchar::cost::RIDGE, false).unwrap();
     assert!(without.structures.iter().all(|s| s.crossing_mean.is_empty()));
+}
+
+#[test]
+fn the_regret_beyond_noise_is_the_gap_between_the_intervals() {
+    let (samples, _) = known_samples(3);
+    let mut smp = samples[0].clone();
+    let best = smp.best().unwrap().structure;
+    let other = smp.measured.iter().find(|m| m.structure != best && m.valid).unwrap().structure;
+    let (tb, to) = (smp.get(best).unwrap().total_ms, smp.get(other).unwrap().total_ms);
+    let raw = smp.regret(other).unwrap();
+    assert!(raw > 0.0);
+    // Without intervals: the raw regret.
+    assert_eq!(smp.regret_beyond_noise(other), Some(raw));
+    let set = |smp: &mut meshchar::cost::Sample, s, ci| {
+        smp.measured.iter_mut().find(|m| m.structure == s).unwrap().total_ms_ci95 = ci
+    };
+    // Overlapping intervals: the measurement cannot tell them apart.
+    set(&mut smp, best, Some([0.9 * tb, to]));
+    set(&mut smp, other, Some([0.99 * to, 1.01 * to]));
+    assert_eq!(smp.regret_beyond_noise(other), Some(0.0));
+    // Apart: the gap, low end of the selection over high end of the best.
+    set(&mut smp, best, Some([0.99 * tb, 1.01 * tb]));
+    let gap = smp.regret_beyond_noise(other).unwrap();
+    assert!((gap - (0.99 * to / (1.01 * tb) - 1.0)).abs() < 1e-12 && gap < raw, "{gap} against {raw}");
+    // The best itself, and a selection with an interval against a best without one.
+    assert_eq!(smp.regret_beyond_noise(best), Some(0.0));
+    set(&mut smp, best, None);
+    assert_eq!(smp.regret_beyond_noise(other), Some(raw));
+    // The policy score averages it beside the raw regret.
+    let score = meshchar::eval::compare::score(std::iter::once((&smp, Some(other))));
+    assert_eq!((score.mean_regret, score.mean_regret_beyond_noise), (raw, raw));
 }

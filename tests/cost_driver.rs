@@ -66,6 +66,7 @@ fn bvh_measured(n: u64) -> Measured {
         box_tests_per_ray: 20.0,
         prim_tests_per_ray: 3.0,
         within_noise_of_best: false,
+        total_ms_ci95: None,
     }
 }
 

@@ -30,6 +30,8 @@ pub struct Measured {
     pub prim_tests_per_ray: f64,
     /// Within noise of the best total.
     pub within_noise_of_best: bool,
+    /// The 95% confidence interval of the median total (ms), when the precise oracle measured it.
+    pub total_ms_ci95: Option<[f64; 2]>,
 }
 
 /// What the oracle measured for one driver structure ([`crate::eval::oracle::DriverResult`]), normalized per build
@@ -109,6 +111,19 @@ impl Sample {
         let best = self.best()?;
         let m = self.get(s).filter(|m| m.valid)?;
         Some(m.total_ms / best.total_ms - 1.0)
+    }
+
+    /// The regret beyond the measurement's noise: how far the lower end of `s`'s 95% interval lies above the upper
+    /// end of the best's, `max(0, low(s) / high(best) - 1)` (0 when the intervals overlap: the measurement cannot
+    /// tell the two apart); [`Sample::regret`] when either has no interval. `None` as [`Sample::regret`].
+    pub fn regret_beyond_noise(&self, s: StructureName) -> Option<f64> {
+        let raw = self.regret(s)?;
+        let best = self.best()?;
+        let m = self.get(s)?;
+        Some(match (m.total_ms_ci95, best.total_ms_ci95) {
+            (Some([lo, _]), Some([_, hi])) if hi > 0.0 && lo.is_finite() && hi.is_finite() => (lo / hi - 1.0).max(0.0),
+            _ => raw,
+        })
     }
 }
 

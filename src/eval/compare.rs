@@ -21,6 +21,10 @@ pub struct PolicyScore {
     pub within_noise: f64,
     /// Mean regret.
     pub mean_regret: f64,
+    /// Mean regret beyond the measurement's noise ([`Sample::regret_beyond_noise`]: 0 where the selection's 95%
+    /// interval overlaps the best's, the gap between the intervals otherwise; the raw regret where a sample has no
+    /// intervals): how much of [`PolicyScore::mean_regret`] the oracle's precision can vouch for.
+    pub mean_regret_beyond_noise: f64,
     /// Worst regret.
     pub worst_regret: f64,
     /// Where the worst regret occurred (`scene (workload)`).
@@ -262,7 +266,7 @@ pub fn compare_candidates(
 /// Scores `(sample, selection)` pairs.
 pub fn score<'a>(pairs: impl Iterator<Item = (&'a Sample, Option<StructureName>)>) -> PolicyScore {
     let mut s = PolicyScore::default();
-    let (mut hit, mut near, mut sum) = (0usize, 0usize, 0.0);
+    let (mut hit, mut near, mut sum, mut beyond) = (0usize, 0usize, 0.0, 0.0);
     for (smp, sel) in pairs {
         let (Some(sel), Some(best)) = (sel, smp.best()) else { continue };
         let Some(r) = smp.regret(sel) else {
@@ -273,6 +277,7 @@ pub fn score<'a>(pairs: impl Iterator<Item = (&'a Sample, Option<StructureName>)
         hit += (sel == best.structure) as usize;
         near += (sel == best.structure || smp.get(sel).is_some_and(|m| m.within_noise_of_best)) as usize;
         sum += r;
+        beyond += smp.regret_beyond_noise(sel).unwrap_or(r);
         if r > s.worst_regret || s.worst.is_empty() {
             s.worst_regret = s.worst_regret.max(r);
             s.worst = format!("{} ({})", smp.scene, smp.workload.kind.as_str());
@@ -282,6 +287,7 @@ pub fn score<'a>(pairs: impl Iterator<Item = (&'a Sample, Option<StructureName>)
         s.accuracy = hit as f64 / s.scored as f64;
         s.within_noise = near as f64 / s.scored as f64;
         s.mean_regret = sum / s.scored as f64;
+        s.mean_regret_beyond_noise = beyond / s.scored as f64;
     }
     s
 }
@@ -621,7 +627,7 @@ pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> B
 /// build: each structure's total becomes `build_ms + F * trace_ms`, the oracle's own total for a static scene
 /// built once ([`super::oracle`]), from the same measured build and trace. Other samples (animations, per-frame
 /// rebuilds, several frames measured) are kept once, as they are. The derived samples carry no noise verdict
-/// (`within_noise_of_best` is false): the oracle measured one frame, not `F`.
+/// (`within_noise_of_best` is false, no interval): the oracle measured one frame, not `F`.
 pub fn with_frames(samples: &[Sample], frames: &[u64]) -> Vec<Sample> {
     let mut out = Vec::new();
     for s in samples {
@@ -639,6 +645,7 @@ pub fn with_frames(samples: &[Sample], frames: &[u64]) -> Vec<Sample> {
                     m.trace_ms *= f as f64;
                     m.total_ms = m.build_ms + m.trace_ms;
                     m.within_noise_of_best = false;
+                    m.total_ms_ci95 = None;
                 }
                 d.driver.clear();
             }

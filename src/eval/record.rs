@@ -419,6 +419,7 @@ impl OracleRecord {
                     box_tests_per_ray: finite(s.box_tests_per_ray),
                     prim_tests_per_ray: finite(s.prim_tests_per_ray),
                     within_noise_of_best: s.within_noise_of_best,
+                    total_ms_ci95: s.total_ms_ci95,
                 })
             })
             .collect();
