@@ -819,18 +819,24 @@ fn families_of(samples: &[Sample]) -> Vec<String> {
     f
 }
 
-#[test]
-fn a_fit_with_the_crossings_reads_them_and_one_without_ignores_them() {
-    use meshchar::cost::{crossings_feature, RayCrossings, TestFloor};
-    // Box tests that grow as (1 + crossings)^0.7 over the known laws: the fit with the crossings finds the exponent.
+/// The known samples, each with crossings (0 to 4,900) and box tests grown by `(1 + crossings)^0.7`.
+fn samples_with_crossings() -> Vec<meshchar::cost::Sample> {
     let (mut samples, _) = known_samples(60);
     for (i, s) in samples.iter_mut().enumerate() {
         let x = [0.0, 3.0, 40.0, 700.0, 9.0][i % 5] * (1.0 + (i % 7) as f64);
-        s.crossings = Some(RayCrossings { all: x, distinct: x, nondegenerate: x, image: 0.0 });
+        s.crossings = Some(meshchar::cost::RayCrossings { all: x, distinct: x, nondegenerate: x, image: 0.0 });
         for m in s.measured.iter_mut() {
             m.box_tests_per_ray *= (1.0 + x).powf(0.7);
         }
     }
+    samples
+}
+
+#[test]
+fn a_fit_with_the_crossings_reads_them_and_one_without_ignores_them() {
+    use meshchar::cost::{crossings_feature, RayCrossings, TestFloor};
+    // Box tests that grow as (1 + crossings)^0.7 over the known laws: the fit with the crossings finds the exponent.
+    let samples = samples_with_crossings();
     let with = CostModel::fit_with(&samples, "test", "synthetic", meshchar::cost::RIDGE, true).unwrap();
     for st in &with.structures {
         assert_eq!(st.crossing_coef.len(), 2, "{}", st.structure);
@@ -857,15 +863,8 @@ fn a_fit_with_the_crossings_reads_them_and_one_without_ignores_them() {
 
 #[test]
 fn a_caller_without_a_count_reads_the_calibrations_mean_of_the_crossings() {
-    use meshchar::cost::{RayCrossings, TestFloor};
-    let (mut samples, _) = known_samples(60);
-    for (i, s) in samples.iter_mut().enumerate() {
-        let x = [0.0, 3.0, 40.0, 700.0, 9.0][i % 5] * (1.0 + (i % 7) as f64);
-        s.crossings = Some(RayCrossings { all: x, distinct: x, nondegenerate: x, image: 0.0 });
-        for m in s.measured.iter_mut() {
-            m.box_tests_per_ray *= (1.0 + x).powf(0.7);
-        }
-    }
+    use meshchar::cost::TestFloor;
+    let samples = samples_with_crossings();
     let with = CostModel::fit_with(&samples, "test", "synthetic", meshchar::cost::RIDGE, true).unwrap();
     // The mean of ln(1 + crossings) per kind over the samples of that kind (every structure is valid in each here).
     for (k, kind) in [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse].into_iter().enumerate() {
