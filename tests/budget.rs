@@ -617,3 +617,22 @@ fn the_grids_primary_floor_sees_triangles_crowded_into_one_cell() {
     assert!(floor <= grid, "floor {floor}, grid {grid} triangle tests per ray");
     assert!(floor > 5.0 * bvh.max(1.0), "floor {floor}, BVH {bvh} triangle tests per ray");
 }
+
+#[test]
+fn the_mesh_bounds_are_the_same_on_any_number_of_threads() {
+    // The pass runs in parallel; its sums that round stay in mesh order, so one thread and three give the same bits,
+    // with the distinct copies counted (the overlapping soup crosses many boxes) and without.
+    for mesh in [
+        generate::overlapping_large(3000, 2),
+        meshchar::mesh::load_path(std::path::Path::new("family:city:2k:1")).unwrap().frames.remove(0),
+    ] {
+        let on = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| BuildBounds::of_mesh_viewed(&mesh, None).unwrap())
+        };
+        let one = on(1);
+        assert!(one.box_crossings.is_some());
+        assert_eq!(one, on(3));
+        assert_eq!(one, BuildBounds::of_mesh_viewed(&mesh, None).unwrap());
+    }
+}
