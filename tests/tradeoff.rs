@@ -188,7 +188,7 @@ fn oracle_reports_the_cheapest_structure_within_noise() {
     let scene = Animation::new("soup", vec![m]).unwrap();
     let config = OracleConfig { workload: WorkloadKind::Primary, resolution: 16, repeats: 3, ..Default::default() };
     let e = evaluate_scene(&scene, &config, Some(StructureName::Bvh), &|_| {}).unwrap();
-    assert!(e.reference_hits > 0, "the scene must be hit for the totals to rank anything");
+    assert!(e.reference_hits > 0, "the soup is in view");
     let best = e.oracle_best.expect("a best structure");
     assert!(e.oracle_within_noise.contains(&best));
     for s in &e.structures {

@@ -1126,12 +1126,18 @@ pub fn fast_with(mesh: &Mesh, params: &Params, scratch: &mut Scratch) -> Result<
 }
 
 /// [`fast`] and [`fast_with`], as one job of the thread pool ([`crate::in_pool`]).
+/// The total time counts from the call, the hand-over to the pool included.
 fn run_fast(mesh: &Mesh, params: &Params, scratch: Option<&mut Scratch>) -> Result<Characterization, CharError> {
-    crate::in_pool(|| run_fast_here(mesh, params, scratch))
+    let start = Instant::now();
+    crate::in_pool(|| run_fast_here(mesh, params, scratch, start))
 }
 
-fn run_fast_here(mesh: &Mesh, params: &Params, scratch: Option<&mut Scratch>) -> Result<Characterization, CharError> {
-    let start = Instant::now();
+fn run_fast_here(
+    mesh: &Mesh,
+    params: &Params,
+    scratch: Option<&mut Scratch>,
+    start: Instant,
+) -> Result<Characterization, CharError> {
     params.validate()?;
     let stride = params.sample_stride as usize;
     let n = sample_count(mesh.triangle_count(), stride);

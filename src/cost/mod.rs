@@ -372,7 +372,8 @@ pub struct StructureModel {
     #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
     pub crossing_coef: Vec<f64>,
     /// With [`StructureModel::crossing_coef`]: per workload kind (primary, shadow, diffuse), the mean of
-    /// `ln(1 + crossings)` over the calibration's samples of that kind, in `[0, 45]`; what a prediction reads when the
+    /// `ln(1 + crossings)` over the calibration's samples of that kind (a sample without a count counting 0, as in
+    /// the fit), in `[0, 45]`; what a prediction reads when the
     /// caller has no count ([`TestFloor::crossings`] NaN: features alone, no mesh), so that it predicts for the
     /// calibration's typical scene instead of one whose rays cross nothing. Absent in files written before it
     /// (such a file reads an unknown count as 0).

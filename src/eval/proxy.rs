@@ -107,6 +107,8 @@ pub fn proxied(samples: &[Sample], prices: &TestPrices, tie: f64) -> Vec<Sample>
                 m.trace_ns_per_ray = prices.ns_per_ray(m.box_tests_per_ray, m.prim_tests_per_ray);
                 m.trace_ms = m.trace_ns_per_ray * rays * 1e-6;
                 m.total_ms = m.build_ms + m.trace_ms;
+                // The measured intervals are not the proxy's: it has none (it is exact).
+                m.total_ms_ci95 = None;
             }
             let best = s.best().map(|b| b.total_ms);
             for m in &mut s.measured {

@@ -281,10 +281,10 @@ impl BuildBounds {
         use rayon::prelude::*;
         mesh.validate()?;
         let n = mesh.triangle_count();
-        // In parallel where the result cannot depend on the schedule: the records and boxes (per triangle), their
-        // union (exact), and the saturating counts (sums of non-negative integers, associative). The face-area sums
-        // of the crossings stay in mesh order ([`Crossings::of`]), so that the bounds are the same bits on any
-        // number of threads.
+        // In parallel where the result cannot depend on the schedule: the records and boxes (per triangle) and the
+        // saturating counts (sums of non-negative integers, associative). The boxes' union (whose min and max may
+        // pick either zero of +-0 in another order) and the face-area sums of the crossings ([`Crossings::of`]) stay
+        // in mesh order, so that the bounds are the same bits on any number of threads.
         let (tris, boxes): (Vec<Triangle>, Vec<Aabb>) = (0..n)
             .into_par_iter()
             .map(|i| {
@@ -292,7 +292,7 @@ impl BuildBounds {
                 (Triangle::new(&v), Aabb::of_triangle(&v))
             })
             .unzip();
-        let scene = boxes.par_iter().copied().reduce(|| Aabb::EMPTY, |a, b| a.union(&b));
+        let scene = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
         if n == 0 || !(scene.max - scene.min).is_finite() {
             // Empty, or too wide for the grid (it refuses such bounds itself): nothing to bound.
             return Ok(BuildBounds::empty(n as u64, "mesh"));

@@ -127,7 +127,8 @@ pub struct FrameRule<'a> {
     pub structures: &'a [StructureName],
     /// The triangle boxes a ray of the workload crosses in the scene ([`crate::cost::Crossings::for_workload`] of
     /// the first frame, as the static choice takes them): every frame's predictions are floored by them
-    /// ([`overlap_floor`]). `None`: no floor (a caller without the mesh's boxes).
+    /// ([`overlap_floor`]). `None`: no floor (a caller without the mesh's boxes), and a calibration fitted with the
+    /// crossings reads its mean count ([`crate::cost::StructureModel::crossing_mean`]).
     pub crossings: Option<RayCrossings>,
 }
 
