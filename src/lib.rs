@@ -25,9 +25,8 @@ pub mod trace;
 /// Runs `f` inside rayon's global pool: as one job when called from a thread outside the pool (a command-line
 /// tool's main thread, an engine's render thread), so that a builder's or the characterization's many parallel steps
 /// start on the pool's own threads instead of each being handed over from the caller's thread and waited for; inside
-/// the pool, in place. The hand-overs cost a fifth of an LBVH build of 100,000 triangles on one thread (9.7-10.1 ms
-/// against 7.8 ms, 2-core VM; 5% of the binned-SAH BVH's); with two threads little (none to 11%). The result is the
-/// same either way.
+/// the pool, in place. On one thread, the LBVH against `obvhs`'s PLOC went from 0.69-1.14x to 0.94-1.41x with it
+/// (`RAYON_NUM_THREADS=1 cargo bench --bench accel -- side_by_side`, 2-core VM). The result is the same either way.
 pub(crate) fn in_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
     rayon::scope(|_| f())
 }
