@@ -10,8 +10,9 @@
 //!
 //! `--ridge R` sets the shrinkage of the test-count laws; `--ridge-cv` chooses it, and whether the laws take the
 //! crossings (`meshchar::cost::crossings_feature`), inside the samples by holding out each family (or each scene)
-//! in turn (`meshchar::eval::compare::fit_ridge_by_cv`) and prints every candidate's held-out regret (`--tie-margin` is the calibrated policy's tie margin those selections use; it
-//! matters only with `--ridge-cv`). On the shipped 84 oracle records it chooses the default, 0.05.
+//! in turn (`meshchar::eval::compare::fit_ridge_by_cv`) and prints every candidate's held-out regret
+//! (`--tie-margin` is the calibrated policy's tie margin those selections use; it matters only with `--ridge-cv`).
+//! On the shipped 84 oracle records it chooses the default, 0.05.
 //!
 //! With `--trace-backend vulkan` the oracle traces on the Vulkan device (`evaluate_scene_on` with a
 //! `DeviceOracle`) and the file records the device (name, type, driver, driver version, UUID), which the calibrated

@@ -15,9 +15,10 @@
 //! recorded selections and the calibrated policy (fitted on all scenes, and leave-one-scene-out) are scored side by
 //! side, then against the baselines (`meshchar::eval::compare::compare_baselines`): the best single structure per
 //! workload, the size-only model, the calibrated model and the calibrated model with its ridge chosen inside each
-//! training set (`calibrated_cv`), each held out by scene and, over several families, by family. `--proxy` adds the deterministic proxy (`meshchar::eval::proxy`): two per-test prices are measured in
-//! isolation (milliseconds), and the policies are scored again with every trace time replaced by the counted tests
-//! times those prices.
+//! training set (`calibrated_cv`), each held out by scene and, over several families, by family; each with its mean
+//! regret and its regret beyond the oracle's noise. `--proxy` adds the deterministic proxy (`meshchar::eval::proxy`):
+//! two per-test prices are measured in isolation (milliseconds), and the policies are scored again with every trace
+//! time replaced by the counted tests times those prices.
 
 use anyhow::Context as _;
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};

@@ -373,10 +373,9 @@ pub struct StructureModel {
     pub crossing_coef: Vec<f64>,
     /// With [`StructureModel::crossing_coef`]: per workload kind (primary, shadow, diffuse), the mean of
     /// `ln(1 + crossings)` over the calibration's samples of that kind (a sample without a count counting 0, as in
-    /// the fit), in `[0, 45]`; what a prediction reads when the
-    /// caller has no count ([`TestFloor::crossings`] NaN: features alone, no mesh), so that it predicts for the
-    /// calibration's typical scene instead of one whose rays cross nothing. Absent in files written before it
-    /// (such a file reads an unknown count as 0).
+    /// the fit), in `[0, 45]`; what a prediction reads when the caller has no count ([`TestFloor::crossings`] NaN:
+    /// features alone, no mesh), so that it predicts for the calibration's typical scene instead of one whose rays
+    /// cross nothing. Absent in files written before it (such a file reads an unknown count as 0).
     #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
     pub crossing_mean: Vec<f64>,
     /// Fit errors on the calibration samples.
@@ -1070,22 +1069,22 @@ fn fit_structure(
     let crossing_box = if crossings { box_coef.pop() } else { None };
     let crossing_prim = if crossings { prim_coef.pop() } else { None };
     let crossing_coef: Vec<f64> = crossing_box.into_iter().chain(crossing_prim).collect();
-    // The feature's mean per kind over these rows (all rows for a kind without any), for callers without a count.
+    // The feature's mean per kind over these rows (the design matrix's last column; all rows for a kind without
+    // any), for callers without a count.
     let crossing_mean: Vec<f64> = if crossings {
-        let feature = |smp: &Sample| (1.0 + overlap::crossings_feature(smp.workload.kind, smp.crossings)).ln();
-        let all = rows.iter().map(|(smp, _)| feature(smp)).sum::<f64>() / rows.len() as f64;
+        let mean = |k: Option<WorkloadKind>| {
+            let v: Vec<f64> = rows
+                .iter()
+                .zip(&x)
+                .filter(|((smp, _), _)| k.is_none_or(|k| smp.workload.kind == k))
+                .filter_map(|(_, row)| row.last().copied())
+                .collect();
+            (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+        };
+        let all = mean(None).unwrap_or(0.0);
         [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse]
-            .iter()
-            .map(|&k| {
-                let v: Vec<f64> =
-                    rows.iter().filter(|(smp, _)| smp.workload.kind == k).map(|(smp, _)| feature(smp)).collect();
-                if v.is_empty() {
-                    all
-                } else {
-                    v.iter().sum::<f64>() / v.len() as f64
-                }
-            })
-            .collect()
+            .map(|k| mean(Some(k)).unwrap_or(all))
+            .to_vec()
     } else {
         Vec::new()
     };
