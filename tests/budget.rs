@@ -413,7 +413,7 @@ fn screen_crossings_count_each_box_by_its_share_of_the_image() {
 #[test]
 fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     use meshchar::cost::{overlap_floor, primary_tests_per_crossing, tests_per_crossing, Crossings, RayCrossings};
-    let c = Some(RayCrossings { all: 500.0, distinct: 2.0, nondegenerate: 100.0, image: 0.0 });
+    let c = Some(RayCrossings { all: 500.0, distinct: 2.0, nondegenerate: 100.0, image: 0.0, leave_flat_scene: false });
     let f = |s, k| overlap_floor(s, k, c);
     let kinds = [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse];
     for s in [StructureName::Lbvh, StructureName::Hlbvh, StructureName::Bih, StructureName::KdTree] {
@@ -472,7 +472,8 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     assert_eq!(cr.for_workload(WorkloadKind::Diffuse, Some(&elsewhere), lo, hi).image, 0.0);
     // The secondary floor is the larger of the isotropic one and the image's, scaled by the distinct share.
     use meshchar::cost::secondary_tests_per_image_crossing;
-    let with_image = RayCrossings { all: 500.0, distinct: 2.0, nondegenerate: 100.0, image: 1000.0 };
+    let with_image =
+        RayCrossings { all: 500.0, distinct: 2.0, nondegenerate: 100.0, image: 1000.0, leave_flat_scene: false };
     for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
         for s in StructureName::ALL {
             let fl = overlap_floor(s, k, Some(with_image));
@@ -635,4 +636,70 @@ fn the_mesh_bounds_are_the_same_on_any_number_of_threads() {
         assert_eq!(one, on(3));
         assert_eq!(one, BuildBounds::of_mesh_viewed(&mesh, None).unwrap());
     }
+}
+
+/// Box and triangle tests per ray of `s`, apart, over the rays of `kind` from 32 x 32 primary rays of the framing
+/// camera (secondary rays from the reference BVH's hits), and how many rays there were.
+fn counts_per_ray(s: StructureName, m: &Mesh, kind: WorkloadKind) -> (f64, f64, usize) {
+    use meshchar::trace::trace;
+    use meshchar::trace::workload::{build_workload, mesh_bounds};
+    let accel = meshchar::accel::build_structure(s, m).expect("build");
+    let reference = meshchar::accel::build_structure(StructureName::Bvh, m).expect("reference");
+    let cam = Camera::frame(&mesh_bounds(m));
+    let rays = build_workload(kind, m, &cam, 32, reference.as_ref());
+    let out = trace(accel.as_ref(), &rays);
+    let n = rays.rays.len().max(1) as f64;
+    (out.counters.box_tests as f64 / n, out.counters.prim_tests as f64 / n, rays.rays.len())
+}
+
+#[test]
+fn secondary_rays_leaving_a_flat_scene_test_each_hierarchys_root_once_as_predicted() {
+    use meshchar::cost::{overlap_floor, secondary_rays_leave_the_plane, Crossings};
+    let hierarchies =
+        [StructureName::Bvh, StructureName::KdTree, StructureName::Bih, StructureName::Lbvh, StructureName::Hlbvh];
+    for m in [
+        generate::all_equal(300),
+        generate::fan_polygon(900),
+        generate::flat(2000, 1),
+        generate::lattice_with_diagonal(40, 20),
+    ] {
+        let b = scene_box(&m);
+        let (lo, hi) = (b.min.to_array(), b.max.to_array());
+        let cr = Crossings::of_mesh(&m);
+        for kind in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
+            assert!(secondary_rays_leave_the_plane(kind, None, lo, hi), "{}: {kind:?}", m.name);
+            let c = cr.for_workload(kind, None, lo, hi);
+            assert!(c.leave_flat_scene && c.all == 0.0 && c.image == 0.0, "{}: {c:?}", m.name);
+            for s in hierarchies {
+                // What the model is told is what the traversal does, ray for ray.
+                let (bx, pr, rays) = counts_per_ray(s, &m, kind);
+                assert!(rays > 0, "{}: no {kind:?} rays", m.name);
+                assert_eq!((bx, pr), (1.0, 0.0), "{}: {s:?} {kind:?}", m.name);
+                let f = overlap_floor(s, kind, Some(c));
+                assert_eq!((f.box_tests, f.prim_tests, f.box_tests_most, f.prim_tests_most), (1.0, 0.0, 1.0, 0.0));
+                let model = CostModel::shipped().expect("shipped model");
+                let d = features_cpu(&m, &Params::default()).expect("features").derived();
+                let w = meshchar::cost::Workload { kind, rays_per_frame: 1000, frames: 1, builds: 1, view: None };
+                let p = model.get(s).expect("calibrated").predict_floored(&d, m.triangle_count() as u64, &w, f);
+                assert_eq!((p.box_tests_per_ray, p.prim_tests_per_ray), (1.0, 0.0), "{}: {s:?}", m.name);
+            }
+            // The grid still steps through the cells at the rays' origins: no bound.
+            assert_eq!(overlap_floor(StructureName::Grid, kind, Some(c)).box_tests_most, f64::INFINITY);
+        }
+        // Primary rays, and a camera in the plane, keep the counts.
+        assert!(!secondary_rays_leave_the_plane(WorkloadKind::Primary, None, lo, hi));
+        let axis = (0..3).find(|&a| lo[a] == hi[a]).expect("flat");
+        let mut in_plane = Camera::frame(&b);
+        in_plane.eye[axis] = lo[axis];
+        assert!(!secondary_rays_leave_the_plane(WorkloadKind::Diffuse, Some(&in_plane), lo, hi));
+        // Shadow rays toward a light across the plane cross it: the camera on the other side keeps the counts.
+        let mut across = Camera::frame(&b);
+        across.eye[axis] = 2.0 * lo[axis] - across.eye[axis];
+        assert!(!secondary_rays_leave_the_plane(WorkloadKind::Shadow, Some(&across), lo, hi), "{}", m.name);
+        assert!(secondary_rays_leave_the_plane(WorkloadKind::Diffuse, Some(&across), lo, hi), "{}", m.name);
+    }
+    // A box with extent along every axis is not flat.
+    let m = generate::overlapping_large(200, 1);
+    let b = scene_box(&m);
+    assert!(!secondary_rays_leave_the_plane(WorkloadKind::Diffuse, None, b.min.to_array(), b.max.to_array()));
 }

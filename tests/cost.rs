@@ -824,7 +824,13 @@ fn samples_with_crossings() -> Vec<meshchar::cost::Sample> {
     let (mut samples, _) = known_samples(60);
     for (i, s) in samples.iter_mut().enumerate() {
         let x = [0.0, 3.0, 40.0, 700.0, 9.0][i % 5] * (1.0 + (i % 7) as f64);
-        s.crossings = Some(meshchar::cost::RayCrossings { all: x, distinct: x, nondegenerate: x, image: 0.0 });
+        s.crossings = Some(meshchar::cost::RayCrossings {
+            all: x,
+            distinct: x,
+            nondegenerate: x,
+            image: 0.0,
+            leave_flat_scene: false,
+        });
         for m in s.measured.iter_mut() {
             m.box_tests_per_ray *= (1.0 + x).powf(0.7);
         }
@@ -854,7 +860,7 @@ fn a_fit_with_the_crossings_reads_them_and_one_without_ignores_them() {
     assert!((at(&with, 99.0) / at(&with, 0.0) - 100f64.powf(with.structures[0].crossing_coef[0])).abs() < 1e-9);
     assert_eq!(at(&without, 99.0), at(&without, 0.0));
     // The count read: all of it for primary rays, the larger of it and the image's for secondary rays.
-    let c = Some(RayCrossings { all: 5.0, distinct: 1.0, nondegenerate: 2.0, image: 30.0 });
+    let c = Some(RayCrossings { all: 5.0, distinct: 1.0, nondegenerate: 2.0, image: 30.0, leave_flat_scene: false });
     assert_eq!(crossings_feature(WorkloadKind::Primary, c), 5.0);
     assert_eq!(crossings_feature(WorkloadKind::Shadow, c), 30.0);
     assert_eq!(crossings_feature(WorkloadKind::Diffuse, None), 0.0);

@@ -103,8 +103,8 @@ pub mod view;
 
 pub mod overlap;
 pub use overlap::{
-    crossings_feature, overlap_floor, primary_tests_per_crossing, screen_crossings, secondary_tests_per_image_crossing,
-    tests_per_crossing, Crossings, RayCrossings, TestFloor, ViewCrossings,
+    crossings_feature, overlap_floor, primary_tests_per_crossing, screen_crossings, secondary_rays_leave_the_plane,
+    secondary_tests_per_image_crossing, tests_per_crossing, Crossings, RayCrossings, TestFloor, ViewCrossings,
 };
 
 use crate::accel::device::{DeviceRecord, TraceBackend};
@@ -431,8 +431,9 @@ impl StructureModel {
         };
         let bx = (dot(&self.box_coef, &x) + dot(&self.view_box_coef, &v) + cb).clamp(-30.0, 30.0).exp();
         let pr = (dot(&self.prim_coef, &x) + dot(&self.view_prim_coef, &v) + cp).clamp(-30.0, 30.0).exp();
-        // A NaN floor (never given) must not poison the counts: f64::max ignores it.
-        let (bx, pr) = (bx.max(floor.box_tests), pr.max(floor.prim_tests));
+        // A NaN bound (never given) must not poison the counts: f64::max and f64::min ignore it.
+        let bx = bx.max(floor.box_tests).min(floor.box_tests_most);
+        let pr = pr.max(floor.prim_tests).min(floor.prim_tests_most);
         let ns = dot(&self.trace_price, &price_row(w.kind, bx, pr));
         let per_build = (self.build_ln_a + self.build_exponent * (n.max(1) as f64).ln()).exp();
         let build_ms = per_build * w.builds as f64;

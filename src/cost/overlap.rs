@@ -96,6 +96,10 @@ pub struct RayCrossings {
     /// ([`screen_crossings`], over every triangle), when counted; 0 otherwise. The secondary rays start where those
     /// rays hit, so a close camera looking into dense geometry sends them into it too.
     pub image: f64,
+    /// Secondary rays only: every ray leaves a flat scene without meeting it again
+    /// ([`secondary_rays_leave_the_plane`]), so it crosses no box (the counts above are then 0) and every
+    /// hierarchy tests its root box once and no triangle ([`overlap_floor`] gives those counts exactly).
+    pub leave_flat_scene: bool,
 }
 
 fn face_areas(b: &Aabb) -> [f64; 3] {
@@ -194,12 +198,14 @@ impl Crossings {
             distinct: ratio(self.distinct_faces, self.scene, [1.0; 3]),
             nondegenerate: ratio(self.nondegenerate_faces, self.scene, [1.0; 3]),
             image: 0.0,
+            leave_flat_scene: false,
         }
     }
 
     /// Per ray of a workload: [`Crossings::per_ray`] of `camera` for primary rays; for shadow and diffuse rays
     /// (which start at the primary hits, in directions the camera does not fix) [`Crossings::isotropic`], with
-    /// [`RayCrossings::image`] the camera's count on its image when [`Crossings::view`] is of that camera.
+    /// [`RayCrossings::image`] the camera's count on its image when [`Crossings::view`] is of that camera; none
+    /// for secondary rays that leave a flat scene ([`secondary_rays_leave_the_plane`]).
     pub fn for_workload(
         &self,
         kind: WorkloadKind,
@@ -209,6 +215,9 @@ impl Crossings {
     ) -> RayCrossings {
         match kind {
             WorkloadKind::Primary => self.per_ray(camera, lo, hi),
+            _ if secondary_rays_leave_the_plane(kind, camera, lo, hi) => {
+                RayCrossings { leave_flat_scene: true, ..RayCrossings::default() }
+            }
             WorkloadKind::Shadow | WorkloadKind::Diffuse => {
                 RayCrossings { image: self.counted(camera).map_or(0.0, |v| v.all), ..self.isotropic() }
             }
@@ -256,6 +265,46 @@ impl Crossings {
             distinct: all * share(self.distinct_faces),
             nondegenerate: all * share(self.nondegenerate_faces),
             image: 0.0,
+            leave_flat_scene: false,
+        }
+    }
+}
+
+/// Whether every secondary ray of the workload `kind` leaves a flat scene without crossing it again: the box
+/// `lo`..`hi` has no extent along an axis (every triangle lies in one axis-aligned plane) and the camera (`None`: the
+/// framing camera of the box) is off that plane. A secondary ray starts at a primary hit, moved off the surface
+/// towards the camera's side (the shadow and diffuse workloads of `trace::workload`); a diffuse ray leaves about
+/// that facing normal, so it never meets the plane again, and a shadow ray does not when the workload's light
+/// ([`crate::geom::camera::default_light`]) is on the camera's side too. Such a ray crosses no triangle box:
+/// every hierarchy tests its root box once and no triangle (measured on the flat degenerate generators, `flat`,
+/// `all-equal`, `fan` and `lattice`, in `docs/data/degenerate-{shadow,diffuse}.jsonl`). The isotropic count
+/// ([`Crossings::isotropic`]) would have it cross every box stacked at a point of the plane: 2,000 on 2,000
+/// coincident triangles. False for primary rays, a box of extent along every axis, an empty or non-finite box,
+/// or a camera in the plane.
+pub fn secondary_rays_leave_the_plane(kind: WorkloadKind, camera: Option<&Camera>, lo: [f32; 3], hi: [f32; 3]) -> bool {
+    if kind == WorkloadKind::Primary || !(0..3).all(|a| lo[a].is_finite() && hi[a].is_finite() && lo[a] <= hi[a]) {
+        return false;
+    }
+    let Some(axis) = (0..3).find(|&a| lo[a] == hi[a]) else { return false };
+    let framing;
+    let cam = match camera {
+        Some(c) => c,
+        None => {
+            framing = super::view::framing_camera(lo, hi);
+            &framing
+        }
+    };
+    let plane = lo[axis];
+    let eye_side = cam.eye[axis] - plane;
+    if !(eye_side != 0.0 && eye_side.is_finite()) {
+        return false;
+    }
+    match kind {
+        WorkloadKind::Diffuse => true,
+        _ => {
+            let b = Aabb { min: Vec3::from_array(lo), max: Vec3::from_array(hi) };
+            let light = crate::geom::camera::default_light(&b);
+            (light[axis] - plane) * eye_side > 0.0
         }
     }
 }
@@ -433,15 +482,20 @@ pub fn secondary_tests_per_image_crossing(structure: StructureName, kind: Worklo
 const SHADOW_IMAGE: [(f64, f64); 5] = [(0.074, 0.011), (0.0, 0.011), (0.30, 0.068), (0.16, 0.010), (0.13, 0.010)];
 const DIFFUSE_IMAGE: [(f64, f64); 5] = [(0.17, 0.0082), (0.0, 0.0099), (0.37, 0.083), (0.39, 0.0096), (0.24, 0.0094)];
 
-/// Lower bounds on a structure's tests per ray, for [`crate::cost::StructureModel::predict_floored`], and the
-/// crossings they come from. The default floors nothing and knows no crossings (`crossings` NaN; two unknown counts
-/// are equal).
+/// Lower (and, where the geometry fixes them, upper) bounds on a structure's tests per ray, for
+/// [`crate::cost::StructureModel::predict_floored`], and the crossings they come from. The default bounds nothing
+/// and knows no crossings (`crossings` NaN; two unknown counts are equal).
 #[derive(Clone, Copy, Debug)]
 pub struct TestFloor {
-    /// Box tests (node visits) per ray.
+    /// Box tests (node visits) per ray: at least this many.
     pub box_tests: f64,
-    /// Triangle tests per ray.
+    /// Triangle tests per ray: at least this many.
     pub prim_tests: f64,
+    /// Box tests per ray: at most this many (infinite unless the geometry fixes the count: secondary rays that
+    /// leave a flat scene, [`RayCrossings::leave_flat_scene`]).
+    pub box_tests_most: f64,
+    /// Triangle tests per ray: at most this many (infinite unless the geometry fixes the count).
+    pub prim_tests_most: f64,
     /// The triangle boxes a ray of the workload crosses ([`crossings_feature`]), which a model fitted with crossings
     /// reads ([`crate::cost::StructureModel::crossing_coef`]); NaN when the caller has no count (no mesh at hand:
     /// such a model then reads its training records' mean, [`crate::cost::StructureModel::crossing_mean`]).
@@ -450,14 +504,24 @@ pub struct TestFloor {
 
 impl Default for TestFloor {
     fn default() -> Self {
-        TestFloor { box_tests: 0.0, prim_tests: 0.0, crossings: f64::NAN }
+        TestFloor {
+            box_tests: 0.0,
+            prim_tests: 0.0,
+            box_tests_most: f64::INFINITY,
+            prim_tests_most: f64::INFINITY,
+            crossings: f64::NAN,
+        }
     }
 }
 
 impl PartialEq for TestFloor {
     fn eq(&self, o: &Self) -> bool {
         let same_count = self.crossings == o.crossings || (self.crossings.is_nan() && o.crossings.is_nan());
-        self.box_tests == o.box_tests && self.prim_tests == o.prim_tests && same_count
+        self.box_tests == o.box_tests
+            && self.prim_tests == o.prim_tests
+            && self.box_tests_most == o.box_tests_most
+            && self.prim_tests_most == o.prim_tests_most
+            && same_count
     }
 }
 
@@ -478,17 +542,26 @@ pub fn crossings_feature(kind: WorkloadKind, c: Option<RayCrossings>) -> f64 {
 /// which stores zero-area triangles as points; all of them for the others); for secondary rays with
 /// [`RayCrossings::image`], the larger of that and the factors of [`secondary_tests_per_image_crossing`] times the
 /// image's count (scaled by the same share of distinct or non-degenerate triangles). Without crossings, no floor and
-/// no count ([`TestFloor::default`]).
+/// no count ([`TestFloor::default`]). Secondary rays that leave a flat scene ([`RayCrossings::leave_flat_scene`])
+/// cross 0 boxes, and every hierarchy (BVH, kd-tree, BIH, LBVH, HLBVH) makes exactly one box test and no triangle
+/// test per ray; the grid, which still steps through the cells at the ray's origin, is left to its laws.
 pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
     let Some(c) = c else { return TestFloor::default() };
     let crossings = crossings_feature(kind, Some(c));
+    let hierarchy = matches!(
+        structure,
+        StructureName::Bvh | StructureName::KdTree | StructureName::Bih | StructureName::Lbvh | StructureName::Hlbvh
+    );
+    if c.leave_flat_scene && kind != WorkloadKind::Primary && hierarchy {
+        return TestFloor { box_tests: 1.0, prim_tests: 0.0, box_tests_most: 1.0, prim_tests_most: 0.0, crossings };
+    }
     let x = match structure {
         StructureName::Bvh => c.distinct,
         StructureName::KdTree => c.nondegenerate,
         _ => c.all,
     };
     let (b, p) = tests_per_crossing(structure, kind);
-    let mut f = TestFloor { box_tests: b * x, prim_tests: p * x, crossings };
+    let mut f = TestFloor { box_tests: b * x, prim_tests: p * x, crossings, ..TestFloor::default() };
     if kind != WorkloadKind::Primary && c.image > 0.0 {
         let y = if c.all > 0.0 { c.image * x / c.all } else { 0.0 };
         let (bi, pi) = secondary_tests_per_image_crossing(structure, kind);

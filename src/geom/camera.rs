@@ -79,3 +79,13 @@ impl Camera {
         Ray::new(self.eye, dir)
     }
 }
+
+/// The default point light of the shadow workload: above the scene (+y), towards the front-left, at one scene
+/// diagonal from the centre (`(0, 10, 0)` for an empty box).
+pub fn default_light(bounds: &Aabb) -> Vec3 {
+    if bounds.is_empty() {
+        return Vec3::new(0.0, 10.0, 0.0);
+    }
+    let diag = bounds.extent().length().max(1e-3);
+    bounds.center() + Vec3::new(-0.3, 1.0, 0.4).normalize() * diag
+}

@@ -45,14 +45,7 @@ pub fn primary_rays(camera: &Camera, width: u32, height: u32) -> Vec<Ray> {
     rays
 }
 
-/// The default point light: above the scene (+y), towards the front-left, at one scene diagonal from the centre.
-pub fn default_light(bounds: &Aabb) -> Vec3 {
-    if bounds.is_empty() {
-        return Vec3::new(0.0, 10.0, 0.0);
-    }
-    let diag = bounds.extent().length().max(1e-3);
-    bounds.center() + Vec3::new(-0.3, 1.0, 0.4).normalize() * diag
-}
+pub use crate::geom::camera::default_light;
 
 /// Offset that moves a secondary ray's origin off its surface: `1e-5` of the scene diagonal plus `1e-6` of the
 /// point's magnitude (so that it stays above f32 rounding far from the origin).
