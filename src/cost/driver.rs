@@ -308,9 +308,17 @@ fn fit_update(samples: &[Sample]) -> Option<DriverUpdateModel> {
         return None;
     }
     let (update_ln_a, update_exponent, update_rms) = fit_law(&updates)?;
-    let sxx: f64 = xs.iter().map(|x| x * x).sum();
-    let sxy: f64 = xs.iter().zip(&ys).map(|(x, y)| x * y).sum();
-    let g = if sxx > 0.0 { (sxy / sxx).clamp(0.0, *SAH_GROWTH_RANGE.end()) } else { 0.0 };
+    // The median of the frames' slopes through the origin, not a least-squares slope: one frame whose trace timing
+    // spiked (twice its neighbours', in one of three repeats' medians) would otherwise set the growth (lavapipe,
+    // 2026-12-05: least squares 3.97, the median 0).
+    let mut slopes: Vec<f64> = xs.iter().zip(&ys).filter(|(x, _)| **x > 0.0).map(|(x, y)| y / x).collect();
+    slopes.sort_by(f64::total_cmp);
+    let g = match slopes.len() {
+        0 => 0.0,
+        k if k % 2 == 1 => slopes[k / 2],
+        k => 0.5 * (slopes[k / 2 - 1] + slopes[k / 2]),
+    };
+    let g = if g.is_finite() { g.clamp(0.0, *SAH_GROWTH_RANGE.end()) } else { 0.0 };
     let growth_rms = if xs.is_empty() {
         0.0
     } else {
