@@ -245,14 +245,7 @@ impl Crossings {
     /// taken from the face sums along its forward direction. Otherwise the crossings along its forward direction
     /// times the share of its rays that meet the box (parallel rays: a close camera's perspective is not seen).
     pub fn per_ray(&self, camera: Option<&Camera>, lo: [f32; 3], hi: [f32; 3]) -> RayCrossings {
-        let framing;
-        let cam = match camera {
-            Some(c) => c,
-            None => {
-                framing = super::view::framing_camera(lo, hi);
-                &framing
-            }
-        };
+        let cam = &camera_or_framing(camera, lo, hi);
         let w = cam.forward.abs().as_dvec3().to_array();
         let along = ratio(self.faces, self.scene, w);
         let share = |f: [f64; 3]| if along > 0.0 { ratio(f, self.scene, w) / along } else { 0.0 };
@@ -268,6 +261,11 @@ impl Crossings {
             leave_flat_scene: false,
         }
     }
+}
+
+/// `camera`, or the framing camera of the box `lo`..`hi` ([`super::view::framing_camera`]) when `None`.
+fn camera_or_framing(camera: Option<&Camera>, lo: [f32; 3], hi: [f32; 3]) -> Camera {
+    camera.copied().unwrap_or_else(|| super::view::framing_camera(lo, hi))
 }
 
 /// Whether every secondary ray of the workload `kind` leaves a flat scene without crossing it again: the box
@@ -286,14 +284,7 @@ pub fn secondary_rays_leave_the_plane(kind: WorkloadKind, camera: Option<&Camera
         return false;
     }
     let Some(axis) = (0..3).find(|&a| lo[a] == hi[a]) else { return false };
-    let framing;
-    let cam = match camera {
-        Some(c) => c,
-        None => {
-            framing = super::view::framing_camera(lo, hi);
-            &framing
-        }
-    };
+    let cam = camera_or_framing(camera, lo, hi);
     let plane = lo[axis];
     let eye_side = cam.eye[axis] - plane;
     if !(eye_side != 0.0 && eye_side.is_finite()) {
