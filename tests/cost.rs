@@ -829,7 +829,7 @@ fn samples_with_crossings() -> Vec<meshchar::cost::Sample> {
             distinct: x,
             nondegenerate: x,
             image: 0.0,
-            leave_flat_scene: false,
+            ..meshchar::cost::RayCrossings::default()
         });
         for m in s.measured.iter_mut() {
             m.box_tests_per_ray *= (1.0 + x).powf(0.7);
@@ -860,7 +860,7 @@ fn a_fit_with_the_crossings_reads_them_and_one_without_ignores_them() {
     assert!((at(&with, 99.0) / at(&with, 0.0) - 100f64.powf(with.structures[0].crossing_coef[0])).abs() < 1e-9);
     assert_eq!(at(&without, 99.0), at(&without, 0.0));
     // The count read: all of it for primary rays, the larger of it and the image's for secondary rays.
-    let c = Some(RayCrossings { all: 5.0, distinct: 1.0, nondegenerate: 2.0, image: 30.0, leave_flat_scene: false });
+    let c = Some(RayCrossings { all: 5.0, distinct: 1.0, nondegenerate: 2.0, image: 30.0, ..RayCrossings::default() });
     assert_eq!(crossings_feature(WorkloadKind::Primary, c), 5.0);
     assert_eq!(crossings_feature(WorkloadKind::Shadow, c), 30.0);
     assert_eq!(crossings_feature(WorkloadKind::Diffuse, None), 0.0);

@@ -411,9 +411,10 @@ impl StructureModel {
         self.predict_floored(d, n, w, TestFloor::default())
     }
 
-    /// [`StructureModel::predict`] with the box and triangle tests per ray at least `floor` (bounds the caller knows
-    /// from the scene, such as the selection's overlap floor, [`overlap_floor`]); the trace time follows from the
-    /// floored counts.
+    /// [`StructureModel::predict`] with the box and triangle tests per ray bounded by `floor` (bounds the caller
+    /// knows from the scene, such as the selection's overlap floor, [`overlap_floor`]: at least its lower bounds, at
+    /// most its upper ones, and the share of rays that leave the scene at once counted at one box test and no
+    /// triangle test); the trace time follows from the bounded counts.
     pub fn predict_floored(&self, d: &Derived, n: u64, w: &Workload, floor: TestFloor) -> Prediction {
         let x = phi(d, w.kind);
         let v = w.view.map_or([0.0; 3], |v| v.row());
@@ -434,6 +435,9 @@ impl StructureModel {
         // A NaN bound (never given) must not poison the counts: f64::max and f64::min ignore it.
         let bx = bx.max(floor.box_tests).min(floor.box_tests_most);
         let pr = pr.max(floor.prim_tests).min(floor.prim_tests_most);
+        // Rays that leave the scene at once test the root box and nothing else.
+        let leave = if floor.leave_share.is_finite() { floor.leave_share.clamp(0.0, 1.0) } else { 0.0 };
+        let (bx, pr) = (leave + (1.0 - leave) * bx, (1.0 - leave) * pr);
         let ns = dot(&self.trace_price, &price_row(w.kind, bx, pr));
         let per_build = (self.build_ln_a + self.build_exponent * (n.max(1) as f64).ln()).exp();
         let build_ms = per_build * w.builds as f64;
@@ -673,7 +677,8 @@ impl CostModel {
         self.predict_floored(f, w, &|_| TestFloor::default())
     }
 
-    /// [`CostModel::predict`] with each structure's tests per ray at least `floor(structure)`.
+    /// [`CostModel::predict`] with each structure's tests per ray bounded by `floor(structure)`
+    /// ([`StructureModel::predict_floored`]).
     pub fn predict_floored(
         &self,
         f: &Features,
@@ -1016,6 +1021,10 @@ fn rms(v: &[f64]) -> f64 {
     }
 }
 
+/// The share of a sample's rays that leave the scene at once ([`TestFloor::leave_share`]) above which the sample
+/// takes no part in the fit of the test-count laws: its few remaining rays say little about the others.
+pub const LEAVE_SHARE_UNFITTED: f64 = 0.9;
+
 fn fit_structure(
     samples: &[Sample],
     s: StructureName,
@@ -1063,10 +1072,29 @@ fn fit_structure(
     let nv = if views { VIEW_FEATURE_NAMES.len() } else { 0 };
     let mut ridge = vec![ridge_value; p + nv + crossings as usize];
     ridge[0] = 0.0;
-    let lbox: Vec<f64> = rows.iter().map(|(_, m)| m.box_tests_per_ray.max(1e-3).ln()).collect();
-    let lprim: Vec<f64> = rows.iter().map(|(_, m)| m.prim_tests_per_ray.max(1e-3).ln()).collect();
-    let mut box_coef = linalg::weighted_ridge(&x, &lbox, &ones, &ridge).ok_or_else(|| err("box tests"))?;
-    let mut prim_coef = linalg::weighted_ridge(&x, &lprim, &ones, &ridge).ok_or_else(|| err("triangle tests"))?;
+    // A geometric model predicts the rays that leave the scene at once apart (one box test, no triangle test:
+    // `TestFloor::leave_share`), so its laws are fitted on the other rays' counts; a sample whose rays nearly all
+    // leave tells nothing of them and takes no part (weight 0).
+    let share = |smp: &Sample| {
+        if geometric {
+            smp.crossings.map_or(0.0, |c| if c.leave_share.is_finite() { c.leave_share.clamp(0.0, 1.0) } else { 0.0 })
+        } else {
+            0.0
+        }
+    };
+    let lbox: Vec<f64> = rows
+        .iter()
+        .map(|(smp, m)| {
+            let s = share(smp);
+            ((m.box_tests_per_ray - s).max(0.0) / (1.0 - s).max(1e-9)).max(1e-3).ln()
+        })
+        .collect();
+    let lprim: Vec<f64> =
+        rows.iter().map(|(smp, m)| (m.prim_tests_per_ray / (1.0 - share(smp)).max(1e-9)).max(1e-3).ln()).collect();
+    let law_w: Vec<f64> =
+        rows.iter().map(|(smp, _)| if share(smp) > LEAVE_SHARE_UNFITTED { 0.0 } else { 1.0 }).collect();
+    let mut box_coef = linalg::weighted_ridge(&x, &lbox, &law_w, &ridge).ok_or_else(|| err("box tests"))?;
+    let mut prim_coef = linalg::weighted_ridge(&x, &lprim, &law_w, &ridge).ok_or_else(|| err("triangle tests"))?;
     let crossing_box = if crossings { box_coef.pop() } else { None };
     let crossing_prim = if crossings { prim_coef.pop() } else { None };
     let crossing_coef: Vec<f64> = crossing_box.into_iter().chain(crossing_prim).collect();
@@ -1115,6 +1143,7 @@ fn fit_structure(
         let w = resolve_view(&smp.features, &smp.workload);
         let floor = TestFloor {
             crossings: overlap::crossings_feature(smp.workload.kind, smp.crossings),
+            leave_share: share(smp),
             ..TestFloor::default()
         };
         let pr = m.predict_floored(

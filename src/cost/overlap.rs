@@ -33,6 +33,18 @@
 //! them into it. The factors per crossing ([`tests_per_crossing`], [`secondary_tests_per_image_crossing`]) are read
 //! off the training records of each workload separately, and the floor is the larger of the two.
 //!
+//! # Rays that leave the scene at once
+//!
+//! A secondary ray that starts on the scene's outer boundary, on the camera's side, tests the root box and
+//! nothing else, in every structure. Two cases are counted: a flat scene, whose every secondary ray leaves its
+//! plane ([`secondary_rays_leave_the_plane`]: the hierarchies' counts are fixed at one box test and no triangle test,
+//! above and below, [`TestFloor::box_tests_most`]), and a closed scene seen from outside, whose walls lie in the
+//! faces of its box ([`Crossings::leave_share`]: that share of the rays is counted at one box test, the others as
+//! the laws and floors say). Both rest on the scene's box staying put over an animation's frames
+//! ([`Crossings::over_frames`]) and on the workloads' secondary rays starting a little off the surface on the
+//! camera's side (`trace::workload`; a camera hundreds of scene diagonals away can put that offset inside the
+//! rounding of the hit point).
+//!
 //! # Where the floor applies, and where not yet
 //!
 //! The calibrated policy's predictions for a scene (`CalibratedPolicy::predictions`: the first frame, static
@@ -67,6 +79,18 @@ pub struct Crossings {
     /// The crossings of one camera counted on its image ([`screen_crossings`]), when computed
     /// ([`Crossings::with_view`]): [`Crossings::per_ray`] takes them for that camera.
     pub view: Option<ViewCrossings>,
+    /// Per face of the scene's box (`-x, +x, -y, +y, -z, +z`), the share of it covered by triangles lying in its
+    /// plane: their areas summed over the face's, at most 1 (overlapping triangles in the plane count twice, up to
+    /// that cap). A closed room or stadium has its outer walls there ([`Crossings::leave_share`]). Over an
+    /// animation's frames ([`Crossings::over_frames`]) the least of every frame's, and 0 where the box moves.
+    pub boundary_fill: [f64; 6],
+    /// The scene's box (the union of the triangles' boxes, every triangle counted): its low corner.
+    pub lo: [f32; 3],
+    /// Its high corner.
+    pub hi: [f32; 3],
+    /// Whether the box differs between an animation's frames ([`Crossings::over_frames`]): then no secondary ray is
+    /// taken to leave the scene at once ([`secondary_rays_leave_the_plane`], [`Crossings::leave_share`]).
+    pub box_moves: bool,
 }
 
 /// The triangle boxes crossed by one camera's primary rays, counted on its image ([`screen_crossings`]).
@@ -100,6 +124,9 @@ pub struct RayCrossings {
     /// ([`secondary_rays_leave_the_plane`]), so it crosses no box (the counts above are then 0) and every
     /// hierarchy tests its root box once and no triangle ([`overlap_floor`] gives those counts exactly).
     pub leave_flat_scene: bool,
+    /// Secondary rays only: the share of them that start on the scene's outer boundary and leave it at once
+    /// ([`Crossings::leave_share`]): each tests the root box once and no triangle, in every structure.
+    pub leave_share: f64,
 }
 
 fn face_areas(b: &Aabb) -> [f64; 3] {
@@ -109,6 +136,33 @@ fn face_areas(b: &Aabb) -> [f64; 3] {
 
 fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+/// [`Crossings::boundary_fill`] of the triangles whose boxes are `boxes` (in mesh order) in the box `scene`.
+fn boundary_fill(mesh: &Mesh, boxes: impl Iterator<Item = (Aabb, bool)>, scene: &Aabb) -> [f64; 6] {
+    let e = (scene.max - scene.min).as_dvec3();
+    if scene.is_empty() || !e.is_finite() {
+        return [0.0; 6];
+    }
+    let mut area = [0.0f64; 6];
+    for (i, (b, _)) in boxes.enumerate() {
+        for a in 0..3 {
+            if b.min[a] != b.max[a] {
+                continue;
+            }
+            let side = if b.min[a] == scene.min[a] {
+                0
+            } else if b.max[a] == scene.max[a] {
+                1
+            } else {
+                continue;
+            };
+            let [p, q, r] = mesh.triangle(i).map(|v| v.as_dvec3());
+            area[2 * a + side] += 0.5 * (q - p).cross(r - p).length();
+        }
+    }
+    let face = [e.y * e.z, e.y * e.z, e.x * e.z, e.x * e.z, e.x * e.y, e.x * e.y];
+    std::array::from_fn(|f| if face[f] > 0.0 && area[f].is_finite() { (area[f] / face[f]).min(1.0) } else { 0.0 })
 }
 
 impl Crossings {
@@ -123,8 +177,17 @@ impl Crossings {
             let f = face_areas(&b);
             (add(s, f), if degenerate { t } else { add(t, f) })
         });
-        let mut c =
-            Crossings { faces, distinct_faces: faces, nondegenerate_faces, scene: face_areas(scene), view: None };
+        let mut c = Crossings {
+            faces,
+            distinct_faces: faces,
+            nondegenerate_faces,
+            scene: face_areas(scene),
+            view: None,
+            boundary_fill: boundary_fill(mesh, boxes.clone(), scene),
+            lo: scene.min.to_array(),
+            hi: scene.max.to_array(),
+            box_moves: false,
+        };
         if !scene.is_empty() && c.most() >= Self::DISTINCT_FROM {
             let mut seen = std::collections::HashSet::with_capacity(mesh.indices.len());
             c.distinct_faces = boxes
@@ -199,6 +262,7 @@ impl Crossings {
             nondegenerate: ratio(self.nondegenerate_faces, self.scene, [1.0; 3]),
             image: 0.0,
             leave_flat_scene: false,
+            leave_share: 0.0,
         }
     }
 
@@ -215,12 +279,88 @@ impl Crossings {
     ) -> RayCrossings {
         match kind {
             WorkloadKind::Primary => self.per_ray(camera, lo, hi),
-            _ if secondary_rays_leave_the_plane(kind, camera, lo, hi) => {
-                RayCrossings { leave_flat_scene: true, ..RayCrossings::default() }
+            _ if !self.box_moves && secondary_rays_leave_the_plane(kind, camera, self.lo, self.hi) => RayCrossings {
+                // The hierarchies' counts are fixed ([`overlap_floor`]); the grid, which still steps through the
+                // cells at the rays' origins, keeps the crossings its laws read.
+                image: self.counted(camera).map_or(0.0, |v| v.all),
+                leave_flat_scene: true,
+                ..self.isotropic()
+            },
+            WorkloadKind::Shadow | WorkloadKind::Diffuse => RayCrossings {
+                image: self.counted(camera).map_or(0.0, |v| v.all),
+                leave_share: self.leave_share(kind, camera),
+                ..self.isotropic()
+            },
+        }
+    }
+
+    /// These crossings (an animation's first frame's, which the policy floors every frame with) combined with
+    /// another frame's: where the scene's box is the same, the least boundary fill of the two; where it moves,
+    /// [`Crossings::box_moves`] (no ray is then taken to leave at once, in any frame).
+    pub fn over_frames(mut self, other: &Crossings) -> Crossings {
+        if self.box_moves || other.box_moves || self.lo != other.lo || self.hi != other.hi {
+            self.box_moves = true;
+            self.boundary_fill = [0.0; 6];
+        } else {
+            self.boundary_fill = std::array::from_fn(|f| self.boundary_fill[f].min(other.boundary_fill[f]));
+        }
+        self
+    }
+
+    /// The share of the secondary rays of `kind` that leave the scene at once: those that start on a face of the
+    /// scene's box ([`Crossings::lo`], [`Crossings::hi`]) seen from outside by `camera` (`None`: the framing camera
+    /// of that box), on a triangle lying in
+    /// that face's plane. Nothing of the scene lies beyond the face, so such a triangle is the first hit of the
+    /// camera's rays that meet it; the secondary ray starts off it on the camera's side (outside the box) and, a
+    /// diffuse ray about the facing normal, a shadow ray when the workload's light
+    /// ([`crate::geom::camera::default_light`]) is outside that face too, never enters the box: one box test (the
+    /// root's), no triangle test, in every structure. The share of the camera's rays entering through each face is
+    /// its solid angle from the eye (area times the cosine to the eye over the squared distance, from the face's
+    /// centre), and of those the covered share is [`Crossings::boundary_fill`]. A lower bound on the share among the
+    /// secondary rays (whose rays are the hits, not all rays entering the box), 0 for primary rays, a camera inside
+    /// the box, or a scene with nothing on its faces. Measured on the 252 family records: closed rooms and the
+    /// stadium seen from outside (framing and grazing views) make exactly 1 box test and no triangle test per
+    /// diffuse ray in every hierarchy.
+    pub fn leave_share(&self, kind: WorkloadKind, camera: Option<&Camera>) -> f64 {
+        let (lo, hi) = (self.lo, self.hi);
+        let b = Aabb { min: Vec3::from_array(lo), max: Vec3::from_array(hi) };
+        if kind == WorkloadKind::Primary || self.box_moves || b.is_empty() || !(b.min.is_finite() && b.max.is_finite())
+        {
+            return 0.0;
+        }
+        let cam = camera_or_framing(camera, lo, hi);
+        let light = crate::geom::camera::default_light(&b);
+        let (eye, e, c) = (cam.eye.as_dvec3(), (b.max - b.min).as_dvec3(), b.center().as_dvec3());
+        let (mut seen, mut leave) = (0.0, 0.0);
+        for a in 0..3 {
+            let area = e[(a + 1) % 3] * e[(a + 2) % 3];
+            for side in 0..2 {
+                let (plane, outside, lit) = if side == 0 {
+                    (b.min[a], cam.eye[a] < b.min[a], light[a] < b.min[a])
+                } else {
+                    (b.max[a], cam.eye[a] > b.max[a], light[a] > b.max[a])
+                };
+                if !outside || area <= 0.0 {
+                    continue;
+                }
+                let mut centre = c;
+                centre[a] = plane as f64;
+                let to_eye = eye - centre;
+                let d2 = to_eye.length_squared();
+                if !(d2 > 0.0 && d2.is_finite()) {
+                    continue;
+                }
+                let w = area * to_eye[a].abs() / (d2 * d2.sqrt());
+                seen += w;
+                if kind == WorkloadKind::Diffuse || lit {
+                    leave += w * self.boundary_fill[2 * a + side];
+                }
             }
-            WorkloadKind::Shadow | WorkloadKind::Diffuse => {
-                RayCrossings { image: self.counted(camera).map_or(0.0, |v| v.all), ..self.isotropic() }
-            }
+        }
+        if seen > 0.0 && leave.is_finite() {
+            (leave / seen).clamp(0.0, 1.0)
+        } else {
+            0.0
         }
     }
 
@@ -259,6 +399,7 @@ impl Crossings {
             nondegenerate: all * share(self.nondegenerate_faces),
             image: 0.0,
             leave_flat_scene: false,
+            leave_share: 0.0,
         }
     }
 }
@@ -487,6 +628,9 @@ pub struct TestFloor {
     pub box_tests_most: f64,
     /// Triangle tests per ray: at most this many (infinite unless the geometry fixes the count).
     pub prim_tests_most: f64,
+    /// The share of the rays that leave the scene at once ([`RayCrossings::leave_share`]): each makes one box
+    /// test and no triangle test, the others the bounded counts above.
+    pub leave_share: f64,
     /// The triangle boxes a ray of the workload crosses ([`crossings_feature`]), which a model fitted with crossings
     /// reads ([`crate::cost::StructureModel::crossing_coef`]); NaN when the caller has no count (no mesh at hand:
     /// such a model then reads its training records' mean, [`crate::cost::StructureModel::crossing_mean`]).
@@ -500,6 +644,7 @@ impl Default for TestFloor {
             prim_tests: 0.0,
             box_tests_most: f64::INFINITY,
             prim_tests_most: f64::INFINITY,
+            leave_share: 0.0,
             crossings: f64::NAN,
         }
     }
@@ -512,6 +657,7 @@ impl PartialEq for TestFloor {
             && self.prim_tests == o.prim_tests
             && self.box_tests_most == o.box_tests_most
             && self.prim_tests_most == o.prim_tests_most
+            && self.leave_share == o.leave_share
             && same_count
     }
 }
@@ -544,7 +690,14 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
         StructureName::Bvh | StructureName::KdTree | StructureName::Bih | StructureName::Lbvh | StructureName::Hlbvh
     );
     if c.leave_flat_scene && kind != WorkloadKind::Primary && hierarchy {
-        return TestFloor { box_tests: 1.0, prim_tests: 0.0, box_tests_most: 1.0, prim_tests_most: 0.0, crossings };
+        return TestFloor {
+            box_tests: 1.0,
+            prim_tests: 0.0,
+            box_tests_most: 1.0,
+            prim_tests_most: 0.0,
+            crossings,
+            ..TestFloor::default()
+        };
     }
     let x = match structure {
         StructureName::Bvh => c.distinct,
@@ -552,7 +705,8 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
         _ => c.all,
     };
     let (b, p) = tests_per_crossing(structure, kind);
-    let mut f = TestFloor { box_tests: b * x, prim_tests: p * x, crossings, ..TestFloor::default() };
+    let leave_share = if kind == WorkloadKind::Primary { 0.0 } else { c.leave_share.clamp(0.0, 1.0) };
+    let mut f = TestFloor { box_tests: b * x, prim_tests: p * x, crossings, leave_share, ..TestFloor::default() };
     if kind != WorkloadKind::Primary && c.image > 0.0 {
         let y = if c.all > 0.0 { c.image * x / c.all } else { 0.0 };
         let (bi, pi) = secondary_tests_per_image_crossing(structure, kind);

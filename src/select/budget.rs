@@ -429,8 +429,12 @@ impl BuildBounds {
             grid_bytes: pick(self.grid_bytes, o.grid_bytes),
             kdtree_references: pick(self.kdtree_references, o.kdtree_references),
             kdtree_bytes: pick(self.kdtree_bytes, o.kdtree_bytes),
-            // The first frame's: the calibrated policy floors the first frame's predictions.
-            box_crossings: self.box_crossings.or(o.box_crossings),
+            // The first frame's: the calibrated policy floors every frame's predictions with them; what another
+            // frame changes of the scene's box undoes the rules that rest on it (`Crossings::over_frames`).
+            box_crossings: match (self.box_crossings, o.box_crossings) {
+                (Some(a), Some(b)) => Some(a.over_frames(&b)),
+                (a, b) => a.or(b),
+            },
         }
     }
 }
