@@ -436,7 +436,7 @@ impl StructureModel {
         let bx = bx.max(floor.box_tests).min(floor.box_tests_most);
         let pr = pr.max(floor.prim_tests).min(floor.prim_tests_most);
         // Rays that leave the scene at once test the root box and nothing else.
-        let leave = if floor.leave_share.is_finite() { floor.leave_share.clamp(0.0, 1.0) } else { 0.0 };
+        let leave = overlap::unit_share(floor.leave_share);
         let (bx, pr) = (leave + (1.0 - leave) * bx, (1.0 - leave) * pr);
         let ns = dot(&self.trace_price, &price_row(w.kind, bx, pr));
         let per_build = (self.build_ln_a + self.build_exponent * (n.max(1) as f64).ln()).exp();
@@ -1077,7 +1077,7 @@ fn fit_structure(
     // leave tells nothing of them and takes no part (weight 0).
     let share = |smp: &Sample| {
         if geometric {
-            smp.crossings.map_or(0.0, |c| if c.leave_share.is_finite() { c.leave_share.clamp(0.0, 1.0) } else { 0.0 })
+            smp.crossings.map_or(0.0, |c| overlap::unit_share(c.leave_share))
         } else {
             0.0
         }

@@ -404,6 +404,16 @@ impl Crossings {
     }
 }
 
+/// A share of rays as given by a caller ([`RayCrossings::leave_share`], [`TestFloor::leave_share`], both public
+/// fields): clamped to `[0, 1]`, 0 when not finite.
+pub(crate) fn unit_share(x: f64) -> f64 {
+    if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    }
+}
+
 /// `camera`, or the framing camera of the box `lo`..`hi` ([`super::view::framing_camera`]) when `None`.
 fn camera_or_framing(camera: Option<&Camera>, lo: [f32; 3], hi: [f32; 3]) -> Camera {
     camera.copied().unwrap_or_else(|| super::view::framing_camera(lo, hi))
@@ -705,7 +715,7 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
         _ => c.all,
     };
     let (b, p) = tests_per_crossing(structure, kind);
-    let leave_share = if kind == WorkloadKind::Primary { 0.0 } else { c.leave_share.clamp(0.0, 1.0) };
+    let leave_share = if kind == WorkloadKind::Primary { 0.0 } else { unit_share(c.leave_share) };
     let mut f = TestFloor { box_tests: b * x, prim_tests: p * x, crossings, leave_share, ..TestFloor::default() };
     if kind != WorkloadKind::Primary && c.image > 0.0 {
         let y = if c.all > 0.0 { c.image * x / c.all } else { 0.0 };
