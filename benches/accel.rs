@@ -14,8 +14,9 @@
 //!   comparable with the BVHs'; the BIH's is over its nodes' boxes; the grid prints none.
 //!
 //! * `screen_crossings/<scene>`: the overlap floor's count of triangle boxes on a camera's image
-//!   (`meshchar::cost::screen_crossings`, framing camera) and the whole `BuildBounds::of_mesh_viewed` pass it is
-//!   part of, on the three scenes above and the generated engineering family at 200K triangles seen close up.
+//!   (`meshchar::cost::screen_crossings`, framing camera), the boxes its sample rays enter before their first hits
+//!   (`meshchar::cost::near_crossings`, `near`) and the whole `BuildBounds::of_mesh_viewed` pass both are part of,
+//!   on the three scenes above and the generated engineering family at 200K triangles seen close up.
 //!
 //! Scenes come from `../shared/meshes`; the bench fails naming the path when they are missing.
 //! Run: `cargo bench --bench accel` (filter with e.g. `-- side_by_side` or `-- build/bunny`).
@@ -231,7 +232,12 @@ fn bench_screen_crossings(c: &mut Criterion) {
         .unwrap_or_else(|e| panic!("{e}"));
     all.push(("engineering-200k", family));
     for (scene, mesh) in all {
-        let boxes: Vec<Aabb> = (0..mesh.triangle_count()).map(|i| Aabb::of_triangle(&mesh.triangle(i))).collect();
+        let (boxes, tris): (Vec<Aabb>, Vec<meshchar::geom::Triangle>) = (0..mesh.triangle_count())
+            .map(|i| {
+                let v = mesh.triangle(i);
+                (Aabb::of_triangle(&v), meshchar::geom::Triangle::new(&v))
+            })
+            .unzip();
         let b = boxes.iter().fold(Aabb::EMPTY, |a, x| a.union(x));
         let camera = if scene == "engineering-200k" {
             meshchar::trace::views::View::CloseUp.camera(&b)
@@ -242,6 +248,8 @@ fn bench_screen_crossings(c: &mut Criterion) {
         g.sample_size(10).warm_up_time(Duration::from_millis(500)).measurement_time(Duration::from_secs(2));
         g.throughput(Throughput::Elements(mesh.triangle_count() as u64));
         g.bench_function("count", |x| x.iter(|| meshchar::cost::screen_crossings(&boxes, &camera)));
+        let image = meshchar::cost::screen_crossings(&boxes, &camera);
+        g.bench_function("near", |x| x.iter(|| meshchar::cost::near_crossings(&boxes, &tris, &camera, image)));
         g.bench_function("build_bounds", |x| {
             x.iter(|| {
                 meshchar::select::BuildBounds::of_mesh_viewed(&mesh, Some(&camera)).unwrap_or_else(|e| panic!("{e}"))

@@ -103,6 +103,10 @@ pub struct ViewCrossings {
     pub framing: bool,
     /// The mean number of triangle boxes covering a point of its image, over every triangle.
     pub all: f64,
+    /// The mean number of triangle boxes a primary ray enters no later than its first hit, on a sample of the
+    /// rays ([`near_crossings`]): a lower bound on the triangle tests of the hierarchies whose nodes bound whole
+    /// triangles. Counted only where [`ViewCrossings::all`] is at least [`Crossings::NEAR_FROM`].
+    pub near: Option<f64>,
 }
 
 /// The triangle boxes a ray crosses on average ([`Crossings::per_ray`] for a camera's primary rays,
@@ -120,6 +124,9 @@ pub struct RayCrossings {
     /// ([`screen_crossings`], over every triangle), when counted; 0 otherwise. The secondary rays start where those
     /// rays hit, so a close camera looking into dense geometry sends them into it too.
     pub image: f64,
+    /// Primary rays only: the triangle boxes a ray enters no later than its first hit, over every triangle
+    /// ([`near_crossings`], on a sample of the camera's rays), when counted ([`Crossings::view`] of that camera).
+    pub near: Option<f64>,
     /// Secondary rays only: every ray leaves a flat scene without meeting it again
     /// ([`secondary_rays_leave_the_plane`]), so it crosses no box (the counts above are then 0) and every
     /// hierarchy tests its root box once and no triangle ([`overlap_floor`] gives those counts exactly).
@@ -169,6 +176,12 @@ impl Crossings {
     /// [`Crossings::most`] from which [`Crossings::distinct_faces`] is counted apart.
     pub const DISTINCT_FROM: f64 = 16.0;
 
+    /// The count on a camera's image ([`ViewCrossings::all`]) from which the boxes its rays enter before their
+    /// first hits are counted ([`ViewCrossings::near`], [`near_crossings`]). Below it a ray meets few boxes, about
+    /// this many at most, so the floor they give could bind by a few tests only; scenes whose rays meet few boxes
+    /// skip the pass.
+    pub const NEAR_FROM: f64 = 8.0;
+
     /// The crossings of a mesh's triangles, `boxes` their boxes in mesh order with whether the triangle has zero
     /// area, `scene` their union (one pass, plus a hash of the vertex-index triples from
     /// [`Crossings::DISTINCT_FROM`] on).
@@ -202,15 +215,15 @@ impl Crossings {
     /// ([`Crossings::with_view`]; `None`: the framing camera of the mesh's box, what the policy assumes without a
     /// camera). [`crate::select::BuildBounds::of_mesh_viewed`] records the same.
     pub fn of_mesh_viewed(mesh: &Mesh, camera: Option<&Camera>) -> Crossings {
-        let (boxes, degenerate): (Vec<Aabb>, Vec<bool>) = (0..mesh.triangle_count())
+        let (boxes, tris): (Vec<Aabb>, Vec<crate::geom::Triangle>) = (0..mesh.triangle_count())
             .map(|i| {
                 let v = mesh.triangle(i);
-                (Aabb::of_triangle(&v), crate::geom::Triangle::new(&v).is_degenerate())
+                (Aabb::of_triangle(&v), crate::geom::Triangle::new(&v))
             })
             .unzip();
         let scene = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
-        let c = Crossings::of(mesh, boxes.iter().copied().zip(degenerate), &scene);
-        c.viewed_from(&boxes, &scene, camera)
+        let c = Crossings::of(mesh, boxes.iter().zip(&tris).map(|(b, t)| (*b, t.is_degenerate())), &scene);
+        c.viewed_from(&boxes, &tris, &scene, camera)
     }
 
     /// [`Crossings::of_mesh_viewed`] from the framing camera.
@@ -220,15 +233,21 @@ impl Crossings {
 
     /// [`Crossings::with_view`] of `camera`, or of the framing camera of `scene` (the triangles' union) when `None`;
     /// no view for an empty or non-finite scene.
-    pub fn viewed_from(self, boxes: &[Aabb], scene: &Aabb, camera: Option<&Camera>) -> Crossings {
+    pub fn viewed_from(
+        self,
+        boxes: &[Aabb],
+        tris: &[crate::geom::Triangle],
+        scene: &Aabb,
+        camera: Option<&Camera>,
+    ) -> Crossings {
         if scene.is_empty() || !(scene.max - scene.min).is_finite() {
             return self;
         }
         match camera {
-            Some(c) => self.with_view(boxes, c, false),
+            Some(c) => self.with_view(boxes, tris, c, false),
             None => {
                 let c = super::view::framing_camera(scene.min.to_array(), scene.max.to_array());
-                self.with_view(boxes, &c, true)
+                self.with_view(boxes, tris, &c, true)
             }
         }
     }
@@ -260,6 +279,7 @@ impl Crossings {
             all: ratio(self.faces, self.scene, [1.0; 3]),
             distinct: ratio(self.distinct_faces, self.scene, [1.0; 3]),
             nondegenerate: ratio(self.nondegenerate_faces, self.scene, [1.0; 3]),
+            near: None,
             image: 0.0,
             leave_flat_scene: false,
             leave_share: 0.0,
@@ -372,10 +392,20 @@ impl Crossings {
         })
     }
 
-    /// These crossings with `camera`'s counted on its image ([`screen_crossings`] of `boxes`, the triangles' boxes;
-    /// `framing`: it is the framing camera of the scene's box, [`super::view::framing_camera`]).
-    pub fn with_view(mut self, boxes: &[Aabb], camera: &Camera, framing: bool) -> Crossings {
-        self.view = Some(ViewCrossings { camera: *camera, framing, all: screen_crossings(boxes, camera) });
+    /// These crossings with `camera`'s counted on its image ([`screen_crossings`] of `boxes`, the triangles' boxes)
+    /// and, on a sample of its rays, in front of their first hits ([`near_crossings`] of `boxes` and `tris`, the
+    /// triangles, in the same order); `framing`: it is the framing camera of the scene's box,
+    /// [`super::view::framing_camera`].
+    pub fn with_view(
+        mut self,
+        boxes: &[Aabb],
+        tris: &[crate::geom::Triangle],
+        camera: &Camera,
+        framing: bool,
+    ) -> Crossings {
+        let all = screen_crossings(boxes, camera);
+        let near = (all >= Self::NEAR_FROM).then(|| near_crossings(boxes, tris, camera, all));
+        self.view = Some(ViewCrossings { camera: *camera, framing, all, near });
         self
     }
 
@@ -389,7 +419,8 @@ impl Crossings {
         let w = cam.forward.abs().as_dvec3().to_array();
         let along = ratio(self.faces, self.scene, w);
         let share = |f: [f64; 3]| if along > 0.0 { ratio(f, self.scene, w) / along } else { 0.0 };
-        let all = match self.counted(camera) {
+        let counted = self.counted(camera);
+        let all = match counted {
             Some(v) => v.all,
             None => along * ViewFeatures::of(cam, lo, hi).coverage,
         };
@@ -397,6 +428,7 @@ impl Crossings {
             all,
             distinct: all * share(self.distinct_faces),
             nondegenerate: all * share(self.nondegenerate_faces),
+            near: counted.and_then(|v| v.near),
             image: 0.0,
             leave_flat_scene: false,
             leave_share: 0.0,
@@ -462,9 +494,7 @@ pub fn secondary_rays_leave_the_plane(kind: WorkloadKind, camera: Option<&Camera
 /// Non-finite projections count nothing.
 pub fn screen_crossings(boxes: &[Aabb], camera: &Camera) -> f64 {
     use rayon::prelude::*;
-    let scene = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
-    let extent = (scene.max - scene.min).max_element().max((scene.max.abs().max(scene.min.abs())).max_element());
-    let near = if extent.is_finite() && extent > 0.0 { extent * 1e-6 } else { 1e-6 };
+    let near = near_plane(boxes);
     let parts: Vec<f64> =
         boxes.par_chunks(4096).map(|c| c.iter().map(|b| screen_share(b, camera, near)).sum::<f64>()).collect();
     parts.iter().sum()
@@ -472,8 +502,26 @@ pub fn screen_crossings(boxes: &[Aabb], camera: &Camera) -> f64 {
 
 /// The share of `camera`'s image covered by the screen rectangle of `b` (see [`screen_crossings`]).
 fn screen_share(b: &Aabb, camera: &Camera, near: f32) -> f64 {
+    match screen_rect(b, camera, near) {
+        Some((lo, hi)) => {
+            let size = hi - lo;
+            let share = f64::from(size.x) * f64::from(size.y) / 4.0;
+            if share.is_finite() {
+                share
+            } else {
+                0.0
+            }
+        }
+        None => 0.0,
+    }
+}
+
+/// The screen rectangle of `b` on `camera`'s square image, `(lo, hi)` in `[-1, 1]^2` (x to the right, y up): the
+/// rectangle of its corners' projections, clipped at the plane `near` in front of the eye and to the image; the
+/// whole image for a box holding the eye; `None` when it covers nothing or a projection is not finite.
+fn screen_rect(b: &Aabb, camera: &Camera, near: f32) -> Option<(glam::Vec2, glam::Vec2)> {
     if b.min.cmple(camera.eye).all() && b.max.cmpge(camera.eye).all() {
-        return 1.0;
+        return Some((-glam::Vec2::ONE, glam::Vec2::ONE));
     }
     let corner = |k: usize| {
         Vec3::new(
@@ -506,13 +554,134 @@ fn screen_share(b: &Aabb, camera: &Camera, near: f32) -> f64 {
             }
         }
     }
-    let size = (hi.min(glam::Vec2::ONE) - lo.max(-glam::Vec2::ONE)).max(glam::Vec2::ZERO);
-    let share = f64::from(size.x) * f64::from(size.y) / 4.0;
-    if share.is_finite() {
-        share
+    let (lo, hi) = (lo.max(-glam::Vec2::ONE), hi.min(glam::Vec2::ONE));
+    if lo.is_finite() && hi.is_finite() && lo.cmplt(hi).all() {
+        Some((lo, hi))
     } else {
-        0.0
+        None
     }
+}
+
+/// The near plane [`screen_crossings`] and [`near_crossings`] clip at: a millionth of the boxes' extent (or of
+/// their distance from the origin, if larger) in front of the eye.
+fn near_plane(boxes: &[Aabb]) -> f32 {
+    let scene = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
+    let extent = (scene.max - scene.min).max_element().max((scene.max.abs().max(scene.min.abs())).max_element());
+    if extent.is_finite() && extent > 0.0 {
+        extent * 1e-6
+    } else {
+        1e-6
+    }
+}
+
+/// The side of the square sample of primary rays [`near_crossings`] traces at most (1,024 rays).
+pub const NEAR_SAMPLES: u32 = 32;
+
+/// The box-ray pairs one pass of [`near_crossings`] examines at most, about: the sample shrinks (to 8 x 8 at
+/// least) where the image count times the sample's rays would exceed it.
+const NEAR_WORK: f64 = 16.0 * 1024.0 * 1024.0;
+
+/// The mean number of triangle boxes a primary ray of `camera` enters no later than its first hit (or at all, for
+/// a ray that hits nothing), over a square sample of its rays: the rays through the pixel centres of a
+/// [`NEAR_SAMPLES`]-square image (fewer where `image`, the count of [`screen_crossings`], times their number would
+/// exceed about 16 million box-ray pairs), `boxes[i]` the box of `tris[i]`. Two passes over the triangles, each
+/// visiting only the sample rays inside the triangle box's screen rectangle (the rectangle of
+/// [`screen_crossings`]): the first finds each ray's closest hit, the second counts the boxes each ray enters no
+/// later than it (up to where a closest-hit traversal still visits nodes: `geom::cull_bound` of the hit).
+///
+/// Why it matters: a hierarchy whose every node bounds whole triangles (the binned-SAH BVH, the LBVH, the HLBVH and
+/// the BIH) visits, in front-to-back closest-hit traversal, every leaf whose box the ray enters before the closest
+/// hit found so far, so it tests at least every triangle whose own box the ray enters before its first hit: this
+/// count, per ray, is a lower bound on their triangle tests ([`overlap_floor`]). The image count of
+/// [`screen_crossings`] also counts the boxes behind the first hit, which the traversal never reaches. A kd-tree
+/// and a grid store a triangle only in the cells it overlaps, not in every cell its box does, so the bound does not
+/// hold for them (long thin triangles across a grid's cells: the engineering family).
+///
+/// Deterministic: the closest hits are minima (order-free) and the counts integers. 0 for no triangle.
+pub fn near_crossings(boxes: &[Aabb], tris: &[crate::geom::Triangle], camera: &Camera, image: f64) -> f64 {
+    use crate::geom::ray::RayInv;
+    use rayon::prelude::*;
+    let n = boxes.len().min(tris.len());
+    if n == 0 {
+        return 0.0;
+    }
+    let mut side = NEAR_SAMPLES;
+    if image.is_finite() && image * f64::from(side * side) > NEAR_WORK {
+        side = ((NEAR_WORK / image).sqrt() as u32).clamp(8, NEAR_SAMPLES);
+    }
+    let s = side as usize;
+    let rays: Vec<RayInv> =
+        (0..side * side).map(|k| RayInv::new(&camera.ray(k % side, k / side, side, side))).collect();
+    let near = near_plane(&boxes[..n]);
+    let sf = side as f32;
+    // The sample rays whose pixel centres lie in a box's screen rectangle (widened by a thousandth of a sample
+    // against the rounding of the projections; the tests below are exact): columns x0..x1, rows y0..y1. Computed
+    // once per box, for both passes; most boxes of a large mesh hold no sample centre.
+    let at = |p: f32| (p * sf - 0.5 - 1e-3).ceil().max(0.0) as usize;
+    let to = |p: f32| ((p * sf - 0.5 + 1e-3).floor() + 1.0).clamp(0.0, sf) as usize;
+    let ranges: Vec<Option<[u16; 4]>> = boxes[..n]
+        .par_iter()
+        .map(|b| {
+            let (lo, hi) = screen_rect(b, camera, near)?;
+            // Column x has its centre at (x + 0.5) / side * 2 - 1; row y at 1 - (y + 0.5) / side * 2.
+            let (cx0, cx1) = (at((lo.x + 1.0) * 0.5), to((hi.x + 1.0) * 0.5));
+            let (ry0, ry1) = (at((1.0 - hi.y) * 0.5), to((1.0 - lo.y) * 0.5));
+            (cx0 < cx1 && ry0 < ry1).then_some([cx0 as u16, cx1 as u16, ry0 as u16, ry1 as u16])
+        })
+        .collect();
+    const CHUNK: usize = 4096;
+    let depth = (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let mut d = vec![f32::INFINITY; s * s];
+            for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                let Some([x0, x1, y0, y1]) = ranges[i] else { continue };
+                for y in y0 as usize..y1 as usize {
+                    for x in x0 as usize..x1 as usize {
+                        let k = y * s + x;
+                        let r = &rays[k];
+                        if let Some((t, _, _)) = crate::geom::intersect_triangle(&tris[i], r.o, r.d, 0.0, d[k]) {
+                            d[k] = t;
+                        }
+                    }
+                }
+            }
+            d
+        })
+        .reduce(
+            || vec![f32::INFINITY; s * s],
+            |mut a, b| {
+                a.iter_mut().zip(b).for_each(|(x, y)| *x = x.min(y));
+                a
+            },
+        );
+    // Counted up to where a traversal still visits nodes once the closest hit is found: the hit's distance enlarged
+    // as the slab test enlarges exits, plus the tie margin (`geom::cull_bound`), so that a box the ray enters at
+    // its hit point counts whatever the rounding.
+    let scene = boxes[..n].iter().fold(Aabb::EMPTY, |a, b| a.union(b));
+    let bound: Vec<f32> = rays
+        .iter()
+        .zip(&depth)
+        .map(|(r, &t)| crate::geom::cull_bound(t, crate::geom::tie_margin(r.o, r.d, &scene)))
+        .collect();
+    let count: u64 = (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let mut entered = 0u64;
+            for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                let Some([x0, x1, y0, y1]) = ranges[i] else { continue };
+                let (lo, hi) = (boxes[i].min.to_array(), boxes[i].max.to_array());
+                for y in y0 as usize..y1 as usize {
+                    for x in x0 as usize..x1 as usize {
+                        let k = y * s + x;
+                        entered += rays[k].slab(&lo, &hi, 0.0, bound[k]).is_some() as u64;
+                    }
+                }
+            }
+            entered
+        })
+        .sum();
+    count as f64 / (s * s) as f64
 }
 
 /// `sum_a w_a f_a / sum_a w_a s_a`, 0 when the denominator is not positive and finite.
@@ -624,6 +793,21 @@ pub fn secondary_tests_per_image_crossing(structure: StructureName, kind: Worklo
 const SHADOW_IMAGE: [(f64, f64); 5] = [(0.074, 0.011), (0.0, 0.011), (0.30, 0.068), (0.16, 0.010), (0.13, 0.010)];
 const DIFFUSE_IMAGE: [(f64, f64); 5] = [(0.17, 0.0082), (0.0, 0.0099), (0.37, 0.083), (0.39, 0.0096), (0.24, 0.0094)];
 
+/// The largest leaf of a structure whose every node bounds whole triangles (its default build options), for the
+/// floor of [`near_crossings`]; `None` for the others (kd-tree, grid), which store a triangle only in the cells it
+/// overlaps.
+fn near_leaf(structure: StructureName) -> Option<f64> {
+    match structure {
+        StructureName::Bvh => Some(crate::accel::bvh::BvhOptions::default().max_leaf as f64),
+        StructureName::Lbvh => Some(crate::accel::lbvh::LbvhOptions::default().max_leaf as f64),
+        StructureName::Hlbvh => Some(crate::accel::hlbvh::HlbvhOptions::default().max_leaf as f64),
+        #[cfg(feature = "eval")]
+        StructureName::Bih => Some(crate::accel::bih::BihOptions::default().max_leaf as f64),
+        _ => None,
+    }
+    .map(|l| l.max(1.0))
+}
+
 /// Lower (and, where the geometry fixes them, upper) bounds on a structure's tests per ray, for
 /// [`crate::cost::StructureModel::predict_floored`], and the crossings they come from. The default bounds nothing
 /// and knows no crossings (`crossings` NaN; two unknown counts are equal).
@@ -717,6 +901,16 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
     let (b, p) = tests_per_crossing(structure, kind);
     let leave_share = if kind == WorkloadKind::Primary { 0.0 } else { unit_share(c.leave_share) };
     let mut f = TestFloor { box_tests: b * x, prim_tests: p * x, crossings, leave_share, ..TestFloor::default() };
+    if let (WorkloadKind::Primary, Some(near), Some(leaf)) = (kind, c.near, near_leaf(structure)) {
+        // Every triangle whose box a ray enters before its first hit is tested ([`near_crossings`]); the binned-SAH
+        // BVH keeps one of coincident copies, so its count is scaled by the distinct share. Each such triangle's
+        // leaf box is tested too, and a leaf holds at most `leaf` triangles.
+        let near = if structure == StructureName::Bvh && c.all > 0.0 { near * c.distinct / c.all } else { near };
+        if near.is_finite() && near > 0.0 {
+            f.prim_tests = f.prim_tests.max(near);
+            f.box_tests = f.box_tests.max(near / leaf);
+        }
+    }
     if kind != WorkloadKind::Primary && c.image > 0.0 {
         let y = if c.all > 0.0 { c.image * x / c.all } else { 0.0 };
         let (bi, pi) = secondary_tests_per_image_crossing(structure, kind);

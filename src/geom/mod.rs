@@ -14,7 +14,7 @@
 mod aabb;
 pub mod camera;
 mod clip;
-mod ray;
+pub(crate) mod ray;
 mod triangle;
 
 pub use aabb::Aabb;

@@ -308,7 +308,7 @@ impl BuildBounds {
             .reduce(|| (0u64, 0u64), |a, b| (a.0.saturating_add(b.0), a.1.saturating_add(b.1)));
         let mut crossings = Crossings::of(mesh, boxes.iter().zip(&tris).map(|(b, t)| (*b, t.is_degenerate())), &scene);
         if let Some(camera) = view {
-            crossings = crossings.viewed_from(&boxes, &scene, camera);
+            crossings = crossings.viewed_from(&boxes, &tris, &scene, camera);
         }
         Ok(BuildBounds {
             box_crossings: Some(crossings),
