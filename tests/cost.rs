@@ -280,6 +280,18 @@ fn reference_totals(model: &CostModel, f: &Features, w: &Workload) -> Vec<(Struc
         .structures
         .iter()
         .map(|sm| {
+            // The geometric features after ln_n are clamped into the range the calibration was fitted on.
+            let x: Vec<f64> = x
+                .iter()
+                .zip(&model.feature_names)
+                .enumerate()
+                .map(|(j, (&v, name))| match sm.feature_range.get(j) {
+                    Some(&[lo, hi]) if !matches!(name.as_str(), "intercept" | "shadow" | "diffuse" | "ln_n") => {
+                        v.clamp(lo, hi)
+                    }
+                    _ => v,
+                })
+                .collect();
             let count = |theta: &[f64]| theta.iter().zip(&x).map(|(t, x)| t * x).sum::<f64>().clamp(-30.0, 30.0).exp();
             let (bx, pr) = (count(&sm.box_coef), count(&sm.prim_coef));
             let price = |name: &str| sm.trace_price[model.price_names.iter().position(|p| p == name).unwrap()];
@@ -937,4 +949,47 @@ fn the_regret_beyond_noise_is_the_gap_between_the_intervals() {
     assert_eq!(smp.regret_beyond_noise(best), Some(0.0));
     set(&mut smp, best, None);
     assert_eq!(smp.regret_beyond_noise(other), Some(raw));
+}
+
+#[test]
+fn a_fitted_calibration_clamps_the_geometric_features_into_the_range_it_was_fitted_on() {
+    use meshchar::cost::{StructureModel, TestFloor, CLAMPED_FEATURES};
+    let (samples, _) = known_samples(40);
+    let m = CostModel::fit(&samples, "test", "synthetic").unwrap();
+    // The range of every column over the samples the laws were fitted on.
+    let rows: Vec<Vec<f64>> = samples.iter().map(|s| phi(&s.features.derived(), s.workload.kind)).collect();
+    for sm in &m.structures {
+        assert_eq!(sm.feature_range.len(), FEATURE_NAMES.len(), "{}", sm.structure);
+        for (j, r) in sm.feature_range.iter().enumerate() {
+            let lo = rows.iter().map(|x| x[j]).fold(f64::INFINITY, f64::min);
+            let hi = rows.iter().map(|x| x[j]).fold(f64::NEG_INFINITY, f64::max);
+            assert_eq!(*r, [lo, hi], "{} {}", sm.structure, FEATURE_NAMES[j]);
+        }
+    }
+    // A scene beyond the range in a geometric feature is predicted as one at its edge; the triangle count (ln_n,
+    // not clamped) still moves the prediction.
+    let sm = m.get(StructureName::Bvh).unwrap();
+    let d = samples[0].features.derived();
+    let w = samples[0].workload;
+    let at = |d: &meshchar::characterize::features::Derived| sm.predict_floored(d, 1000, &w, TestFloor::default());
+    let size_mean = FEATURE_NAMES.iter().position(|f| *f == "size_mean").unwrap();
+    assert!(CLAMPED_FEATURES.contains(&size_mean));
+    let edge = meshchar::characterize::features::Derived { size_mean: sm.feature_range[size_mean][1], ..d };
+    let beyond = meshchar::characterize::features::Derived { size_mean: edge.size_mean + 20.0, ..d };
+    assert_eq!(at(&beyond), at(&edge));
+    assert_ne!(sm.box_coef[size_mean], 0.0);
+    let unclamped = StructureModel { feature_range: Vec::new(), ..sm.clone() };
+    assert_ne!(unclamped.predict_floored(&beyond, 1000, &w, TestFloor::default()), at(&edge));
+    let bigger = meshchar::characterize::features::Derived { ln_n: d.ln_n + 5.0, ..beyond };
+    assert_ne!(at(&bigger).box_tests_per_ray, at(&beyond).box_tests_per_ray);
+    // A file with a malformed range is refused: a low bound above the high one, or the wrong count.
+    let mut bad = m.clone();
+    bad.structures[0].feature_range[4] = [2.0, 1.0];
+    assert!(bad.validate().is_err());
+    let mut bad = m.clone();
+    bad.structures[0].feature_range.pop();
+    assert!(bad.validate().is_err());
+    let mut old = m.clone();
+    old.structures.iter_mut().for_each(|s| s.feature_range.clear());
+    assert!(old.validate().is_ok(), "a file written before the range existed loads");
 }

@@ -322,6 +322,7 @@ fn paper_model() -> meshchar::cost::CostModel {
         view_prim_coef: Vec::new(),
         crossing_coef: Vec::new(),
         crossing_mean: Vec::new(),
+        feature_range: Vec::new(),
         fit: FitError::default(),
     };
     let m = CostModel {

@@ -25,7 +25,8 @@
 //! A calibration fitted with views adds the camera's features to `phi` ([`ViewFeatures`]); one fitted with the
 //! crossings ([`CostModel::fit_with`]) adds `ln(1 + crossings)` ([`crossings_feature`]: the triangle boxes a ray
 //! crosses) with coefficients of its own; and the predictions take each count at least at its overlap floor
-//! ([`overlap_floor`]) when the caller gives one.
+//! ([`overlap_floor`]) when the caller gives one. A fitted calibration clamps the geometric features into the range
+//! it was fitted on ([`StructureModel::feature_range`]).
 //!
 //! # Fit
 //!
@@ -85,6 +86,11 @@
 //! * `crossing_mean` is absent, or has three values (primary, shadow, diffuse) when `crossing_coef` is present: the
 //!   calibration's mean `ln(1 + crossings)` per kind, read for a caller without a count; each in `[0, 45]` (a ray
 //!   crosses at most every triangle box, and `ln(1 + 2^64) < 45`).
+//! * `feature_range` is absent, or has one `[lo, hi]` per [`FEATURE_NAMES`], both finite and `lo <= hi`: the range
+//!   of each feature over the samples the count laws were fitted on; a prediction clamps the geometric features
+//!   ([`CLAMPED_FEATURES`]) into it, so that a log-linear law does not extrapolate to a scene unlike every
+//!   calibration scene (a small object in a vast empty box: the teapot in a stadium, whose mean triangle size and
+//!   triangles per cell lie 1.7 and 1.9 times beyond the other families' largest).
 //! * `trace_price` has one price per [`PRICE_NAMES`], each `>= 0` (ns per ray or per test: the fit is
 //!   non-negative least squares, and a negative price would make more work cheaper) and at most
 //!   [`PRICE_LIMIT_NS`] (1 ms: the devices in scope pay 1 to 40 ns per test, so a larger price is a unit error),
@@ -286,6 +292,11 @@ pub fn phi(d: &Derived, kind: WorkloadKind) -> Vec<f64> {
     ]
 }
 
+/// The columns of [`FEATURE_NAMES`] a prediction clamps into the calibration's range
+/// ([`StructureModel::feature_range`]): the geometric ones after `ln_n` (the triangle count, whose law is the
+/// build's and the size-only model's too, extrapolates).
+pub const CLAMPED_FEATURES: std::ops::Range<usize> = 4..10;
+
 /// Position of a workload kind in per-kind arrays ([`StructureModel::crossing_mean`]): primary, shadow, diffuse.
 fn kind_index(kind: WorkloadKind) -> usize {
     match kind {
@@ -379,6 +390,12 @@ pub struct StructureModel {
     /// cross nothing. Absent in files written before it (such a file reads an unknown count as 0).
     #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
     pub crossing_mean: Vec<f64>,
+    /// Per [`FEATURE_NAMES`] column, the least and the largest value over the samples the count laws were fitted
+    /// on, `[lo, hi]`; a prediction clamps the geometric columns ([`CLAMPED_FEATURES`]) into it, so that a scene
+    /// unlike every calibration scene is not extrapolated to by a log-linear law. Absent in files written before
+    /// it (no clamp).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub feature_range: Vec<[f64; 2]>,
     /// Fit errors on the calibration samples.
     pub fit: FitError,
 }
@@ -417,7 +434,15 @@ impl StructureModel {
     /// most its upper ones, and the share of rays that leave the scene at once counted at one box test and no
     /// triangle test); the trace time follows from the bounded counts.
     pub fn predict_floored(&self, d: &Derived, n: u64, w: &Workload, floor: TestFloor) -> Prediction {
-        let x = phi(d, w.kind);
+        let mut x = phi(d, w.kind);
+        if self.feature_range.len() == x.len() {
+            for j in CLAMPED_FEATURES {
+                let [lo, hi] = self.feature_range[j];
+                if lo <= hi {
+                    x[j] = x[j].clamp(lo, hi);
+                }
+            }
+        }
         let v = w.view.map_or([0.0; 3], |v| v.row());
         let (cb, cp) = match self.crossing_coef[..] {
             [b, p] => {
@@ -995,6 +1020,22 @@ fn check_structure(i: usize, s: &StructureModel) -> Result<(), CostError> {
     for (j, (&c, f)) in s.crossing_mean.iter().zip(["primary", "shadow", "diffuse"]).enumerate() {
         check_number(st, at(&format!("crossing_mean[{j}] ({f})")), c, 0.0..=45.0, "a mean of ln(1 + crossings)")?;
     }
+    if !s.feature_range.is_empty() && s.feature_range.len() != FEATURE_NAMES.len() {
+        return Err(invalid(
+            st,
+            at("feature_range"),
+            format!("{} ranges, expected none or one per feature ({})", s.feature_range.len(), FEATURE_NAMES.len()),
+        ));
+    }
+    for (j, (&[lo, hi], f)) in s.feature_range.iter().zip(FEATURE_NAMES).enumerate() {
+        let field = at(&format!("feature_range[{j}] ({f})"));
+        if !(lo.is_finite() && hi.is_finite()) {
+            return Err(invalid(st, field, format!("[{lo}, {hi}]: the bounds must be finite numbers")));
+        }
+        if lo > hi {
+            return Err(invalid(st, field, format!("[{lo}, {hi}]: the low bound exceeds the high one")));
+        }
+    }
     if s.trace_price.len() != PRICE_NAMES.len() {
         return Err(invalid(
             st,
@@ -1120,6 +1161,16 @@ fn fit_structure(
     };
     let view_box_coef = box_coef.split_off(p);
     let view_prim_coef = prim_coef.split_off(p);
+    // The range of every feature over the rows the laws were fitted on (a geometric model only: the size-only
+    // model reads no geometric feature); none when no row took part.
+    let fitted = || x.iter().zip(&law_w).filter(|(_, w)| **w > 0.0).map(|(r, _)| r);
+    let feature_range: Vec<[f64; 2]> = if geometric && fitted().next().is_some() {
+        (0..p)
+            .map(|j| fitted().fold([f64::INFINITY, f64::NEG_INFINITY], |[lo, hi], r| [lo.min(r[j]), hi.max(r[j])]))
+            .collect()
+    } else {
+        Vec::new()
+    };
     // Prices.
     let tx: Vec<Vec<f64>> =
         rows.iter().map(|(smp, m)| price_row(smp.workload.kind, m.box_tests_per_ray, m.prim_tests_per_ray)).collect();
@@ -1137,6 +1188,7 @@ fn fit_structure(
         view_prim_coef,
         crossing_coef,
         crossing_mean,
+        feature_range,
         fit: FitError::default(),
     };
     let (mut eb, mut ebox, mut eprim, mut etc, mut et, mut etot) = (vec![], vec![], vec![], vec![], vec![], vec![]);
