@@ -467,7 +467,9 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     assert_eq!(cr.for_workload(WorkloadKind::Primary, Some(&cam), lo, hi), cr.per_ray(Some(&cam), lo, hi));
     for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
         let r = cr.for_workload(k, Some(&cam), lo, hi);
-        assert_eq!(RayCrossings { image: 0.0, ..r }, cr.isotropic());
+        // (Diffuse rays also get the boxes holding their origins, counted on the camera's sample.)
+        assert_eq!(RayCrossings { image: 0.0, near: None, ..r }, cr.isotropic());
+        assert_eq!(r.near.is_some(), k == WorkloadKind::Diffuse, "{k:?}");
     }
     assert_eq!(cr.isotropic().all, cr.mean());
     // Secondary rays also get the camera's count on its image, when the view is of that camera.
@@ -832,19 +834,30 @@ fn the_boxes_entered_before_the_first_hit_are_counted_exactly_on_two_walls() {
     let (boxes, tris) = boxes_and_triangles(&walls);
     let image = screen_crossings(&boxes, &cam);
     assert_eq!(image, 4.0);
-    assert_eq!(near_crossings(&boxes, &tris, &cam, image), 2.0);
+    // Every ray hits; the diffuse ray each hit starts leaves the front wall towards the camera, off its flat box:
+    // no box holds its origin.
+    let both = near_crossings(&boxes, &tris, &cam, image);
+    assert_eq!((both.entered, both.holding_origin, both.hit_share), (2.0, 0.0, 1.0));
     // Without the front wall every ray hits the back one: 2 again; without any wall, nothing.
     let (back_boxes, back_tris) = (&boxes[2..], &tris[2..]);
-    assert_eq!(near_crossings(back_boxes, back_tris, &cam, 2.0), 2.0);
-    assert_eq!(near_crossings(&[], &[], &cam, 0.0), 0.0);
+    assert_eq!(near_crossings(back_boxes, back_tris, &cam, 2.0).entered, 2.0);
+    assert_eq!(near_crossings(&[], &[], &cam, 0.0), Default::default());
     // Rays that hit nothing count every box they enter: the back wall seen through zero-area triangles only.
     let degenerate = [meshchar::geom::Triangle::new(&[v(0.0, 0.0, -1.0); 3]); 2];
     assert!(degenerate[0].is_degenerate());
     let missed = near_crossings(back_boxes, &degenerate, &cam, 2.0);
-    assert_eq!(missed, 2.0);
+    assert_eq!((missed.entered, missed.holding_origin, missed.hit_share), (2.0, 0.0, 0.0));
     // Looking away from the walls: nothing.
     let away = Camera { forward: v(0.0, 0.0, 1.0), right: v(-1.0, 0.0, 0.0), ..cam };
-    assert_eq!(near_crossings(&boxes, &tris, &away, image), 0.0);
+    assert_eq!(near_crossings(&boxes, &tris, &away, image).entered, 0.0);
+    // A box around the hit point: the front wall tilted out of its plane (its two triangles now span a box of
+    // depth), so every diffuse origin lies inside the boxes of the triangles around it.
+    let tilted = [[-3.0, -3.0, -0.5], [3.0, -3.0, -1.5], [3.0, 3.0, -1.5], [-3.0, 3.0, -0.5]];
+    let wedge = Mesh::new("tilted", tilted.to_vec(), vec![[0, 1, 2], [0, 2, 3]]).unwrap();
+    let (wb, wt) = boxes_and_triangles(&wedge);
+    let w = near_crossings(&wb, &wt, &cam, screen_crossings(&wb, &cam));
+    assert_eq!(w.hit_share, 1.0);
+    assert!(w.holding_origin >= 1.0 && w.holding_origin <= 2.0, "{w:?}");
 }
 
 #[test]
@@ -871,7 +884,8 @@ fn every_hierarchy_tests_at_least_the_triangles_whose_boxes_a_ray_enters_before_
     ];
     for (cam, m) in &cases {
         let (boxes, tris) = boxes_and_triangles(m);
-        let near = near_crossings(&boxes, &tris, cam, screen_crossings(&boxes, cam));
+        let counted = near_crossings(&boxes, &tris, cam, screen_crossings(&boxes, cam));
+        let near = counted.entered;
         let reference = meshchar::accel::build_structure(StructureName::Bvh, m).unwrap();
         let rays = build_workload(WorkloadKind::Primary, m, cam, NEAR_SAMPLES, reference.as_ref());
         assert_eq!(rays.rays.len(), (NEAR_SAMPLES * NEAR_SAMPLES) as usize);
@@ -889,11 +903,24 @@ fn every_hierarchy_tests_at_least_the_triangles_whose_boxes_a_ray_enters_before_
             let tested = per_ray(StructureName::Grid);
             assert!(tested < near, "{} grid: {tested} triangle tests per ray, {near} boxes entered", m.name);
         }
+        // The diffuse rays those hits start (one per hit, from the same origins): each of the four tests at least
+        // the triangles whose boxes hold the ray's origin.
+        let diffuse = build_workload(WorkloadKind::Diffuse, m, cam, NEAR_SAMPLES, reference.as_ref());
+        assert_eq!(diffuse.rays.len() as f64, counted.hit_share * rays.rays.len() as f64, "{}", m.name);
+        for s in [StructureName::Bvh, StructureName::Lbvh, StructureName::Hlbvh, StructureName::Bih] {
+            let accel = meshchar::accel::build_structure(s, m).unwrap();
+            let tested = trace(accel.as_ref(), &diffuse).counters.prim_tests as f64 / diffuse.rays.len().max(1) as f64;
+            let holding = counted.holding_origin;
+            assert!(tested >= holding, "{} {s} diffuse: {tested} triangle tests per ray, {holding} boxes", m.name);
+        }
+        if m.name.contains("engineering") {
+            assert!(counted.holding_origin > 10.0, "{}: {counted:?}", m.name);
+        }
     }
 }
 
 #[test]
-fn the_boxes_entered_before_the_hit_floor_the_triangle_tests_of_the_four_hierarchies_for_primary_rays() {
+fn the_boxes_entered_before_the_hit_floor_the_triangle_tests_of_the_four_hierarchies_for_closest_hit_rays() {
     use meshchar::cost::{overlap_floor, RayCrossings};
     // 40 boxes entered before the hit, 50 crossed on the image, 10 of them distinct triangles (the BVH keeps one
     // of coincident copies: 40 * 10 / 50 = 8 for it).
@@ -905,22 +932,21 @@ fn the_boxes_entered_before_the_hit_floor_the_triangle_tests_of_the_four_hierarc
         StructureName::Hlbvh => meshchar::accel::hlbvh::HlbvhOptions::default().max_leaf as f64,
         _ => meshchar::accel::bih::BihOptions::default().max_leaf as f64,
     };
-    for s in StructureName::ALL {
-        let (f, g) =
-            (overlap_floor(s, WorkloadKind::Primary, Some(c)), overlap_floor(s, WorkloadKind::Primary, Some(without)));
+    for (s, k) in StructureName::ALL.into_iter().flat_map(|s| [(s, WorkloadKind::Primary), (s, WorkloadKind::Diffuse)])
+    {
+        let (f, g) = (overlap_floor(s, k, Some(c)), overlap_floor(s, k, Some(without)));
         match s {
             StructureName::Bvh | StructureName::Lbvh | StructureName::Hlbvh | StructureName::Bih => {
                 let near = if s == StructureName::Bvh { 8.0 } else { 40.0 };
-                assert_eq!(f.prim_tests, g.prim_tests.max(near), "{s}");
-                assert_eq!(f.box_tests, g.box_tests.max(near / leaf(s)), "{s}");
-                assert!(f.prim_tests > g.prim_tests, "{s}: the floor must bind here");
+                assert_eq!(f.prim_tests, g.prim_tests.max(near), "{s} {k:?}");
+                assert_eq!(f.box_tests, g.box_tests.max(near / leaf(s)), "{s} {k:?}");
+                assert!(f.prim_tests > g.prim_tests, "{s} {k:?}: the floor must bind here");
             }
-            _ => assert_eq!(f, g, "{s}: no floor from the boxes entered"),
+            _ => assert_eq!(f, g, "{s} {k:?}: no floor from the boxes entered"),
         }
-        // Secondary rays have no such count.
-        for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
-            assert_eq!(overlap_floor(s, k, Some(c)), overlap_floor(s, k, Some(without)), "{s} {k:?}");
-        }
+        // Shadow rays (any hit) take none.
+        let k = WorkloadKind::Shadow;
+        assert_eq!(overlap_floor(s, k, Some(c)), overlap_floor(s, k, Some(without)), "{s} {k:?}");
     }
     // The count travels with the camera's view: primary rays of that camera get it, another camera's do not. It is
     // counted where the image count reaches Crossings::NEAR_FROM (the engineering family close up), not below (two
@@ -933,10 +959,13 @@ fn the_boxes_entered_before_the_hit_floor_the_triangle_tests_of_the_four_hierarc
     let cr = Crossings::of_mesh_viewed(&m, Some(&close));
     let v = cr.view.expect("a view");
     let near = v.near.expect("counted close up");
-    assert!(v.all >= Crossings::NEAR_FROM && near > 50.0 && near < v.all, "{v:?}");
-    assert_eq!(cr.per_ray(Some(&close), lo, hi).near, Some(near));
+    assert!(v.all >= Crossings::NEAR_FROM && near.entered > 50.0 && near.entered < v.all, "{v:?}");
+    assert_eq!(cr.per_ray(Some(&close), lo, hi).near, Some(near.entered));
+    assert_eq!(cr.for_workload(WorkloadKind::Primary, Some(&close), lo, hi).near, Some(near.entered));
+    assert_eq!(cr.for_workload(WorkloadKind::Diffuse, Some(&close), lo, hi).near, Some(near.holding_origin));
     let elsewhere = Camera { eye: close.eye * 3.0, ..close };
     assert_eq!(cr.per_ray(Some(&elsewhere), lo, hi).near, None);
+    assert_eq!(cr.for_workload(WorkloadKind::Diffuse, Some(&elsewhere), lo, hi).near, None);
     assert_eq!(cr.for_workload(WorkloadKind::Shadow, Some(&close), lo, hi).near, None);
     let framed = Crossings::of_mesh(&generate::two_triangles()).view.expect("framing view");
     assert!(framed.all < Crossings::NEAR_FROM && framed.near.is_none(), "{framed:?}");

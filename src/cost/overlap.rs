@@ -45,6 +45,14 @@
 //! camera's side (`trace::workload`; a camera hundreds of scene diagonals away can put that offset inside the
 //! rounding of the hit point).
 //!
+//! # Boxes entered before the first hit
+//!
+//! The image count includes the boxes behind a ray's first hit, which a closest-hit traversal never reaches, so the
+//! factors above are small (set by closed rooms). [`near_crossings`] counts, on a sample of a camera's rays, the
+//! boxes each enters before its first hit and those holding the origin of the diffuse ray each hit starts: every
+//! node of a BVH, LBVH, HLBVH or BIH bounds whole triangles, so each such triangle is tested, and the counts floor
+//! those four structures' triangle tests per primary and diffuse ray with no fitted factor ([`overlap_floor`]).
+//!
 //! # Where the floor applies, and where not yet
 //!
 //! The calibrated policy's predictions for a scene (`CalibratedPolicy::predictions`: the first frame, static
@@ -103,10 +111,11 @@ pub struct ViewCrossings {
     pub framing: bool,
     /// The mean number of triangle boxes covering a point of its image, over every triangle.
     pub all: f64,
-    /// The mean number of triangle boxes a primary ray enters no later than its first hit, on a sample of the
-    /// rays ([`near_crossings`]): a lower bound on the triangle tests of the hierarchies whose nodes bound whole
-    /// triangles. Counted only where [`ViewCrossings::all`] is at least [`Crossings::NEAR_FROM`].
-    pub near: Option<f64>,
+    /// On a sample of its rays ([`near_crossings`]): the triangle boxes a primary ray enters no later than its
+    /// first hit, and those holding the origin of the diffuse ray the hit starts; lower bounds on the triangle
+    /// tests of the hierarchies whose nodes bound whole triangles. Counted only where [`ViewCrossings::all`] is at
+    /// least [`Crossings::NEAR_FROM`].
+    pub near: Option<NearCrossings>,
 }
 
 /// The triangle boxes a ray crosses on average ([`Crossings::per_ray`] for a camera's primary rays,
@@ -124,8 +133,9 @@ pub struct RayCrossings {
     /// ([`screen_crossings`], over every triangle), when counted; 0 otherwise. The secondary rays start where those
     /// rays hit, so a close camera looking into dense geometry sends them into it too.
     pub image: f64,
-    /// Primary rays only: the triangle boxes a ray enters no later than its first hit, over every triangle
-    /// ([`near_crossings`], on a sample of the camera's rays), when counted ([`Crossings::view`] of that camera).
+    /// When counted ([`Crossings::view`] of that camera, [`near_crossings`] on a sample of its rays): for primary
+    /// rays the triangle boxes a ray enters no later than its first hit, for diffuse rays those holding the ray's
+    /// origin (entered at once); over every triangle. None for shadow rays (an any-hit query may stop before).
     pub near: Option<f64>,
     /// Secondary rays only: every ray leaves a flat scene without meeting it again
     /// ([`secondary_rays_leave_the_plane`]), so it crosses no box (the counts above are then 0) and every
@@ -309,6 +319,11 @@ impl Crossings {
             WorkloadKind::Shadow | WorkloadKind::Diffuse => RayCrossings {
                 image: self.counted(camera).map_or(0.0, |v| v.all),
                 leave_share: self.leave_share(kind, camera),
+                near: if kind == WorkloadKind::Diffuse {
+                    self.counted(camera).and_then(|v| v.near).map(|n| n.holding_origin)
+                } else {
+                    None
+                },
                 ..self.isotropic()
             },
         }
@@ -428,7 +443,7 @@ impl Crossings {
             all,
             distinct: all * share(self.distinct_faces),
             nondegenerate: all * share(self.nondegenerate_faces),
-            near: counted.and_then(|v| v.near),
+            near: counted.and_then(|v| v.near).map(|n| n.entered),
             image: 0.0,
             leave_flat_scene: false,
             leave_share: 0.0,
@@ -587,7 +602,8 @@ const NEAR_WORK: f64 = 16.0 * 1024.0 * 1024.0;
 /// exceed about 16 million box-ray pairs), `boxes[i]` the box of `tris[i]`. Two passes over the triangles, each
 /// visiting only the sample rays inside the triangle box's screen rectangle (the rectangle of
 /// [`screen_crossings`]): the first finds each ray's closest hit, the second counts the boxes each ray enters no
-/// later than it (up to where a closest-hit traversal still visits nodes: `geom::cull_bound` of the hit).
+/// later than it (up to where a closest-hit traversal still visits nodes: `geom::cull_bound` of the hit) and the
+/// boxes holding the origin of the secondary ray each hit starts ([`NearCrossings`]).
 ///
 /// Why it matters: a hierarchy whose every node bounds whole triangles (the binned-SAH BVH, the LBVH, the HLBVH and
 /// the BIH) visits, in front-to-back closest-hit traversal, every leaf whose box the ray enters before the closest
@@ -597,13 +613,17 @@ const NEAR_WORK: f64 = 16.0 * 1024.0 * 1024.0;
 /// and a grid store a triangle only in the cells it overlaps, not in every cell its box does, so the bound does not
 /// hold for them (long thin triangles across a grid's cells: the engineering family).
 ///
-/// Deterministic: the closest hits are minima (order-free) and the counts integers. 0 for no triangle.
-pub fn near_crossings(boxes: &[Aabb], tris: &[crate::geom::Triangle], camera: &Camera, image: f64) -> f64 {
+/// The same argument holds for a diffuse ray (closest hit) and the boxes holding its origin, which it enters at
+/// once ([`NearCrossings::holding_origin`]): the four structures' floor for diffuse rays.
+///
+/// Deterministic: the closest hits are minima (the lower triangle index on equal distances) and the counts
+/// integers. All zero for no triangle.
+pub fn near_crossings(boxes: &[Aabb], tris: &[crate::geom::Triangle], camera: &Camera, image: f64) -> NearCrossings {
     use crate::geom::ray::RayInv;
     use rayon::prelude::*;
     let n = boxes.len().min(tris.len());
     if n == 0 {
-        return 0.0;
+        return NearCrossings::default();
     }
     let mut side = NEAR_SAMPLES;
     if image.is_finite() && image * f64::from(side * side) > NEAR_WORK {
@@ -630,18 +650,20 @@ pub fn near_crossings(boxes: &[Aabb], tris: &[crate::geom::Triangle], camera: &C
         })
         .collect();
     const CHUNK: usize = 4096;
-    let depth = (0..n.div_ceil(CHUNK))
+    // Per sample ray, its closest hit: distance and triangle (the lower index on equal distances, whatever the
+    // chunking).
+    let closest = (0..n.div_ceil(CHUNK))
         .into_par_iter()
         .map(|c| {
-            let mut d = vec![f32::INFINITY; s * s];
+            let mut d = vec![(f32::INFINITY, u32::MAX); s * s];
             for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
                 let Some([x0, x1, y0, y1]) = ranges[i] else { continue };
                 for y in y0 as usize..y1 as usize {
                     for x in x0 as usize..x1 as usize {
                         let k = y * s + x;
                         let r = &rays[k];
-                        if let Some((t, _, _)) = crate::geom::intersect_triangle(&tris[i], r.o, r.d, 0.0, d[k]) {
-                            d[k] = t;
+                        if let Some((t, _, _)) = crate::geom::intersect_triangle(&tris[i], r.o, r.d, 0.0, d[k].0) {
+                            d[k] = (t, i as u32);
                         }
                     }
                 }
@@ -649,9 +671,13 @@ pub fn near_crossings(boxes: &[Aabb], tris: &[crate::geom::Triangle], camera: &C
             d
         })
         .reduce(
-            || vec![f32::INFINITY; s * s],
+            || vec![(f32::INFINITY, u32::MAX); s * s],
             |mut a, b| {
-                a.iter_mut().zip(b).for_each(|(x, y)| *x = x.min(y));
+                a.iter_mut().zip(b).for_each(|(x, y)| {
+                    if y.0 < x.0 || (y.0 == x.0 && y.1 < x.1) {
+                        *x = y;
+                    }
+                });
                 a
             },
         );
@@ -661,27 +687,64 @@ pub fn near_crossings(boxes: &[Aabb], tris: &[crate::geom::Triangle], camera: &C
     let scene = boxes[..n].iter().fold(Aabb::EMPTY, |a, b| a.union(b));
     let bound: Vec<f32> = rays
         .iter()
-        .zip(&depth)
-        .map(|(r, &t)| crate::geom::cull_bound(t, crate::geom::tie_margin(r.o, r.d, &scene)))
+        .zip(&closest)
+        .map(|(r, &(t, _))| crate::geom::cull_bound(t, crate::geom::tie_margin(r.o, r.d, &scene)))
         .collect();
-    let count: u64 = (0..n.div_ceil(CHUNK))
+    // The origin of the secondary ray each hit starts: off the surface along the normal facing the camera's ray, as
+    // the shadow and diffuse workloads place it (`geom::camera::surface_offset`).
+    let origins: Vec<Option<Vec3>> = rays
+        .iter()
+        .zip(&closest)
+        .map(|(r, &(t, i))| {
+            let tri = tris.get(i as usize)?;
+            let normal = tri.e1.cross(tri.e2).try_normalize()?;
+            let facing = if normal.dot(r.d) > 0.0 { -normal } else { normal };
+            let p = r.o + r.d * t;
+            Some(p + facing * crate::geom::camera::surface_offset(&scene, p))
+        })
+        .collect();
+    let (entered, holding) = (0..n.div_ceil(CHUNK))
         .into_par_iter()
         .map(|c| {
-            let mut entered = 0u64;
+            let (mut entered, mut holding) = (0u64, 0u64);
             for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
                 let Some([x0, x1, y0, y1]) = ranges[i] else { continue };
-                let (lo, hi) = (boxes[i].min.to_array(), boxes[i].max.to_array());
+                let b = &boxes[i];
+                let (lo, hi) = (b.min.to_array(), b.max.to_array());
                 for y in y0 as usize..y1 as usize {
                     for x in x0 as usize..x1 as usize {
                         let k = y * s + x;
                         entered += rays[k].slab(&lo, &hi, 0.0, bound[k]).is_some() as u64;
+                        if let Some(o) = origins[k] {
+                            holding += (b.min.cmple(o).all() && b.max.cmpge(o).all()) as u64;
+                        }
                     }
                 }
             }
-            entered
+            (entered, holding)
         })
-        .sum();
-    count as f64 / (s * s) as f64
+        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let hits = origins.iter().filter(|o| o.is_some()).count();
+    NearCrossings {
+        entered: entered as f64 / (s * s) as f64,
+        holding_origin: if hits > 0 { holding as f64 / hits as f64 } else { 0.0 },
+        hit_share: hits as f64 / (s * s) as f64,
+    }
+}
+
+/// What [`near_crossings`] counts on its sample of a camera's primary rays.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct NearCrossings {
+    /// The mean number of triangle boxes a ray enters no later than its first hit (every box it enters, for a ray
+    /// that hits nothing).
+    pub entered: f64,
+    /// Over the rays that hit, the mean number of triangle boxes holding the origin of the secondary ray the hit
+    /// starts (off the surface along the normal facing the ray: `geom::camera::surface_offset`). A diffuse ray
+    /// enters each such box at once, so a closest-hit traversal of a hierarchy whose nodes bound whole triangles
+    /// tests each of their triangles. A shadow ray, which may stop at any hit, need not.
+    pub holding_origin: f64,
+    /// The share of the sample rays that hit.
+    pub hit_share: f64,
 }
 
 /// `sum_a w_a f_a / sum_a w_a s_a`, 0 when the denominator is not positive and finite.
@@ -875,7 +938,10 @@ pub fn crossings_feature(kind: WorkloadKind, c: Option<RayCrossings>) -> f64 {
 /// image's count (scaled by the same share of distinct or non-degenerate triangles). Without crossings, no floor and
 /// no count ([`TestFloor::default`]). Secondary rays that leave a flat scene ([`RayCrossings::leave_flat_scene`])
 /// cross 0 boxes, and every hierarchy (BVH, kd-tree, BIH, LBVH, HLBVH) makes exactly one box test and no triangle
-/// test per ray; the grid, which still steps through the cells at the ray's origin, is left to its laws.
+/// test per ray; the grid, which still steps through the cells at the ray's origin, is left to its laws. For primary
+/// and diffuse rays with [`RayCrossings::near`] (the boxes a ray enters before its first hit, or holding a diffuse
+/// ray's origin; [`near_crossings`]), the BVH's, LBVH's, HLBVH's and BIH's triangle tests are at least that count
+/// (the BVH's scaled by its distinct share) and their box tests at least it over their largest leaf.
 pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
     let Some(c) = c else { return TestFloor::default() };
     let crossings = crossings_feature(kind, Some(c));
@@ -901,10 +967,12 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
     let (b, p) = tests_per_crossing(structure, kind);
     let leave_share = if kind == WorkloadKind::Primary { 0.0 } else { unit_share(c.leave_share) };
     let mut f = TestFloor { box_tests: b * x, prim_tests: p * x, crossings, leave_share, ..TestFloor::default() };
-    if let (WorkloadKind::Primary, Some(near), Some(leaf)) = (kind, c.near, near_leaf(structure)) {
-        // Every triangle whose box a ray enters before its first hit is tested ([`near_crossings`]); the binned-SAH
-        // BVH keeps one of coincident copies, so its count is scaled by the distinct share. Each such triangle's
-        // leaf box is tested too, and a leaf holds at most `leaf` triangles.
+    let closest_hit = matches!(kind, WorkloadKind::Primary | WorkloadKind::Diffuse);
+    if let (true, Some(near), Some(leaf)) = (closest_hit, c.near, near_leaf(structure)) {
+        // Every triangle whose box a closest-hit ray enters before its first hit is tested ([`near_crossings`]:
+        // for primary rays the boxes entered, for diffuse rays those holding the origin); the binned-SAH BVH keeps
+        // one of coincident copies, so its count is scaled by the distinct share. Each such triangle's leaf box is
+        // tested too, and a leaf holds at most `leaf` triangles.
         let near = if structure == StructureName::Bvh && c.all > 0.0 { near * c.distinct / c.all } else { near };
         if near.is_finite() && near > 0.0 {
             f.prim_tests = f.prim_tests.max(near);

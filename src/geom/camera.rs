@@ -80,6 +80,14 @@ impl Camera {
     }
 }
 
+/// Offset that moves a secondary ray's origin off its surface, along the normal facing the incoming ray: `1e-5` of
+/// the scene diagonal plus `1e-6` of the point's magnitude (so that it stays above f32 rounding far from the
+/// origin). The shadow and diffuse workloads (`trace::workload`) start their rays there, and
+/// [`crate::cost::near_crossings`] counts the boxes holding those origins.
+pub fn surface_offset(bounds: &Aabb, p: Vec3) -> f32 {
+    1e-5 * bounds.extent().length() + 1e-6 * p.abs().max_element()
+}
+
 /// The default point light of the shadow workload: above the scene (+y), towards the front-left, at one scene
 /// diagonal from the centre (`(0, 10, 0)` for an empty box).
 pub fn default_light(bounds: &Aabb) -> Vec3 {

@@ -47,11 +47,7 @@ pub fn primary_rays(camera: &Camera, width: u32, height: u32) -> Vec<Ray> {
 
 pub use crate::geom::camera::default_light;
 
-/// Offset that moves a secondary ray's origin off its surface: `1e-5` of the scene diagonal plus `1e-6` of the
-/// point's magnitude (so that it stays above f32 rounding far from the origin).
-fn surface_offset(bounds: &Aabb, p: Vec3) -> f32 {
-    1e-5 * bounds.extent().length() + 1e-6 * p.abs().max_element()
-}
+pub use crate::geom::camera::surface_offset;
 
 /// Geometric unit normal of a hit, facing the incoming ray; `None` for a zero-area triangle.
 fn facing_normal(mesh: &Mesh, hit: &Hit, dir: Vec3) -> Option<Vec3> {
