@@ -467,9 +467,10 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     assert_eq!(cr.for_workload(WorkloadKind::Primary, Some(&cam), lo, hi), cr.per_ray(Some(&cam), lo, hi));
     for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
         let r = cr.for_workload(k, Some(&cam), lo, hi);
-        // (Diffuse rays also get the boxes holding their origins, counted on the camera's sample.)
+        // (They also get the boxes holding the diffuse origins, or crossed by unoccluded shadow rays, counted on the
+        // camera's sample.)
         assert_eq!(RayCrossings { image: 0.0, near: None, ..r }, cr.isotropic());
-        assert_eq!(r.near.is_some(), k == WorkloadKind::Diffuse, "{k:?}");
+        assert!(r.near.is_some(), "{k:?}");
     }
     assert_eq!(cr.isotropic().all, cr.mean());
     // Secondary rays also get the camera's count on its image, when the view is of that camera.
@@ -836,8 +837,9 @@ fn the_boxes_entered_before_the_first_hit_are_counted_exactly_on_two_walls() {
     assert_eq!(image, 4.0);
     // Every ray hits; the diffuse ray each hit starts leaves the front wall towards the camera, off its flat box:
     // no box holds its origin.
+    // The shadow rays to the workload's light (above, on the camera's side) leave the wall too: no box crossed.
     let both = near_crossings(&boxes, &tris, &cam, image);
-    assert_eq!((both.entered, both.holding_origin, both.hit_share), (2.0, 0.0, 1.0));
+    assert_eq!((both.entered, both.holding_origin, both.hit_share, both.unoccluded_shadow), (2.0, 0.0, 1.0, 0.0));
     // Without the front wall every ray hits the back one: 2 again; without any wall, nothing.
     let (back_boxes, back_tris) = (&boxes[2..], &tris[2..]);
     assert_eq!(near_crossings(back_boxes, back_tris, &cam, 2.0).entered, 2.0);
@@ -858,13 +860,16 @@ fn the_boxes_entered_before_the_first_hit_are_counted_exactly_on_two_walls() {
     let w = near_crossings(&wb, &wt, &cam, screen_crossings(&wb, &cam));
     assert_eq!(w.hit_share, 1.0);
     assert!(w.holding_origin >= 1.0 && w.holding_origin <= 2.0, "{w:?}");
+    // Nothing occludes the light (on the camera's side of the plane), and a shadow ray crosses every box holding its
+    // origin: both triangles have the same box.
+    assert!(w.unoccluded_shadow >= w.holding_origin && w.unoccluded_shadow <= 2.0, "{w:?}");
 }
 
 #[test]
 fn every_hierarchy_tests_at_least_the_triangles_whose_boxes_a_ray_enters_before_its_hit() {
-    // The claim behind the triangle-test floor of `overlap_floor` for primary rays: a binned-SAH BVH, an LBVH, an
-    // HLBVH and a BIH (every node bounds whole triangles) test, per ray, at least the triangles whose boxes the ray
-    // enters before its closest hit. Checked on the very rays `near_crossings` samples (the pixel centres of a
+    // The claim behind the triangle-test floor of `overlap_floor`: a binned-SAH BVH, an LBVH, an HLBVH and a BIH
+    // (every node bounds whole triangles) test, per ray, at least the triangles whose boxes the ray enters before its
+    // closest hit (primary and diffuse rays) or crosses without being occluded (shadow rays). Checked on the very rays `near_crossings` samples (the pixel centres of a
     // NEAR_SAMPLES-square image of the camera), on scenes where the count is large (the engineering family seen
     // close up, 2,000 overlapping triangles), small (a closed interior from inside) and random. The argument does
     // not hold for the kd-tree and the grid, which store a triangle only in the cells it overlaps: the grid makes far
@@ -903,6 +908,18 @@ fn every_hierarchy_tests_at_least_the_triangles_whose_boxes_a_ray_enters_before_
             let tested = per_ray(StructureName::Grid);
             assert!(tested < near, "{} grid: {tested} triangle tests per ray, {near} boxes entered", m.name);
         }
+        // The shadow rays those hits start: an unoccluded any-hit ray visits every node its segment crosses, so each
+        // of the four tests at least the triangles whose boxes the unoccluded rays cross.
+        let shadow = build_workload(WorkloadKind::Shadow, m, cam, NEAR_SAMPLES, reference.as_ref());
+        for s in [StructureName::Bvh, StructureName::Lbvh, StructureName::Hlbvh, StructureName::Bih] {
+            let accel = meshchar::accel::build_structure(s, m).unwrap();
+            let tested = trace(accel.as_ref(), &shadow).counters.prim_tests as f64 / shadow.rays.len().max(1) as f64;
+            let crossed = counted.unoccluded_shadow;
+            assert!(tested >= crossed, "{} {s} shadow: {tested} triangle tests per ray, {crossed} boxes", m.name);
+        }
+        if m.name.contains("engineering") {
+            assert!(counted.unoccluded_shadow > 50.0, "{}: {counted:?}", m.name);
+        }
         // The diffuse rays those hits start (one per hit, from the same origins): each of the four tests at least
         // the triangles whose boxes hold the ray's origin.
         let diffuse = build_workload(WorkloadKind::Diffuse, m, cam, NEAR_SAMPLES, reference.as_ref());
@@ -920,7 +937,7 @@ fn every_hierarchy_tests_at_least_the_triangles_whose_boxes_a_ray_enters_before_
 }
 
 #[test]
-fn the_boxes_entered_before_the_hit_floor_the_triangle_tests_of_the_four_hierarchies_for_closest_hit_rays() {
+fn the_boxes_entered_before_the_hit_floor_the_triangle_tests_of_the_four_hierarchies_for_every_workload() {
     use meshchar::cost::{overlap_floor, RayCrossings};
     // 40 boxes entered before the hit, 50 crossed on the image, 10 of them distinct triangles (the BVH keeps one
     // of coincident copies: 40 * 10 / 50 = 8 for it).
@@ -932,8 +949,8 @@ fn the_boxes_entered_before_the_hit_floor_the_triangle_tests_of_the_four_hierarc
         StructureName::Hlbvh => meshchar::accel::hlbvh::HlbvhOptions::default().max_leaf as f64,
         _ => meshchar::accel::bih::BihOptions::default().max_leaf as f64,
     };
-    for (s, k) in StructureName::ALL.into_iter().flat_map(|s| [(s, WorkloadKind::Primary), (s, WorkloadKind::Diffuse)])
-    {
+    let kinds = [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse];
+    for (s, k) in StructureName::ALL.into_iter().flat_map(|s| kinds.map(|k| (s, k))) {
         let (f, g) = (overlap_floor(s, k, Some(c)), overlap_floor(s, k, Some(without)));
         match s {
             StructureName::Bvh | StructureName::Lbvh | StructureName::Hlbvh | StructureName::Bih => {
@@ -944,9 +961,6 @@ fn the_boxes_entered_before_the_hit_floor_the_triangle_tests_of_the_four_hierarc
             }
             _ => assert_eq!(f, g, "{s} {k:?}: no floor from the boxes entered"),
         }
-        // Shadow rays (any hit) take none.
-        let k = WorkloadKind::Shadow;
-        assert_eq!(overlap_floor(s, k, Some(c)), overlap_floor(s, k, Some(without)), "{s} {k:?}");
     }
     // The count travels with the camera's view: primary rays of that camera get it, another camera's do not. It is
     // counted where the image count reaches Crossings::NEAR_FROM (the engineering family close up), not below (two
@@ -966,7 +980,8 @@ fn the_boxes_entered_before_the_hit_floor_the_triangle_tests_of_the_four_hierarc
     let elsewhere = Camera { eye: close.eye * 3.0, ..close };
     assert_eq!(cr.per_ray(Some(&elsewhere), lo, hi).near, None);
     assert_eq!(cr.for_workload(WorkloadKind::Diffuse, Some(&elsewhere), lo, hi).near, None);
-    assert_eq!(cr.for_workload(WorkloadKind::Shadow, Some(&close), lo, hi).near, None);
+    assert_eq!(cr.for_workload(WorkloadKind::Shadow, Some(&close), lo, hi).near, Some(near.unoccluded_shadow));
+    assert_eq!(cr.for_workload(WorkloadKind::Shadow, Some(&elsewhere), lo, hi).near, None);
     let framed = Crossings::of_mesh(&generate::two_triangles()).view.expect("framing view");
     assert!(framed.all < Crossings::NEAR_FROM && framed.near.is_none(), "{framed:?}");
 }

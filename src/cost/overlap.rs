@@ -49,9 +49,10 @@
 //!
 //! The image count includes the boxes behind a ray's first hit, which a closest-hit traversal never reaches, so the
 //! factors above are small (set by closed rooms). [`near_crossings`] counts, on a sample of a camera's rays, the
-//! boxes each enters before its first hit and those holding the origin of the diffuse ray each hit starts: every
-//! node of a BVH, LBVH, HLBVH or BIH bounds whole triangles, so each such triangle is tested, and the counts floor
-//! those four structures' triangle tests per primary and diffuse ray with no fitted factor ([`overlap_floor`]).
+//! boxes each enters before its first hit, those holding the origin of the diffuse ray each hit starts, and those
+//! crossed by the shadow rays no triangle occludes: every node of a BVH, LBVH, HLBVH or BIH bounds whole triangles,
+//! so each such triangle is tested, and the counts floor those four structures' triangle tests per ray of all three
+//! workloads with no fitted factor ([`overlap_floor`]).
 //!
 //! # Where the floor applies, and where not yet
 //!
@@ -112,8 +113,8 @@ pub struct ViewCrossings {
     /// The mean number of triangle boxes covering a point of its image, over every triangle.
     pub all: f64,
     /// On a sample of its rays ([`near_crossings`]): the triangle boxes a primary ray enters no later than its
-    /// first hit, and those holding the origin of the diffuse ray the hit starts; lower bounds on the triangle
-    /// tests of the hierarchies whose nodes bound whole triangles. Counted only where [`ViewCrossings::all`] is at
+    /// first hit, those holding the origin of the diffuse ray the hit starts, and those an unoccluded shadow ray
+    /// crosses; lower bounds on the triangle tests of the hierarchies whose nodes bound whole triangles. Counted only where [`ViewCrossings::all`] is at
     /// least [`Crossings::NEAR_FROM`].
     pub near: Option<NearCrossings>,
 }
@@ -135,7 +136,8 @@ pub struct RayCrossings {
     pub image: f64,
     /// When counted ([`Crossings::view`] of that camera, [`near_crossings`] on a sample of its rays): for primary
     /// rays the triangle boxes a ray enters no later than its first hit, for diffuse rays those holding the ray's
-    /// origin (entered at once); over every triangle. None for shadow rays (an any-hit query may stop before).
+    /// origin (entered at once), for shadow rays those an unoccluded ray crosses (0 for an occluded one); over every
+    /// triangle. Each is a lower bound on the triangle tests of a hierarchy whose nodes bound whole triangles.
     pub near: Option<f64>,
     /// Secondary rays only: every ray leaves a flat scene without meeting it again
     /// ([`secondary_rays_leave_the_plane`]), so it crosses no box (the counts above are then 0) and every
@@ -319,11 +321,13 @@ impl Crossings {
             WorkloadKind::Shadow | WorkloadKind::Diffuse => RayCrossings {
                 image: self.counted(camera).map_or(0.0, |v| v.all),
                 leave_share: self.leave_share(kind, camera),
-                near: if kind == WorkloadKind::Diffuse {
-                    self.counted(camera).and_then(|v| v.near).map(|n| n.holding_origin)
-                } else {
-                    None
-                },
+                near: self.counted(camera).and_then(|v| v.near).map(|n| {
+                    if kind == WorkloadKind::Diffuse {
+                        n.holding_origin
+                    } else {
+                        n.unoccluded_shadow
+                    }
+                }),
                 ..self.isotropic()
             },
         }
@@ -603,7 +607,9 @@ const NEAR_WORK: f64 = 16.0 * 1024.0 * 1024.0;
 /// visiting only the sample rays inside the triangle box's screen rectangle (the rectangle of
 /// [`screen_crossings`]): the first finds each ray's closest hit, the second counts the boxes each ray enters no
 /// later than it (up to where a closest-hit traversal still visits nodes: `geom::cull_bound` of the hit) and the
-/// boxes holding the origin of the secondary ray each hit starts ([`NearCrossings`]).
+/// boxes holding the origin of the secondary ray each hit starts; then the shadow rays from those origins, sorted by
+/// direction into the faces of a cube around the light, are tested for occlusion and their crossings counted the
+/// same way ([`NearCrossings`]).
 ///
 /// Why it matters: a hierarchy whose every node bounds whole triangles (the binned-SAH BVH, the LBVH, the HLBVH and
 /// the BIH) visits, in front-to-back closest-hit traversal, every leaf whose box the ray enters before the closest
@@ -614,7 +620,9 @@ const NEAR_WORK: f64 = 16.0 * 1024.0 * 1024.0;
 /// hold for them (long thin triangles across a grid's cells: the engineering family).
 ///
 /// The same argument holds for a diffuse ray (closest hit) and the boxes holding its origin, which it enters at
-/// once ([`NearCrossings::holding_origin`]): the four structures' floor for diffuse rays.
+/// once ([`NearCrossings::holding_origin`]), and for a shadow ray that nothing occludes (an any-hit query that
+/// finds nothing visits every node its segment crosses; [`NearCrossings::unoccluded_shadow`]): the four structures'
+/// floors for diffuse and shadow rays.
 ///
 /// Deterministic: the closest hits are minima (the lower triangle index on equal distances) and the counts
 /// integers. All zero for no triangle.
@@ -725,11 +733,157 @@ pub fn near_crossings(boxes: &[Aabb], tris: &[crate::geom::Triangle], camera: &C
         })
         .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     let hits = origins.iter().filter(|o| o.is_some()).count();
+    let light = crate::geom::camera::default_light(&scene);
+    let (unoccluded, shadow_rays) = shadow_crossings(&boxes[..n], &tris[..n], &origins, light, near);
     NearCrossings {
         entered: entered as f64 / (s * s) as f64,
         holding_origin: if hits > 0 { holding as f64 / hits as f64 } else { 0.0 },
         hit_share: hits as f64 / (s * s) as f64,
+        unoccluded_shadow: if shadow_rays > 0 { unoccluded as f64 / shadow_rays as f64 } else { 0.0 },
     }
+}
+
+/// Bins per side of the grid over the rays' span on each face of the cube around the light that
+/// [`shadow_crossings`] sorts its rays into.
+const SHADOW_BINS: usize = 32;
+
+/// For the shadow rays from `origins` to `light` (as the shadow workload makes them: `tmax` just short of the
+/// light), the boxes crossed by those no triangle occludes, summed, and the number of rays. The rays all meet at the
+/// light, so each is sorted by its direction from the light into a bin of one face of a cube around it, and each
+/// box visits only the bins its screen rectangle on a face covers (a camera at the light with a 90-degree view per
+/// face): first the triangles, to find the occluded rays, then the boxes, to count the crossings of the others.
+fn shadow_crossings(
+    boxes: &[Aabb],
+    tris: &[crate::geom::Triangle],
+    origins: &[Option<Vec3>],
+    light: Vec3,
+    near: f32,
+) -> (u64, usize) {
+    use crate::geom::ray::RayInv;
+    use rayon::prelude::*;
+    let axes = [Vec3::X, Vec3::Y, Vec3::Z];
+    // Face f looks along +axis (f even) or -axis (f odd) of axis f / 2.
+    let faces: Vec<Camera> = (0..6)
+        .map(|f| {
+            let forward = if f % 2 == 0 { axes[f / 2] } else { -axes[f / 2] };
+            let up = if f / 2 == 1 { Vec3::Z } else { Vec3::Y };
+            Camera { eye: light, forward, right: forward.cross(up), up, tan_half_fov: 1.0 }
+        })
+        .collect();
+    // Each ray's direction seen from the light: the face of its largest component, and its place there.
+    let mut rays: Vec<(RayInv, f32)> = Vec::new();
+    let mut placed: Vec<(usize, glam::Vec2)> = Vec::new();
+    for o in origins.iter().flatten() {
+        let to = light - *o;
+        let dist = to.length();
+        if !(dist > 0.0 && dist.is_finite()) {
+            continue;
+        }
+        let tmax = dist * (1.0 - 1e-5);
+        let ray = crate::geom::Ray { origin: *o, dir: to / dist, tmin: 0.0, tmax };
+        let u = *o - light;
+        let a = (0..3).max_by(|&i, &j| u[i].abs().total_cmp(&u[j].abs())).unwrap_or(0);
+        let f = 2 * a + (u[a] < 0.0) as usize;
+        let cam = &faces[f];
+        let z = u.dot(cam.forward);
+        if z.is_nan() || z <= 0.0 {
+            continue;
+        }
+        placed.push((f, glam::Vec2::new(u.dot(cam.right) / z, u.dot(cam.up) / z)));
+        rays.push((RayInv::new(&ray), tmax));
+    }
+    // Per face, a grid of SHADOW_BINS x SHADOW_BINS bins over the rectangle its rays' places span.
+    let g = SHADOW_BINS;
+    let mut span = [(glam::Vec2::splat(f32::INFINITY), glam::Vec2::splat(f32::NEG_INFINITY)); 6];
+    for &(f, p) in &placed {
+        span[f] = (span[f].0.min(p), span[f].1.max(p));
+    }
+    let used: Vec<usize> = (0..6).filter(|&f| span[f].0.x <= span[f].1.x).collect();
+    let bin_of = |f: usize, p: glam::Vec2| -> (usize, usize) {
+        let (lo, hi) = span[f];
+        let cell = |x: f32, l: f32, h: f32| {
+            let w = h - l;
+            if w > 0.0 {
+                (((x - l) / w * g as f32).floor().max(0.0) as usize).min(g - 1)
+            } else {
+                0
+            }
+        };
+        (cell(p.x, lo.x, hi.x), cell(p.y, lo.y, hi.y))
+    };
+    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); 6 * g * g];
+    for (k, &(f, p)) in placed.iter().enumerate() {
+        let (x, y) = bin_of(f, p);
+        bins[(f * g + y) * g + x].push(k as u32);
+    }
+    // Per box and used face, the bins its rectangle covers (widened by a hundred-thousandth against the rounding of
+    // the projections; the tests are exact), none where it misses the rays' span.
+    let cover = |b: &Aabb, f: usize| -> Option<[usize; 4]> {
+        let (lo, hi) = screen_rect(b, &faces[f], near)?;
+        let (lo, hi) = (lo - glam::Vec2::splat(1e-5), hi + glam::Vec2::splat(1e-5));
+        let (slo, shi) = span[f];
+        if hi.x < slo.x || hi.y < slo.y || lo.x > shi.x || lo.y > shi.y {
+            return None;
+        }
+        let ((x0, y0), (x1, y1)) = (bin_of(f, lo.max(slo)), bin_of(f, hi.min(shi)));
+        Some([x0, x1 + 1, y0, y1 + 1])
+    };
+    // Computed once per box and used face, for both passes.
+    let covers: Vec<Option<[usize; 4]>> =
+        boxes.par_iter().flat_map_iter(|b| used.iter().map(move |&f| cover(b, f))).collect();
+    let visit = |i: usize, each: &mut dyn FnMut(usize)| {
+        for (j, &f) in used.iter().enumerate() {
+            let Some([x0, x1, y0, y1]) = covers[i * used.len() + j] else { continue };
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    for &k in &bins[(f * g + y) * g + x] {
+                        each(k as usize);
+                    }
+                }
+            }
+        }
+    };
+    const CHUNK: usize = 4096;
+    let m = rays.len();
+    let n = boxes.len().min(tris.len());
+    let occluded = (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let mut o = vec![false; m];
+            let (start, end) = (c * CHUNK, ((c + 1) * CHUNK).min(n));
+            for (i, tri) in (start..end).zip(&tris[start..end]) {
+                visit(i, &mut |k| {
+                    let (r, tmax) = &rays[k];
+                    if !o[k] && crate::geom::intersect_triangle(tri, r.o, r.d, 0.0, *tmax).is_some() {
+                        o[k] = true;
+                    }
+                });
+            }
+            o
+        })
+        .reduce(
+            || vec![false; m],
+            |mut a, b| {
+                a.iter_mut().zip(b).for_each(|(x, y)| *x |= y);
+                a
+            },
+        );
+    let crossed: u64 = (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let mut count = 0u64;
+            let (start, end) = (c * CHUNK, ((c + 1) * CHUNK).min(n));
+            for (i, b) in (start..end).zip(&boxes[start..end]) {
+                let (lo, hi) = (b.min.to_array(), b.max.to_array());
+                visit(i, &mut |k| {
+                    let (r, tmax) = &rays[k];
+                    count += (!occluded[k] && r.slab(&lo, &hi, 0.0, *tmax).is_some()) as u64;
+                });
+            }
+            count
+        })
+        .sum();
+    (crossed, m)
 }
 
 /// What [`near_crossings`] counts on its sample of a camera's primary rays.
@@ -741,10 +895,15 @@ pub struct NearCrossings {
     /// Over the rays that hit, the mean number of triangle boxes holding the origin of the secondary ray the hit
     /// starts (off the surface along the normal facing the ray: `geom::camera::surface_offset`). A diffuse ray
     /// enters each such box at once, so a closest-hit traversal of a hierarchy whose nodes bound whole triangles
-    /// tests each of their triangles. A shadow ray, which may stop at any hit, need not.
+    /// tests each of their triangles.
     pub holding_origin: f64,
     /// The share of the sample rays that hit.
     pub hit_share: f64,
+    /// Over the shadow rays those hits start (to the shadow workload's light, `geom::camera::default_light`), the
+    /// mean number of triangle boxes a ray crosses when no triangle occludes it (0 for an occluded ray). An
+    /// any-hit query that finds nothing visits every node its segment crosses, so a hierarchy whose nodes bound
+    /// whole triangles tests every such triangle.
+    pub unoccluded_shadow: f64,
 }
 
 /// `sum_a w_a f_a / sum_a w_a s_a`, 0 when the denominator is not positive and finite.
@@ -938,10 +1097,10 @@ pub fn crossings_feature(kind: WorkloadKind, c: Option<RayCrossings>) -> f64 {
 /// image's count (scaled by the same share of distinct or non-degenerate triangles). Without crossings, no floor and
 /// no count ([`TestFloor::default`]). Secondary rays that leave a flat scene ([`RayCrossings::leave_flat_scene`])
 /// cross 0 boxes, and every hierarchy (BVH, kd-tree, BIH, LBVH, HLBVH) makes exactly one box test and no triangle
-/// test per ray; the grid, which still steps through the cells at the ray's origin, is left to its laws. For primary
-/// and diffuse rays with [`RayCrossings::near`] (the boxes a ray enters before its first hit, or holding a diffuse
-/// ray's origin; [`near_crossings`]), the BVH's, LBVH's, HLBVH's and BIH's triangle tests are at least that count
-/// (the BVH's scaled by its distinct share) and their box tests at least it over their largest leaf.
+/// test per ray; the grid, which still steps through the cells at the ray's origin, is left to its laws. With
+/// [`RayCrossings::near`] (the boxes a ray enters before its first hit, holding a diffuse ray's origin, or crossed
+/// by an unoccluded shadow ray; [`near_crossings`]), the BVH's, LBVH's, HLBVH's and BIH's triangle tests are at least
+/// that count (the BVH's scaled by its distinct share) and their box tests at least it over their largest leaf.
 pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
     let Some(c) = c else { return TestFloor::default() };
     let crossings = crossings_feature(kind, Some(c));
@@ -967,10 +1126,10 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
     let (b, p) = tests_per_crossing(structure, kind);
     let leave_share = if kind == WorkloadKind::Primary { 0.0 } else { unit_share(c.leave_share) };
     let mut f = TestFloor { box_tests: b * x, prim_tests: p * x, crossings, leave_share, ..TestFloor::default() };
-    let closest_hit = matches!(kind, WorkloadKind::Primary | WorkloadKind::Diffuse);
-    if let (true, Some(near), Some(leaf)) = (closest_hit, c.near, near_leaf(structure)) {
-        // Every triangle whose box a closest-hit ray enters before its first hit is tested ([`near_crossings`]:
-        // for primary rays the boxes entered, for diffuse rays those holding the origin); the binned-SAH BVH keeps
+    if let (Some(near), Some(leaf)) = (c.near, near_leaf(structure)) {
+        // Every triangle whose box a closest-hit ray enters before its first hit is tested, and every triangle whose
+        // box an unoccluded any-hit ray crosses ([`near_crossings`]: for primary rays the boxes entered, for diffuse
+        // rays those holding the origin, for shadow rays those the unoccluded ones cross); the binned-SAH BVH keeps
         // one of coincident copies, so its count is scaled by the distinct share. Each such triangle's leaf box is
         // tested too, and a leaf holds at most `leaf` triangles.
         let near = if structure == StructureName::Bvh && c.all > 0.0 { near * c.distinct / c.all } else { near };
