@@ -974,6 +974,9 @@ fn a_fitted_calibration_clamps_the_geometric_features_into_the_range_it_was_fitt
     let at = |d: &meshchar::characterize::features::Derived| sm.predict_floored(d, 1000, &w, TestFloor::default());
     let size_mean = FEATURE_NAMES.iter().position(|f| *f == "size_mean").unwrap();
     assert!(CLAMPED_FEATURES.contains(&size_mean));
+    // The clamped columns are read by position: they must stay the geometric ones after ln_n.
+    let clamped = &FEATURE_NAMES[CLAMPED_FEATURES];
+    assert_eq!(clamped, ["ln_tris_per_cell", "fill_at_n", "empty_d3", "size_mean", "size_spread", "aspect_log2"]);
     let edge = meshchar::characterize::features::Derived { size_mean: sm.feature_range[size_mean][1], ..d };
     let beyond = meshchar::characterize::features::Derived { size_mean: edge.size_mean + 20.0, ..d };
     assert_eq!(at(&beyond), at(&edge));

@@ -114,8 +114,8 @@ pub struct ViewCrossings {
     pub all: f64,
     /// On a sample of its rays ([`near_crossings`]): the triangle boxes a primary ray enters no later than its
     /// first hit, those holding the origin of the diffuse ray the hit starts, and those an unoccluded shadow ray
-    /// crosses; lower bounds on the triangle tests of the hierarchies whose nodes bound whole triangles. Counted only where [`ViewCrossings::all`] is at
-    /// least [`Crossings::NEAR_FROM`].
+    /// crosses; lower bounds on the triangle tests of the hierarchies whose nodes bound whole triangles. Counted
+    /// only where [`ViewCrossings::all`] is at least [`Crossings::NEAR_FROM`].
     pub near: Option<NearCrossings>,
 }
 
@@ -189,9 +189,9 @@ impl Crossings {
     pub const DISTINCT_FROM: f64 = 16.0;
 
     /// The count on a camera's image ([`ViewCrossings::all`]) from which the boxes its rays enter before their
-    /// first hits are counted ([`ViewCrossings::near`], [`near_crossings`]). Below it a ray meets few boxes, about
-    /// this many at most, so the floor they give could bind by a few tests only; scenes whose rays meet few boxes
-    /// skip the pass.
+    /// first hits are counted ([`ViewCrossings::near`], [`near_crossings`]). Below it a ray meets few boxes on
+    /// average, so the floor they give could bind by a few tests only; scenes whose rays meet few boxes skip the
+    /// pass.
     pub const NEAR_FROM: f64 = 8.0;
 
     /// The crossings of a mesh's triangles, `boxes` their boxes in mesh order with whether the triangle has zero
@@ -300,8 +300,9 @@ impl Crossings {
 
     /// Per ray of a workload: [`Crossings::per_ray`] of `camera` for primary rays; for shadow and diffuse rays
     /// (which start at the primary hits, in directions the camera does not fix) [`Crossings::isotropic`], with
-    /// [`RayCrossings::image`] the camera's count on its image when [`Crossings::view`] is of that camera; none
-    /// for secondary rays that leave a flat scene ([`secondary_rays_leave_the_plane`]).
+    /// [`RayCrossings::image`] the camera's count on its image when [`Crossings::view`] is of that camera, and
+    /// [`RayCrossings::near`] its sampled counts for the workload ([`near_crossings`], their lower bounds) when
+    /// counted; none for secondary rays that leave a flat scene ([`secondary_rays_leave_the_plane`]).
     pub fn for_workload(
         &self,
         kind: WorkloadKind,
@@ -323,9 +324,9 @@ impl Crossings {
                 leave_share: self.leave_share(kind, camera),
                 near: self.counted(camera).and_then(|v| v.near).map(|n| {
                     if kind == WorkloadKind::Diffuse {
-                        n.holding_origin
+                        n.holding_origin.lower_bound()
                     } else {
-                        n.unoccluded_shadow
+                        n.unoccluded_shadow.lower_bound()
                     }
                 }),
                 ..self.isotropic()
@@ -337,6 +338,10 @@ impl Crossings {
     /// another frame's: where the scene's box is the same, the least boundary fill of the two; where it moves,
     /// [`Crossings::box_moves`] (no ray is then taken to leave at once, in any frame).
     pub fn over_frames(mut self, other: &Crossings) -> Crossings {
+        // The boxes a ray enters before its hit are counted on the first frame's geometry: no bound for the others.
+        if let Some(v) = self.view.as_mut() {
+            v.near = None;
+        }
         if self.box_moves || other.box_moves || self.lo != other.lo || self.hi != other.hi {
             self.box_moves = true;
             self.boundary_fill = [0.0; 6];
@@ -447,7 +452,7 @@ impl Crossings {
             all,
             distinct: all * share(self.distinct_faces),
             nondegenerate: all * share(self.nondegenerate_faces),
-            near: counted.and_then(|v| v.near).map(|n| n.entered),
+            near: counted.and_then(|v| v.near).map(|n| n.entered.lower_bound()),
             image: 0.0,
             leave_flat_scene: false,
             leave_share: 0.0,
@@ -596,8 +601,9 @@ fn near_plane(boxes: &[Aabb]) -> f32 {
 /// The side of the square sample of primary rays [`near_crossings`] traces at most (1,024 rays).
 pub const NEAR_SAMPLES: u32 = 32;
 
-/// The box-ray pairs one pass of [`near_crossings`] examines at most, about: the sample shrinks (to 8 x 8 at
-/// least) where the image count times the sample's rays would exceed it.
+/// The box-ray pairs each of the two passes of [`near_crossings`] over its primary sample examines at most, about:
+/// the sample shrinks (to 8 x 8 at least) where the image count times the sample's rays would exceed it. The shadow
+/// passes are not bounded by it: each box visits the shadow rays in the bins it covers.
 const NEAR_WORK: f64 = 16.0 * 1024.0 * 1024.0;
 
 /// The mean number of triangle boxes a primary ray of `camera` enters no later than its first hit (or at all, for
@@ -609,7 +615,11 @@ const NEAR_WORK: f64 = 16.0 * 1024.0 * 1024.0;
 /// later than it (up to where a closest-hit traversal still visits nodes: `geom::cull_bound` of the hit) and the
 /// boxes holding the origin of the secondary ray each hit starts; then the shadow rays from those origins, sorted by
 /// direction into the faces of a cube around the light, are tested for occlusion and their crossings counted the
-/// same way ([`NearCrossings`]).
+/// same way, in two more passes ([`NearCrossings`]). Each count is kept per ray, as a mean with its standard
+/// error ([`SampledMean`]); the floors take the mean less two standard errors ([`SampledMean::lower_bound`]).
+/// Counted only on the triangles' boxes as screen rectangles: a box of no area on the image (seen edge-on) and a
+/// box that holds a secondary ray's origin without covering its pixel's centre (within the surface offset of its
+/// edge) are missed, which errs on the low side.
 ///
 /// Why it matters: a hierarchy whose every node bounds whole triangles (the binned-SAH BVH, the LBVH, the HLBVH and
 /// the BIH) visits, in front-to-back closest-hit traversal, every leaf whose box the ray enters before the closest
@@ -711,10 +721,11 @@ pub fn near_crossings(boxes: &[Aabb], tris: &[crate::geom::Triangle], camera: &C
             Some(p + facing * crate::geom::camera::surface_offset(&scene, p))
         })
         .collect();
+    // Per sample ray: the boxes it enters, and those holding its hit's secondary origin.
     let (entered, holding) = (0..n.div_ceil(CHUNK))
         .into_par_iter()
         .map(|c| {
-            let (mut entered, mut holding) = (0u64, 0u64);
+            let (mut entered, mut holding) = (vec![0u32; s * s], vec![0u32; s * s]);
             for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
                 let Some([x0, x1, y0, y1]) = ranges[i] else { continue };
                 let b = &boxes[i];
@@ -722,24 +733,67 @@ pub fn near_crossings(boxes: &[Aabb], tris: &[crate::geom::Triangle], camera: &C
                 for y in y0 as usize..y1 as usize {
                     for x in x0 as usize..x1 as usize {
                         let k = y * s + x;
-                        entered += rays[k].slab(&lo, &hi, 0.0, bound[k]).is_some() as u64;
+                        entered[k] += rays[k].slab(&lo, &hi, 0.0, bound[k]).is_some() as u32;
                         if let Some(o) = origins[k] {
-                            holding += (b.min.cmple(o).all() && b.max.cmpge(o).all()) as u64;
+                            holding[k] += (b.min.cmple(o).all() && b.max.cmpge(o).all()) as u32;
                         }
                     }
                 }
             }
             (entered, holding)
         })
-        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        .reduce(|| (vec![0u32; s * s], vec![0u32; s * s]), |a, b| (add_counts(a.0, &b.0), add_counts(a.1, &b.1)));
     let hits = origins.iter().filter(|o| o.is_some()).count();
     let light = crate::geom::camera::default_light(&scene);
-    let (unoccluded, shadow_rays) = shadow_crossings(&boxes[..n], &tris[..n], &origins, light, near);
+    let unoccluded = shadow_crossings(&boxes[..n], &tris[..n], &origins, light, near);
+    let holding: Vec<u32> = holding.iter().zip(&origins).filter(|(_, o)| o.is_some()).map(|(h, _)| *h).collect();
     NearCrossings {
-        entered: entered as f64 / (s * s) as f64,
-        holding_origin: if hits > 0 { holding as f64 / hits as f64 } else { 0.0 },
+        entered: SampledMean::of(&entered),
+        holding_origin: SampledMean::of(&holding),
         hit_share: hits as f64 / (s * s) as f64,
-        unoccluded_shadow: if shadow_rays > 0 { unoccluded as f64 / shadow_rays as f64 } else { 0.0 },
+        unoccluded_shadow: SampledMean::of(&unoccluded),
+    }
+}
+
+/// `a + b`, element by element (saturating).
+fn add_counts(mut a: Vec<u32>, b: &[u32]) -> Vec<u32> {
+    a.iter_mut().zip(b).for_each(|(x, y)| *x = x.saturating_add(*y));
+    a
+}
+
+/// A per-ray count averaged over a sample of rays: its mean and the standard error of that mean.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct SampledMean {
+    /// The mean over the sample (0 for no ray).
+    pub mean: f64,
+    /// The standard error of the mean: the sample's standard deviation over the square root of its size (0 for
+    /// fewer than two rays).
+    pub standard_error: f64,
+    /// The rays sampled.
+    pub rays: usize,
+}
+
+impl SampledMean {
+    /// The mean and standard error of `counts`.
+    pub fn of(counts: &[u32]) -> SampledMean {
+        let n = counts.len();
+        if n == 0 {
+            return SampledMean::default();
+        }
+        let mean = counts.iter().map(|&c| f64::from(c)).sum::<f64>() / n as f64;
+        let var = if n > 1 {
+            counts.iter().map(|&c| (f64::from(c) - mean).powi(2)).sum::<f64>() / (n - 1) as f64
+        } else {
+            0.0
+        };
+        SampledMean { mean, standard_error: (var / n as f64).sqrt(), rays: n }
+    }
+
+    /// What the floor takes ([`overlap_floor`]): the mean less twice its standard error, at least 0. The count is a
+    /// lower bound per ray, but its sampled mean can exceed the mean over a workload's every ray by its sampling
+    /// error; two standard errors below it, it does so for about 1 in 40 samples.
+    pub fn lower_bound(&self) -> f64 {
+        (self.mean - 2.0 * self.standard_error).max(0.0)
     }
 }
 
@@ -748,7 +802,7 @@ pub fn near_crossings(boxes: &[Aabb], tris: &[crate::geom::Triangle], camera: &C
 const SHADOW_BINS: usize = 32;
 
 /// For the shadow rays from `origins` to `light` (as the shadow workload makes them: `tmax` just short of the
-/// light), the boxes crossed by those no triangle occludes, summed, and the number of rays. The rays all meet at the
+/// light), per ray, the boxes it crosses if no triangle occludes it (0 if one does). The rays all meet at the
 /// light, so each is sorted by its direction from the light into a bin of one face of a cube around it, and each
 /// box visits only the bins its screen rectangle on a face covers (a camera at the light with a 90-degree view per
 /// face): first the triangles, to find the occluded rays, then the boxes, to count the crossings of the others.
@@ -758,7 +812,7 @@ fn shadow_crossings(
     origins: &[Option<Vec3>],
     light: Vec3,
     near: f32,
-) -> (u64, usize) {
+) -> Vec<u32> {
     use crate::geom::ray::RayInv;
     use rayon::prelude::*;
     let axes = [Vec3::X, Vec3::Y, Vec3::Z];
@@ -818,7 +872,7 @@ fn shadow_crossings(
     }
     // Per box and used face, the bins its rectangle covers (widened by a hundred-thousandth against the rounding of
     // the projections; the tests are exact), none where it misses the rays' span.
-    let cover = |b: &Aabb, f: usize| -> Option<[usize; 4]> {
+    let cover = |b: &Aabb, f: usize| -> Option<[u8; 4]> {
         let (lo, hi) = screen_rect(b, &faces[f], near)?;
         let (lo, hi) = (lo - glam::Vec2::splat(1e-5), hi + glam::Vec2::splat(1e-5));
         let (slo, shi) = span[f];
@@ -826,16 +880,17 @@ fn shadow_crossings(
             return None;
         }
         let ((x0, y0), (x1, y1)) = (bin_of(f, lo.max(slo)), bin_of(f, hi.min(shi)));
-        Some([x0, x1 + 1, y0, y1 + 1])
+        // Bins per side fit a byte (SHADOW_BINS <= 255).
+        Some([x0 as u8, (x1 + 1) as u8, y0 as u8, (y1 + 1) as u8])
     };
     // Computed once per box and used face, for both passes.
-    let covers: Vec<Option<[usize; 4]>> =
+    let covers: Vec<Option<[u8; 4]>> =
         boxes.par_iter().flat_map_iter(|b| used.iter().map(move |&f| cover(b, f))).collect();
     let visit = |i: usize, each: &mut dyn FnMut(usize)| {
         for (j, &f) in used.iter().enumerate() {
             let Some([x0, x1, y0, y1]) = covers[i * used.len() + j] else { continue };
-            for y in y0..y1 {
-                for x in x0..x1 {
+            for y in y0 as usize..y1 as usize {
+                for x in x0 as usize..x1 as usize {
                     for &k in &bins[(f * g + y) * g + x] {
                         each(k as usize);
                     }
@@ -868,42 +923,41 @@ fn shadow_crossings(
                 a
             },
         );
-    let crossed: u64 = (0..n.div_ceil(CHUNK))
+    (0..n.div_ceil(CHUNK))
         .into_par_iter()
         .map(|c| {
-            let mut count = 0u64;
+            let mut count = vec![0u32; m];
             let (start, end) = (c * CHUNK, ((c + 1) * CHUNK).min(n));
             for (i, b) in (start..end).zip(&boxes[start..end]) {
                 let (lo, hi) = (b.min.to_array(), b.max.to_array());
                 visit(i, &mut |k| {
                     let (r, tmax) = &rays[k];
-                    count += (!occluded[k] && r.slab(&lo, &hi, 0.0, *tmax).is_some()) as u64;
+                    count[k] += (!occluded[k] && r.slab(&lo, &hi, 0.0, *tmax).is_some()) as u32;
                 });
             }
             count
         })
-        .sum();
-    (crossed, m)
+        .reduce(|| vec![0u32; m], |a, b| add_counts(a, &b))
 }
 
 /// What [`near_crossings`] counts on its sample of a camera's primary rays.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct NearCrossings {
-    /// The mean number of triangle boxes a ray enters no later than its first hit (every box it enters, for a ray
-    /// that hits nothing).
-    pub entered: f64,
-    /// Over the rays that hit, the mean number of triangle boxes holding the origin of the secondary ray the hit
-    /// starts (off the surface along the normal facing the ray: `geom::camera::surface_offset`). A diffuse ray
-    /// enters each such box at once, so a closest-hit traversal of a hierarchy whose nodes bound whole triangles
-    /// tests each of their triangles.
-    pub holding_origin: f64,
+    /// The triangle boxes a ray enters no later than its first hit (every box it enters, for a ray that hits
+    /// nothing), over the sample rays.
+    pub entered: SampledMean,
+    /// Over the rays that hit, the triangle boxes holding the origin of the secondary ray the hit starts (off the
+    /// surface along the normal facing the ray: `geom::camera::surface_offset`). A diffuse ray enters each such box
+    /// at once, so a closest-hit traversal of a hierarchy whose nodes bound whole triangles tests each of their
+    /// triangles.
+    pub holding_origin: SampledMean,
     /// The share of the sample rays that hit.
     pub hit_share: f64,
     /// Over the shadow rays those hits start (to the shadow workload's light, `geom::camera::default_light`), the
-    /// mean number of triangle boxes a ray crosses when no triangle occludes it (0 for an occluded ray). An
-    /// any-hit query that finds nothing visits every node its segment crosses, so a hierarchy whose nodes bound
-    /// whole triangles tests every such triangle.
-    pub unoccluded_shadow: f64,
+    /// triangle boxes a ray crosses when no triangle occludes it (0 for an occluded ray). An any-hit query that
+    /// finds nothing visits every node its segment crosses, so a hierarchy whose nodes bound whole triangles tests
+    /// every such triangle.
+    pub unoccluded_shadow: SampledMean,
 }
 
 /// `sum_a w_a f_a / sum_a w_a s_a`, 0 when the denominator is not positive and finite.
@@ -1015,6 +1069,10 @@ pub fn secondary_tests_per_image_crossing(structure: StructureName, kind: Worklo
 const SHADOW_IMAGE: [(f64, f64); 5] = [(0.074, 0.011), (0.0, 0.011), (0.30, 0.068), (0.16, 0.010), (0.13, 0.010)];
 const DIFFUSE_IMAGE: [(f64, f64); 5] = [(0.17, 0.0082), (0.0, 0.0099), (0.37, 0.083), (0.39, 0.0096), (0.24, 0.0094)];
 
+/// The BIH's largest leaf under its default build options (`accel::bih::BihOptions`, built with the `eval` feature;
+/// a test checks that the two agree), for the floor of [`overlap_floor`] in the engine core too.
+pub const BIH_MAX_LEAF: usize = 4;
+
 /// The largest leaf of a structure whose every node bounds whole triangles (its default build options), for the
 /// floor of [`near_crossings`]; `None` for the others (kd-tree, grid), which store a triangle only in the cells it
 /// overlaps.
@@ -1023,8 +1081,7 @@ fn near_leaf(structure: StructureName) -> Option<f64> {
         StructureName::Bvh => Some(crate::accel::bvh::BvhOptions::default().max_leaf as f64),
         StructureName::Lbvh => Some(crate::accel::lbvh::LbvhOptions::default().max_leaf as f64),
         StructureName::Hlbvh => Some(crate::accel::hlbvh::HlbvhOptions::default().max_leaf as f64),
-        #[cfg(feature = "eval")]
-        StructureName::Bih => Some(crate::accel::bih::BihOptions::default().max_leaf as f64),
+        StructureName::Bih => Some(BIH_MAX_LEAF as f64),
         _ => None,
     }
     .map(|l| l.max(1.0))
@@ -1133,6 +1190,10 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
         // one of coincident copies, so its count is scaled by the distinct share. Each such triangle's leaf box is
         // tested too, and a leaf holds at most `leaf` triangles.
         let near = if structure == StructureName::Bvh && c.all > 0.0 { near * c.distinct / c.all } else { near };
+        // The secondary counts are means over every ray, those that leave the scene at once (which cross nothing)
+        // included; the floor bounds the others' counts (`predict_floored` applies it to them alone).
+        let stay = 1.0 - leave_share;
+        let near = if kind != WorkloadKind::Primary && stay > 0.0 { near / stay } else { near };
         if near.is_finite() && near > 0.0 {
             f.prim_tests = f.prim_tests.max(near);
             f.box_tests = f.box_tests.max(near / leaf);
