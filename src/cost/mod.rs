@@ -111,7 +111,7 @@ pub mod overlap;
 pub use overlap::{
     crossings_feature, near_crossings, overlap_floor, primary_tests_per_crossing, screen_crossings,
     secondary_rays_leave_the_plane, secondary_tests_per_image_crossing, tests_per_crossing, Crossings, NearCrossings,
-    RayCrossings, TestFloor, ViewCrossings, NEAR_SAMPLES,
+    RayCrossings, SampledMean, TestFloor, ViewCrossings, NEAR_SAMPLES,
 };
 
 use crate::accel::device::{DeviceRecord, TraceBackend};
