@@ -1004,6 +1004,14 @@ fn the_boxes_entered_before_the_hit_floor_the_triangle_tests_of_the_four_hierarc
     // An animation's frames other than the first have no such bound: combined over frames, the count is dropped.
     let merged = cr.over_frames(&cr);
     assert_eq!(merged.view.map(|v| (v.all, v.near)), Some((v.all, None)));
+    // The policy's bounds of an animation skip the count (the same image count, no near); of one frame, keep it.
+    let frames = [m.clone(), m.clone()];
+    let crossings = |f: &[Mesh]| BuildBounds::of_frames_viewed(f, Some(&close)).unwrap().unwrap().box_crossings;
+    let animated = crossings(&frames).and_then(|c| c.view).expect("a view");
+    assert_eq!((animated.all, animated.near), (v.all, None));
+    assert_eq!(crossings(&frames[..1]).and_then(|c| c.view).and_then(|v| v.near), Some(near));
+    let first = Crossings::of_first_frame_viewed(&m, Some(&close), 2).view.expect("a view");
+    assert_eq!((first.all, first.near), (v.all, None));
     // The engine core's BIH leaf is the BIH's default.
     assert_eq!(meshchar::cost::overlap::BIH_MAX_LEAF, meshchar::accel::bih::BihOptions::default().max_leaf);
     assert_eq!(cr.for_workload(WorkloadKind::Shadow, Some(&elsewhere), lo, hi).near, None);

@@ -227,6 +227,13 @@ impl Crossings {
     /// ([`Crossings::with_view`]; `None`: the framing camera of the mesh's box, what the policy assumes without a
     /// camera). [`crate::select::BuildBounds::of_mesh_viewed`] records the same.
     pub fn of_mesh_viewed(mesh: &Mesh, camera: Option<&Camera>) -> Crossings {
+        Crossings::of_first_frame_viewed(mesh, camera, 1)
+    }
+
+    /// [`Crossings::of_mesh_viewed`] of the first of `frames` frames of a scene: for an animation (more than one
+    /// frame) without the boxes entered before the hits ([`ViewCrossings::near`]), which bound that frame's rays only
+    /// (the pass is skipped, not run and dropped).
+    pub fn of_first_frame_viewed(mesh: &Mesh, camera: Option<&Camera>, frames: usize) -> Crossings {
         let (boxes, tris): (Vec<Aabb>, Vec<crate::geom::Triangle>) = (0..mesh.triangle_count())
             .map(|i| {
                 let v = mesh.triangle(i);
@@ -235,7 +242,7 @@ impl Crossings {
             .unzip();
         let scene = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
         let c = Crossings::of(mesh, boxes.iter().zip(&tris).map(|(b, t)| (*b, t.is_degenerate())), &scene);
-        c.viewed_from(&boxes, &tris, &scene, camera)
+        c.viewed_from(&boxes, if frames > 1 { &[] } else { &tris }, &scene, camera)
     }
 
     /// [`Crossings::of_mesh_viewed`] from the framing camera.
@@ -244,7 +251,7 @@ impl Crossings {
     }
 
     /// [`Crossings::with_view`] of `camera`, or of the framing camera of `scene` (the triangles' union) when `None`;
-    /// no view for an empty or non-finite scene.
+    /// no view for an empty or non-finite scene. With no triangles in `tris`, no boxes entered before the hits.
     pub fn viewed_from(
         self,
         boxes: &[Aabb],
@@ -418,8 +425,8 @@ impl Crossings {
 
     /// These crossings with `camera`'s counted on its image ([`screen_crossings`] of `boxes`, the triangles' boxes)
     /// and, on a sample of its rays, in front of their first hits ([`near_crossings`] of `boxes` and `tris`, the
-    /// triangles, in the same order); `framing`: it is the framing camera of the scene's box,
-    /// [`super::view::framing_camera`].
+    /// triangles, in the same order; not with no triangles, nor below [`Crossings::NEAR_FROM`]); `framing`: it is the
+    /// framing camera of the scene's box, [`super::view::framing_camera`].
     pub fn with_view(
         mut self,
         boxes: &[Aabb],
@@ -428,7 +435,7 @@ impl Crossings {
         framing: bool,
     ) -> Crossings {
         let all = screen_crossings(boxes, camera);
-        let near = (all >= Self::NEAR_FROM).then(|| near_crossings(boxes, tris, camera, all));
+        let near = (all >= Self::NEAR_FROM && !tris.is_empty()).then(|| near_crossings(boxes, tris, camera, all));
         self.view = Some(ViewCrossings { camera: *camera, framing, all, near });
         self
     }
@@ -518,7 +525,7 @@ pub fn secondary_rays_leave_the_plane(kind: WorkloadKind, camera: Option<&Camera
 /// Non-finite projections count nothing.
 pub fn screen_crossings(boxes: &[Aabb], camera: &Camera) -> f64 {
     use rayon::prelude::*;
-    let near = near_plane(boxes);
+    let near = near_plane(&boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b)));
     let parts: Vec<f64> =
         boxes.par_chunks(4096).map(|c| c.iter().map(|b| screen_share(b, camera, near)).sum::<f64>()).collect();
     parts.iter().sum()
@@ -586,10 +593,9 @@ fn screen_rect(b: &Aabb, camera: &Camera, near: f32) -> Option<(glam::Vec2, glam
     }
 }
 
-/// The near plane [`screen_crossings`] and [`near_crossings`] clip at: a millionth of the boxes' extent (or of
+/// The near plane [`screen_crossings`] and [`near_crossings`] clip at: a millionth of the extent of `scene` (or of
 /// their distance from the origin, if larger) in front of the eye.
-fn near_plane(boxes: &[Aabb]) -> f32 {
-    let scene = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
+fn near_plane(scene: &Aabb) -> f32 {
     let extent = (scene.max - scene.min).max_element().max((scene.max.abs().max(scene.min.abs())).max_element());
     if extent.is_finite() && extent > 0.0 {
         extent * 1e-6
@@ -650,7 +656,8 @@ pub fn near_crossings(boxes: &[Aabb], tris: &[crate::geom::Triangle], camera: &C
     let s = side as usize;
     let rays: Vec<RayInv> =
         (0..side * side).map(|k| RayInv::new(&camera.ray(k % side, k / side, side, side))).collect();
-    let near = near_plane(&boxes[..n]);
+    let scene = boxes[..n].iter().fold(Aabb::EMPTY, |a, b| a.union(b));
+    let near = near_plane(&scene);
     let sf = side as f32;
     // The sample rays whose pixel centres lie in a box's screen rectangle (widened by a thousandth of a sample
     // against the rounding of the projections; the tests below are exact): columns x0..x1, rows y0..y1. Computed
@@ -702,23 +709,18 @@ pub fn near_crossings(boxes: &[Aabb], tris: &[crate::geom::Triangle], camera: &C
     // Counted up to where a traversal still visits nodes once the closest hit is found: the hit's distance enlarged
     // as the slab test enlarges exits, plus the tie margin (`geom::cull_bound`), so that a box the ray enters at
     // its hit point counts whatever the rounding.
-    let scene = boxes[..n].iter().fold(Aabb::EMPTY, |a, b| a.union(b));
     let bound: Vec<f32> = rays
         .iter()
         .zip(&closest)
         .map(|(r, &(t, _))| crate::geom::cull_bound(t, crate::geom::tie_margin(r.o, r.d, &scene)))
         .collect();
-    // The origin of the secondary ray each hit starts: off the surface along the normal facing the camera's ray, as
-    // the shadow and diffuse workloads place it (`geom::camera::surface_offset`).
+    // The origin of the secondary ray each hit starts, as the shadow and diffuse workloads place it.
     let origins: Vec<Option<Vec3>> = rays
         .iter()
         .zip(&closest)
         .map(|(r, &(t, i))| {
             let tri = tris.get(i as usize)?;
-            let normal = tri.e1.cross(tri.e2).try_normalize()?;
-            let facing = if normal.dot(r.d) > 0.0 { -normal } else { normal };
-            let p = r.o + r.d * t;
-            Some(p + facing * crate::geom::camera::surface_offset(&scene, p))
+            crate::geom::camera::secondary_start(tri, r.o + r.d * t, r.d, &scene).map(|(o, _)| o)
         })
         .collect();
     // Per sample ray: the boxes it enters, and those holding its hit's secondary origin.
@@ -828,13 +830,8 @@ fn shadow_crossings(
     let mut rays: Vec<(RayInv, f32)> = Vec::new();
     let mut placed: Vec<(usize, glam::Vec2)> = Vec::new();
     for o in origins.iter().flatten() {
-        let to = light - *o;
-        let dist = to.length();
-        if !(dist > 0.0 && dist.is_finite()) {
-            continue;
-        }
-        let tmax = dist * (1.0 - 1e-5);
-        let ray = crate::geom::Ray { origin: *o, dir: to / dist, tmin: 0.0, tmax };
+        let Some(ray) = crate::geom::camera::shadow_ray(*o, light) else { continue };
+        let tmax = ray.tmax;
         let u = *o - light;
         let a = (0..3).max_by(|&i, &j| u[i].abs().total_cmp(&u[j].abs())).unwrap_or(0);
         let f = 2 * a + (u[a] < 0.0) as usize;

@@ -577,7 +577,11 @@ pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str))
             let viewed = match views.iter().find(|v| v.0 == camera) {
                 Some(v) => v.1,
                 None => {
-                    let c = crate::cost::Crossings::of_mesh_viewed(&scene.frames[0], camera.as_ref());
+                    let c = crate::cost::Crossings::of_first_frame_viewed(
+                        &scene.frames[0],
+                        camera.as_ref(),
+                        scene.frames.len(),
+                    );
                     views.push((camera, c));
                     c
                 }

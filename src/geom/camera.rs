@@ -88,6 +88,29 @@ pub fn surface_offset(bounds: &Aabb, p: Vec3) -> f32 {
     1e-5 * bounds.extent().length() + 1e-6 * p.abs().max_element()
 }
 
+/// Where the secondary ray of a primary hit starts: the hit point `p` of the ray along `dir` on `tri`, moved off the
+/// surface by [`surface_offset`] along the triangle's unit normal facing the incoming ray; the origin and that
+/// normal, or `None` for a zero-area triangle (never hit). The shadow and diffuse workloads (`trace::workload`) and
+/// [`crate::cost::near_crossings`] both place their origins with it, so that the two agree to the bit.
+pub fn secondary_start(tri: &super::Triangle, p: Vec3, dir: Vec3, bounds: &Aabb) -> Option<(Vec3, Vec3)> {
+    let n = tri.e1.cross(tri.e2).try_normalize()?;
+    let facing = if n.dot(dir) > 0.0 { -n } else { n };
+    Some((p + facing * surface_offset(bounds, p), facing))
+}
+
+/// The shadow ray from `origin` to `light`: unit direction, `tmax` just short of the light (so that the light itself
+/// never occludes); `None` when the two coincide or the distance is not finite.
+pub fn shadow_ray(origin: Vec3, light: Vec3) -> Option<super::Ray> {
+    let to = light - origin;
+    let dist = to.length();
+    (dist > 0.0 && dist.is_finite()).then(|| super::Ray {
+        origin,
+        dir: to / dist,
+        tmin: 0.0,
+        tmax: dist * (1.0 - 1e-5),
+    })
+}
+
 /// The default point light of the shadow workload: above the scene (+y), towards the front-left, at one scene
 /// diagonal from the centre (`(0, 10, 0)` for an empty box).
 pub fn default_light(bounds: &Aabb) -> Vec3 {

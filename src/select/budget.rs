@@ -228,7 +228,7 @@ impl BuildBounds {
     /// without one), from the same triangle boxes ([`crate::cost::screen_crossings`]: 4.9 ms of this pass's 24
     /// ms for 200,000 triangles on the 2-core VM, `cargo bench --bench accel -- screen_crossings`).
     pub fn of_mesh_viewed(mesh: &Mesh, camera: Option<&crate::geom::Camera>) -> Result<BuildBounds, MeshError> {
-        BuildBounds::of_mesh_counted(mesh, &GridRule::default(), Some(camera))
+        BuildBounds::of_mesh_counted(mesh, &GridRule::default(), Some((camera, true)))
     }
 
     /// The largest bounds over the frames of a scene ([`BuildBounds::of_mesh`] of each, [`BuildBounds::max`]);
@@ -246,7 +246,9 @@ impl BuildBounds {
         let mut out: Option<BuildBounds> = None;
         for (i, f) in frames.iter().enumerate() {
             let b = if i == 0 {
-                BuildBounds::of_mesh_viewed(f, camera)?
+                // An animation's first frame without the boxes entered before the hits: they bound that frame's
+                // rays only (`Crossings::over_frames` would drop them; the pass is skipped instead).
+                BuildBounds::of_mesh_counted(f, &GridRule::default(), Some((camera, frames.len() == 1)))?
             } else {
                 BuildBounds::of_mesh_with(f, &GridRule::default())?
             };
@@ -264,11 +266,12 @@ impl BuildBounds {
     }
 
     /// The one pass over the triangles behind [`BuildBounds::of_mesh_with`] and [`BuildBounds::of_mesh_viewed`]:
-    /// `view` is `Some(camera)` to count the crossings on that camera's image (`Some(None)`: the framing camera).
+    /// `view` is `Some((camera, near))` to count the crossings on that camera's image (`None` as the camera: the
+    /// framing one), and with `near` also the boxes its rays enter before their hits ([`Crossings::with_view`]).
     fn of_mesh_counted(
         mesh: &Mesh,
         rule: &GridRule,
-        view: Option<Option<&crate::geom::Camera>>,
+        view: Option<(Option<&crate::geom::Camera>, bool)>,
     ) -> Result<BuildBounds, MeshError> {
         crate::in_pool(|| BuildBounds::of_mesh_counted_here(mesh, rule, view))
     }
@@ -276,7 +279,7 @@ impl BuildBounds {
     fn of_mesh_counted_here(
         mesh: &Mesh,
         rule: &GridRule,
-        view: Option<Option<&crate::geom::Camera>>,
+        view: Option<(Option<&crate::geom::Camera>, bool)>,
     ) -> Result<BuildBounds, MeshError> {
         use rayon::prelude::*;
         mesh.validate()?;
@@ -307,8 +310,8 @@ impl BuildBounds {
             })
             .reduce(|| (0u64, 0u64), |a, b| (a.0.saturating_add(b.0), a.1.saturating_add(b.1)));
         let mut crossings = Crossings::of(mesh, boxes.iter().zip(&tris).map(|(b, t)| (*b, t.is_degenerate())), &scene);
-        if let Some(camera) = view {
-            crossings = crossings.viewed_from(&boxes, &tris, &scene, camera);
+        if let Some((camera, near)) = view {
+            crossings = crossings.viewed_from(&boxes, if near { &tris } else { &[] }, &scene, camera);
         }
         Ok(BuildBounds {
             box_crossings: Some(crossings),

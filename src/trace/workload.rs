@@ -6,7 +6,7 @@
 
 use super::{trace, Camera};
 use crate::accel::AccelStructure;
-use crate::geom::{Aabb, Hit, Ray, WorkloadKind};
+use crate::geom::{Aabb, Hit, Ray, Triangle, WorkloadKind};
 use crate::mesh::Mesh;
 use glam::Vec3;
 
@@ -47,18 +47,7 @@ pub fn primary_rays(camera: &Camera, width: u32, height: u32) -> Vec<Ray> {
 
 pub use crate::geom::camera::default_light;
 
-pub use crate::geom::camera::surface_offset;
-
-/// Geometric unit normal of a hit, facing the incoming ray; `None` for a zero-area triangle.
-fn facing_normal(mesh: &Mesh, hit: &Hit, dir: Vec3) -> Option<Vec3> {
-    let i = hit.triangle as usize;
-    if i >= mesh.triangle_count() {
-        return None;
-    }
-    let [a, b, c] = mesh.triangle(i);
-    let n = (b - a).cross(c - a).try_normalize()?;
-    Some(if n.dot(dir) > 0.0 { -n } else { n })
-}
+pub use crate::geom::camera::{secondary_start, shadow_ray, surface_offset};
 
 pub use crate::rng::SplitMix64;
 
@@ -117,19 +106,16 @@ pub fn secondary_rays(
     let mut rays = Vec::new();
     for (k, (r, h)) in primary.iter().zip(hits).enumerate() {
         let Some(h) = h else { continue };
-        let Some(n) = facing_normal(mesh, h, r.dir) else {
+        let i = h.triangle as usize;
+        if i >= mesh.triangle_count() {
+            continue;
+        }
+        let p = r.origin + r.dir * h.t;
+        let Some((origin, n)) = secondary_start(&Triangle::new(&mesh.triangle(i)), p, r.dir, &bounds) else {
             continue;
         };
-        let p = r.origin + r.dir * h.t;
-        let origin = p + n * surface_offset(&bounds, p);
         match kind {
-            WorkloadKind::Shadow => {
-                let to = light - origin;
-                let dist = to.length();
-                if dist > 0.0 && dist.is_finite() {
-                    rays.push(Ray { origin, dir: to / dist, tmin: 0.0, tmax: dist * (1.0 - 1e-5) });
-                }
-            }
+            WorkloadKind::Shadow => rays.extend(shadow_ray(origin, light)),
             WorkloadKind::Diffuse => {
                 let mut rng = SplitMix64(seed ^ (k as u64).wrapping_mul(0x2545_f491_4f6c_dd1d));
                 rays.push(Ray::new(origin, cosine_direction(n, &mut rng)));
