@@ -15,7 +15,8 @@
 //!
 //! * `screen_crossings/<scene>`: the overlap floor's count of triangle boxes on a camera's image
 //!   (`meshchar::cost::screen_crossings`, framing camera), the boxes its sample rays enter before their first hits
-//!   (`meshchar::cost::near_crossings`, `near`) and the whole `BuildBounds::of_mesh_viewed` pass both are part of,
+//!   (`meshchar::cost::near_crossings`, `near`), the LBVH built and traced on the same sample
+//!   (`meshchar::cost::lbvh_probe`, `lbvh_probe`) and the whole `BuildBounds::of_mesh_viewed` pass all are part of,
 //!   on the three scenes above and the generated engineering family at 200K triangles seen close up.
 //!
 //! Scenes come from `../shared/meshes`; the bench fails naming the path when they are missing.
@@ -250,6 +251,8 @@ fn bench_screen_crossings(c: &mut Criterion) {
         g.bench_function("count", |x| x.iter(|| meshchar::cost::screen_crossings(&boxes, &camera)));
         let image = meshchar::cost::screen_crossings(&boxes, &camera);
         g.bench_function("near", |x| x.iter(|| meshchar::cost::near_crossings(&boxes, &tris, &camera, image)));
+        let side = meshchar::cost::near_sample_side(image);
+        g.bench_function("lbvh_probe", |x| x.iter(|| meshchar::cost::lbvh_probe(&mesh, &b, &camera, side)));
         g.bench_function("build_bounds", |x| {
             x.iter(|| {
                 meshchar::select::BuildBounds::of_mesh_viewed(&mesh, Some(&camera)).unwrap_or_else(|e| panic!("{e}"))

@@ -62,6 +62,7 @@ macro_rules! traversal_methods {
 
 #[cfg(feature = "eval")]
 pub mod bih;
+pub mod bounce;
 #[cfg(feature = "eval")]
 pub mod brute;
 pub mod bvh;

@@ -108,11 +108,13 @@ mod sample;
 pub mod view;
 
 pub mod overlap;
+pub mod probe;
 pub use overlap::{
-    crossings_feature, near_crossings, overlap_floor, primary_tests_per_crossing, screen_crossings,
+    crossings_feature, near_crossings, near_sample_side, overlap_floor, primary_tests_per_crossing, screen_crossings,
     secondary_rays_leave_the_plane, secondary_tests_per_image_crossing, tests_per_crossing, Crossings, NearCrossings,
     RayCrossings, SampledMean, TestFloor, ViewCrossings, NEAR_SAMPLES,
 };
+pub use probe::{lbvh_probe, LbvhProbe, ProbeCounts};
 
 use crate::accel::device::{DeviceRecord, TraceBackend};
 use crate::accel::StructureName;
@@ -463,7 +465,23 @@ impl StructureModel {
         let pr = pr.max(floor.prim_tests).min(floor.prim_tests_most);
         // Rays that leave the scene at once test the root box and nothing else.
         let leave = overlap::unit_share(floor.leave_share);
-        let (bx, pr) = (leave + (1.0 - leave) * bx, (1.0 - leave) * pr);
+        let (mut bx, mut pr) = (leave + (1.0 - leave) * bx, (1.0 - leave) * pr);
+        if let Some(p) = floor.sampled {
+            // The structure's own counts on a sample of the rays: where the law's count lies outside its own error
+            // band about the sampled mean (twice its fit's RMS log error either way), the law has missed this scene,
+            // and the count is held within two standard errors of that mean instead.
+            let held = |law: f64, m: overlap::SampledMean, rms: f64| {
+                let band = (2.0 * rms.max(0.0)).exp();
+                let within = m.mean > 0.0 && law >= m.mean / band && law <= m.mean * band;
+                if within {
+                    law
+                } else {
+                    law.clamp(m.lower_bound(), m.upper_bound())
+                }
+            };
+            bx = held(bx, p.box_tests, self.fit.box_tests);
+            pr = held(pr, p.prim_tests, self.fit.prim_tests);
+        }
         let ns = dot(&self.trace_price, &price_row(w.kind, bx, pr));
         let per_build = (self.build_ln_a + self.build_exponent * (n.max(1) as f64).ln()).exp();
         let build_ms = per_build * w.builds as f64;

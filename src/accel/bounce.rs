@@ -1,0 +1,46 @@
+//! The diffuse bounce direction: the CPU diffuse workload (`trace::workload`) and the policy's LBVH probe
+//! ([`crate::cost::lbvh_probe`]) draw their bounces with it, and the device tracer reproduces it to the bit.
+
+use glam::Vec3;
+
+/// `(sin, cos)` of `2 pi u` for `u` in `[0, 1)`, from additions and multiplications only, so that a device
+/// reproduces it to the bit (`turn_sin_cos` of `glsl/include/trace.glsl`, with the same constants): the quadrant
+/// from `4u`, then Taylor polynomials of degree 11 and 12 in Horner form on `[0, pi / 2)` (error below `1e-7`).
+/// The library `sin` and `cos` differ between platforms in the last bit.
+pub fn turn_sin_cos(u: f32) -> (f32, f32) {
+    use crate::gpu::shaders::layout as l;
+    let c = f32::from_bits;
+    let t = u * 4.0;
+    let q = t.floor();
+    let x = (t - q) * c(l::TRACE_HALF_PI_BITS);
+    let x2 = x * x;
+    let mut sp = c(l::TRACE_SIN11_BITS);
+    for k in [l::TRACE_SIN9_BITS, l::TRACE_SIN7_BITS, l::TRACE_SIN5_BITS, l::TRACE_SIN3_BITS] {
+        sp = c(k) + x2 * sp;
+    }
+    let sn = x * (1.0 + x2 * sp);
+    let mut cp = c(l::TRACE_COS12_BITS);
+    for k in [l::TRACE_COS10_BITS, l::TRACE_COS8_BITS, l::TRACE_COS6_BITS, l::TRACE_COS4_BITS, l::TRACE_COS2_BITS] {
+        cp = c(k) + x2 * cp;
+    }
+    let cs = 1.0 + x2 * cp;
+    match (q as i32) & 3 {
+        0 => (sn, cs),
+        1 => (cs, -sn),
+        2 => (-sn, -cs),
+        _ => (-cs, sn),
+    }
+}
+
+/// Cosine-distributed unit direction about the unit normal `n`: the diffuse workload's (`trace::workload`) and
+/// [`crate::cost::lbvh_probe`]'s, two draws of `rng` each.
+pub fn cosine_direction(n: Vec3, rng: &mut crate::rng::SplitMix64) -> Vec3 {
+    let u1 = rng.next_f32();
+    let u2 = rng.next_f32();
+    let r = u1.sqrt();
+    let (sn, cs) = turn_sin_cos(u2);
+    let (x, y) = (r * cs, r * sn);
+    let z = (1.0 - u1).max(0.0).sqrt();
+    let (t, b) = n.any_orthonormal_pair();
+    (t * x + b * y + n * z).try_normalize().unwrap_or(n)
+}
