@@ -252,7 +252,7 @@ fn bench_screen_crossings(c: &mut Criterion) {
         let image = meshchar::cost::screen_crossings(&boxes, &camera);
         g.bench_function("near", |x| x.iter(|| meshchar::cost::near_crossings(&boxes, &tris, &camera, image)));
         let side = meshchar::cost::near_sample_side(image);
-        g.bench_function("lbvh_probe", |x| x.iter(|| meshchar::cost::lbvh_probe(&mesh, &b, &camera, side)));
+        g.bench_function("lbvh_probe", |x| x.iter(|| meshchar::cost::lbvh_probe(&mesh, &b, &camera, side, false)));
         g.bench_function("build_bounds", |x| {
             x.iter(|| {
                 meshchar::select::BuildBounds::of_mesh_viewed(&mesh, Some(&camera)).unwrap_or_else(|e| panic!("{e}"))

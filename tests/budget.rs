@@ -468,9 +468,9 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
         let r = cr.for_workload(k, Some(&cam), lo, hi);
         // (They also get the boxes holding the diffuse origins, or crossed by unoccluded shadow rays, counted on the
-        // camera's sample, and the LBVH's counts on the rays those hits start.)
-        assert_eq!(RayCrossings { image: 0.0, near: None, lbvh: None, ..r }, cr.isotropic());
-        assert!(r.near.is_some() && r.lbvh.is_some(), "{k:?}");
+        // camera's sample; the policy's LBVH probe traces primary rays alone.)
+        assert_eq!(RayCrossings { image: 0.0, near: None, ..r }, cr.isotropic());
+        assert!(r.near.is_some() && r.lbvh.is_none(), "{k:?}");
     }
     assert_eq!(cr.isotropic().all, cr.mean());
     // Secondary rays also get the camera's count on its image, when the view is of that camera.
@@ -1059,7 +1059,11 @@ fn the_lbvh_probe_counts_the_lbvhs_own_tests_on_its_sample() {
         (Camera::frame(&scene_box(&overlapping)), overlapping),
     ];
     for (cam, m) in &cases {
-        let probe = lbvh_probe(m, &scene_box(m), cam, NEAR_SAMPLES).expect("probe");
+        let probe = lbvh_probe(m, &scene_box(m), cam, NEAR_SAMPLES, true).expect("probe");
+        // What the policy runs: the same primary counts, no secondary ray.
+        let primary = lbvh_probe(m, &scene_box(m), cam, NEAR_SAMPLES, false).expect("probe");
+        assert_eq!(primary.primary, probe.primary, "{}", m.name);
+        assert_eq!((primary.shadow.box_tests.rays, primary.diffuse.box_tests.rays), (0, 0), "{}", m.name);
         let lbvh = meshchar::accel::build_structure(StructureName::Lbvh, m).unwrap();
         let reference = meshchar::accel::build_structure(StructureName::Bvh, m).unwrap();
         let sample = build_workload(WorkloadKind::Primary, m, cam, NEAR_SAMPLES, reference.as_ref());
@@ -1093,9 +1097,9 @@ fn the_lbvh_probe_counts_the_lbvhs_own_tests_on_its_sample() {
     }
     // Nothing to trace: no probe for a zero-side sample, empty counts for a mesh without triangles.
     let (cam, m) = &cases[2];
-    assert!(lbvh_probe(m, &scene_box(m), cam, 0).is_none());
+    assert!(lbvh_probe(m, &scene_box(m), cam, 0, true).is_none());
     let empty = Mesh { name: "empty".into(), positions: Vec::new(), indices: Vec::new(), object_ids: None };
-    let p = lbvh_probe(&empty, &Aabb::EMPTY, cam, 4).expect("an empty LBVH builds");
+    let p = lbvh_probe(&empty, &Aabb::EMPTY, cam, 4, true).expect("an empty LBVH builds");
     assert_eq!((p.primary.box_tests.rays, p.primary.prim_tests.mean, p.shadow.box_tests.rays), (16, 0.0, 0));
 }
 

@@ -147,7 +147,8 @@ pub struct RayCrossings {
     /// hierarchy tests its root box once and no triangle ([`overlap_floor`] gives those counts exactly).
     pub leave_flat_scene: bool,
     /// When counted ([`ViewCrossings::lbvh`]): the LBVH's own tests per ray of the workload on the sample of the
-    /// camera's rays (for secondary rays, over every ray those hits start, those that leave at once included).
+    /// camera's rays (for secondary rays, when traced, over every ray those hits start, those that leave at once
+    /// included; the policy's probe traces none).
     pub lbvh: Option<super::ProbeCounts>,
     /// Secondary rays only: the share of them that start on the scene's outer boundary and leave it at once
     /// ([`Crossings::leave_share`]): each tests the root box once and no triangle, in every structure.
@@ -343,7 +344,11 @@ impl Crossings {
                         n.unoccluded_shadow.lower_bound()
                     }
                 }),
-                lbvh: self.counted(camera).and_then(|v| v.lbvh).map(|p| *p.of_kind(kind)),
+                lbvh: self
+                    .counted(camera)
+                    .and_then(|v| v.lbvh)
+                    .map(|p| *p.of_kind(kind))
+                    .filter(|p| p.box_tests.rays > 0),
                 ..self.isotropic()
             },
         }
@@ -454,7 +459,8 @@ impl Crossings {
     /// same sample, [`near_sample_side`]); unchanged otherwise.
     pub fn with_lbvh_probe(mut self, mesh: &Mesh, scene: &Aabb) -> Crossings {
         if let Some(v) = self.view.as_mut().filter(|v| v.near.is_some()) {
-            v.lbvh = super::lbvh_probe(mesh, scene, &v.camera, near_sample_side(v.all));
+            // Primary rays alone: the policy reads no secondary count (see [`overlap_floor`]).
+            v.lbvh = super::lbvh_probe(mesh, scene, &v.camera, near_sample_side(v.all), false);
         }
         self
     }

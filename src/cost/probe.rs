@@ -7,7 +7,7 @@
 //! sort and one pass), so the policy can afford to build it and count what it does: the same builder with the same
 //! options the oracle and the engine use, so that the counts are the LBVH's own on the sampled rays. The primary
 //! sample is [`super::near_crossings`]'s (the rays through the pixel centres of a square image of the camera, at
-//! most 32 x 32); the shadow and diffuse rays start at their hits as the workloads start theirs
+//! most 32 x 32); on request, shadow and diffuse rays start at their hits as the workloads start theirs
 //! (`geom::camera::secondary_start`, the shadow workload's light, cosine-distributed bounces). Each count is a
 //! [`SampledMean`].
 //!
@@ -48,9 +48,9 @@ impl ProbeCounts {
 pub struct LbvhProbe {
     /// The primary rays of the sample.
     pub primary: ProbeCounts,
-    /// The shadow rays their hits start (to [`default_light`] of the scene's box).
+    /// The shadow rays their hits start (to [`default_light`] of the scene's box), when traced.
     pub shadow: ProbeCounts,
-    /// The diffuse rays their hits start.
+    /// The diffuse rays their hits start, when traced.
     pub diffuse: ProbeCounts,
 }
 
@@ -69,11 +69,12 @@ impl LbvhProbe {
 const PROBE_SEED: u64 = 0x7072_6f62_655f_6c62;
 
 /// Builds the LBVH of `mesh` (default options: what the oracle and the engine build) and traces the `side x side`
-/// rays of `camera` through the pixel centres, then a shadow and a diffuse ray from each hit, counting the tests of
-/// each ray ([`LbvhProbe`]); `bounds` is the box of the mesh's triangles (where the secondary rays' offsets and the
-/// light come from). `None` when the LBVH cannot be built (an invalid mesh, too many triangles) or for `side` 0.
+/// rays of `camera` through the pixel centres, then, with `secondary`, a shadow and a diffuse ray from each hit,
+/// counting the tests of each ray ([`LbvhProbe`]; without `secondary` its shadow and diffuse counts are empty, no
+/// ray); `bounds` is the box of the mesh's triangles (where the secondary rays' offsets and the light come from).
+/// The policy traces primary rays alone ([`super::Crossings::with_lbvh_probe`]): it uses no secondary count. `None` when the LBVH cannot be built (an invalid mesh, too many triangles) or for `side` 0.
 /// Deterministic: the counts are integers and each ray is traced alone.
-pub fn lbvh_probe(mesh: &Mesh, bounds: &Aabb, camera: &Camera, side: u32) -> Option<LbvhProbe> {
+pub fn lbvh_probe(mesh: &Mesh, bounds: &Aabb, camera: &Camera, side: u32, secondary: bool) -> Option<LbvhProbe> {
     use crate::accel::AccelStructure;
     use rayon::prelude::*;
     if side == 0 {
@@ -90,7 +91,7 @@ pub fn lbvh_probe(mesh: &Mesh, bounds: &Aabb, camera: &Camera, side: u32) -> Opt
                 let ray = camera.ray((k % s) as u32, (k / s) as u32, side, side);
                 let mut c = TraceCounters::default();
                 let hit = lbvh.intersect(&ray, &mut c);
-                let second = hit.and_then(|h| {
+                let second = hit.filter(|_| secondary).and_then(|h| {
                     let i = h.triangle as usize;
                     if i >= mesh.triangle_count() {
                         return None;
