@@ -72,8 +72,9 @@ const PROBE_SEED: u64 = 0x7072_6f62_655f_6c62;
 /// rays of `camera` through the pixel centres, then, with `secondary`, a shadow and a diffuse ray from each hit,
 /// counting the tests of each ray ([`LbvhProbe`]; without `secondary` its shadow and diffuse counts are empty, no
 /// ray); `bounds` is the box of the mesh's triangles (where the secondary rays' offsets and the light come from).
-/// The policy traces primary rays alone ([`super::Crossings::with_lbvh_probe`]): it uses no secondary count. `None` when the LBVH cannot be built (an invalid mesh, too many triangles) or for `side` 0.
-/// Deterministic: the counts are integers and each ray is traced alone.
+/// The policy traces primary rays alone ([`super::Crossings::with_lbvh_probe`]): it uses no secondary count.
+/// `None` when the LBVH cannot be built (an invalid mesh, too many triangles) or for `side` 0. Deterministic: the
+/// counts are integers and each ray is traced alone.
 pub fn lbvh_probe(mesh: &Mesh, bounds: &Aabb, camera: &Camera, side: u32, secondary: bool) -> Option<LbvhProbe> {
     use crate::accel::AccelStructure;
     use rayon::prelude::*;
