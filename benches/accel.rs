@@ -15,9 +15,9 @@
 //!
 //! * `screen_crossings/<scene>`: the overlap floor's count of triangle boxes on a camera's image
 //!   (`meshchar::cost::screen_crossings`, framing camera), the boxes its sample rays enter before their first hits
-//!   (`meshchar::cost::near_crossings`, `near`), the LBVH built and traced on the same sample
-//!   (`meshchar::cost::lbvh_probe`, `lbvh_probe`) and the whole `BuildBounds::of_mesh_viewed` pass all are part of,
-//!   on the three scenes above and the generated engineering family at 200K triangles seen close up.
+//!   (`meshchar::cost::near_crossings`, `near`), each structure the policy probes built and traced on the same
+//!   sample (`meshchar::cost::probe`, `probe_<structure>`) and the whole `BuildBounds::of_mesh_viewed` pass all are
+//!   part of, on the three scenes above and the generated engineering family at 200K triangles seen close up.
 //!
 //! Scenes come from `../shared/meshes`; the bench fails naming the path when they are missing.
 //! Run: `cargo bench --bench accel` (filter with e.g. `-- side_by_side` or `-- build/bunny`).
@@ -252,7 +252,11 @@ fn bench_screen_crossings(c: &mut Criterion) {
         let image = meshchar::cost::screen_crossings(&boxes, &camera);
         g.bench_function("near", |x| x.iter(|| meshchar::cost::near_crossings(&boxes, &tris, &camera, image)));
         let side = meshchar::cost::near_sample_side(image);
-        g.bench_function("lbvh_probe", |x| x.iter(|| meshchar::cost::lbvh_probe(&mesh, &b, &camera, side, false)));
+        for s in meshchar::cost::PROBED {
+            g.bench_function(format!("probe_{s}"), |x| {
+                x.iter(|| meshchar::cost::probe(s, &mesh, &b, &camera, side, false))
+            });
+        }
         g.bench_function("build_bounds", |x| {
             x.iter(|| {
                 meshchar::select::BuildBounds::of_mesh_viewed(&mesh, Some(&camera)).unwrap_or_else(|e| panic!("{e}"))

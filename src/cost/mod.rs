@@ -114,7 +114,7 @@ pub use overlap::{
     secondary_rays_leave_the_plane, secondary_tests_per_image_crossing, tests_per_crossing, Crossings, NearCrossings,
     RayCrossings, SampledMean, TestFloor, ViewCrossings, NEAR_SAMPLES,
 };
-pub use probe::{lbvh_probe, LbvhProbe, ProbeCounts};
+pub use probe::{probe, Probe, ProbeCounts, PROBED};
 
 use crate::accel::device::{DeviceRecord, TraceBackend};
 use crate::accel::StructureName;

@@ -117,9 +117,10 @@ pub struct ViewCrossings {
     /// crosses; lower bounds on the triangle tests of the hierarchies whose nodes bound whole triangles. Counted
     /// only where [`ViewCrossings::all`] is at least [`Crossings::NEAR_FROM`].
     pub near: Option<NearCrossings>,
-    /// On the same sample of rays, the LBVH's own tests per ray ([`super::lbvh_probe`]): counted with
-    /// [`ViewCrossings::near`] where the caller has the mesh ([`Crossings::with_lbvh_probe`]).
-    pub lbvh: Option<super::LbvhProbe>,
+    /// On the same sample of primary rays, the own tests per ray of each structure of [`super::PROBED`], in that
+    /// order ([`super::probe`]): counted with [`ViewCrossings::near`] where the caller has the mesh
+    /// ([`Crossings::with_probes`]); `None` for a structure that did not build.
+    pub probes: [Option<super::ProbeCounts>; super::probe::PROBES],
 }
 
 /// The triangle boxes a ray crosses on average ([`Crossings::per_ray`] for a camera's primary rays,
@@ -146,10 +147,9 @@ pub struct RayCrossings {
     /// ([`secondary_rays_leave_the_plane`]), so it crosses no box (the counts above are then 0) and every
     /// hierarchy tests its root box once and no triangle ([`overlap_floor`] gives those counts exactly).
     pub leave_flat_scene: bool,
-    /// When counted ([`ViewCrossings::lbvh`]): the LBVH's own tests per ray of the workload on the sample of the
-    /// camera's rays (for secondary rays, when traced, over every ray those hits start, those that leave at once
-    /// included; the policy's probe traces none).
-    pub lbvh: Option<super::ProbeCounts>,
+    /// Primary rays only, when counted ([`ViewCrossings::probes`]): the own tests per ray of each structure of
+    /// [`super::PROBED`] on the sample of the camera's rays ([`RayCrossings::probe`]).
+    pub probes: [Option<super::ProbeCounts>; super::probe::PROBES],
     /// Secondary rays only: the share of them that start on the scene's outer boundary and leave it at once
     /// ([`Crossings::leave_share`]): each tests the root box once and no triangle, in every structure.
     pub leave_share: f64,
@@ -249,7 +249,7 @@ impl Crossings {
             .unzip();
         let scene = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
         let c = Crossings::of(mesh, boxes.iter().zip(&tris).map(|(b, t)| (*b, t.is_degenerate())), &scene);
-        c.viewed_from(&boxes, if frames > 1 { &[] } else { &tris }, &scene, camera).with_lbvh_probe(mesh, &scene)
+        c.viewed_from(&boxes, if frames > 1 { &[] } else { &tris }, &scene, camera).with_probes(mesh, &scene)
     }
 
     /// [`Crossings::of_mesh_viewed`] from the framing camera.
@@ -309,7 +309,7 @@ impl Crossings {
             image: 0.0,
             leave_flat_scene: false,
             leave_share: 0.0,
-            lbvh: None,
+            probes: [None; super::probe::PROBES],
         }
     }
 
@@ -344,11 +344,6 @@ impl Crossings {
                         n.unoccluded_shadow.lower_bound()
                     }
                 }),
-                lbvh: self
-                    .counted(camera)
-                    .and_then(|v| v.lbvh)
-                    .map(|p| *p.of_kind(kind))
-                    .filter(|p| p.box_tests.rays > 0),
                 ..self.isotropic()
             },
         }
@@ -361,7 +356,7 @@ impl Crossings {
         // The boxes a ray enters before its hit are counted on the first frame's geometry: no bound for the others.
         if let Some(v) = self.view.as_mut() {
             v.near = None;
-            v.lbvh = None;
+            v.probes = [None; super::probe::PROBES];
         }
         if self.box_moves || other.box_moves || self.lo != other.lo || self.hi != other.hi {
             self.box_moves = true;
@@ -450,17 +445,18 @@ impl Crossings {
     ) -> Crossings {
         let all = screen_crossings(boxes, camera);
         let near = (all >= Self::NEAR_FROM && !tris.is_empty()).then(|| near_crossings(boxes, tris, camera, all));
-        self.view = Some(ViewCrossings { camera: *camera, framing, all, near, lbvh: None });
+        self.view = Some(ViewCrossings { camera: *camera, framing, all, near, probes: [None; super::probe::PROBES] });
         self
     }
 
-    /// These crossings with the LBVH of `mesh` (whose triangles' box is `scene`) probed on the sample of rays of
-    /// their view ([`super::lbvh_probe`], [`ViewCrossings::lbvh`]), where [`ViewCrossings::near`] was counted (the
-    /// same sample, [`near_sample_side`]); unchanged otherwise.
-    pub fn with_lbvh_probe(mut self, mesh: &Mesh, scene: &Aabb) -> Crossings {
+    /// These crossings with each structure of [`super::PROBED`] built over `mesh` (whose triangles' box is `scene`)
+    /// and probed on the sample of primary rays of their view ([`super::probe`], [`ViewCrossings::probes`]), where
+    /// [`ViewCrossings::near`] was counted (the same sample, [`near_sample_side`]); unchanged otherwise. Primary rays
+    /// alone: the policy reads no secondary count (see [`overlap_floor`]).
+    pub fn with_probes(mut self, mesh: &Mesh, scene: &Aabb) -> Crossings {
         if let Some(v) = self.view.as_mut().filter(|v| v.near.is_some()) {
-            // Primary rays alone: the policy reads no secondary count (see [`overlap_floor`]).
-            v.lbvh = super::lbvh_probe(mesh, scene, &v.camera, near_sample_side(v.all), false);
+            let side = near_sample_side(v.all);
+            v.probes = super::PROBED.map(|s| super::probe(s, mesh, scene, &v.camera, side, false).map(|p| p.primary));
         }
         self
     }
@@ -488,8 +484,16 @@ impl Crossings {
             image: 0.0,
             leave_flat_scene: false,
             leave_share: 0.0,
-            lbvh: counted.and_then(|v| v.lbvh).map(|p| p.primary),
+            probes: counted.map_or([None; super::probe::PROBES], |v| v.probes),
         }
+    }
+}
+
+impl RayCrossings {
+    /// The counts of `structure` on the camera's sample ([`RayCrossings::probes`]), when probed.
+    pub fn probe(&self, structure: StructureName) -> Option<super::ProbeCounts> {
+        let i = super::PROBED.iter().position(|s| *s == structure)?;
+        self.probes[i].filter(|p| p.box_tests.rays > 0)
     }
 }
 
@@ -638,7 +642,7 @@ pub const NEAR_SAMPLES: u32 = 32;
 /// passes are not bounded by it: each box visits the shadow rays in the bins it covers.
 const NEAR_WORK: f64 = 16.0 * 1024.0 * 1024.0;
 
-/// The side of the square sample of primary rays of [`near_crossings`] (and [`super::lbvh_probe`]) for a camera whose
+/// The side of the square sample of primary rays of [`near_crossings`] (and [`super::probe`]) for a camera whose
 /// image count ([`screen_crossings`]) is `image`: [`NEAR_SAMPLES`], less (8 at least) where `image` times the
 /// sample's rays would exceed about 16 million box-ray pairs.
 pub fn near_sample_side(image: f64) -> u32 {
@@ -833,8 +837,8 @@ impl SampledMean {
     }
 
     /// The mean plus twice its standard error: with [`SampledMean::lower_bound`], the band that holds the mean over
-    /// every ray of the workload for about 19 samples in 20 ([`overlap_floor`] holds the LBVH's predicted counts in
-    /// it, [`super::lbvh_probe`]).
+    /// every ray of the workload for about 19 samples in 20 ([`overlap_floor`] holds a probed structure's predicted
+    /// counts in it, [`super::probe`]).
     pub fn upper_bound(&self) -> f64 {
         (self.mean + 2.0 * self.standard_error).max(self.lower_bound())
     }
@@ -1146,8 +1150,8 @@ pub struct TestFloor {
     /// reads ([`crate::cost::StructureModel::crossing_coef`]); NaN when the caller has no count (no mesh at hand:
     /// such a model then reads its training records' mean, [`crate::cost::StructureModel::crossing_mean`]).
     pub crossings: f64,
-    /// The structure's own tests per ray of the workload counted on a sample of its rays (the LBVH's for primary
-    /// rays, [`super::lbvh_probe`]): where a law's count (with the bounds above) lies outside its own error band
+    /// The structure's own tests per ray of the workload counted on a sample of its rays (for primary rays,
+    /// [`super::probe`]): where a law's count (with the bounds above) lies outside its own error band
     /// about the sampled mean (twice the fit's RMS log error either way), the prediction holds it within two
     /// standard errors of that mean instead ([`crate::cost::StructureModel::predict_floored`]).
     pub sampled: Option<super::ProbeCounts>,
@@ -1203,7 +1207,8 @@ pub fn crossings_feature(kind: WorkloadKind, c: Option<RayCrossings>) -> f64 {
 /// [`RayCrossings::near`] (the boxes a ray enters before its first hit, holding a diffuse ray's origin, or crossed
 /// by an unoccluded shadow ray; [`near_crossings`]), the BVH's, LBVH's, HLBVH's and BIH's triangle tests are at least
 /// that count (the BVH's scaled by its distinct share) and their box tests at least it over their largest leaf.
-/// With [`RayCrossings::lbvh`], the LBVH's primary rays carry its sampled counts ([`TestFloor::sampled`]).
+/// With [`RayCrossings::probes`], a probed structure's primary rays carry its sampled counts
+/// ([`TestFloor::sampled`]).
 pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
     let Some(c) = c else { return TestFloor::default() };
     let crossings = crossings_feature(kind, Some(c));
@@ -1251,10 +1256,10 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
         f.box_tests = f.box_tests.max(bi * y);
         f.prim_tests = f.prim_tests.max(pi * y);
     }
-    // The LBVH's own counts on the camera's sample ([`super::lbvh_probe`]), for primary rays: for secondary rays
-    // they made the choices worse (see [`super::probe`]).
-    if structure == StructureName::Lbvh && kind == WorkloadKind::Primary {
-        f.sampled = c.lbvh.filter(|p| p.box_tests.rays > 0);
+    // A probed structure's own counts on the camera's sample ([`super::probe`]), for primary rays (the policy's
+    // probes trace no other).
+    if kind == WorkloadKind::Primary {
+        f.sampled = c.probe(structure);
     }
     f
 }

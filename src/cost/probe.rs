@@ -1,25 +1,28 @@
-//! The LBVH probe: the LBVH built and a sample of a camera's rays traced through it, its box and triangle tests
-//! counted ray by ray.
+//! Probes: a structure built and a sample of a camera's rays traced through it, its box and triangle tests counted
+//! ray by ray.
 //!
 //! The count laws of the cost model read features that describe the whole scene; where the geometry makes the
-//! traversal of one view explode (large triangles whose centroids scatter through the Morton order, so that every
-//! node above one is as large as it), they can miss tenfold. The LBVH is the cheapest hierarchy to build (a Morton
-//! sort and one pass), so the policy can afford to build it and count what it does: the same builder with the same
-//! options the oracle and the engine use, so that the counts are the LBVH's own on the sampled rays. The primary
-//! sample is [`super::near_crossings`]'s (the rays through the pixel centres of a square image of the camera, at
-//! most 32 x 32); on request, shadow and diffuse rays start at their hits as the workloads start theirs
-//! (`geom::camera::secondary_start`, the shadow workload's light, cosine-distributed bounces). Each count is a
-//! [`SampledMean`].
+//! traversal of one view explode they can miss tenfold: in an LBVH a few large triangles whose centroids scatter
+//! through the Morton order make every node above each of them as large as it; in any hierarchy, rays that can hit
+//! nothing (zero-area triangles) descend every node their line crosses. Where the boxes-entered pass finds a view
+//! crowded ([`super::Crossings::NEAR_FROM`]), the policy builds the LBVH (the cheapest hierarchy to build) and the
+//! binned-SAH BVH (the one it picks most) ([`PROBED`]) and counts what they do
+//! ([`super::Crossings::with_probes`]): the same builders with the same options the oracle and the engine use, so
+//! that the counts are the structures' own on the sampled rays. The primary sample is [`super::near_crossings`]'s
+//! (the rays through the pixel centres of a square image of the camera, at most 32 x 32); on request, shadow and
+//! diffuse rays start at their hits as the workloads start theirs (`geom::camera::secondary_start`, the shadow
+//! workload's light, cosine-distributed bounces). Each count is a [`SampledMean`].
 //!
-//! How the policy uses it ([`super::overlap_floor`], [`super::TestFloor::sampled`],
-//! [`super::StructureModel::predict_floored`]): for primary rays, where the LBVH law's count lies outside its own
-//! error band about the sampled mean (twice the fit's RMS log error either way), the count is held within two
-//! standard errors of that mean. Within the band the law stands, and secondary rays keep their laws: giving the
-//! LBVH exact counts where the other structures' laws miss in the same direction made the choices worse on the
-//! family records (`docs/cost-model.md`, "The LBVH probe").
+//! How the policy uses them ([`super::overlap_floor`], [`super::TestFloor::sampled`],
+//! [`super::StructureModel::predict_floored`]): for primary rays, where a structure's law misses its sampled mean by
+//! more than its own error band (twice the fit's RMS log error either way), the count is held within two standard
+//! errors of that mean. Within the band the law stands, and secondary rays keep their laws: exact counts where the
+//! other structures' laws miss in the same direction made the choices worse on the family records
+//! (`docs/cost-model.md`, "Probes").
 
 use super::overlap::SampledMean;
 use crate::accel::bounce::cosine_direction;
+use crate::accel::StructureName;
 use crate::geom::camera::{default_light, secondary_start, shadow_ray};
 use crate::geom::{Aabb, Camera, Ray, TraceCounters, WorkloadKind};
 use crate::mesh::Mesh;
@@ -43,9 +46,18 @@ impl ProbeCounts {
     }
 }
 
-/// What [`lbvh_probe`] counts: the LBVH's tests per ray of each workload on the sample of one camera's rays.
+/// The structures the policy probes ([`super::Crossings::with_probes`]): the LBVH and the binned-SAH BVH. Probing
+/// the HLBVH and the BIH as well gained half a point on one held-out comparison (the 84 shared-mesh records by
+/// family), none on the others, and cost 2-3 times as much (the HLBVH's build alone 28 ms for the bunny;
+/// `docs/cost-model.md`, "Probes"). A build that fails gives no probe.
+pub const PROBED: [StructureName; PROBES] = [StructureName::Lbvh, StructureName::Bvh];
+
+/// How many structures the policy probes ([`PROBED`]).
+pub const PROBES: usize = 2;
+
+/// What [`probe`] counts: a structure's tests per ray of each workload on the sample of one camera's rays.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
-pub struct LbvhProbe {
+pub struct Probe {
     /// The primary rays of the sample.
     pub primary: ProbeCounts,
     /// The shadow rays their hits start (to [`default_light`] of the scene's box), when traced.
@@ -54,7 +66,7 @@ pub struct LbvhProbe {
     pub diffuse: ProbeCounts,
 }
 
-impl LbvhProbe {
+impl Probe {
     /// The counts of one kind of ray.
     pub fn of_kind(&self, kind: WorkloadKind) -> &ProbeCounts {
         match kind {
@@ -68,20 +80,27 @@ impl LbvhProbe {
 /// Seed of the probe's diffuse bounces (per ray, mixed with the ray's index as the diffuse workload mixes its own).
 const PROBE_SEED: u64 = 0x7072_6f62_655f_6c62;
 
-/// Builds the LBVH of `mesh` (default options: what the oracle and the engine build) and traces the `side x side`
-/// rays of `camera` through the pixel centres, then, with `secondary`, a shadow and a diffuse ray from each hit,
-/// counting the tests of each ray ([`LbvhProbe`]; without `secondary` its shadow and diffuse counts are empty, no
-/// ray); `bounds` is the box of the mesh's triangles (where the secondary rays' offsets and the light come from).
-/// The policy traces primary rays alone ([`super::Crossings::with_lbvh_probe`]): it uses no secondary count.
-/// `None` when the LBVH cannot be built (an invalid mesh, too many triangles) or for `side` 0. Deterministic: the
-/// counts are integers and each ray is traced alone.
-pub fn lbvh_probe(mesh: &Mesh, bounds: &Aabb, camera: &Camera, side: u32, secondary: bool) -> Option<LbvhProbe> {
-    use crate::accel::AccelStructure;
+/// Builds `structure` over `mesh` (default options: what the oracle and the engine build) and traces the
+/// `side x side` rays of `camera` through the pixel centres, then, with `secondary`, a shadow and a diffuse ray from
+/// each hit, counting the tests of each ray ([`Probe`]; without `secondary` its shadow and diffuse counts are empty,
+/// no ray); `bounds` is the box of the mesh's triangles (where the secondary rays' offsets and the light come from).
+/// The policy traces primary rays alone ([`super::Crossings::with_probes`]): it uses no secondary count. `None` when
+/// the structure cannot be built (an invalid mesh, too many triangles, a structure this build lacks) or for `side`
+/// 0. Deterministic: the counts are integers and each ray is traced alone.
+pub fn probe(
+    structure: StructureName,
+    mesh: &Mesh,
+    bounds: &Aabb,
+    camera: &Camera,
+    side: u32,
+    secondary: bool,
+) -> Option<Probe> {
     use rayon::prelude::*;
     if side == 0 {
         return None;
     }
-    let lbvh = crate::accel::lbvh::Lbvh::build(mesh).ok()?;
+    let built = crate::accel::build_structure(structure, mesh).ok()?;
+    let accel = built.as_ref();
     let light = default_light(bounds);
     let s = side as usize;
     type Traced = (TraceCounters, Option<(Option<TraceCounters>, TraceCounters)>);
@@ -91,7 +110,7 @@ pub fn lbvh_probe(mesh: &Mesh, bounds: &Aabb, camera: &Camera, side: u32, second
             .map(|k| {
                 let ray = camera.ray((k % s) as u32, (k / s) as u32, side, side);
                 let mut c = TraceCounters::default();
-                let hit = lbvh.intersect(&ray, &mut c);
+                let hit = accel.intersect(&ray, &mut c);
                 let second = hit.filter(|_| secondary).and_then(|h| {
                     let i = h.triangle as usize;
                     if i >= mesh.triangle_count() {
@@ -102,12 +121,12 @@ pub fn lbvh_probe(mesh: &Mesh, bounds: &Aabb, camera: &Camera, side: u32, second
                     // A shadow ray whose origin is the light itself is not traced by the workload either.
                     let sc = shadow_ray(origin, light).map(|shadow| {
                         let mut sc = TraceCounters::default();
-                        lbvh.occluded(&shadow, &mut sc);
+                        accel.occluded(&shadow, &mut sc);
                         sc
                     });
                     let mut rng = SplitMix64(PROBE_SEED ^ (k as u64).wrapping_mul(0x2545_f491_4f6c_dd1d));
                     let mut dc = TraceCounters::default();
-                    lbvh.intersect(&Ray::new(origin, cosine_direction(n, &mut rng)), &mut dc);
+                    accel.intersect(&Ray::new(origin, cosine_direction(n, &mut rng)), &mut dc);
                     Some((sc, dc))
                 });
                 (c, second)
@@ -117,7 +136,7 @@ pub fn lbvh_probe(mesh: &Mesh, bounds: &Aabb, camera: &Camera, side: u32, second
     let primary: Vec<TraceCounters> = traced.iter().map(|t| t.0).collect();
     let shadow: Vec<TraceCounters> = traced.iter().filter_map(|t| t.1.and_then(|s| s.0)).collect();
     let diffuse: Vec<TraceCounters> = traced.iter().filter_map(|t| t.1.map(|s| s.1)).collect();
-    Some(LbvhProbe {
+    Some(Probe {
         primary: ProbeCounts::of(&primary),
         shadow: ProbeCounts::of(&shadow),
         diffuse: ProbeCounts::of(&diffuse),

@@ -312,7 +312,7 @@ impl BuildBounds {
         let mut crossings = Crossings::of(mesh, boxes.iter().zip(&tris).map(|(b, t)| (*b, t.is_degenerate())), &scene);
         if let Some((camera, near)) = view {
             crossings = crossings.viewed_from(&boxes, if near { &tris } else { &[] }, &scene, camera);
-            crossings = crossings.with_lbvh_probe(mesh, &scene);
+            crossings = crossings.with_probes(mesh, &scene);
         }
         Ok(BuildBounds {
             box_crossings: Some(crossings),

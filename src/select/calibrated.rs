@@ -319,19 +319,27 @@ impl Policy for CalibratedPolicy {
                 if reads { "" } else { " (this calibration was fitted without views: the view changes no prediction)" }
             ));
         }
-        if let Some(p) =
-            self.crossings(scene).and_then(|c| c.lbvh).filter(|_| self.kind == crate::geom::WorkloadKind::Primary)
-        {
-            reasons.push(format!(
-                "LBVH probe: built and traced on {} sample rays of the view: {:.1} +- {:.1} box and {:.2} +- {:.2} \
-                 triangle tests/ray (two standard errors; the LBVH's counts below are held there where its laws miss \
-                 by more than their own error)",
-                p.box_tests.rays,
-                p.box_tests.mean,
-                2.0 * p.box_tests.standard_error,
-                p.prim_tests.mean,
-                2.0 * p.prim_tests.standard_error
-            ));
+        if let Some(c) = self.crossings(scene).filter(|_| self.kind == crate::geom::WorkloadKind::Primary) {
+            let probed: Vec<String> = crate::cost::PROBED
+                .iter()
+                .filter_map(|&s| {
+                    let p = c.probe(s)?;
+                    Some(format!(
+                        "{s} {:.1} +- {:.1} box and {:.2} +- {:.2} triangle tests/ray",
+                        p.box_tests.mean,
+                        2.0 * p.box_tests.standard_error,
+                        p.prim_tests.mean,
+                        2.0 * p.prim_tests.standard_error
+                    ))
+                })
+                .collect();
+            if let Some(rays) = crate::cost::PROBED.iter().find_map(|&s| c.probe(s)).map(|p| p.box_tests.rays) {
+                reasons.push(format!(
+                    "probes: built and traced on {rays} sample rays of the view: {} (two standard errors; each \
+                     structure's counts below are held there where its laws miss by more than their own error)",
+                    probed.join(", ")
+                ));
+            }
         }
         for e in &excluded {
             reasons.push(format!("excluded before choosing: {}", e.reason));
