@@ -11,7 +11,7 @@ use meshchar::geom::{Aabb, Camera, WorkloadKind};
 use meshchar::mesh::{generate, Mesh};
 use meshchar::select::budget::{Bound, GridRule};
 use meshchar::select::{
-    select_for_scene, select_for_scene_within, Budget, BuildBounds, PolicyChoice, Structure, TargetWorkload,
+    select_for_scene, select_for_scene_within, Budget, BuildBounds, PolicyChoice, Selection, Structure, TargetWorkload,
 };
 
 /// The degenerate generators of the failure study, at sizes a test builds in well under a second (a grid over
@@ -1157,6 +1157,46 @@ fn the_lbvhs_sampled_counts_hold_its_primary_prediction_in_their_band() {
     assert_eq!((kept.box_tests_per_ray, kept.prim_tests_per_ray), (free.box_tests_per_ray, free.prim_tests_per_ray));
 }
 
+/// For a degenerate mesh seen by the framing camera, primary rays: per structure of `runaway`, its box tests per ray
+/// as the shipped calibration predicts them with the probes (`Crossings::of_mesh`, `overlap_floor`) against its
+/// count on 64 x 64 rays; and the calibrated policy's choice (with its reasons).
+fn probed_against_counted(m: &Mesh, runaway: &[StructureName]) -> (Vec<(StructureName, f64, f64)>, Selection) {
+    use meshchar::cost::{overlap_floor, Crossings};
+    use meshchar::trace::trace;
+    use meshchar::trace::workload::build_workload;
+    let b = scene_box(m);
+    let (lo, hi) = (b.min.to_array(), b.max.to_array());
+    let c = Crossings::of_mesh(m).for_workload(WorkloadKind::Primary, None, lo, hi);
+    let model = CostModel::shipped().expect("shipped model");
+    let f = features_cpu(m, &Params::default()).expect("features");
+    let w = meshchar::cost::Workload {
+        kind: WorkloadKind::Primary,
+        rays_per_frame: 65_536,
+        frames: 1,
+        builds: 1,
+        view: None,
+    };
+    let preds = model.predict_floored(&f, &w, &|s| overlap_floor(s, WorkloadKind::Primary, Some(c)));
+    let reference = meshchar::accel::build_structure(StructureName::Bvh, m).unwrap();
+    let rays = build_workload(WorkloadKind::Primary, m, &Camera::frame(&b), 64, reference.as_ref());
+    let counts = runaway
+        .iter()
+        .map(|&s| {
+            assert!(c.probe(s).is_some(), "{s}: {c:?}");
+            let predicted = preds.iter().find(|q| q.structure == s).expect("predicted").box_tests_per_ray;
+            let accel = meshchar::accel::build_structure(s, m).unwrap();
+            let counted = trace(accel.as_ref(), &rays).counters.box_tests as f64 / rays.rays.len() as f64;
+            (s, predicted, counted)
+        })
+        .collect();
+    let ch = cpu::fast(m, &Params::default()).expect("characterization");
+    let policy = PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 };
+    let bounds = BuildBounds::of_mesh(m).expect("bounds");
+    let (frames, features) = (std::slice::from_ref(&ch), std::slice::from_ref(&f));
+    let sel = select_for_scene_within(&m.name, frames, features, policy, &workload(), Some(bounds), Budget::default());
+    (counts, sel.selection)
+}
+
 #[test]
 fn on_the_lattice_with_a_diagonal_the_lbvhs_runaway_is_counted_not_predicted() {
     // The selection issue's lattice at 20,000 triangles (99 x 99 squares and 44 collinear zero-area triangles across
@@ -1165,48 +1205,13 @@ fn on_the_lattice_with_a_diagonal_the_lbvhs_runaway_is_counted_not_predicted() {
     // primary ray makes 146 box tests where the shipped laws said 15; the policy chose the LBVH at 2.3x the best
     // total. The probe counts it on the sample: the predicted count lies within 10% of the LBVH's on 64 x 64 rays,
     // and the policy picks another structure.
-    use meshchar::cost::{overlap_floor, Crossings};
-    use meshchar::trace::trace;
-    use meshchar::trace::workload::build_workload;
     let m = generate::lattice_with_diagonal(99, 44);
-    let b = scene_box(&m);
-    let (lo, hi) = (b.min.to_array(), b.max.to_array());
-    let c = Crossings::of_mesh(&m).for_workload(WorkloadKind::Primary, None, lo, hi);
-    assert!(c.probe(StructureName::Lbvh).is_some(), "{c:?}");
-    let model = CostModel::shipped().expect("shipped model");
-    let f = features_cpu(&m, &Params::default()).expect("features");
-    let w = meshchar::cost::Workload {
-        kind: WorkloadKind::Primary,
-        rays_per_frame: 65_536,
-        frames: 1,
-        builds: 1,
-        view: None,
-    };
-    let predicted = model
-        .predict_floored(&f, &w, &|s| overlap_floor(s, WorkloadKind::Primary, Some(c)))
-        .into_iter()
-        .find(|q| q.structure == StructureName::Lbvh)
-        .expect("lbvh");
-    let lbvh = meshchar::accel::build_structure(StructureName::Lbvh, &m).unwrap();
-    let reference = meshchar::accel::build_structure(StructureName::Bvh, &m).unwrap();
-    let rays = build_workload(WorkloadKind::Primary, &m, &Camera::frame(&b), 64, reference.as_ref());
-    let counted = trace(lbvh.as_ref(), &rays).counters.box_tests as f64 / rays.rays.len() as f64;
-    assert!(counted > 100.0, "{counted}");
-    assert!((predicted.box_tests_per_ray / counted - 1.0).abs() < 0.1, "predicted {predicted:?}, counted {counted}");
-    let params = Params::default();
-    let ch = cpu::fast(&m, &params).expect("characterization");
-    let bounds = BuildBounds::of_mesh(&m).expect("bounds");
-    let policy = PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 };
-    let sel = select_for_scene_within(
-        &m.name,
-        std::slice::from_ref(&ch),
-        std::slice::from_ref(&f),
-        policy,
-        &workload(),
-        Some(bounds),
-        Budget::default(),
-    );
-    assert_ne!(sel.selection.structure, StructureName::Lbvh, "{:?}", sel.selection.reasons);
+    let (counts, sel) = probed_against_counted(&m, &[StructureName::Lbvh]);
+    for (s, predicted, counted) in counts {
+        assert!(counted > 100.0, "{s}: {counted}");
+        assert!((predicted / counted - 1.0).abs() < 0.1, "{s}: predicted {predicted}, counted {counted}");
+    }
+    assert_ne!(sel.structure, StructureName::Lbvh, "{:?}", sel.reasons);
 }
 
 #[test]
@@ -1216,42 +1221,11 @@ fn on_zero_area_triangles_the_bvhs_runaway_is_counted_not_predicted() {
     // policy chose it at 5.7x the grid's total. The probes count it on the sample: each probed hierarchy's predicted
     // count lies within 20% of its count on 64 x 64 rays (the prediction is held at the edge of the sample's band,
     // two standard errors from its mean), and the policy picks none of them.
-    use meshchar::cost::{overlap_floor, Crossings};
-    use meshchar::trace::trace;
-    use meshchar::trace::workload::build_workload;
     let m = generate::zero_area(2000, 1);
-    let b = scene_box(&m);
-    let (lo, hi) = (b.min.to_array(), b.max.to_array());
-    let c = Crossings::of_mesh(&m).for_workload(WorkloadKind::Primary, None, lo, hi);
-    let model = CostModel::shipped().expect("shipped model");
-    let f = features_cpu(&m, &Params::default()).expect("features");
-    let w = meshchar::cost::Workload {
-        kind: WorkloadKind::Primary,
-        rays_per_frame: 65_536,
-        frames: 1,
-        builds: 1,
-        view: None,
-    };
-    let preds = model.predict_floored(&f, &w, &|s| overlap_floor(s, WorkloadKind::Primary, Some(c)));
-    let reference = meshchar::accel::build_structure(StructureName::Bvh, &m).unwrap();
-    let rays = build_workload(WorkloadKind::Primary, &m, &Camera::frame(&b), 64, reference.as_ref());
-    for s in meshchar::cost::PROBED {
-        assert!(c.probe(s).is_some(), "{s}: {c:?}");
-        let predicted = preds.iter().find(|q| q.structure == s).expect("predicted");
-        let accel = meshchar::accel::build_structure(s, &m).unwrap();
-        let counted = trace(accel.as_ref(), &rays).counters.box_tests as f64 / rays.rays.len() as f64;
+    let (counts, sel) = probed_against_counted(&m, &meshchar::cost::PROBED);
+    for (s, predicted, counted) in counts {
         assert!(counted > 100.0, "{s}: {counted}");
-        assert!(
-            (predicted.box_tests_per_ray / counted - 1.0).abs() < 0.2,
-            "{s}: predicted {predicted:?}, counted {counted}"
-        );
+        assert!((predicted / counted - 1.0).abs() < 0.2, "{s}: predicted {predicted}, counted {counted}");
     }
-    let params = Params::default();
-    let ch = cpu::fast(&m, &params).expect("characterization");
-    let policy = PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 };
-    let bounds = BuildBounds::of_mesh(&m).expect("bounds");
-    let (frames, features) = (std::slice::from_ref(&ch), std::slice::from_ref(&f));
-    let sel = select_for_scene_within(&m.name, frames, features, policy, &workload(), Some(bounds), Budget::default());
-    let chosen = sel.selection.structure;
-    assert!(!meshchar::cost::PROBED.contains(&chosen), "chose {chosen}: {:?}", sel.selection.reasons);
+    assert!(!meshchar::cost::PROBED.contains(&sel.structure), "chose {}: {:?}", sel.structure, sel.reasons);
 }
