@@ -88,9 +88,12 @@ fn the_grid_bound_is_never_below_the_grids_references() {
         "{:<40} {:>12} {:>12} {:>7} {:>12} {:>12}",
         "mesh", "grid bound", "grid actual", "ratio", "kd est.", "kd actual"
     );
+    let mut exact = 0;
     for m in &meshes {
         let b = BuildBounds::of_mesh(m).expect("bounds");
-        assert_eq!(b.grid_bound, Bound::Upper);
+        // Exact where the slab bound exceeds the default budget (and the count stays within the builders'
+        // budget), an upper bound otherwise.
+        assert_ne!(b.grid_bound, Bound::Estimate, "{}", m.name);
         let f = features_cpu(m, &Params::default()).expect("features");
         let bf = BuildBounds::of_features(&f);
         // The bound from the features (complete here) is also an upper bound, and never tighter than the mesh's.
@@ -114,6 +117,18 @@ fn the_grid_bound_is_never_below_the_grids_references() {
                     m.name,
                     b.grid_references
                 );
+                if b.grid_bound == Bound::Exact {
+                    exact += 1;
+                    assert_eq!(b.grid_references, actual as u64, "{}: the exact count", m.name);
+                } else {
+                    assert!(
+                        b.grid_references <= Budget::default().references(m.triangle_count() as u64)
+                            || b.grid_references > Budget::BUILDERS.references(m.triangle_count() as u64),
+                        "{}: an upper bound {} where the count is exact below the builders' budget",
+                        m.name,
+                        b.grid_references
+                    );
+                }
                 assert!(bf.grid_references >= actual as u64, "{}: features bound below actual {actual}", m.name);
             }
             Err(AccelError::OverBudget { needed, .. }) => {
@@ -123,6 +138,29 @@ fn the_grid_bound_is_never_below_the_grids_references() {
             Err(e) => panic!("{}: {e}", m.name),
         }
     }
+    println!("{exact} counted exactly");
+}
+
+#[test]
+fn past_the_default_budget_the_grids_references_are_counted_exactly() {
+    // 20,000 large overlapping triangles: a slab bound of about 39 million references, four times the grid's count.
+    let m = generate::overlapping_large(20_000, 1);
+    let b = BuildBounds::of_mesh(&m).expect("bounds");
+    assert_eq!(b.grid_bound, Bound::Exact);
+    assert_eq!(b.grid_references, grid_refs(&m, &GridOptions::default()).expect("grid") as u64);
+    assert!(b.grid_references > Budget::default().references(20_000), "{b:?}");
+    let out = Budget::default().check(&b);
+    assert!(out.iter().any(|e| e.structure == StructureName::Grid && e.reason.contains("exactly")), "{out:?}");
+    // A count that passes the grid builder's own budget stops there: an upper bound, at least what the builder
+    // counts before it gives up (copies of one triangle over every cell).
+    let m = generate::all_equal(3000);
+    let b = BuildBounds::of_mesh(&m).expect("bounds");
+    assert_eq!(b.grid_bound, Bound::Upper);
+    match grid_refs(&m, &GridOptions::default()) {
+        Err(AccelError::OverBudget { needed, .. }) => assert!(b.grid_references >= needed as u64, "{b:?} {needed}"),
+        other => panic!("the grid should exceed its builder's budget: {other:?}"),
+    }
+    assert!(b.grid_references > Budget::BUILDERS.references(3000), "{b:?}");
 }
 
 #[test]

@@ -52,9 +52,9 @@
 
 use super::{bytes_of, invalid, prepare, AccelError, AccelStats, AccelStructure, StructureName, Validation};
 use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCounters};
-use crate::geom::{Aabb, Polygon, Triangle};
+use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 use rayon::prelude::*;
 
 pub use super::grid_rule::{GridFrame, GridOptions};
@@ -62,12 +62,7 @@ pub use super::grid_rule::{GridFrame, GridOptions};
 /// The grid (see the module docs).
 #[derive(Clone, Debug, Default)]
 pub struct Grid {
-    bounds: Aabb,
-    res: [u32; 3],
-    cell_size: Vec3,
-    inv_cell: Vec3,
-    widen: DVec3,
-    pad_scale: f64,
+    frame: GridFrame,
     cell_start: Vec<u32>,
     refs: Vec<u32>,
     tris: Vec<Triangle>,
@@ -103,18 +98,7 @@ impl Grid {
         }
         let frame = GridFrame::new(&scene, n, o);
         let res = frame.res;
-        let mut g = Grid {
-            bounds: frame.bounds,
-            res,
-            cell_size: frame.cell_size,
-            inv_cell: frame.inv_cell,
-            widen: frame.widen,
-            pad_scale: frame.pad_scale,
-            cell_start: Vec::new(),
-            refs: Vec::new(),
-            tris,
-            boxes,
-        };
+        let mut g = Grid { frame, cell_start: Vec::new(), refs: Vec::new(), tris, boxes };
         let ncells = res.iter().map(|&x| x as usize).product::<usize>();
         if ncells >= u32::MAX as usize {
             let limit = u32::MAX as usize;
@@ -191,27 +175,18 @@ impl Grid {
 
     /// Cells along x, y, z.
     pub fn resolution(&self) -> [u32; 3] {
-        self.res
+        self.frame.res
     }
 
     #[inline]
     fn cell_index(&self, x: u32, y: u32, z: u32) -> usize {
-        x as usize + self.res[0] as usize * (y as usize + self.res[1] as usize * z as usize)
+        x as usize + self.frame.res[0] as usize * (y as usize + self.frame.res[1] as usize * z as usize)
     }
 
     #[inline]
     fn cell_box(&self, x: u32, y: u32, z: u32) -> Aabb {
-        let lo = self.bounds.min + Vec3::new(x as f32, y as f32, z as f32) * self.cell_size;
-        Aabb::new(lo, lo + self.cell_size)
-    }
-
-    /// The cells of triangle `i`'s bounding box, widened by [`WIDEN`] of a cell: inclusive index ranges per axis.
-    fn box_cells(&self, i: usize) -> ([u32; 3], [u32; 3]) {
-        let b = &self.boxes[i];
-        let lo = ((b.min - self.bounds.min) * self.inv_cell - WIDEN).floor();
-        let hi = ((b.max - self.bounds.min) * self.inv_cell + WIDEN).floor();
-        let cl = |v: f32, a: usize| v.clamp(0.0, (self.res[a] - 1) as f32) as u32;
-        ([cl(lo.x, 0), cl(lo.y, 1), cl(lo.z, 2)], [cl(hi.x, 0), cl(hi.y, 1), cl(hi.z, 2)])
+        let lo = self.frame.bounds.min + Vec3::new(x as f32, y as f32, z as f32) * self.frame.cell_size;
+        Aabb::new(lo, lo + self.frame.cell_size)
     }
 
     /// An upper bound of the cells triangle `i` is stored in: its box's cells (1 for a zero-area triangle).
@@ -219,83 +194,19 @@ impl Grid {
         if self.tris[i].is_degenerate() {
             return 1;
         }
-        let (lo, hi) = self.box_cells(i);
+        let (lo, hi) = self.frame.box_cells(&self.boxes[i]);
         (0..3).map(|a| u64::from(hi[a] - lo[a] + 1)).product()
     }
 
-    /// Calls `f` with every cell triangle `i` is stored in (the rule of the module docs), slab by slab, row by row,
-    /// until `f` returns `false`.
+    /// Calls `f` with every cell triangle `i` is stored in (the rule of the module docs,
+    /// [`GridFrame::for_each_run`]), slab by slab, row by row, until `f` returns `false`.
     fn for_each_cell(&self, i: usize, mut f: impl FnMut(usize) -> bool) {
-        let t = &self.tris[i];
-        let (lo, hi) = self.box_cells(i);
-        if t.is_degenerate() {
-            // Never hit: one cell, the one of the box centre.
-            f(self.centre_cell(i, lo, hi));
-            return;
-        }
-        let (v0, e1, e2) = (t.v0.as_dvec3(), t.e1.as_dvec3(), t.e2.as_dvec3());
-        let normal_len = e1.cross(e2).length();
-        let all = normal_len == 0.0;
-        // The widening of every cell (GridFrame): WIDEN of a cell, eight f32 ulps of the coordinates (the traversal
-        // computes cell boundaries in f32), and the pad: `16 eps (|bounds| + extent) / sin(alpha)`, with
-        // `1 / sin(alpha)` = `|e1| |e2| / |e1 x e2|`.
-        let (bmin, cs) = (self.bounds.min.as_dvec3(), self.cell_size.as_dvec3());
-        let pad = if all { 0.0 } else { self.pad_scale * (e1.length() * e2.length() / normal_len) };
-        let w = self.widen + pad;
-        // The cells along `axis` whose widened extent meets `lo ..= hi`, within the box's cells.
-        let cells = |axis: usize, (l, h): (f64, f64)| -> Option<(u32, u32)> {
-            let from = ((l - w[axis] - bmin[axis]) / cs[axis]).floor().max(lo[axis] as f64);
-            let to = ((h + w[axis] - bmin[axis]) / cs[axis]).floor().min(hi[axis] as f64);
-            (from <= to).then_some((from as u32, to as u32))
-        };
-        let edge = |axis: usize, k: u32| bmin[axis] + k as f64 * cs[axis];
-        let tri = Polygon {
-            v: [v0, v0 + e1, v0 + e2, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO],
-            len: 3,
-        };
-        // Slabs across the box's shortest side, rows across the next, runs of cells along its longest side: the
-        // clipping costs one slab and one row each, the runs are as long as they can be.
-        let mut order = [0usize, 1, 2];
-        order.sort_by_key(|&a| hi[a] - lo[a]);
-        let [ao, am, ai] = order;
-        let cell = |o: u32, m: u32, k: u32| {
-            let mut c = [0u32; 3];
-            (c[ao], c[am], c[ai]) = (o, m, k);
-            self.cell_index(c[0], c[1], c[2])
-        };
-        let mut emitted = false;
-        for o in lo[ao]..=hi[ao] {
-            let slab = if all { tri } else { tri.clip(ao, edge(ao, o) - w[ao], edge(ao, o + 1) + w[ao]) };
-            let ms = if all { Some((lo[am], hi[am])) } else { slab.range(am).and_then(|r| cells(am, r)) };
-            let Some((m0, m1)) = ms else { continue };
-            for m in m0..=m1 {
-                let ks = if all {
-                    Some((lo[ai], hi[ai]))
-                } else {
-                    slab.clip(am, edge(am, m) - w[am], edge(am, m + 1) + w[am]).range(ai).and_then(|r| cells(ai, r))
-                };
-                let Some((k0, k1)) = ks else { continue };
-                for k in k0..=k1 {
-                    emitted = true;
-                    if !f(cell(o, m, k)) {
-                        return;
-                    }
-                }
-            }
-        }
-        if !emitted {
-            // The triangle lies in its box's cells, so the clipping misses all of them only through rounding
-            // outside anything it was built for: the cell of the box centre keeps the triangle in the grid anyway.
-            f(self.centre_cell(i, lo, hi));
-        }
-    }
-
-    /// The cell of the centre of triangle `i`'s box, clamped into its box's cells `lo ..= hi` (NaN and overflow
-    /// included).
-    fn centre_cell(&self, i: usize, lo: [u32; 3], hi: [u32; 3]) -> usize {
-        let c = ((self.boxes[i].center() - self.bounds.min) * self.inv_cell).floor();
-        let at = |a: usize| (c[a].max(0.0) as u32).clamp(lo[a], hi[a]);
-        self.cell_index(at(0), at(1), at(2))
+        self.frame.for_each_run(&self.tris[i], &self.boxes[i], |run| {
+            (run.from..=run.to).all(|k| {
+                let [x, y, z] = run.cell(k);
+                f(self.cell_index(x, y, z))
+            })
+        });
     }
 
     /// The number of cells of every triangle, checked against [`GridOptions::reference_budget`] before anything
@@ -348,10 +259,10 @@ impl Grid {
     /// The arrays the device traversal reads (see [`crate::accel::device`]).
     pub fn device_layout(&self) -> crate::accel::device::DeviceLayout<'_> {
         crate::accel::device::DeviceLayout::Grid {
-            bounds: self.bounds,
-            res: self.res,
-            cell_size: self.cell_size,
-            inv_cell: self.inv_cell,
+            bounds: self.frame.bounds,
+            res: self.frame.res,
+            cell_size: self.frame.cell_size,
+            inv_cell: self.frame.inv_cell,
             cell_start: &self.cell_start,
             refs: &self.refs,
             tris: &self.tris,
@@ -364,13 +275,13 @@ impl Grid {
         }
         let r = RayInv::new(ray);
         c.box_tests += 1;
-        let (t0, t1) = r.slab_interval(self.bounds.min, self.bounds.max, ray.tmin, ray.tmax)?;
+        let (t0, t1) = r.slab_interval(self.frame.bounds.min, self.frame.bounds.max, ray.tmin, ray.tmax)?;
         let p = r.o + r.d * t0;
-        let f = ((p - self.bounds.min) * self.inv_cell).floor();
+        let f = ((p - self.frame.bounds.min) * self.frame.inv_cell).floor();
         let mut cell = [0i64; 3];
         let mut step = [0i64; 3];
         for a in 0..3 {
-            cell[a] = (f[a].max(0.0) as i64).min(self.res[a] as i64 - 1);
+            cell[a] = (f[a].max(0.0) as i64).min(self.frame.res[a] as i64 - 1);
             step[a] = if r.d[a] > 0.0 {
                 1
             } else if r.d[a] < 0.0 {
@@ -384,12 +295,12 @@ impl Grid {
                 return f32::INFINITY;
             }
             let k = if step[a] > 0 { cell[a] + 1 } else { cell[a] };
-            (self.bounds.min[a] + k as f32 * self.cell_size[a] - r.o[a]) / r.d[a]
+            (self.frame.bounds.min[a] + k as f32 * self.frame.cell_size[a] - r.o[a]) / r.d[a]
         };
         let mut tnext = [next_t(&cell, 0), next_t(&cell, 1), next_t(&cell, 2)];
         let mut mailbox = [u32::MAX; 16];
         let mut best_t = ray.tmax;
-        let margin = tie_margin(ray.origin, ray.dir, &self.bounds);
+        let margin = tie_margin(ray.origin, ray.dir, &self.frame.bounds);
         let mut best = None;
         loop {
             c.box_tests += 1;
@@ -426,7 +337,7 @@ impl Grid {
                 return best;
             }
             cell[a] += step[a];
-            if cell[a] < 0 || cell[a] >= self.res[a] as i64 {
+            if cell[a] < 0 || cell[a] >= self.frame.res[a] as i64 {
                 return best;
             }
             tnext[a] = next_t(&cell, a);
@@ -456,7 +367,7 @@ impl AccelStructure for Grid {
             let holds = !self.refs.is_empty() || !self.cell_start.is_empty();
             return Validation::new("grid", 0, bytes, 0, 0).without_nodes(holds, "references without triangles");
         }
-        let ncells = self.res.iter().map(|&x| x as usize).product::<usize>();
+        let ncells = self.frame.res.iter().map(|&x| x as usize).product::<usize>();
         if self.cell_start.len() != ncells + 1 || self.cell_start.last().copied() != Some(self.refs.len() as u32) {
             return Err(invalid("grid", "row starts do not match cells and references"));
         }
@@ -466,9 +377,9 @@ impl AccelStructure for Grid {
         // Every cell is a leaf (depth 0) over its row of the reference array.
         let mut v = Validation::new("grid", n, bytes, ncells, self.refs.len());
         let mut seen = vec![0u32; n];
-        for z in 0..self.res[2] {
-            for y in 0..self.res[1] {
-                for x in 0..self.res[0] {
+        for z in 0..self.frame.res[2] {
+            for y in 0..self.frame.res[1] {
+                for x in 0..self.frame.res[0] {
                     let idx = self.cell_index(x, y, z);
                     let (start, end) = (self.cell_start[idx] as usize, self.cell_start[idx + 1] as usize);
                     v.visit(idx, 0)?;
