@@ -3,7 +3,8 @@
 //! ```text
 //! cargo run --release --example characterize -- [FILE|DIR ...] [--json] [--backend vulkan|cpu|naive]
 //!     [--morton-bits 30|63] [--alpha A] [--sample-stride S] [--class-rule doane|sturges|sqrt|N]
-//!     [--policy thesis|calibrated] [--cost-model FILE] [--workload primary|shadow|diffuse] [--resolution N]
+//!     [--policy thesis|calibrated] [--cost-model FILE] [--budget-references-per-triangle R]
+//!     [--budget-min-references N] [--budget-bytes BYTES] [--workload primary|shadow|diffuse] [--resolution N]
 //!     [--frames F] [--trace-backend cpu|vulkan]
 //! ```
 //!
@@ -13,14 +14,16 @@
 
 use anyhow::Context as _;
 use clap::Parser;
-use cli::args::{self, BackendArg, JsonArg, MortonBitsArg, Policy, PolicyArgs, TraceBackendArg, WorkloadArgs};
+use cli::args::{
+    self, BackendArg, BudgetArgs, JsonArg, MortonBitsArg, Policy, PolicyArgs, TraceBackendArg, WorkloadArgs,
+};
 use cli::Progress;
 use meshchar::characterize::Features;
 use meshchar::characterize::{cpu, Characterization, Characterizer, ClassRule, Params};
 use meshchar::cost::CostModel;
 use meshchar::mesh::Animation;
 use meshchar::select::{
-    select_for_scene_within, Budget, BuildBounds, CalibratedPolicy, PolicyChoice, Report, SelectionCost, TargetWorkload,
+    select_for_scene_within, BuildBounds, CalibratedPolicy, PolicyChoice, Report, SelectionCost, TargetWorkload,
 };
 use meshchar::trace::workload::mesh_bounds;
 use std::path::PathBuf;
@@ -64,6 +67,8 @@ struct Args {
     class_rule: ClassRule,
     #[command(flatten)]
     policy: PolicyArgs,
+    #[command(flatten)]
+    budget: BudgetArgs,
     #[command(flatten)]
     trace_backend: TraceBackendArg,
     #[command(flatten)]
@@ -132,11 +137,11 @@ fn process(
         }),
     };
     // The build bounds from the meshes themselves (tighter than the features'): no structure whose grid or kd-tree
-    // references would exceed the default budget is a candidate.
+    // references would exceed the budget (--budget-*) is a candidate.
     // The crossings of the overlap floor are counted on the image of the camera the policy is given.
-    let bounds = BuildBounds::of_frames_viewed(&scene.frames, workload.camera.as_ref())?;
-    let chosen =
-        select_for_scene_within(&scene.name, &results, &features, policy, &workload, bounds, Budget::default());
+    let budget = args.budget.budget();
+    let bounds = BuildBounds::of_frames_viewed_within(&scene.frames, workload.camera.as_ref(), &budget)?;
+    let chosen = select_for_scene_within(&scene.name, &results, &features, policy, &workload, bounds, budget);
     let select_ms = t1.elapsed().as_secs_f64() * 1e3;
     let frames = if scene.frames.len() > 1 { scene.frames.len() as u64 } else { args.frames };
     let cost = SelectionCost::new(

@@ -6,6 +6,7 @@
 //! cargo run --release --example evaluate -- [FILE|DIR ...] [--json] [--workload primary|shadow|diffuse]
 //!     [--resolution N] [--frames F] [--repeats R] [--precision FRACTION] [--max-repeats R] [--rebuild once|frame] [--structures bvh,kdtree,...]
 //!     [--camera EX,EY,EZ,TX,TY,TZ[,FOV]] [--charts DIR] [--policy thesis|calibrated] [--cost-model FILE]
+//!     [--budget-references-per-triangle R] [--budget-min-references N] [--budget-bytes BYTES]
 //!     [--tie-margin X] [--oracle-cache FILE] [--trace-backend cpu|vulkan] [--max-tests-per-ray TESTS] [--help]
 //! cargo run --release --example evaluate -- --compare-policies FILE.jsonl ... [--charts DIR] [--json]
 //!     [--frames-sweep F,F,...] [--proxy]
@@ -23,7 +24,7 @@
 use anyhow::Context as _;
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::Parser;
-use cli::args::{self, JsonArg, Policy, PolicyArgs, TieMarginArg, WorkloadArgs};
+use cli::args::{self, BudgetArgs, JsonArg, Policy, PolicyArgs, TieMarginArg, WorkloadArgs};
 use cli::Progress;
 use meshchar::accel::driver::DriverFlags;
 use meshchar::accel::{AccelStructure, StructureName};
@@ -109,6 +110,8 @@ struct Args {
     charts: Option<PathBuf>,
     #[command(flatten)]
     policy: PolicyArgs,
+    #[command(flatten)]
+    budget: BudgetArgs,
     #[command(flatten)]
     tie_margin: TieMarginArg,
     /// Append every scene's JSON line to FILE (to compare policies later without measuring)
@@ -246,6 +249,7 @@ fn select(
     policy: Policy,
     model: &CostModel,
     tie_margin: f64,
+    budget: Budget,
 ) -> anyhow::Result<Selected> {
     let (chars, features) = engine.characterize_animation_with_features(scene, &Params::default())?;
     let choice = match policy {
@@ -265,8 +269,8 @@ fn select(
     };
     // The build bounds from the meshes (tighter than the features'): over-budget structures are no candidates.
     // The crossings of the overlap floor are counted on the image of the camera the policy is given.
-    let bounds = BuildBounds::of_frames_viewed(&scene.frames, workload.camera.as_ref())?;
-    let chosen = select_for_scene_within(&scene.name, &chars, &features, choice, &workload, bounds, Budget::default());
+    let bounds = BuildBounds::of_frames_viewed_within(&scene.frames, workload.camera.as_ref(), &budget)?;
+    let chosen = select_for_scene_within(&scene.name, &chars, &features, choice, &workload, bounds, budget);
     let (sel, preds) = (chosen.selection, chosen.predicted);
     let name = sel.structure;
     Ok((name, sel.candidate(), sel.reasons, preds))
@@ -827,7 +831,7 @@ fn scene(
     );
     bar.step(&format!("{}: characterization and selection", scene.name));
     let policy = args.policy.policy;
-    let selection = select(engine, &scene, &config, policy, model, args.tie_margin.tie_margin);
+    let selection = select(engine, &scene, &config, policy, model, args.tie_margin.tie_margin, args.budget.budget());
     let (selected, candidate, predictions) = match selection {
         Ok((s, candidate, reasons, preds)) => {
             if !args.json.json {

@@ -156,6 +156,9 @@ fn bad_values_exit_2() {
         ("characterize", &["--view", "sideways"]),
         ("characterize", &["--camera", "1,2,3"]),
         ("characterize", &["--view", "inside", "--camera", "0,0,1,0,0,0"]),
+        ("characterize", &["--budget-references-per-triangle", "-1"]),
+        ("characterize", &["--budget-min-references", "many"]),
+        ("evaluate", &["x.obj", "--budget-bytes", "-5"]),
         ("evaluate", &["x.obj", "--precision", "0"]),
         ("evaluate", &["x.obj", "--precision", "2"]),
         ("evaluate", &["x.obj", "--max-repeats", "0"]),
@@ -202,6 +205,31 @@ fn bad_values_exit_2() {
     for (name, args) in cases {
         assert_usage_error(name, args);
     }
+}
+
+#[test]
+fn the_budget_flags_reach_the_policy() {
+    let run_json = |extra: &[&str]| -> serde_json::Value {
+        let mut a = vec!["degenerate:overlapping:2000:1", "--backend", "cpu", "--json", "--resolution", "16"];
+        a.extend_from_slice(extra);
+        let out = run("characterize", &a);
+        let (stdout, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(0), "{a:?}\n{stderr}");
+        serde_json::from_str(stdout.lines().next().unwrap_or_default()).expect("characterize --json")
+    };
+    // The default budget keeps every structure for 2,000 large overlapping triangles (246,329 grid references).
+    let v = run_json(&[]);
+    assert_eq!(v["excluded"].as_array().map(Vec::len), Some(0), "{}", v["excluded"]);
+    // A budget of 1 reference per triangle, at least 1,000, drops the grid (counted exactly) and the kd-tree.
+    let v = run_json(&["--budget-references-per-triangle", "1", "--budget-min-references", "1000"]);
+    let out = v["excluded"].as_array().expect("excluded");
+    let grid = out.iter().find(|e| e["structure"] == "grid").expect("the grid excluded");
+    assert_eq!(
+        (grid["needed"].as_u64(), grid["budget"].as_u64(), grid["bound"].as_str()),
+        (Some(246_329), Some(2000), Some("exact"))
+    );
+    assert!(out.iter().any(|e| e["structure"] == "kdtree"), "{out:?}");
+    assert!(!["grid", "kdtree"].contains(&v["selected"].as_str().unwrap_or_default()), "{}", v["selected"]);
 }
 
 #[test]

@@ -10,6 +10,7 @@ use meshchar::characterize::{Backend, ClassRule, MortonBits};
 use meshchar::cost::{CostModel, TraceTarget};
 use meshchar::eval::oracle::{DeviceRecord, TraceBackend};
 use meshchar::geom::WorkloadKind;
+use meshchar::select::Budget;
 use std::path::PathBuf;
 
 /// `--json`. Each example says what it prints in its own words with
@@ -64,6 +65,34 @@ impl PolicyArgs {
     /// [`PolicyArgs::cost_model_for`] the CPU tracer.
     pub fn cost_model(&self) -> anyhow::Result<CostModel> {
         self.cost_model_for(TraceTarget::Cpu)
+    }
+}
+
+/// `--budget-*` (characterize, evaluate): how many cell references and bytes the grid and the kd-tree may need
+/// before a policy drops them ([`Budget`]; the bounds are computed from the mesh before anything is built).
+#[derive(clap::Args, Clone, Copy, Debug)]
+pub struct BudgetArgs {
+    /// Budget: cell references per triangle the grid or the kd-tree may need; a structure whose bound exceeds the
+    /// budget is no candidate, and the report lists it under excluded with the numbers
+    #[arg(long, value_name = "R", default_value_t = Budget::default().references_per_triangle,
+          value_parser = nonnegative_number)]
+    pub budget_references_per_triangle: f64,
+    /// Budget: cell references always allowed, however few the triangles
+    #[arg(long, value_name = "N", default_value_t = Budget::default().min_references)]
+    pub budget_min_references: u64,
+    /// Budget: bytes the grid or the kd-tree may need
+    #[arg(long, value_name = "BYTES", default_value_t = Budget::default().max_bytes)]
+    pub budget_bytes: u64,
+}
+
+impl BudgetArgs {
+    /// The budget the flags describe.
+    pub fn budget(&self) -> Budget {
+        Budget {
+            references_per_triangle: self.budget_references_per_triangle,
+            min_references: self.budget_min_references,
+            max_bytes: self.budget_bytes,
+        }
     }
 }
 

@@ -17,14 +17,15 @@
 //! cell, as the grid stores it. Per slab the bound is the product of the clipped polygon's cells along the two
 //! other axes, where the grid clips once more per row, so the sum is an **upper bound** of the grid's references,
 //! exact for a triangle one slab thick and one row wide; it costs one clip per slab a triangle meets (one or two for
-//! a small triangle), not one per row and cell as the build's count does. Where that bound exceeds the default
-//! budget, the budget's verdict rests on it and it can be several times the grid's count (large triangles cross
-//! many rows of a slab: 39.3 million against 9.8 million for 20,000 large overlapping triangles), so the references
-//! are then **counted exactly**, by the grid's own rule ([`GridFrame::for_each_run`]: one clip per row, the same
-//! code the grid builds with), in index order until the count passes the grid builder's own budget
-//! ([`Budget::BUILDERS`]; past it the figure stays an upper bound, [`Bound::Upper`]); 77 ms against the slab bound's
-//! 9 ms there, 3 ms for a fan of 2,000 triangles over one polygon, and nothing on a scene within the budget. The
-//! bytes follow as the grid counts them (cell starts, references, triangle records).
+//! a small triangle), not one per row and cell as the build's count does. Where that bound exceeds the budget (the
+//! default one, or the smaller one a caller passes to [`BuildBounds::of_frames_viewed_within`]), the budget's
+//! verdict rests on it and it can be several times the grid's count (large triangles cross many rows of a slab:
+//! 39.3 million against 9.8 million for 20,000 large overlapping triangles), so the references are then **counted
+//! exactly**, by the grid's own rule ([`GridFrame::for_each_run`]: one clip per row, the same code the grid builds
+//! with), in index order until the count passes the grid builder's own budget ([`Budget::BUILDERS`], or the
+//! caller's where larger; past it the figure stays an upper bound, [`Bound::Upper`]); 77 ms against the slab
+//! bound's 9 ms there, 3 ms for a fan of 2,000 triangles over one polygon, and nothing on a scene within the
+//! budget. The bytes follow as the grid counts them (cell starts, references, triangle records).
 //!
 //! [`BuildBounds::of_features`] bounds the same from the [`Features`] alone (when no mesh is at hand): a triangle
 //! of size bin `k` has a largest extent below `2^(e(S) - k + 1)`, so at most that many cells (plus two) along each
@@ -206,7 +207,7 @@ impl BuildBounds {
     /// without one), from the same triangle boxes ([`crate::cost::screen_crossings`]: 4.9 ms of this pass's 24
     /// ms for 200,000 triangles on the 2-core VM, `cargo bench --bench accel -- screen_crossings`).
     pub fn of_mesh_viewed(mesh: &Mesh, camera: Option<&crate::geom::Camera>) -> Result<BuildBounds, MeshError> {
-        BuildBounds::of_mesh_counted(mesh, &GridRule::default(), Some((camera, true)))
+        BuildBounds::of_mesh_counted(mesh, &GridRule::default(), Some((camera, true)), &Budget::default())
     }
 
     /// The largest bounds over the frames of a scene ([`BuildBounds::of_mesh`] of each, [`BuildBounds::max`]);
@@ -221,15 +222,24 @@ impl BuildBounds {
         frames: &[Mesh],
         camera: Option<&crate::geom::Camera>,
     ) -> Result<Option<BuildBounds>, MeshError> {
+        BuildBounds::of_frames_viewed_within(frames, camera, &Budget::default())
+    }
+
+    /// [`BuildBounds::of_frames_viewed`] for a policy that will check them against `budget`: the grid's
+    /// references are counted exactly where their slab bound exceeds the smaller of `budget` and the default one
+    /// (see the module docs), so that the budget's verdict never rests on the looser bound.
+    pub fn of_frames_viewed_within(
+        frames: &[Mesh],
+        camera: Option<&crate::geom::Camera>,
+        budget: &Budget,
+    ) -> Result<Option<BuildBounds>, MeshError> {
         let mut out: Option<BuildBounds> = None;
+        let rule = GridRule::default();
         for (i, f) in frames.iter().enumerate() {
-            let b = if i == 0 {
-                // An animation's first frame without the boxes entered before the hits: they bound that frame's
-                // rays only (`Crossings::over_frames` would drop them; the pass is skipped instead).
-                BuildBounds::of_mesh_counted(f, &GridRule::default(), Some((camera, frames.len() == 1)))?
-            } else {
-                BuildBounds::of_mesh_with(f, &GridRule::default())?
-            };
+            // An animation's first frame without the boxes entered before the hits: they bound that frame's rays
+            // only (`Crossings::over_frames` would drop them; the pass is skipped instead).
+            let view = (i == 0).then_some((camera, frames.len() == 1));
+            let b = BuildBounds::of_mesh_counted(f, &rule, view, budget)?;
             out = Some(match out {
                 Some(o) => o.max(&b),
                 None => b,
@@ -240,7 +250,7 @@ impl BuildBounds {
 
     /// [`BuildBounds::of_mesh`] under a given grid rule, without a camera's view of the crossings.
     pub fn of_mesh_with(mesh: &Mesh, rule: &GridRule) -> Result<BuildBounds, MeshError> {
-        BuildBounds::of_mesh_counted(mesh, rule, None)
+        BuildBounds::of_mesh_counted(mesh, rule, None, &Budget::default())
     }
 
     /// The one pass over the triangles behind [`BuildBounds::of_mesh_with`] and [`BuildBounds::of_mesh_viewed`]:
@@ -250,14 +260,16 @@ impl BuildBounds {
         mesh: &Mesh,
         rule: &GridRule,
         view: Option<(Option<&crate::geom::Camera>, bool)>,
+        budget: &Budget,
     ) -> Result<BuildBounds, MeshError> {
-        crate::in_pool(|| BuildBounds::of_mesh_counted_here(mesh, rule, view))
+        crate::in_pool(|| BuildBounds::of_mesh_counted_here(mesh, rule, view, budget))
     }
 
     fn of_mesh_counted_here(
         mesh: &Mesh,
         rule: &GridRule,
         view: Option<(Option<&crate::geom::Camera>, bool)>,
+        budget: &Budget,
     ) -> Result<BuildBounds, MeshError> {
         use rayon::prelude::*;
         mesh.validate()?;
@@ -285,11 +297,12 @@ impl BuildBounds {
             .zip(&upper)
             .map(|(t, &c)| (c, if t.is_degenerate() { 1 } else { c.saturating_mul(KD_FACTOR) }))
             .reduce(|| (0u64, 0u64), |a, b| (a.0.saturating_add(b.0), a.1.saturating_add(b.1)));
-        // Where the slab bound exceeds the default budget, the budget's verdict rests on it, and the bound can be
+        // Where the slab bound exceeds the budget, the budget's verdict rests on it, and the bound can be
         // several times the grid's count (large triangles across many rows of a slab): count exactly, up to what
         // the grid's builder allows.
-        let (g, kind) = if g > Budget::default().references(n as u64) {
-            exact_references(&grid, &tris, &boxes, &upper, Budget::BUILDERS.references(n as u64))
+        let (g, kind) = if g > budget.references(n as u64).min(Budget::default().references(n as u64)) {
+            let cap = Budget::BUILDERS.references(n as u64).max(budget.references(n as u64));
+            exact_references(&grid, &tris, &boxes, &upper, cap)
         } else {
             (g, Bound::Upper)
         };
