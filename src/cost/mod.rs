@@ -116,6 +116,11 @@ pub use overlap::{
 };
 pub use probe::{probe, Probe, ProbeCounts, PROBED};
 
+/// The hierarchies that are not probed but take the probed structures' correction of their counts
+/// ([`CostModel::predict_floored`]): the kd-tree, the BIH and the HLBVH, whose laws' errors on the scene families
+/// follow the LBVH's (residual correlation 0.83, 0.95, 0.88). The grid's (0.58) are its own.
+pub const SHARES_PROBES: [StructureName; 3] = [StructureName::KdTree, StructureName::Bih, StructureName::Hlbvh];
+
 use crate::accel::device::{DeviceRecord, TraceBackend};
 use crate::accel::StructureName;
 use crate::characterize::features::Derived;
@@ -482,9 +487,15 @@ impl StructureModel {
             bx = held(bx, p.box_tests, self.fit.box_tests);
             pr = held(pr, p.prim_tests, self.fit.prim_tests);
         }
-        let ns = dot(&self.trace_price, &price_row(w.kind, bx, pr));
         let per_build = (self.build_ln_a + self.build_exponent * (n.max(1) as f64).ln()).exp();
         let build_ms = per_build * w.builds as f64;
+        self.with_counts(build_ms, per_build, w, bx, pr)
+    }
+
+    /// The prediction of a build of `build_ms` (`per_build` ms each) and `bx` box and `pr` triangle tests per ray
+    /// for workload `w`: the trace time from the counts at this structure's prices.
+    fn with_counts(&self, build_ms: f64, per_build: f64, w: &Workload, bx: f64, pr: f64) -> Prediction {
+        let ns = dot(&self.trace_price, &price_row(w.kind, bx, pr));
         let trace_ms = ns * 1e-6 * w.rays_per_frame as f64 * w.frames as f64;
         Prediction {
             structure: self.structure,
@@ -722,7 +733,8 @@ impl CostModel {
     }
 
     /// [`CostModel::predict`] with each structure's tests per ray bounded by `floor(structure)`
-    /// ([`StructureModel::predict_floored`]).
+    /// ([`StructureModel::predict_floored`]); where a probed structure's counts are held to its sample, the
+    /// structures of [`SHARES_PROBES`] that were not probed take the same correction.
     pub fn predict_floored(
         &self,
         f: &Features,
@@ -737,7 +749,59 @@ impl CostModel {
             *w
         };
         let n = f.total_triangles.max(f.triangles);
-        self.structures.iter().map(|m| m.predict_floored(&d, n, &w, floor(m.structure))).collect()
+        let mut preds: Vec<Prediction> =
+            self.structures.iter().map(|m| m.predict_floored(&d, n, &w, floor(m.structure))).collect();
+        self.share_probed_corrections(&d, n, &w, floor, &mut preds);
+        preds
+    }
+
+    /// Where probed structures' counts were held to their samples ([`TestFloor::sampled`]), the unprobed structures
+    /// of [`SHARES_PROBES`] take the same correction: their box and triangle tests per ray times the geometric mean,
+    /// over the probed structures, of the held count over the law's (1 where a law lies within its band). The
+    /// laws' errors are shared across the hierarchies (see the module docs, Probes), so a count held for some
+    /// alone would set them against others that keep the same error. `preds` are the predictions of
+    /// [`CostModel::structures`], in that order.
+    fn share_probed_corrections(
+        &self,
+        d: &Derived,
+        n: u64,
+        w: &Workload,
+        floor: &dyn Fn(StructureName) -> TestFloor,
+        preds: &mut [Prediction],
+    ) {
+        // Per count, the sum of `ln(held / law)` and how many probed structures gave one (a zero count, where every
+        // sampled ray tests no triangle, says nothing about a ratio).
+        let (mut boxes, mut prims) = ((0.0, 0u32), (0.0, 0u32));
+        let add = |acc: &mut (f64, u32), held: f64, law: f64| {
+            if held > 0.0 && law > 0.0 && held.is_finite() && law.is_finite() {
+                acc.0 += (held / law).ln();
+                acc.1 += 1;
+            }
+        };
+        for (m, p) in self.structures.iter().zip(preds.iter()) {
+            let f = floor(m.structure);
+            if f.sampled.is_some() {
+                let law = m.predict_floored(d, n, w, TestFloor { sampled: None, ..f });
+                add(&mut boxes, p.box_tests_per_ray, law.box_tests_per_ray);
+                add(&mut prims, p.prim_tests_per_ray, law.prim_tests_per_ray);
+            }
+        }
+        let mean = |(sum, k): (f64, u32)| if k > 0 { (sum / f64::from(k)).exp() } else { 1.0 };
+        let (gb, gp) = (mean(boxes), mean(prims));
+        if gb == 1.0 && gp == 1.0 {
+            return;
+        }
+        for (m, p) in self.structures.iter().zip(preds.iter_mut()) {
+            if SHARES_PROBES.contains(&m.structure) && floor(m.structure).sampled.is_none() {
+                *p = m.with_counts(
+                    p.build_ms,
+                    p.build_ms_per_build,
+                    w,
+                    p.box_tests_per_ray * gb,
+                    p.prim_tests_per_ray * gp,
+                );
+            }
+        }
     }
 
     /// Predicted costs of every calibrated driver structure ([`driver`]) for a scene and a workload.

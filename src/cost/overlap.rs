@@ -117,9 +117,9 @@ pub struct ViewCrossings {
     /// crosses; lower bounds on the triangle tests of the hierarchies whose nodes bound whole triangles. Counted
     /// only where [`ViewCrossings::all`] is at least [`Crossings::NEAR_FROM`].
     pub near: Option<NearCrossings>,
-    /// On the same sample of primary rays, the own tests per ray of each structure of [`super::PROBED`], in that
-    /// order ([`super::probe`]): counted with [`ViewCrossings::near`] where the caller has the mesh
-    /// ([`Crossings::with_probes`]); `None` for a structure that did not build.
+    /// On a sample of its primary rays (that of [`ViewCrossings::near`] where it is counted), the own tests per ray
+    /// of each structure of [`super::PROBED`], in that order ([`super::probe`]): counted where the caller has the
+    /// mesh of a static scene ([`Crossings::with_probes`]); `None` for a structure that did not build.
     pub probes: [Option<super::ProbeCounts>; super::probe::PROBES],
 }
 
@@ -249,7 +249,11 @@ impl Crossings {
             .unzip();
         let scene = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
         let c = Crossings::of(mesh, boxes.iter().zip(&tris).map(|(b, t)| (*b, t.is_degenerate())), &scene);
-        c.viewed_from(&boxes, if frames > 1 { &[] } else { &tris }, &scene, camera).with_probes(mesh, &scene)
+        if frames > 1 {
+            c.viewed_from(&boxes, &[], &scene, camera)
+        } else {
+            c.viewed_from(&boxes, &tris, &scene, camera).with_probes(mesh, &scene)
+        }
     }
 
     /// [`Crossings::of_mesh_viewed`] from the framing camera.
@@ -450,11 +454,12 @@ impl Crossings {
     }
 
     /// These crossings with each structure of [`super::PROBED`] built over `mesh` (whose triangles' box is `scene`)
-    /// and probed on the sample of primary rays of their view ([`super::probe`], [`ViewCrossings::probes`]), where
-    /// [`ViewCrossings::near`] was counted (the same sample, [`near_sample_side`]); unchanged otherwise. Primary rays
-    /// alone: the policy reads no secondary count (see [`overlap_floor`]).
+    /// and probed on the sample of primary rays of their view ([`super::probe`], [`ViewCrossings::probes`]): the
+    /// sample [`ViewCrossings::near`] is counted on where the view is dense enough for it ([`near_sample_side`]),
+    /// 32 x 32 rays otherwise; unchanged without a view. Primary rays alone: the policy reads no secondary count
+    /// (see [`overlap_floor`]). For a static scene: an animation's later frames are not what the probes built.
     pub fn with_probes(mut self, mesh: &Mesh, scene: &Aabb) -> Crossings {
-        if let Some(v) = self.view.as_mut().filter(|v| v.near.is_some()) {
+        if let Some(v) = self.view.as_mut() {
             let side = near_sample_side(v.all);
             v.probes = super::PROBED.map(|s| super::probe(s, mesh, scene, &v.camera, side, false).map(|p| p.primary));
         }

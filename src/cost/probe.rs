@@ -4,12 +4,13 @@
 //! The count laws of the cost model read features that describe the whole scene; where the geometry makes the
 //! traversal of one view explode they can miss tenfold: in an LBVH a few large triangles whose centroids scatter
 //! through the Morton order make every node above each of them as large as it; in any hierarchy, rays that can hit
-//! nothing (zero-area triangles) descend every node their line crosses. Where the boxes-entered pass finds a view
-//! crowded ([`super::Crossings::NEAR_FROM`]), the policy builds the LBVH (the cheapest hierarchy to build) and the
-//! binned-SAH BVH (the one it picks most) ([`PROBED`]) and counts what they do
+//! nothing (zero-area triangles) descend every node their line crosses; a small object in a vast box lies outside
+//! every calibration scene's features. For every view of a static scene it is given, the policy builds the LBVH (the
+//! cheapest hierarchy to build) and the binned-SAH BVH (the one it picks most) ([`PROBED`]) and counts what they do
 //! ([`super::Crossings::with_probes`]): the same builders with the same options the oracle and the engine use, so
 //! that the counts are the structures' own on the sampled rays. The primary sample is [`super::near_crossings`]'s
-//! (the rays through the pixel centres of a square image of the camera, at most 32 x 32); on request, shadow and
+//! where that pass runs (the rays through the pixel centres of a square image of the camera, at most 32 x 32), the
+//! full 32 x 32 otherwise; on request, shadow and
 //! diffuse rays start at their hits as the workloads start theirs (`geom::camera::secondary_start`, the shadow
 //! workload's light, cosine-distributed bounces). Each count is a [`SampledMean`].
 //!
@@ -18,7 +19,8 @@
 //! more than its own error band (twice the fit's RMS log error either way), the count is held within two standard
 //! errors of that mean. Within the band the law stands, and secondary rays keep their laws: exact counts where the
 //! other structures' laws miss in the same direction made the choices worse on the family records
-//! (`docs/cost-model.md`, "Probes").
+//! (`docs/cost-model.md`, "Probes"). For the same reason the hierarchies that are not probed take the probed ones'
+//! correction ([`super::SHARES_PROBES`], [`super::CostModel::predict_floored`]).
 
 use super::overlap::SampledMean;
 use crate::accel::bounce::cosine_direction;

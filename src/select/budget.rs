@@ -309,7 +309,9 @@ impl BuildBounds {
         let mut crossings = Crossings::of(mesh, boxes.iter().zip(&tris).map(|(b, t)| (*b, t.is_degenerate())), &scene);
         if let Some((camera, near)) = view {
             crossings = crossings.viewed_from(&boxes, if near { &tris } else { &[] }, &scene, camera);
-            crossings = crossings.with_probes(mesh, &scene);
+            if near {
+                crossings = crossings.with_probes(mesh, &scene);
+            }
         }
         Ok(BuildBounds { box_crossings: Some(crossings), ..BuildBounds::finish(n as u64, "mesh", &grid, g, kind, k) })
     }
