@@ -16,7 +16,8 @@
 //! * `screen_crossings/<scene>`: the overlap floor's count of triangle boxes on a camera's image
 //!   (`meshchar::cost::screen_crossings`, framing camera), the boxes its sample rays enter before their first hits
 //!   (`meshchar::cost::near_crossings`, `near`), each structure the policy probes built and traced on the same
-//!   sample (`meshchar::cost::probe`, `probe_<structure>`) and the whole `BuildBounds::of_mesh_viewed` pass all are
+//!   sample and the shadow and diffuse rays its hits start, as the policy probes (`meshchar::cost::probe`,
+//!   `probe_<structure>`), and the whole `BuildBounds::of_mesh_viewed` pass all are
 //!   part of, on the three scenes above and the generated engineering family at 200K triangles seen close up.
 //!
 //! Scenes come from `../shared/meshes`; the bench fails naming the path when they are missing.
@@ -254,7 +255,7 @@ fn bench_screen_crossings(c: &mut Criterion) {
         let side = meshchar::cost::near_sample_side(image);
         for s in meshchar::cost::PROBED {
             g.bench_function(format!("probe_{s}"), |x| {
-                x.iter(|| meshchar::cost::probe(s, &mesh, &b, &camera, side, false))
+                x.iter(|| meshchar::cost::probe(s, &mesh, &b, &camera, side, true))
             });
         }
         g.bench_function("build_bounds", |x| {

@@ -506,9 +506,11 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
         let r = cr.for_workload(k, Some(&cam), lo, hi);
         // (They also get the boxes holding the diffuse origins, or crossed by unoccluded shadow rays, counted on the
-        // camera's sample; the policy's LBVH probe traces primary rays alone.)
-        assert_eq!(RayCrossings { image: 0.0, near: None, ..r }, cr.isotropic());
-        assert!(r.near.is_some() && r.probes.iter().all(Option::is_none), "{k:?}");
+        // camera's sample, and the probed structures' counts on the secondary rays of that sample.)
+        assert_eq!(RayCrossings { image: 0.0, near: None, probes: Default::default(), ..r }, cr.isotropic());
+        let probed = cr.view.expect("framing view").probes.map(|p| p.map(|p| *p.of_kind(k)));
+        assert!(r.near.is_some() && r.probes == probed, "{k:?}");
+        assert!(r.probes.iter().all(|p| p.is_some_and(|p| p.box_tests.rays > 0)), "{k:?}: {:?}", r.probes);
     }
     assert_eq!(cr.isotropic().all, cr.mean());
     // Secondary rays also get the camera's count on its image, when the view is of that camera.
@@ -1168,7 +1170,7 @@ fn a_probe_counts_the_structures_own_tests_on_its_sample() {
 
 #[test]
 fn the_lbvhs_sampled_counts_hold_its_primary_prediction_in_their_band() {
-    use meshchar::cost::{overlap_floor, ProbeCounts, RayCrossings, SampledMean};
+    use meshchar::cost::{overlap_floor, ProbeCounts, RayCrossings, SampledMean, TestFloor};
     let probe = ProbeCounts {
         box_tests: SampledMean { mean: 100.0, standard_error: 1.0, rays: 1024 },
         prim_tests: SampledMean { mean: 10.0, standard_error: 0.5, rays: 1024 },
@@ -1179,11 +1181,12 @@ fn the_lbvhs_sampled_counts_hold_its_primary_prediction_in_their_band() {
     let c = RayCrossings { all: 5.0, distinct: 5.0, nondegenerate: 5.0, probes, ..Default::default() };
     let without = RayCrossings { probes: Default::default(), ..c };
     let p = WorkloadKind::Primary;
-    assert_eq!(overlap_floor(StructureName::Lbvh, p, Some(c)).sampled, Some(probe));
-    // The LBVH's own counts, for primary rays only; every other structure's floor is unchanged.
-    for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
+    // The LBVH's own counts, for the kind of rays the crossings are of (`Crossings::for_workload` gives each kind
+    // its own); every other structure's floor is unchanged.
+    for k in [p, WorkloadKind::Shadow, WorkloadKind::Diffuse] {
+        assert_eq!(overlap_floor(StructureName::Lbvh, k, Some(c)).sampled, Some(probe), "{k:?}");
         assert_eq!(
-            overlap_floor(StructureName::Lbvh, k, Some(c)),
+            TestFloor { sampled: None, ..overlap_floor(StructureName::Lbvh, k, Some(c)) },
             overlap_floor(StructureName::Lbvh, k, Some(without))
         );
     }
@@ -1317,8 +1320,10 @@ fn a_sparse_view_is_probed_too_and_an_animation_is_not() {
     assert!(v.all < meshchar::cost::Crossings::NEAR_FROM && v.near.is_none(), "{} {:?}", v.all, v.near);
     for p in v.probes {
         let p = p.expect("every probed structure builds");
-        assert_eq!((p.box_tests.rays, p.prim_tests.rays), (1024, 1024));
-        assert!(p.box_tests.mean >= 1.0, "{p:?}");
+        assert_eq!((p.primary.box_tests.rays, p.primary.prim_tests.rays), (1024, 1024));
+        assert!(p.primary.box_tests.mean >= 1.0, "{p:?}");
+        // A shadow and a diffuse ray from every hit (a shadow ray that starts at the light is not traced).
+        assert!(p.diffuse.box_tests.rays > 0 && p.shadow.box_tests.rays <= p.diffuse.box_tests.rays, "{p:?}");
     }
     // An animation's first frame is not probed: the structures it would build are not the later frames'.
     let frames = [m.clone(), m];

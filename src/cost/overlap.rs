@@ -117,10 +117,11 @@ pub struct ViewCrossings {
     /// crosses; lower bounds on the triangle tests of the hierarchies whose nodes bound whole triangles. Counted
     /// only where [`ViewCrossings::all`] is at least [`Crossings::NEAR_FROM`].
     pub near: Option<NearCrossings>,
-    /// On a sample of its primary rays (that of [`ViewCrossings::near`] where it is counted), the own tests per ray
-    /// of each structure of [`super::PROBED`], in that order ([`super::probe`]): counted where the caller has the
-    /// mesh of a static scene ([`Crossings::with_probes`]); `None` for a structure that did not build.
-    pub probes: [Option<super::ProbeCounts>; super::probe::PROBES],
+    /// On a sample of its primary rays (that of [`ViewCrossings::near`] where it is counted) and the shadow and
+    /// diffuse rays their hits start, the own tests per ray of each structure of [`super::PROBED`], in that order
+    /// ([`super::probe`]): counted where the caller has the mesh of a static scene ([`Crossings::with_probes`]);
+    /// `None` for a structure that did not build.
+    pub probes: [Option<super::Probe>; super::probe::PROBES],
 }
 
 /// The triangle boxes a ray crosses on average ([`Crossings::per_ray`] for a camera's primary rays,
@@ -147,8 +148,9 @@ pub struct RayCrossings {
     /// ([`secondary_rays_leave_the_plane`]), so it crosses no box (the counts above are then 0) and every
     /// hierarchy tests its root box once and no triangle ([`overlap_floor`] gives those counts exactly).
     pub leave_flat_scene: bool,
-    /// Primary rays only, when counted ([`ViewCrossings::probes`]): the own tests per ray of each structure of
-    /// [`super::PROBED`] on the sample of the camera's rays ([`RayCrossings::probe`]).
+    /// When counted ([`ViewCrossings::probes`]): the own tests per ray of each structure of [`super::PROBED`] on the
+    /// sample of the camera's rays of the workload's kind ([`RayCrossings::probe`]): its primary rays, or the shadow
+    /// or diffuse rays their hits start.
     pub probes: [Option<super::ProbeCounts>; super::probe::PROBES],
     /// Secondary rays only: the share of them that start on the scene's outer boundary and leave it at once
     /// ([`Crossings::leave_share`]): each tests the root box once and no triangle, in every structure.
@@ -341,6 +343,9 @@ impl Crossings {
             WorkloadKind::Shadow | WorkloadKind::Diffuse => RayCrossings {
                 image: self.counted(camera).map_or(0.0, |v| v.all),
                 leave_share: self.leave_share(kind, camera),
+                probes: self
+                    .counted(camera)
+                    .map_or([None; super::probe::PROBES], |v| v.probes.map(|p| p.map(|p| *p.of_kind(kind)))),
                 near: self.counted(camera).and_then(|v| v.near).map(|n| {
                     if kind == WorkloadKind::Diffuse {
                         n.holding_origin.lower_bound()
@@ -454,14 +459,14 @@ impl Crossings {
     }
 
     /// These crossings with each structure of [`super::PROBED`] built over `mesh` (whose triangles' box is `scene`)
-    /// and probed on the sample of primary rays of their view ([`super::probe`], [`ViewCrossings::probes`]): the
-    /// sample [`ViewCrossings::near`] is counted on where the view is dense enough for it ([`near_sample_side`]),
-    /// 32 x 32 rays otherwise; unchanged without a view. Primary rays alone: the policy reads no secondary count
-    /// (see [`overlap_floor`]). For a static scene: an animation's later frames are not what the probes built.
+    /// and probed on a sample of primary rays of their view and the shadow and diffuse rays their hits start
+    /// ([`super::probe`], [`ViewCrossings::probes`]): the primary sample [`ViewCrossings::near`] is counted on where
+    /// the view is dense enough for it ([`near_sample_side`]), 32 x 32 rays otherwise; unchanged without a view. For
+    /// a static scene: an animation's later frames are not what the probes built.
     pub fn with_probes(mut self, mesh: &Mesh, scene: &Aabb) -> Crossings {
         if let Some(v) = self.view.as_mut() {
             let side = near_sample_side(v.all);
-            v.probes = super::PROBED.map(|s| super::probe(s, mesh, scene, &v.camera, side, false).map(|p| p.primary));
+            v.probes = super::PROBED.map(|s| super::probe(s, mesh, scene, &v.camera, side, true));
         }
         self
     }
@@ -489,7 +494,7 @@ impl Crossings {
             image: 0.0,
             leave_flat_scene: false,
             leave_share: 0.0,
-            probes: counted.map_or([None; super::probe::PROBES], |v| v.probes),
+            probes: counted.map_or([None; super::probe::PROBES], |v| v.probes.map(|p| p.map(|p| p.primary))),
         }
     }
 }
@@ -1261,10 +1266,7 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
         f.box_tests = f.box_tests.max(bi * y);
         f.prim_tests = f.prim_tests.max(pi * y);
     }
-    // A probed structure's own counts on the camera's sample ([`super::probe`]), for primary rays (the policy's
-    // probes trace no other).
-    if kind == WorkloadKind::Primary {
-        f.sampled = c.probe(structure);
-    }
+    // A probed structure's own counts on the camera's sample of rays of this kind ([`super::probe`]).
+    f.sampled = c.probe(structure);
     f
 }

@@ -15,12 +15,12 @@
 //! workload's light, cosine-distributed bounces). Each count is a [`SampledMean`].
 //!
 //! How the policy uses them ([`super::overlap_floor`], [`super::TestFloor::sampled`],
-//! [`super::StructureModel::predict_floored`]): for primary rays, where a structure's law misses its sampled mean by
-//! more than its own error band (twice the fit's RMS log error either way), the count is held within two standard
-//! errors of that mean. Within the band the law stands, and secondary rays keep their laws: exact counts where the
-//! other structures' laws miss in the same direction made the choices worse on the family records
-//! (`docs/cost-model.md`, "Probes"). For the same reason the hierarchies that are not probed take the probed ones'
-//! correction ([`super::SHARES_PROBES`], [`super::CostModel::predict_floored`]).
+//! [`super::StructureModel::predict_floored`]): for each kind of ray, where a structure's law misses its sampled
+//! mean by more than its own error band (twice the fit's RMS log error either way), the count is held within two
+//! standard errors of that mean; within the band the law stands. The hierarchies that are not probed take the probed
+//! ones' correction ([`super::SHARES_PROBES`], [`super::CostModel::predict_floored`]): exact counts for some
+//! structures beside others whose laws miss in the same direction made the choices worse on the family records
+//! (`docs/cost-model.md`, "Probes").
 
 use super::overlap::SampledMean;
 use crate::accel::bounce::cosine_direction;
@@ -86,7 +86,7 @@ const PROBE_SEED: u64 = 0x7072_6f62_655f_6c62;
 /// `side x side` rays of `camera` through the pixel centres, then, with `secondary`, a shadow and a diffuse ray from
 /// each hit, counting the tests of each ray ([`Probe`]; without `secondary` its shadow and diffuse counts are empty,
 /// no ray); `bounds` is the box of the mesh's triangles (where the secondary rays' offsets and the light come from).
-/// The policy traces primary rays alone ([`super::Crossings::with_probes`]): it uses no secondary count. `None` when
+/// The policy traces all three ([`super::Crossings::with_probes`]). `None` when
 /// the structure cannot be built (an invalid mesh, too many triangles, a structure this build lacks) or for `side`
 /// 0. Deterministic: the counts are integers and each ray is traced alone.
 pub fn probe(

@@ -319,7 +319,7 @@ impl Policy for CalibratedPolicy {
                 if reads { "" } else { " (this calibration was fitted without views: the view changes no prediction)" }
             ));
         }
-        if let Some(c) = self.crossings(scene).filter(|_| self.kind == crate::geom::WorkloadKind::Primary) {
+        if let Some(c) = self.crossings(scene) {
             let probed: Vec<String> = crate::cost::PROBED
                 .iter()
                 .filter_map(|&s| {
@@ -335,8 +335,10 @@ impl Policy for CalibratedPolicy {
                 .collect();
             if let Some(rays) = crate::cost::PROBED.iter().find_map(|&s| c.probe(s)).map(|p| p.box_tests.rays) {
                 reasons.push(format!(
-                    "probes: built and traced on {rays} sample rays of the view: {} (two standard errors; each \
-                     structure's counts below are held there where its laws miss by more than their own error)",
+                    "probes: built and traced on {rays} sample {} rays of the view: {} (two standard errors; each \
+                     structure's counts below are held there where its laws miss by more than their own error, and \
+                     the kd-tree, BIH and HLBVH take the probed structures' correction)",
+                    self.kind.as_str(),
                     probed.join(", ")
                 ));
             }
