@@ -1160,10 +1160,10 @@ pub struct TestFloor {
     /// reads ([`crate::cost::StructureModel::crossing_coef`]); NaN when the caller has no count (no mesh at hand:
     /// such a model then reads its training records' mean, [`crate::cost::StructureModel::crossing_mean`]).
     pub crossings: f64,
-    /// The structure's own tests per ray of the workload counted on a sample of its rays (for primary rays,
-    /// [`super::probe`]): where a law's count (with the bounds above) lies outside its own error band
-    /// about the sampled mean (twice the fit's RMS log error either way), the prediction holds it within two
-    /// standard errors of that mean instead ([`crate::cost::StructureModel::predict_floored`]).
+    /// The structure's own tests per ray of the workload counted on a sample of its rays ([`super::probe`]): where
+    /// a law's count (with the bounds above) lies outside its own error band about the sampled mean
+    /// ([`super::PROBE_BAND`] times the fit's RMS log error either way), the prediction holds it within two standard
+    /// errors of that mean instead ([`crate::cost::StructureModel::predict_floored`]).
     pub sampled: Option<super::ProbeCounts>,
 }
 
