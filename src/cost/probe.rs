@@ -50,8 +50,9 @@ impl ProbeCounts {
 
 /// The structures the policy probes ([`super::Crossings::with_probes`]): the LBVH and the binned-SAH BVH. Probing
 /// the HLBVH and the BIH as well gained half a point on one held-out comparison (the 84 shared-mesh records by
-/// family), none on the others, and cost 2-3 times as much (the HLBVH's build alone 28 ms for the bunny;
-/// `docs/cost-model.md`, "Probes"). A build that fails gives no probe.
+/// family), none on the others, and cost 2-3 times as much (the HLBVH's build alone 28 ms for the bunny); with every
+/// kind of ray probed and the correction shared ([`super::SHARES_PROBES`]), adding the BIH alone lost on the scene
+/// families both ways (`docs/cost-model.md`, "Probes"). A build that fails gives no probe.
 pub const PROBED: [StructureName; PROBES] = [StructureName::Lbvh, StructureName::Bvh];
 
 /// How many structures the policy probes ([`PROBED`]).
