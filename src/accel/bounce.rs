@@ -1,5 +1,5 @@
 //! The diffuse bounce direction: the CPU diffuse workload (`trace::workload`) and the probes' secondary rays
-//! ([`crate::cost::probe`]) draw their bounces with it, and the device tracer reproduces it to the bit.
+//! ([`crate::cost::probe()`]) draw their bounces with it, and the device tracer reproduces it to the bit.
 
 use glam::Vec3;
 
@@ -33,7 +33,7 @@ pub fn turn_sin_cos(u: f32) -> (f32, f32) {
 }
 
 /// Cosine-distributed unit direction about the unit normal `n`: the diffuse workload's (`trace::workload`) and
-/// [`crate::cost::probe`]'s, two draws of `rng` each.
+/// [`crate::cost::probe()`]'s, two draws of `rng` each.
 pub fn cosine_direction(n: Vec3, rng: &mut crate::rng::SplitMix64) -> Vec3 {
     let u1 = rng.next_f32();
     let u2 = rng.next_f32();

@@ -119,7 +119,7 @@ pub struct ViewCrossings {
     pub near: Option<NearCrossings>,
     /// On a sample of its primary rays (that of [`ViewCrossings::near`] where it is counted) and the shadow and
     /// diffuse rays their hits start, the own tests per ray of each structure of [`super::PROBED`], in that order
-    /// ([`super::probe`]): counted where the caller has the mesh of a static scene ([`Crossings::with_probes`]);
+    /// ([`super::probe()`]): counted where the caller has the mesh of a static scene ([`Crossings::with_probes`]);
     /// `None` for a structure that did not build.
     pub probes: [Option<super::Probe>; super::probe::PROBES],
 }
@@ -460,7 +460,7 @@ impl Crossings {
 
     /// These crossings with each structure of [`super::PROBED`] built over `mesh` (whose triangles' box is `scene`)
     /// and probed on a sample of primary rays of their view and the shadow and diffuse rays their hits start
-    /// ([`super::probe`], [`ViewCrossings::probes`]): the primary sample [`ViewCrossings::near`] is counted on where
+    /// ([`super::probe()`], [`ViewCrossings::probes`]): the primary sample [`ViewCrossings::near`] is counted on where
     /// the view is dense enough for it ([`near_sample_side`]), 32 x 32 rays otherwise; unchanged without a view. For
     /// a static scene: an animation's later frames are not what the probes built.
     pub fn with_probes(mut self, mesh: &Mesh, scene: &Aabb) -> Crossings {
@@ -652,7 +652,7 @@ pub const NEAR_SAMPLES: u32 = 32;
 /// passes are not bounded by it: each box visits the shadow rays in the bins it covers.
 const NEAR_WORK: f64 = 16.0 * 1024.0 * 1024.0;
 
-/// The side of the square sample of primary rays of [`near_crossings`] (and [`super::probe`]) for a camera whose
+/// The side of the square sample of primary rays of [`near_crossings`] (and [`super::probe()`]) for a camera whose
 /// image count ([`screen_crossings`]) is `image`: [`NEAR_SAMPLES`], less (8 at least) where `image` times the
 /// sample's rays would exceed about 16 million box-ray pairs.
 pub fn near_sample_side(image: f64) -> u32 {
@@ -848,7 +848,7 @@ impl SampledMean {
 
     /// The mean plus twice its standard error: with [`SampledMean::lower_bound`], the band that holds the mean over
     /// every ray of the workload for about 19 samples in 20 ([`overlap_floor`] holds a probed structure's predicted
-    /// counts in it, [`super::probe`]).
+    /// counts in it, [`super::probe()`]).
     pub fn upper_bound(&self) -> f64 {
         (self.mean + 2.0 * self.standard_error).max(self.lower_bound())
     }
@@ -1160,7 +1160,7 @@ pub struct TestFloor {
     /// reads ([`crate::cost::StructureModel::crossing_coef`]); NaN when the caller has no count (no mesh at hand:
     /// such a model then reads its training records' mean, [`crate::cost::StructureModel::crossing_mean`]).
     pub crossings: f64,
-    /// The structure's own tests per ray of the workload counted on a sample of its rays ([`super::probe`]): where
+    /// The structure's own tests per ray of the workload counted on a sample of its rays ([`super::probe()`]): where
     /// a law's count (with the bounds above) lies outside its own error band about the sampled mean
     /// ([`super::PROBE_BAND`] times the fit's RMS log error either way), the prediction holds it within two standard
     /// errors of that mean instead ([`crate::cost::StructureModel::predict_floored`]).
@@ -1266,7 +1266,7 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
         f.box_tests = f.box_tests.max(bi * y);
         f.prim_tests = f.prim_tests.max(pi * y);
     }
-    // A probed structure's own counts on the camera's sample of rays of this kind ([`super::probe`]).
+    // A probed structure's own counts on the camera's sample of rays of this kind ([`super::probe()`]).
     f.sampled = c.probe(structure);
     f
 }
