@@ -158,6 +158,8 @@ fn bad_values_exit_2() {
         ("characterize", &["--view", "inside", "--camera", "0,0,1,0,0,0"]),
         ("characterize", &["--budget-references-per-triangle", "-1"]),
         ("characterize", &["--budget-min-references", "many"]),
+        ("characterize", &["--budget-references-per-triangle", "65"]),
+        ("characterize", &["--budget-min-references", "33554433"]),
         ("evaluate", &["x.obj", "--budget-bytes", "-5"]),
         ("evaluate", &["x.obj", "--precision", "0"]),
         ("evaluate", &["x.obj", "--precision", "2"]),

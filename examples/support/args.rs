@@ -72,17 +72,30 @@ impl PolicyArgs {
 /// before a policy drops them ([`Budget`]; the bounds are computed from the mesh before anything is built).
 #[derive(clap::Args, Clone, Copy, Debug)]
 pub struct BudgetArgs {
-    /// Budget: cell references per triangle the grid or the kd-tree may need; a structure whose bound exceeds the
-    /// budget is no candidate, and the report lists it under excluded with the numbers
+    /// Budget: cell references per triangle the grid or the kd-tree may need, at most the builders' own 64; a
+    /// structure whose bound exceeds the budget is no candidate, and the report lists it under excluded with the
+    /// numbers
     #[arg(long, value_name = "R", default_value_t = Budget::default().references_per_triangle,
-          value_parser = nonnegative_number)]
+          value_parser = budget_per_triangle)]
     pub budget_references_per_triangle: f64,
-    /// Budget: cell references always allowed, however few the triangles
-    #[arg(long, value_name = "N", default_value_t = Budget::default().min_references)]
+    /// Budget: cell references always allowed, however few the triangles, at most the builders' own 2^25
+    #[arg(long, value_name = "N", default_value_t = Budget::default().min_references,
+          value_parser = clap::value_parser!(u64).range(..=Budget::BUILDERS.min_references))]
     pub budget_min_references: u64,
-    /// Budget: bytes the grid or the kd-tree may need
-    #[arg(long, value_name = "BYTES", default_value_t = Budget::default().max_bytes)]
+    /// Budget: bytes the grid or the kd-tree may need, at most the builders' own 4 GiB
+    #[arg(long, value_name = "BYTES", default_value_t = Budget::default().max_bytes,
+          value_parser = clap::value_parser!(u64).range(..=Budget::BUILDERS.max_bytes))]
     pub budget_bytes: u64,
+}
+
+/// `--budget-references-per-triangle`: a number in `[0, 64]`, the builders' own limit (a budget above it would keep
+/// a grid or kd-tree whose build then fails).
+fn budget_per_triangle(s: &str) -> Result<f64, String> {
+    let most = Budget::BUILDERS.references_per_triangle;
+    s.parse()
+        .ok()
+        .filter(|x: &f64| x.is_finite() && (0.0..=most).contains(x))
+        .ok_or_else(|| format!("needs a number from 0 to {most}, the builders' own references per triangle"))
 }
 
 impl BudgetArgs {

@@ -175,7 +175,12 @@ impl Grid {
 
     /// Cells along x, y, z.
     pub fn resolution(&self) -> [u32; 3] {
-        self.frame.res
+        // An empty grid has no cells (its frame's one cell is a placeholder).
+        if self.tris.is_empty() {
+            [0; 3]
+        } else {
+            self.frame.res
+        }
     }
 
     #[inline]

@@ -448,6 +448,20 @@ impl StructureModel {
     /// most its upper ones, and the share of rays that leave the scene at once counted at one box test and no
     /// triangle test); the trace time follows from the bounded counts.
     pub fn predict_floored(&self, d: &Derived, n: u64, w: &Workload, floor: TestFloor) -> Prediction {
+        self.predict_corrected(d, n, w, floor, [1.0, 1.0])
+    }
+
+    /// [`StructureModel::predict_floored`] with the laws' box and triangle tests per ray multiplied by
+    /// `correction` before the floor bounds them (the probed structures' shared correction,
+    /// [`CostModel::predict_floored`]).
+    fn predict_corrected(
+        &self,
+        d: &Derived,
+        n: u64,
+        w: &Workload,
+        floor: TestFloor,
+        correction: [f64; 2],
+    ) -> Prediction {
         let mut x = phi(d, w.kind);
         if self.feature_range.len() == x.len() {
             for j in CLAMPED_FEATURES {
@@ -470,8 +484,9 @@ impl StructureModel {
             }
             _ => (0.0, 0.0),
         };
-        let bx = (dot(&self.box_coef, &x) + dot(&self.view_box_coef, &v) + cb).clamp(-30.0, 30.0).exp();
-        let pr = (dot(&self.prim_coef, &x) + dot(&self.view_prim_coef, &v) + cp).clamp(-30.0, 30.0).exp();
+        let bx = (dot(&self.box_coef, &x) + dot(&self.view_box_coef, &v) + cb).clamp(-30.0, 30.0).exp() * correction[0];
+        let pr =
+            (dot(&self.prim_coef, &x) + dot(&self.view_prim_coef, &v) + cp).clamp(-30.0, 30.0).exp() * correction[1];
         // A NaN bound (never given) must not poison the counts: f64::max and f64::min ignore it.
         let bx = bx.max(floor.box_tests).min(floor.box_tests_most);
         let pr = pr.max(floor.prim_tests).min(floor.prim_tests_most);
@@ -763,8 +778,9 @@ impl CostModel {
     }
 
     /// Where probed structures' counts were held to their samples ([`TestFloor::sampled`]), the unprobed structures
-    /// of [`SHARES_PROBES`] take the same correction: their box and triangle tests per ray times the geometric mean,
-    /// over the probed structures, of the held count over the law's (1 where a law lies within its band). The
+    /// of [`SHARES_PROBES`] take the same correction: their laws' box and triangle tests per ray times the geometric
+    /// mean, over the probed structures, of the held count over the law's (1 where a law lies within its band),
+    /// then their own floors as before. The
     /// laws' errors are shared across the hierarchies (see the module docs, Probes), so a count held for some
     /// alone would set them against others that keep the same error. `preds` are the predictions of
     /// [`CostModel::structures`], in that order.
@@ -799,14 +815,10 @@ impl CostModel {
             return;
         }
         for (m, p) in self.structures.iter().zip(preds.iter_mut()) {
-            if SHARES_PROBES.contains(&m.structure) && floor(m.structure).sampled.is_none() {
-                *p = m.with_counts(
-                    p.build_ms,
-                    p.build_ms_per_build,
-                    w,
-                    p.box_tests_per_ray * gb,
-                    p.prim_tests_per_ray * gp,
-                );
+            let f = floor(m.structure);
+            if SHARES_PROBES.contains(&m.structure) && f.sampled.is_none() {
+                // The law corrected, then bounded by the structure's own floor as before.
+                *p = m.predict_corrected(d, n, w, f, [gb, gp]);
             }
         }
     }

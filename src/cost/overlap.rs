@@ -500,10 +500,12 @@ impl Crossings {
 }
 
 impl RayCrossings {
-    /// The counts of `structure` on the camera's sample ([`RayCrossings::probes`]), when probed.
+    /// The counts of `structure` on the camera's sample ([`RayCrossings::probes`]), when probed on at least
+    /// [`super::probe::MIN_PROBED_RAYS`] rays (a sparse view's few hits start few secondary rays, and a mean of one
+    /// or two has no standard error worth the name).
     pub fn probe(&self, structure: StructureName) -> Option<super::ProbeCounts> {
         let i = super::PROBED.iter().position(|s| *s == structure)?;
-        self.probes[i].filter(|p| p.box_tests.rays > 0)
+        self.probes[i].filter(|p| p.box_tests.rays >= super::probe::MIN_PROBED_RAYS)
     }
 }
 
@@ -1217,7 +1219,7 @@ pub fn crossings_feature(kind: WorkloadKind, c: Option<RayCrossings>) -> f64 {
 /// [`RayCrossings::near`] (the boxes a ray enters before its first hit, holding a diffuse ray's origin, or crossed
 /// by an unoccluded shadow ray; [`near_crossings`]), the BVH's, LBVH's, HLBVH's and BIH's triangle tests are at least
 /// that count (the BVH's scaled by its distinct share) and their box tests at least it over their largest leaf.
-/// With [`RayCrossings::probes`], a probed structure's primary rays carry its sampled counts
+/// With [`RayCrossings::probes`], a probed structure's floor carries its counts sampled on rays of this kind
 /// ([`TestFloor::sampled`]).
 pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
     let Some(c) = c else { return TestFloor::default() };

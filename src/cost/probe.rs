@@ -55,6 +55,10 @@ impl ProbeCounts {
 /// families both ways (`docs/cost-model.md`, "Probes"). A build that fails gives no probe.
 pub const PROBED: [StructureName; PROBES] = [StructureName::Lbvh, StructureName::Bvh];
 
+/// The fewest rays of one kind a probe must have traced for the policy to read its counts
+/// ([`super::RayCrossings::probe`]): 32, a 32nd of the full primary sample.
+pub const MIN_PROBED_RAYS: usize = 32;
+
 /// How many structures the policy probes ([`PROBED`]).
 pub const PROBES: usize = 2;
 

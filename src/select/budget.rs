@@ -22,8 +22,8 @@
 //! verdict rests on it and it can be several times the grid's count (large triangles cross many rows of a slab:
 //! 39.3 million against 9.8 million for 20,000 large overlapping triangles), so the references are then **counted
 //! exactly**, by the grid's own rule ([`GridFrame::for_each_run`]: one clip per row, the same code the grid builds
-//! with), in index order until the count passes the grid builder's own budget ([`Budget::BUILDERS`], or the
-//! caller's where larger; past it the figure stays an upper bound, [`Bound::Upper`]); 77 ms against the slab
+//! with), in index order until the count passes the grid builder's own budget ([`Budget::BUILDERS`]; past it the
+//! figure stays an upper bound, [`Bound::Upper`], and no budget keeps a grid that builds); 77 ms against the slab
 //! bound's 9 ms there, 3 ms for a fan of 2,000 triangles over one polygon, and nothing on a scene within the
 //! budget. The bytes follow as the grid counts them (cell starts, references, triangle records).
 //!
@@ -124,15 +124,24 @@ fn span_cells(frame: &GridFrame, t: f64, a: usize) -> u64 {
 
 /// The grid's references counted exactly ([`GridFrame::cell_count`]: one clip per row), in index order, chunk by
 /// chunk, until the count passes `cap`: then the triangles not counted, and any whose count reached the cap, add
-/// their slab bounds (`upper`), and the figure is an upper bound.
+/// their slab bounds (`upper`), and the figure is an upper bound. A chunk holds triangles whose slab bounds, each
+/// capped at what is left of `cap`, sum to no more than that (as the grid's builder sizes its own), so no chunk
+/// counts much past the cap.
 fn exact_references(frame: &GridFrame, tris: &[Triangle], boxes: &[Aabb], upper: &[u64], cap: u64) -> (u64, Bound) {
     use rayon::prelude::*;
-    const CHUNK: usize = 4096;
     let mut prefix = 0u64;
     let mut i = 0;
     while i < tris.len() {
-        let j = (i + CHUNK).min(tris.len());
         let left = cap.saturating_sub(prefix).saturating_add(1);
+        let (mut j, mut acc) = (i, 0u64);
+        while j < tris.len() && j - i < 65_536 {
+            let u = upper[j].min(left);
+            if j > i && acc.saturating_add(u) > left {
+                break;
+            }
+            acc = acc.saturating_add(u);
+            j += 1;
+        }
         let counted = (i..j)
             .into_par_iter()
             .map(|k| {
@@ -226,8 +235,9 @@ impl BuildBounds {
     }
 
     /// [`BuildBounds::of_frames_viewed`] for a policy that will check them against `budget`: the grid's
-    /// references are counted exactly where their slab bound exceeds the smaller of `budget` and the default one
-    /// (see the module docs), so that the budget's verdict never rests on the looser bound.
+    /// references are counted exactly where their slab bound, or the bytes it implies, exceeds the smaller of
+    /// `budget` and the default one (see the module docs), so that the budget's verdict never rests on the looser
+    /// bound (up to the builders' own budget, [`Budget::BUILDERS`], past which no grid builds).
     pub fn of_frames_viewed_within(
         frames: &[Mesh],
         camera: Option<&crate::geom::Camera>,
@@ -297,12 +307,14 @@ impl BuildBounds {
             .zip(&upper)
             .map(|(t, &c)| (c, if t.is_degenerate() { 1 } else { c.saturating_mul(KD_FACTOR) }))
             .reduce(|| (0u64, 0u64), |a, b| (a.0.saturating_add(b.0), a.1.saturating_add(b.1)));
-        // Where the slab bound exceeds the budget, the budget's verdict rests on it, and the bound can be
-        // several times the grid's count (large triangles across many rows of a slab): count exactly, up to what
-        // the grid's builder allows.
-        let (g, kind) = if g > budget.references(n as u64).min(Budget::default().references(n as u64)) {
-            let cap = Budget::BUILDERS.references(n as u64).max(budget.references(n as u64));
-            exact_references(&grid, &tris, &boxes, &upper, cap)
+        // Where the slab bound exceeds the budget (references or bytes), the budget's verdict rests on it, and the
+        // bound can be several times the grid's count (large triangles across many rows of a slab): count exactly,
+        // up to what the grid's builder allows (past it no budget keeps a grid that builds).
+        let nu = n as u64;
+        let refs_allowed = budget.references(nu).min(Budget::default().references(nu));
+        let bytes_allowed = budget.max_bytes.min(Budget::default().max_bytes);
+        let (g, kind) = if g > refs_allowed || BuildBounds::grid_bytes(&grid, nu, g) > bytes_allowed {
+            exact_references(&grid, &tris, &boxes, &upper, Budget::BUILDERS.references(nu))
         } else {
             (g, Bound::Upper)
         };
@@ -377,6 +389,12 @@ impl BuildBounds {
         }
     }
 
+    /// The grid's bytes for `n` triangles and `g` references: cell starts, references, triangle records.
+    fn grid_bytes(grid: &GridFrame, n: u64, g: u64) -> u64 {
+        let tri = n.saturating_mul(TRIANGLE_BYTES);
+        grid.cells().saturating_add(1).saturating_mul(4).saturating_add(g.saturating_mul(4)).saturating_add(tri)
+    }
+
     fn finish(n: u64, source: &'static str, grid: &GridFrame, g: u64, kind: Bound, k: u64) -> BuildBounds {
         let tri = n.saturating_mul(TRIANGLE_BYTES);
         BuildBounds {
@@ -385,12 +403,7 @@ impl BuildBounds {
             grid_resolution: grid.res,
             grid_references: g,
             grid_bound: kind,
-            grid_bytes: grid
-                .cells()
-                .saturating_add(1)
-                .saturating_mul(4)
-                .saturating_add(g.saturating_mul(4))
-                .saturating_add(tri),
+            grid_bytes: BuildBounds::grid_bytes(grid, n, g),
             kdtree_references: k,
             // Nodes of 8 bytes (about one per reference), 4-byte references, records, 24-byte boxes, 4-byte ids.
             kdtree_bytes: k.saturating_mul(12).saturating_add(tri).saturating_add(n.saturating_mul(28)),
@@ -527,7 +540,7 @@ pub struct Exclusion {
     pub needed: u64,
     /// The budget.
     pub budget: u64,
-    /// Whether `needed` is an upper bound or an estimate.
+    /// Whether `needed` is exact, an upper bound or an estimate.
     pub bound: Bound,
     /// The sentence for reports.
     pub reason: String,
