@@ -569,8 +569,7 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
         }
     }
     assert_eq!(k, 2.0, "both probed structures built");
-    // Shared upward only.
-    let (gb, gp) = ((lb / k).exp().max(1.0), (lp / k).exp().max(1.0));
+    let (gb, gp) = ((lb / k).exp(), (lp / k).exp());
     assert!(gb > 1.0, "the LBVH's held count raises the shared box tests ({gb})");
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1.0);
     for (p, q) in plain.iter().zip(&floored) {
@@ -1225,9 +1224,7 @@ fn the_lbvhs_sampled_counts_hold_its_primary_prediction_in_their_band() {
     // Held, the LBVH's correction is shared by the hierarchies no probe counted (`SHARES_PROBES`: kd-tree, BIH,
     // HLBVH); the grid and the BVH (not probed in this sample) keep their laws. Within the band nothing moves.
     let all = |c: RayCrossings| model.predict_floored(&f, &w, &|s| overlap_floor(s, p, Some(c)));
-    // Shared upward only: an unprobed structure is never made cheaper by another's sample.
-    let rb = (held.box_tests_per_ray / free.box_tests_per_ray).max(1.0);
-    let rp = (held.prim_tests_per_ray / free.prim_tests_per_ray).max(1.0);
+    let (rb, rp) = (held.box_tests_per_ray / free.box_tests_per_ray, held.prim_tests_per_ray / free.prim_tests_per_ray);
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1.0);
     let mut shared = 0;
     for ((h, fr), law) in all(c).iter().zip(&all(without)).zip(&model.predict(&f, &w)) {
@@ -1248,17 +1245,6 @@ fn the_lbvhs_sampled_counts_hold_its_primary_prediction_in_their_band() {
     assert_eq!(shared, 3);
     let inside = RayCrossings { probes: std::array::from_fn(|i| (i == 0).then_some(near)), ..c };
     assert_eq!(all(inside), all(without));
-    // A sample far below the law lowers the LBVH's own counts, never another structure's.
-    let tenth = |x: f64| SampledMean { mean: x / 10.0, standard_error: 0.01, rays: 1024 };
-    let low = ProbeCounts { box_tests: tenth(free.box_tests_per_ray), prim_tests: tenth(free.prim_tests_per_ray) };
-    let below = RayCrossings { probes: std::array::from_fn(|i| (i == 0).then_some(low)), ..c };
-    for (h, fr) in all(below).iter().zip(&all(without)) {
-        if h.structure == StructureName::Lbvh {
-            assert!(h.box_tests_per_ray < fr.box_tests_per_ray, "{h:?} {fr:?}");
-        } else {
-            assert_eq!(h, fr);
-        }
-    }
 }
 
 /// For a degenerate mesh seen by the framing camera, primary rays: per structure of `runaway`, its box tests per ray

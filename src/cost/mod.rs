@@ -123,8 +123,8 @@ pub use probe::{probe, Probe, ProbeCounts, PROBED};
 /// sets (`docs/cost-model.md`, "Probes").
 pub const PROBE_BAND: f64 = 1.0;
 
-/// The hierarchies that are not probed but take the probed structures' correction of their counts where it raises
-/// them ([`CostModel::predict_floored`]): the kd-tree, the BIH and the HLBVH, whose laws' errors on the scene families
+/// The hierarchies that are not probed but take the probed structures' correction of their counts
+/// ([`CostModel::predict_floored`]): the kd-tree, the BIH and the HLBVH, whose laws' errors on the scene families
 /// follow the LBVH's (residual correlation 0.83, 0.95, 0.88). The grid's (0.58) are its own.
 pub const SHARES_PROBES: [StructureName; 3] = [StructureName::KdTree, StructureName::Bih, StructureName::Hlbvh];
 
@@ -778,9 +778,9 @@ impl CostModel {
     }
 
     /// Where probed structures' counts were held to their samples ([`TestFloor::sampled`]), the unprobed structures
-    /// of [`SHARES_PROBES`] take the same correction where it raises them: their laws' box and triangle tests per
-    /// ray times the geometric mean, over the probed structures, of the held count over the law's (1 where a law
-    /// lies within its band), where that mean exceeds 1, then their own floors as before. The
+    /// of [`SHARES_PROBES`] take the same correction: their laws' box and triangle tests per ray times the geometric
+    /// mean, over the probed structures, of the held count over the law's (1 where a law lies within its band),
+    /// then their own floors as before. The
     /// laws' errors are shared across the hierarchies (see the module docs, Probes), so a count held for some
     /// alone would set them against others that keep the same error. `preds` are the predictions of
     /// [`CostModel::structures`], in that order.
@@ -810,9 +810,7 @@ impl CostModel {
             }
         }
         let mean = |(sum, k): (f64, u32)| if k > 0 { (sum / f64::from(k)).exp() } else { 1.0 };
-        // Upward only: an unprobed structure is never predicted cheaper on the strength of other structures'
-        // samples (the direction in which a wrong share costs most: it would be chosen).
-        let (gb, gp) = (mean(boxes).max(1.0), mean(prims).max(1.0));
+        let (gb, gp) = (mean(boxes), mean(prims));
         if gb == 1.0 && gp == 1.0 {
             return;
         }

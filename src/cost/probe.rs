@@ -18,9 +18,9 @@
 //! [`super::StructureModel::predict_floored`]): for each kind of ray, where a structure's law misses its sampled
 //! mean by more than its own error band ([`super::PROBE_BAND`] times the fit's RMS log error either way), the count
 //! is held within two standard errors of that mean; within the band the law stands. The hierarchies that are not
-//! probed take the probed ones' correction where it raises their counts ([`super::SHARES_PROBES`],
-//! [`super::CostModel::predict_floored`]): exact counts for some structures beside others whose laws miss in the
-//! same direction made the choices worse on the family records (`docs/cost-model.md`, "Probes").
+//! probed take the probed ones' correction ([`super::SHARES_PROBES`], [`super::CostModel::predict_floored`]): exact
+//! counts for some structures beside others whose laws miss in the same direction made the choices worse on the
+//! family records (`docs/cost-model.md`, "Probes").
 
 use super::overlap::SampledMean;
 use crate::accel::bounce::cosine_direction;

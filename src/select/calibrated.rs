@@ -337,8 +337,7 @@ impl Policy for CalibratedPolicy {
                 reasons.push(format!(
                     "probes: built and traced on {rays} sample {} rays of the view: {} (two standard errors; each \
                      structure's counts below are held there where its laws miss by more than their own error, and \
-                     where one is held the kd-tree, BIH and HLBVH take the probed structures' correction if it raises \
-                     their counts)",
+                     where one is held the kd-tree, BIH and HLBVH take the probed structures' correction)",
                     self.kind.as_str(),
                     probed.join(", ")
                 ));
