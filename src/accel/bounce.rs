@@ -44,3 +44,11 @@ pub fn cosine_direction(n: Vec3, rng: &mut crate::rng::SplitMix64) -> Vec3 {
     let (t, b) = n.any_orthonormal_pair();
     (t * x + b * y + n * z).try_normalize().unwrap_or(n)
 }
+
+/// The diffuse bounce of the `index`-th primary ray of a sample seeded with `seed`: [`cosine_direction`] about `n`
+/// from a generator mixed from the two, as the diffuse workload (`trace::workload`) and the probes
+/// ([`crate::cost::probe()`]) both draw it.
+pub fn diffuse_direction(n: Vec3, seed: u64, index: usize) -> Vec3 {
+    let mut rng = crate::rng::SplitMix64(seed ^ (index as u64).wrapping_mul(0x2545_f491_4f6c_dd1d));
+    cosine_direction(n, &mut rng)
+}

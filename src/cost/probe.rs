@@ -10,9 +10,9 @@
 //! ([`super::Crossings::with_probes`]): the same builders with the same options the oracle and the engine use, so
 //! that the counts are the structures' own on the sampled rays. The primary sample is [`super::near_crossings`]'s
 //! where that pass runs (the rays through the pixel centres of a square image of the camera, at most 32 x 32), the
-//! full 32 x 32 otherwise; on request, shadow and
-//! diffuse rays start at their hits as the workloads start theirs (`geom::camera::secondary_start`, the shadow
-//! workload's light, cosine-distributed bounces). Each count is a [`SampledMean`].
+//! full 32 x 32 otherwise; on request, shadow and diffuse rays start at their hits as the workloads start theirs
+//! (`geom::camera::secondary_start`, the shadow workload's light, `accel::bounce::diffuse_direction`). Each count is
+//! a [`SampledMean`].
 //!
 //! How the policy uses them ([`super::overlap_floor`], [`super::TestFloor::sampled`],
 //! [`super::StructureModel::predict_floored`]): for each kind of ray, where a structure's law misses its sampled
@@ -23,12 +23,11 @@
 //! family records (`docs/cost-model.md`, "Probes").
 
 use super::overlap::SampledMean;
-use crate::accel::bounce::cosine_direction;
+use crate::accel::bounce::diffuse_direction;
 use crate::accel::StructureName;
 use crate::geom::camera::{default_light, secondary_start, shadow_ray};
 use crate::geom::{Aabb, Camera, Ray, TraceCounters, WorkloadKind};
 use crate::mesh::Mesh;
-use crate::rng::SplitMix64;
 
 /// A structure's tests per ray, counted on a sample of rays.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
@@ -91,9 +90,9 @@ const PROBE_SEED: u64 = 0x7072_6f62_655f_6c62;
 /// `side x side` rays of `camera` through the pixel centres, then, with `secondary`, a shadow and a diffuse ray from
 /// each hit, counting the tests of each ray ([`Probe`]; without `secondary` its shadow and diffuse counts are empty,
 /// no ray); `bounds` is the box of the mesh's triangles (where the secondary rays' offsets and the light come from).
-/// The policy traces all three ([`super::Crossings::with_probes`]). `None` when
-/// the structure cannot be built (an invalid mesh, too many triangles, a structure this build lacks) or for `side`
-/// 0. Deterministic: the counts are integers and each ray is traced alone.
+/// The policy traces all three ([`super::Crossings::with_probes`]). `None` when the structure cannot be built (an
+/// invalid mesh, too many triangles, a structure this build lacks) or for `side` 0. Deterministic: the counts are
+/// integers and each ray is traced alone.
 pub fn probe(
     structure: StructureName,
     mesh: &Mesh,
@@ -131,9 +130,8 @@ pub fn probe(
                         accel.occluded(&shadow, &mut sc);
                         sc
                     });
-                    let mut rng = SplitMix64(PROBE_SEED ^ (k as u64).wrapping_mul(0x2545_f491_4f6c_dd1d));
                     let mut dc = TraceCounters::default();
-                    accel.intersect(&Ray::new(origin, cosine_direction(n, &mut rng)), &mut dc);
+                    accel.intersect(&Ray::new(origin, diffuse_direction(n, PROBE_SEED, k)), &mut dc);
                     Some((sc, dc))
                 });
                 (c, second)

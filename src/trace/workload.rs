@@ -47,7 +47,7 @@ pub fn primary_rays(camera: &Camera, width: u32, height: u32) -> Vec<Ray> {
 
 pub use crate::geom::camera::default_light;
 
-pub use crate::accel::bounce::{cosine_direction, turn_sin_cos};
+pub use crate::accel::bounce::{cosine_direction, diffuse_direction, turn_sin_cos};
 pub use crate::geom::camera::{secondary_start, shadow_ray, surface_offset};
 
 pub use crate::rng::SplitMix64;
@@ -77,8 +77,7 @@ pub fn secondary_rays(
         match kind {
             WorkloadKind::Shadow => rays.extend(shadow_ray(origin, light)),
             WorkloadKind::Diffuse => {
-                let mut rng = SplitMix64(seed ^ (k as u64).wrapping_mul(0x2545_f491_4f6c_dd1d));
-                rays.push(Ray::new(origin, cosine_direction(n, &mut rng)));
+                rays.push(Ray::new(origin, diffuse_direction(n, seed, k)));
             }
             WorkloadKind::Primary => rays.push(*r),
         }
