@@ -561,14 +561,15 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     let (mut lb, mut lp, mut k) = (0.0f64, 0.0f64, 0.0f64);
     for (p, q) in plain.iter().zip(&floored) {
         let fl = overlap_floor(p.structure, WorkloadKind::Primary, rc);
-        if fl.sampled.is_some() {
+        // The grid's own count is held to its sample, but its ratio is not shared (`SHARES_PROBES`).
+        if fl.sampled.is_some() && p.structure != StructureName::Grid {
             let (bx, pr) = (p.box_tests_per_ray.max(fl.box_tests), p.prim_tests_per_ray.max(fl.prim_tests));
             lb += (q.box_tests_per_ray / bx).ln();
             lp += (q.prim_tests_per_ray / pr).ln();
             k += 1.0;
         }
     }
-    assert_eq!(k, 2.0, "both probed structures built");
+    assert_eq!(k, 3.0, "every probed hierarchy built");
     let (gb, gp) = ((lb / k).exp(), (lp / k).exp());
     assert!(gb > 1.0, "the LBVH's held count raises the shared box tests ({gb})");
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1.0);
@@ -675,14 +676,25 @@ fn on_overlapping_triangles_the_calibrated_policy_picks_no_runaway_traversal_for
 fn seen_close_up_the_engineering_family_gets_no_runaway_traversal() {
     // The families' worst records (docs/data/families-*.jsonl): fans of long slivers seen close up, where the BVH
     // family's traversal explodes and the grid wins; the crossings counted on the camera's image see it, the
-    // parallel estimate does not. Counted tests per ray, as above.
+    // parallel estimate does not. Counted tests per ray, as above, for primary rays. For diffuse rays the LBVH, the
+    // BIH, the HLBVH and the kd-tree make 285-414 tests per ray, the BVH 176 and the grid 41: with both of the last
+    // two probed, their counts are known and their prices decide (a grid cell costs 2-4 box tests), and the
+    // choice must be one of them, never a runaway (the record at 256 x 256: the BVH 37.7 ms, the grid 22.1 ms).
     let m =
         meshchar::mesh::families::generate(meshchar::mesh::families::Family::Engineering, 20_000, 1).expect("family");
     let close = meshchar::trace::views::View::CloseUp.camera(&scene_box(&m));
-    for kind in [WorkloadKind::Primary, WorkloadKind::Diffuse] {
-        let (chosen, ok, counts) = choice_within_4x_of_fewest_tests(&m, kind, Some(&close));
-        assert!(ok, "{} {kind:?} close up: chose {chosen}; tests per ray {counts:?}", m.name);
-    }
+    let (chosen, ok, counts) = choice_within_4x_of_fewest_tests(&m, WorkloadKind::Primary, Some(&close));
+    assert!(ok, "{} primary close up: chose {chosen}; tests per ray {counts:?}", m.name);
+    let (chosen, _, counts) = choice_within_4x_of_fewest_tests(&m, WorkloadKind::Diffuse, Some(&close));
+    let of = |s: StructureName| counts.iter().find(|c| c.0 == s).map_or(f64::INFINITY, |c| c.1);
+    let fewest_hierarchy =
+        counts.iter().filter(|c| c.0 != StructureName::Grid).map(|c| c.1).fold(f64::INFINITY, f64::min);
+    assert!(
+        chosen == StructureName::Grid || of(chosen) <= 1.1 * fewest_hierarchy,
+        "{} diffuse close up: chose {chosen}; tests per ray {counts:?}",
+        m.name
+    );
+    assert!(of(chosen) <= 0.7 * counts.iter().map(|c| c.1).fold(0.0, f64::max), "{chosen}: {counts:?}");
 }
 
 #[test]
@@ -1172,6 +1184,25 @@ fn a_probe_counts_the_structures_own_tests_on_its_sample() {
 }
 
 #[test]
+fn the_grid_is_probed_within_the_default_selection_budget() {
+    // A probe must never build a grid the policy would exclude: the probe's budget is the default selection's.
+    let [per, least] = meshchar::cost::probe::PROBE_GRID_BUDGET;
+    let b = Budget::default();
+    assert_eq!((per as f64, least as u64), (b.references_per_triangle, b.min_references));
+    // 20,000 large overlapping triangles need 9.8 million references (`docs/cost-model.md`): over the budget, no
+    // probe.
+    let m = generate::overlapping_large(20_000, 1);
+    let bounds = BuildBounds::of_mesh(&m).expect("bounds");
+    assert!(b.check(&bounds).iter().any(|e| e.structure == StructureName::Grid), "{bounds:?}");
+    let cam = Camera::frame(&scene_box(&m));
+    assert!(meshchar::cost::probe(StructureName::Grid, &m, &scene_box(&m), &cam, 8, false).is_none());
+    // Within it, the grid is probed.
+    let ok = generate::random_soup(2000, 3);
+    let cam = Camera::frame(&scene_box(&ok));
+    assert!(meshchar::cost::probe(StructureName::Grid, &ok, &scene_box(&ok), &cam, 8, false).is_some());
+}
+
+#[test]
 fn the_lbvhs_sampled_counts_hold_its_primary_prediction_in_their_band() {
     use meshchar::cost::{overlap_floor, ProbeCounts, RayCrossings, SampledMean, TestFloor};
     let probe = ProbeCounts {
@@ -1209,20 +1240,21 @@ fn the_lbvhs_sampled_counts_hold_its_primary_prediction_in_their_band() {
     assert!((98.0..=102.0).contains(&held.box_tests_per_ray), "{held:?}");
     assert!((9.0..=11.0).contains(&held.prim_tests_per_ray), "{held:?}");
     assert!(!(98.0..=102.0).contains(&free.box_tests_per_ray), "the law already predicted the band: {free:?}");
-    // Within the law's own error band about the sampled mean (`PROBE_BAND` times its fit's RMS log error), the law
-    // stands: a sample 1.5 times the law's counts (the shipped file's LBVH errs by more than that: RMS 0.5 in ln)
-    // moves nothing.
+    // Within the law's own error band about the sampled mean (`PROBE_BAND` times its fit's RMS error of
+    // `ln(1 + count)`), the law stands: a sample 1.2 times the law's counts (the shipped file's LBVH errs by more
+    // than that: RMS 0.48 and 0.30) moves nothing.
     let fit = model.get(StructureName::Lbvh).expect("lbvh law").fit;
     let band = meshchar::cost::PROBE_BAND;
-    assert!(band * fit.box_tests > 1.5f64.ln() && band * fit.prim_tests > 1.5f64.ln(), "{fit:?}");
+    assert!(band * fit.box_tests > 1.2f64.ln() && band * fit.prim_tests > 1.2f64.ln(), "{fit:?}");
     let near = ProbeCounts {
-        box_tests: SampledMean { mean: 1.5 * free.box_tests_per_ray, standard_error: 0.01, rays: 1024 },
-        prim_tests: SampledMean { mean: 1.5 * free.prim_tests_per_ray, standard_error: 0.01, rays: 1024 },
+        box_tests: SampledMean { mean: 1.2 * free.box_tests_per_ray, standard_error: 0.01, rays: 1024 },
+        prim_tests: SampledMean { mean: 1.2 * free.prim_tests_per_ray, standard_error: 0.01, rays: 1024 },
     };
     let kept = lbvh(RayCrossings { probes: std::array::from_fn(|i| (i == 0).then_some(near)), ..c });
     assert_eq!((kept.box_tests_per_ray, kept.prim_tests_per_ray), (free.box_tests_per_ray, free.prim_tests_per_ray));
-    // Held, the LBVH's correction is shared by the hierarchies no probe counted (`SHARES_PROBES`: kd-tree, BIH,
-    // HLBVH); the grid and the BVH (not probed in this sample) keep their laws. Within the band nothing moves.
+    // Held, the LBVH's correction is shared by the hierarchies no probe counted (`SHARES_PROBES`: kd-tree and
+    // HLBVH); the grid, the BIH and the BVH (probed structures, not probed in this sample) keep their laws. Within
+    // the band nothing moves.
     let all = |c: RayCrossings| model.predict_floored(&f, &w, &|s| overlap_floor(s, p, Some(c)));
     let (rb, rp) = (held.box_tests_per_ray / free.box_tests_per_ray, held.prim_tests_per_ray / free.prim_tests_per_ray);
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1.0);
@@ -1242,7 +1274,7 @@ fn the_lbvhs_sampled_counts_hold_its_primary_prediction_in_their_band() {
             assert_eq!(h, fr);
         }
     }
-    assert_eq!(shared, 3);
+    assert_eq!(shared, 2);
     let inside = RayCrossings { probes: std::array::from_fn(|i| (i == 0).then_some(near)), ..c };
     assert_eq!(all(inside), all(without));
 }
@@ -1311,13 +1343,17 @@ fn on_zero_area_triangles_the_bvhs_runaway_is_counted_not_predicted() {
     // policy chose it at 5.7x the grid's total. The probes count it on the sample: each probed hierarchy's predicted
     // count lies within 20% of its count on 64 x 64 rays (the prediction is held at the edge of the sample's band,
     // two standard errors from its mean), and the policy picks none of them.
+    // The grid, probed too, walks a few cells per ray (its count is held to its sample likewise), and is chosen.
     let m = generate::zero_area(2000, 1);
     let (counts, sel) = probed_against_counted(&m, &meshchar::cost::PROBED);
+    assert_eq!(counts.len(), meshchar::cost::PROBED.len());
     for (s, predicted, counted) in counts {
-        assert!(counted > 100.0, "{s}: {counted}");
+        let runaway = s != StructureName::Grid;
+        assert!(!runaway || counted > 100.0, "{s}: {counted}");
+        assert!(runaway || counted < 20.0, "{s}: {counted}");
         assert!((predicted / counted - 1.0).abs() < 0.2, "{s}: predicted {predicted}, counted {counted}");
     }
-    assert!(!meshchar::cost::PROBED.contains(&sel.structure), "chose {}: {:?}", sel.structure, sel.reasons);
+    assert_eq!(sel.structure, StructureName::Grid, "{:?}", sel.reasons);
 }
 
 #[test]

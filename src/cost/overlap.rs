@@ -1164,7 +1164,7 @@ pub struct TestFloor {
     pub crossings: f64,
     /// The structure's own tests per ray of the workload counted on a sample of its rays ([`super::probe()`]): where
     /// a law's count (with the bounds above) lies outside its own error band about the sampled mean
-    /// ([`super::PROBE_BAND`] times the fit's RMS log error either way), the prediction holds it within two standard
+    /// ([`super::PROBE_BAND`] times the fit's RMS error of `ln(1 + count)`), the prediction holds it within two standard
     /// errors of that mean instead ([`crate::cost::StructureModel::predict_floored`]).
     pub sampled: Option<super::ProbeCounts>,
 }
