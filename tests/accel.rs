@@ -158,6 +158,9 @@ fn generated_scenes() -> Vec<Mesh> {
         one_triangle(),
         with_zero_area(1500, 5),
         boxes(12),
+        // A small object in a vast box (a teapot in a stadium): the BIH halves its candidate box dozens of times
+        // before a plane separates the object's triangles, from the extents alone.
+        meshchar::mesh::families::generate(meshchar::mesh::families::Family::Stadium, 3000, 2).expect("stadium"),
     ]
 }
 

@@ -112,13 +112,54 @@ fn leaf_node(first: usize, count: usize) -> BihNode {
 /// Halvings of the candidate box without a separating split after which a node is split at the object median.
 const MAX_STALL: u32 = 64;
 
+/// Per axis, the least and greatest centre and the least minimum and greatest maximum of a node's triangle boxes:
+/// what the halvings of [`build_rec`] read once one has not separated, taken in one pass.
+#[derive(Clone, Copy)]
+struct Extents {
+    centre: [[f32; 3]; 2],
+    bounds: [[f32; 3]; 2],
+}
+
+impl Extents {
+    fn of(refs: &[BRef]) -> Extents {
+        let (lo, hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        let mut e = Extents { centre: [lo, hi], bounds: [lo, hi] };
+        for r in refs {
+            for a in 0..3 {
+                let c = r.center(a);
+                e.centre[0][a] = e.centre[0][a].min(c);
+                e.centre[1][a] = e.centre[1][a].max(c);
+                e.bounds[0][a] = e.bounds[0][a].min(r.min[a]);
+                e.bounds[1][a] = e.bounds[1][a].max(r.max[a]);
+            }
+        }
+        e
+    }
+}
+
 /// Builds the subtree over `refs` (records `first ..`), candidate box `cand`, into `out` (root at `out[0]`; child
-/// indices relative to `out[0]`). `stall` counts the halvings since the last separating split above.
-fn build_rec(refs: &mut [BRef], first: usize, mut cand: Aabb, mut stall: u32, o: &BihOptions) -> Sub {
+/// indices relative to `out[0]`). `stall` counts the halvings since the last separating split above; `known` are
+/// the extents of `refs` when the caller has them.
+///
+/// Once a halving has left every centre on one side, the following ones are decided from the extents of `refs`
+/// (taken then, in the one pass the empty-space test made before) without a pass over the triangles each: a scene
+/// of a small object in a vast box halves its candidate box dozens of times before one separates (the stadium
+/// family: a path of 73 nodes against 28 for a city). The records are reordered exactly as a partition with every
+/// centre on its right side reorders them (a rotation by one), so the tree and its record order are those of a
+/// partition at every halving.
+fn build_rec(
+    refs: &mut [BRef],
+    first: usize,
+    mut cand: Aabb,
+    mut stall: u32,
+    o: &BihOptions,
+    known: Option<Extents>,
+) -> Sub {
     let n = refs.len();
     if n <= o.max_leaf.max(1) {
         return Sub { nodes: vec![leaf_node(first, n)] };
     }
+    let mut ext = known;
     let mut split = None;
     while stall < MAX_STALL {
         stall += 1;
@@ -127,25 +168,34 @@ fn build_rec(refs: &mut [BRef], first: usize, mut cand: Aabb, mut stall: u32, o:
         if !(p > cand.min[axis] && p < cand.max[axis]) {
             break;
         }
-        let m = partition(refs, |r| r.center(axis) < p);
+        // No centre below the plane (`m == 0`), every centre below it (`m == n`), or a separating split.
+        let m = match ext {
+            Some(e) if e.centre[0][axis] >= p => {
+                refs.rotate_left(1);
+                0
+            }
+            Some(e) if e.centre[1][axis] < p => n,
+            _ => partition(refs, |r| r.center(axis) < p),
+        };
         if m > 0 && m < n {
             split = Some((axis, m, p));
             break;
         }
+        let e = *ext.get_or_insert_with(|| Extents::of(refs));
         // All centres on one side: continue with that half of the candidate box. When the triangles do not even
         // reach into the other half, cut that empty space off with a node whose other child is an empty leaf.
         if m == 0 {
             cand.min[axis] = p;
-            let lo = refs.iter().fold(f32::INFINITY, |a, r| a.min(r.min[axis]));
+            let lo = e.bounds[0][axis];
             if lo > p {
-                let r = build_rec(refs, first, cand, stall, o);
+                let r = build_rec(refs, first, cand, stall, o, ext);
                 return combine(axis, [f32::NEG_INFINITY, lo], Sub { nodes: vec![leaf_node(first, 0)] }, r);
             }
         } else {
             cand.max[axis] = p;
-            let hi = refs.iter().fold(f32::NEG_INFINITY, |a, r| a.max(r.max[axis]));
+            let hi = e.bounds[1][axis];
             if hi < p {
-                let l = build_rec(refs, first, cand, stall, o);
+                let l = build_rec(refs, first, cand, stall, o, ext);
                 return combine(axis, [hi, f32::INFINITY], l, Sub { nodes: vec![leaf_node(first + n, 0)] });
             }
         }
@@ -181,9 +231,9 @@ fn build_rec(refs: &mut [BRef], first: usize, mut cand: Aabb, mut stall: u32, o:
     let left_clip = lr.iter().fold(f32::NEG_INFINITY, |a, r| a.max(r.max[axis]));
     let right_clip = rr.iter().fold(f32::INFINITY, |a, r| a.min(r.min[axis]));
     let (l, r) = if n >= o.parallel_threshold {
-        rayon::join(|| build_rec(lr, first, lc, stall, o), || build_rec(rr, first + m, rc, stall, o))
+        rayon::join(|| build_rec(lr, first, lc, stall, o, None), || build_rec(rr, first + m, rc, stall, o, None))
     } else {
-        (build_rec(lr, first, lc, stall, o), build_rec(rr, first + m, rc, stall, o))
+        (build_rec(lr, first, lc, stall, o, None), build_rec(rr, first + m, rc, stall, o, None))
     };
     combine(axis, [left_clip, right_clip], l, r)
 }
@@ -224,7 +274,7 @@ impl Bih {
         let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
         let mut refs: Vec<BRef> =
             boxes.iter().enumerate().map(|(i, b)| BRef { min: b.min, idx: i as u32, max: b.max }).collect();
-        let sub = build_rec(&mut refs, 0, bounds, 0, o);
+        let sub = build_rec(&mut refs, 0, bounds, 0, o, None);
         let ids: Vec<u32> = refs.iter().map(|r| r.idx).collect();
         let tris = ids.iter().map(|&i| tris[i as usize]).collect();
         Ok(Bih { nodes: sub.nodes, tris, ids, bounds })
