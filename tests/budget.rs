@@ -1346,7 +1346,6 @@ fn on_zero_area_triangles_the_bvhs_runaway_is_counted_not_predicted() {
     // The grid, probed too, walks a few cells per ray (its count is held to its sample likewise), and is chosen.
     let m = generate::zero_area(2000, 1);
     let (counts, sel) = probed_against_counted(&m, &meshchar::cost::PROBED);
-    assert_eq!(counts.len(), meshchar::cost::PROBED.len());
     for (s, predicted, counted) in counts {
         let runaway = s != StructureName::Grid;
         assert!(!runaway || counted > 100.0, "{s}: {counted}");

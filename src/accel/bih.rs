@@ -142,7 +142,8 @@ impl Extents {
 /// the extents of `refs` when the caller has them.
 ///
 /// Once a halving has left every centre on one side, the following ones are decided from the extents of `refs`
-/// (taken then, in the one pass the empty-space test made before) without a pass over the triangles each: a scene
+/// (taken then, in the one pass the empty-space test made before) without a partition or a fold over the triangles
+/// each (a memmove where the partition would have rotated the records): a scene
 /// of a small object in a vast box halves its candidate box dozens of times before one separates (the stadium
 /// family: a path of 73 nodes against 28 for a city). The records are reordered exactly as a partition with every
 /// centre on its right side reorders them (a rotation by one), so the tree and its record order are those of a

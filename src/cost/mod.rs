@@ -339,7 +339,8 @@ pub struct FitError {
     pub build: f64,
     /// Box tests per ray, as the error of `ln(1 + count)` (every ray tests at least one box, so a miss by a
     /// fraction of a test counts for little however large its ratio; calibrations before the seventh session of
-    /// 2026-12-05 stored `ln` of the count itself, floored at 0.001).
+    /// 2026-12-05 stored `ln` of the count itself, floored at 0.001: such a file still reads, and its larger
+    /// figures give the probes a wider band, [`PROBE_BAND`]; `calibrate` rewrites them).
     #[serde(deserialize_with = "f64_or_null")]
     pub box_tests: f64,
     /// Triangle tests per ray, as the error of `ln(1 + count)` (as [`FitError::box_tests`]).

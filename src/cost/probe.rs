@@ -6,15 +6,15 @@
 //! through the Morton order make every node above each of them as large as it; in any hierarchy, rays that can hit
 //! nothing (zero-area triangles) descend every node their line crosses; a small object in a vast box lies outside
 //! every calibration scene's features; and each structure's law misses in its own way where the geometry is new to
-//! it (long slivers cost the BIH twice what they cost the BVH, and the grid ten times its law). For every view of a
-//! static scene it is given, the policy builds the LBVH (the cheapest hierarchy to build), the binned-SAH BVH (the one
-//! it picks most), the BIH and the grid ([`PROBED`]) and counts what they do ([`super::Crossings::with_probes`]): the
-//! same builders with the same options the oracle and the engine use (the grid within the default selection budget),
-//! so that the counts are the structures' own on the sampled rays. The primary sample is [`super::near_crossings`]'s
-//! where that pass runs (the rays through the pixel centres of a square image of the camera, at most 32 x 32), the
-//! full 32 x 32 otherwise; on request, shadow and diffuse rays start at their hits as the workloads start theirs
-//! (`geom::camera::secondary_start`, the shadow workload's light, `accel::bounce::diffuse_direction`). Each count is
-//! a [`SampledMean`].
+//! it (on long slivers the BIH makes twice the BVH's tests, and the grid five to ten times the triangle tests its
+//! law says). For every view of a static scene it is given, the policy builds the LBVH (the cheapest hierarchy to
+//! build), the binned-SAH BVH (the one it picks most), the BIH and the grid ([`PROBED`]) and counts what they do
+//! ([`super::Crossings::with_probes`]): the same builders with the same options the oracle and the engine use (the
+//! grid within the default selection budget), so that the counts are the structures' own on the sampled rays. The
+//! primary sample is [`super::near_crossings`]'s where that pass runs (the rays through the pixel centres of a square
+//! image of the camera, at most 32 x 32), the full 32 x 32 otherwise; on request, shadow and diffuse rays start at
+//! their hits as the workloads start theirs (`geom::camera::secondary_start`, the shadow workload's light,
+//! `accel::bounce::diffuse_direction`). Each count is a [`SampledMean`].
 //!
 //! How the policy uses them ([`super::overlap_floor`], [`super::TestFloor::sampled`],
 //! [`super::StructureModel::predict_floored`]): for each kind of ray, where a structure's law misses its sampled
@@ -112,7 +112,8 @@ impl Probe {
 /// Seed of the probe's diffuse bounces (per ray, mixed with the ray's index as the diffuse workload mixes its own).
 const PROBE_SEED: u64 = 0x7072_6f62_655f_6c62;
 
-/// Builds `structure` over `mesh` (default options: what the oracle and the engine build) and traces the
+/// Builds `structure` over `mesh` (default options: what the oracle and the engine build; the grid within
+/// [`PROBE_GRID_BUDGET`], whatever budget the caller's policy uses) and traces the
 /// `side x side` rays of `camera` through the pixel centres, then, with `secondary`, a shadow and a diffuse ray from
 /// each hit, counting the tests of each ray ([`Probe`]; without `secondary` its shadow and diffuse counts are empty,
 /// no ray); `bounds` is the box of the mesh's triangles (where the secondary rays' offsets and the light come from).
