@@ -1196,10 +1196,25 @@ fn the_grid_is_probed_within_the_default_selection_budget() {
     assert!(b.check(&bounds).iter().any(|e| e.structure == StructureName::Grid), "{bounds:?}");
     let cam = Camera::frame(&scene_box(&m));
     assert!(meshchar::cost::probe(StructureName::Grid, &m, &scene_box(&m), &cam, 8, false).is_none());
-    // Within it, the grid is probed.
+    // The selection's bounds do not even try: the grid they exclude has no probe, the hierarchies have theirs.
+    let probes = |bounds: &BuildBounds, m: &Mesh| {
+        let b = scene_box(m);
+        let c = bounds.box_crossings.expect("crossings");
+        let rc = c.for_workload(WorkloadKind::Primary, None, b.min.to_array(), b.max.to_array());
+        (rc.probe(StructureName::Grid).is_some(), rc.probe(StructureName::Lbvh).is_some())
+    };
+    assert_eq!(probes(&bounds, &m), (false, true));
+    // Within it, the grid is probed; under a caller's stricter budget that excludes it, it is not.
     let ok = generate::random_soup(2000, 3);
     let cam = Camera::frame(&scene_box(&ok));
     assert!(meshchar::cost::probe(StructureName::Grid, &ok, &scene_box(&ok), &cam, 8, false).is_some());
+    assert_eq!(probes(&BuildBounds::of_mesh(&ok).expect("bounds"), &ok), (true, true));
+    let strict = Budget { references_per_triangle: 0.5, min_references: 100, max_bytes: 4 << 30 };
+    let within = BuildBounds::of_frames_viewed_within(std::slice::from_ref(&ok), None, &strict)
+        .expect("bounds")
+        .expect("one frame");
+    assert!(strict.check(&within).iter().any(|e| e.structure == StructureName::Grid));
+    assert_eq!(probes(&within, &ok), (false, true));
 }
 
 #[test]

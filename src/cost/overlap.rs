@@ -463,10 +463,22 @@ impl Crossings {
     /// ([`super::probe()`], [`ViewCrossings::probes`]): the primary sample [`ViewCrossings::near`] is counted on where
     /// the view is dense enough for it ([`near_sample_side`]), 32 x 32 rays otherwise; unchanged without a view. For
     /// a static scene: an animation's later frames are not what the probes built.
-    pub fn with_probes(mut self, mesh: &Mesh, scene: &Aabb) -> Crossings {
+    pub fn with_probes(self, mesh: &Mesh, scene: &Aabb) -> Crossings {
+        self.with_probes_but(mesh, scene, &[])
+    }
+
+    /// [`Crossings::with_probes`] without probing the structures of `skip` (no probe for them): a caller that
+    /// already knows a structure is out of its budget (the selection's bounds, for a grid over it) spares its build.
+    pub fn with_probes_but(mut self, mesh: &Mesh, scene: &Aabb, skip: &[StructureName]) -> Crossings {
         if let Some(v) = self.view.as_mut() {
             let side = near_sample_side(v.all);
-            v.probes = super::PROBED.map(|s| super::probe(s, mesh, scene, &v.camera, side, true));
+            v.probes = super::PROBED.map(|s| {
+                if skip.contains(&s) {
+                    None
+                } else {
+                    super::probe(s, mesh, scene, &v.camera, side, true)
+                }
+            });
         }
         self
     }

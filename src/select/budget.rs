@@ -322,7 +322,10 @@ impl BuildBounds {
         if let Some((camera, near)) = view {
             crossings = crossings.viewed_from(&boxes, if near { &tris } else { &[] }, &scene, camera);
             if near {
-                crossings = crossings.with_probes(mesh, &scene);
+                // A grid over the budget is excluded before the policy reads its probe: none is built.
+                let grid_over = g > refs_allowed || BuildBounds::grid_bytes(&grid, nu, g) > bytes_allowed;
+                let skip: &[Structure] = if grid_over { &[Structure::Grid] } else { &[] };
+                crossings = crossings.with_probes_but(mesh, &scene, skip);
             }
         }
         Ok(BuildBounds { box_crossings: Some(crossings), ..BuildBounds::finish(n as u64, "mesh", &grid, g, kind, k) })
