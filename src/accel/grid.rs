@@ -24,7 +24,8 @@
 //! the grid and counts as a reference at no cost to traversal.
 //!
 //! Each triangle's cells are counted, then written in triangle order into one array (in parallel, every triangle in
-//! its own range), and a counting sort by cell turns that into the cells' lists, each in triangle order: no shared
+//! its own range; in one pass, chunk by chunk, where even the triangles' box cells fit the budgets below), and a
+//! counting sort by cell turns that into the cells' lists, each in triangle order: no shared
 //! counters (which copies of one triangle would all contend for), and the same grid on every thread count. Storage
 //! is compressed rows: `cell_start[c] .. cell_start[c + 1]` indexes the reference array.
 //!
@@ -107,7 +108,7 @@ impl Grid {
         // Cells per triangle, then every triangle's cells in triangle order (no shared counters: copies of one
         // triangle would all contend for the same ones), then a counting sort by cell, which leaves every cell's
         // list in triangle order.
-        let counts = g.cell_counts(o)?;
+        let (counts, written) = g.cell_counts(o)?;
         let mut offsets = Vec::with_capacity(n + 1);
         let mut total = 0u64;
         for &c in &counts {
@@ -134,8 +135,10 @@ impl Grid {
                 rule: format!("GridOptions::max_bytes, for {ncells} cells and {total} cell references"),
             });
         }
-        let mut cells = vec![0u32; total];
-        {
+        let cells = if let Some(cells) = written {
+            cells
+        } else {
+            let mut cells = vec![0u32; total];
             let mut parts: Vec<(usize, &mut [u32])> = Vec::with_capacity(n);
             let mut rest: &mut [u32] = &mut cells;
             for i in 0..n {
@@ -151,7 +154,8 @@ impl Grid {
                     k < out.len()
                 });
             });
-        }
+            cells
+        };
         let mut start = vec![0u32; ncells + 1];
         for &c in &cells {
             start[c as usize + 1] += 1;
@@ -216,8 +220,11 @@ impl Grid {
 
     /// The number of cells of every triangle, checked against [`GridOptions::reference_budget`] before anything
     /// is allocated for the references (see the module docs): in one parallel pass when the triangles' box cells
-    /// fit the budget, else in index order, chunk by chunk, failing at the first triangle that crosses it.
-    fn cell_counts(&self, o: &GridOptions) -> Result<Vec<u32>, AccelError> {
+    /// fit the budget, else in index order, chunk by chunk, failing at the first triangle that crosses it. Where
+    /// the box cells fit the budget and the bytes they would take fit [`GridOptions::max_bytes`], the same pass
+    /// also writes every triangle's cells, in triangle order (the second value), so that the caller need not clip
+    /// each triangle again to fill them.
+    fn cell_counts(&self, o: &GridOptions) -> Result<(Vec<u32>, Option<Vec<u32>>), AccelError> {
         let n = self.tris.len();
         let budget = o.reference_budget(n) as u64;
         let count = |i: usize, cap: u64| {
@@ -229,8 +236,35 @@ impl Grid {
             c
         };
         let upper: Vec<u64> = (0..n).into_par_iter().map(|i| self.box_cell_count(i)).collect();
-        if upper.iter().sum::<u64>() <= budget {
-            return Ok((0..n).into_par_iter().map(|i| count(i, u64::MAX) as u32).collect());
+        let boxed = upper.iter().sum::<u64>();
+        if boxed <= budget {
+            let ncells = self.frame.res.iter().map(|&x| x as u64).product::<u64>();
+            let most_bytes = 4 * (ncells + 1) + 4 * boxed + bytes_of(&self.tris) as u64;
+            if most_bytes <= o.max_bytes as u64 {
+                // Even every box cell fits the bytes: the cells are written as they are counted, one pass over
+                // each triangle's clipping instead of two (chunks in parallel, joined in triangle order).
+                const CHUNK: usize = 2048;
+                let parts: Vec<(Vec<u32>, Vec<u32>)> = (0..n.div_ceil(CHUNK))
+                    .into_par_iter()
+                    .map(|c| {
+                        let (a, b) = (c * CHUNK, ((c + 1) * CHUNK).min(n));
+                        let (mut counts, mut cells) = (Vec::with_capacity(b - a), Vec::with_capacity(4 * (b - a)));
+                        for i in a..b {
+                            let before = cells.len();
+                            self.for_each_cell(i, |cell| {
+                                cells.push(cell as u32);
+                                true
+                            });
+                            counts.push((cells.len() - before) as u32);
+                        }
+                        (counts, cells)
+                    })
+                    .collect();
+                let counts = parts.iter().flat_map(|p| p.0.iter().copied()).collect();
+                let cells = parts.iter().flat_map(|p| p.1.iter().copied()).collect();
+                return Ok((counts, Some(cells)));
+            }
+            return Ok(((0..n).into_par_iter().map(|i| count(i, u64::MAX) as u32).collect(), None));
         }
         // A chunk holds triangles whose box cells, each capped at what would cross the budget, sum to no more than
         // that, so no chunk counts much past the budget; a count stops at the cap, where it crosses anyway.
@@ -258,7 +292,7 @@ impl Grid {
             }
             i = j;
         }
-        Ok(counts)
+        Ok((counts, None))
     }
 
     /// The arrays the device traversal reads (see [`crate::accel::device`]).

@@ -294,6 +294,12 @@ impl GridFrame {
     /// whose clipping misses every cell through rounding, is stored in the cell of its box's centre.
     pub fn for_each_run(&self, t: &Triangle, b: &Aabb, mut f: impl FnMut(CellRun) -> bool) {
         let (lo, hi) = self.box_cells(b);
+        if lo == hi {
+            // A box in one cell: every path below stores the triangle there and only there (the runs lie in the
+            // box's cells, and the centre's cell is clamped into them), so the clipping is skipped.
+            f(CellRun { axes: [0, 1, 2], slab: lo[0], row: lo[1], from: lo[2], to: lo[2] });
+            return;
+        }
         let centre = |f: &mut dyn FnMut(CellRun) -> bool| {
             let c = self.centre_cell(b, lo, hi);
             f(CellRun { axes: [0, 1, 2], slab: c[0], row: c[1], from: c[2], to: c[2] });
