@@ -313,7 +313,8 @@ impl BuildBounds {
         let nu = n as u64;
         let refs_allowed = budget.references(nu).min(Budget::default().references(nu));
         let bytes_allowed = budget.max_bytes.min(Budget::default().max_bytes);
-        let (g, kind) = if g > refs_allowed || BuildBounds::grid_bytes(&grid, nu, g) > bytes_allowed {
+        let over = |g: u64| g > refs_allowed || BuildBounds::grid_bytes(&grid, nu, g) > bytes_allowed;
+        let (g, kind) = if over(g) {
             exact_references(&grid, &tris, &boxes, &upper, Budget::BUILDERS.references(nu))
         } else {
             (g, Bound::Upper)
@@ -322,9 +323,9 @@ impl BuildBounds {
         if let Some((camera, near)) = view {
             crossings = crossings.viewed_from(&boxes, if near { &tris } else { &[] }, &scene, camera);
             if near {
-                // A grid over the budget is excluded before the policy reads its probe: none is built.
-                let grid_over = g > refs_allowed || BuildBounds::grid_bytes(&grid, nu, g) > bytes_allowed;
-                let skip: &[Structure] = if grid_over { &[Structure::Grid] } else { &[] };
+                // A grid over the smaller of the caller's budget and the default one (the probe's own,
+                // `cost::probe::PROBE_GRID_BUDGET`) is excluded, or past what a probe builds: none is built for one.
+                let skip: &[Structure] = if over(g) { &[Structure::Grid] } else { &[] };
                 crossings = crossings.with_probes_but(mesh, &scene, skip);
             }
         }
