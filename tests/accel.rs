@@ -209,6 +209,14 @@ fn agrees_with_brute_force<A: AccelStructure>() {
         assert_eq!(stats.triangles, mesh.triangle_count(), "{} on {}", a.name(), mesh.name);
         assert!(stats.references >= mesh.triangle_count(), "{} on {}: {stats:?}", a.name(), mesh.name);
         assert!(stats.bytes > 0 && stats.bytes == a.memory_bytes(), "{} on {}: {stats:?}", a.name(), mesh.name);
+        // A reference is handled once on each level from the root to its leaf: at least once, at most on every
+        // level of the deepest path; exactly once in a structure without levels (the grid, a single leaf).
+        let (r, l) = (stats.references, stats.reference_levels);
+        assert!(r <= l && l <= r * (stats.max_depth + 1), "{} on {}: {stats:?}", a.name(), mesh.name);
+        assert!(stats.max_depth > 0 || l == r, "{} on {}: {stats:?}", a.name(), mesh.name);
+        assert_eq!(stats.build_work(), Some(l as f64), "{} on {}", a.name(), mesh.name);
+        // The probe's walk (or count) without the checks gives the same work.
+        assert_eq!(a.build_work(), stats.build_work(), "{} on {}", a.name(), mesh.name);
         let brute = BruteForce::build(&mesh).unwrap();
         let (closest, shadow) = test_rays(&mesh, 40, 99);
         let got = trace(&a, &closest);

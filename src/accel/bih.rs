@@ -413,6 +413,17 @@ impl AccelStructure for Bih {
         bytes_of(&self.nodes) + bytes_of(&self.tris) + bytes_of(&self.ids)
     }
 
+    fn build_work(&self) -> Option<f64> {
+        super::reference_levels_of(self.nodes.len(), |k| {
+            let nd = self.nodes.get(k)?;
+            Some(if nd.is_leaf() {
+                super::LevelNode::Leaf(nd.count() as usize)
+            } else {
+                let ch = (nd.flags >> 2) as usize;
+                super::LevelNode::Inner(ch, ch + 1)
+            })
+        })
+    }
     /// Checks: every node reached exactly once, children indices in range, each child's implied box inside its
     /// parent's, every triangle record in exactly one leaf and inside that leaf's implied box (so the clip planes
     /// never cut a triangle off), ids a permutation.

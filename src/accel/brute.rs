@@ -53,6 +53,7 @@ impl AccelStructure for BruteForce {
             max_depth: 0,
             references: n,
             bytes: self.memory_bytes(),
+            reference_levels: n,
         })
     }
     fn memory_bytes(&self) -> usize {

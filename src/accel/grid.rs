@@ -396,6 +396,9 @@ impl AccelStructure for Grid {
         bytes_of(&self.cell_start) + bytes_of(&self.refs) + bytes_of(&self.tris)
     }
 
+    fn build_work(&self) -> Option<f64> {
+        (!self.refs.is_empty()).then_some(self.refs.len() as f64)
+    }
     /// Checks: row starts monotone and ending at the reference count, reference ids in range, each reference's
     /// triangle box overlapping its (widened) cell, and every triangle present in exactly the cells the build rule
     /// assigns it (so none is lost and none is stray).

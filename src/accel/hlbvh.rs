@@ -366,6 +366,9 @@ impl AccelStructure for Hlbvh {
         StructureName::Hlbvh
     }
     traversal_methods!(tree);
+    fn build_work(&self) -> Option<f64> {
+        self.tree.build_work()
+    }
     /// The BVH checks of [`BvhTree::validate`], plus the HLBVH shape: `C - 1` top nodes, then one Karras block per
     /// cluster covering its positions, clusters contiguous and in order; after the collapse, the depth-first
     /// numbering, leaves of at most `max_leaf` records and clusters covering the records.

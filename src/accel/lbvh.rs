@@ -415,6 +415,9 @@ impl AccelStructure for Lbvh {
         StructureName::Lbvh
     }
     traversal_methods!(tree);
+    fn build_work(&self) -> Option<f64> {
+        self.tree.build_work()
+    }
     /// The BVH checks of [`BvhTree::validate`], plus the LBVH shape: `n - 1` internal nodes and `n` leaves of one
     /// record each, leaf `n - 1 + p` holding record `p` (after the collapse: the depth-first numbering of step 7 and
     /// leaves of at most `max_leaf` records), codes sorted with ids ascending among equal codes.

@@ -277,6 +277,13 @@ pub struct AccelStats {
     pub references: usize,
     /// Bytes of the structure: nodes, references and the triangle records it traces against.
     pub bytes: usize,
+    /// The sum over leaves of their references times their depth plus one: how many times a top-down build handles
+    /// a reference, once on each level from the root to its leaf (the build work of the BVH, the kd-tree and the
+    /// BIH, whose every node passes over its references; equal to `references` for the grid). Read by the cost
+    /// model's build law where a probe built the structure (`cost::StructureModel::build_work_exponent`). 0 in
+    /// records written before it existed.
+    #[serde(default)]
+    pub reference_levels: usize,
 }
 
 /// A ray-tracing acceleration structure over one mesh.
@@ -297,6 +304,12 @@ pub trait AccelStructure: Send + Sync {
     fn occluded(&self, ray: &Ray, counters: &mut TraceCounters) -> bool;
     /// Walks the whole structure, checks every invariant and returns its statistics.
     fn validate(&self) -> Result<AccelStats, AccelError>;
+    /// [`AccelStats::build_work`] of this structure without `validate`'s checks (what a probe reads,
+    /// `cost::probe`): the hierarchies the policy probes walk their nodes, the grid counts its references; the
+    /// default validates. `None` for an empty structure.
+    fn build_work(&self) -> Option<f64> {
+        self.validate().ok().and_then(|s| s.build_work())
+    }
     /// Memory of the structure in bytes (same as `validate().bytes`, without the walk).
     fn memory_bytes(&self) -> usize;
     /// SAH cost with the constants of [`SAH_TRAVERSAL_COST`] and [`SAH_INTERSECTION_COST`], where it applies.
@@ -392,6 +405,43 @@ pub(crate) fn renumber_by_first_use(
     order
 }
 
+impl AccelStats {
+    /// The work of the structure's build: its [`AccelStats::reference_levels`] (for the grid, its references), which
+    /// the cost model's build law reads where a probe built the structure (`cost::StructureModel::build_work_coef`).
+    /// The nodes are left out: a grid's cells (about four per triangle in every grid here) cost a prefix sum, far
+    /// less than its references, and would drown them (`docs/cost-model.md`, "Eighth session"). `None` for
+    /// statistics without reference levels (records written before they were counted) and for an empty structure.
+    pub fn build_work(&self) -> Option<f64> {
+        (self.reference_levels > 0).then_some(self.reference_levels as f64)
+    }
+}
+
+/// A node of a binary tree as [`reference_levels_of`] walks it.
+pub(crate) enum LevelNode {
+    /// A leaf holding this many references.
+    Leaf(usize),
+    /// An inner node and its two children.
+    Inner(usize, usize),
+}
+
+/// [`AccelStats::reference_levels`] of a binary tree of `nodes` nodes rooted at node 0, `node(k)` giving node `k`
+/// (`None` out of range), as [`AccelStats::build_work`] reads it; `None` when the walk leaves the tree or reaches
+/// more nodes than it has (a cycle), or counts nothing.
+pub(crate) fn reference_levels_of(nodes: usize, node: impl Fn(usize) -> Option<LevelNode>) -> Option<f64> {
+    let (mut stack, mut reached, mut levels) = (vec![(0usize, 1usize)], 0usize, 0usize);
+    while let Some((k, level)) = stack.pop() {
+        reached += 1;
+        if reached > nodes {
+            return None;
+        }
+        match node(k)? {
+            LevelNode::Leaf(count) => levels += count * level,
+            LevelNode::Inner(l, r) => stack.extend([(l, level + 1), (r, level + 1)]),
+        }
+    }
+    (levels > 0).then_some(levels as f64)
+}
+
 /// Bytes of a slice's elements.
 pub(crate) fn bytes_of<T>(v: &[T]) -> usize {
     std::mem::size_of_val(v)
@@ -411,6 +461,8 @@ pub(crate) struct Validation {
     stats: AccelStats,
     visited: Vec<bool>,
     covered: Vec<bool>,
+    /// The node last visited and its depth (a leaf is counted right after its visit).
+    last: (usize, usize),
 }
 
 impl Validation {
@@ -422,6 +474,7 @@ impl Validation {
             stats: AccelStats { triangles, bytes, ..Default::default() },
             visited: vec![false; nodes],
             covered: vec![false; entries],
+            last: (usize::MAX, 0),
         }
     }
 
@@ -447,12 +500,16 @@ impl Validation {
         }
         self.stats.nodes += 1;
         self.stats.max_depth = self.stats.max_depth.max(depth);
+        self.last = (k, depth);
         Ok(())
     }
 
-    /// Leaf `k` covering entries `first .. first + count` (none: an empty leaf): fails when they are out of range or
-    /// one is in another leaf already.
+    /// Leaf `k`, the node just visited, covering entries `first .. first + count` (none: an empty leaf): fails when
+    /// `k` is not the node just visited, when they are out of range or one is in another leaf already.
     pub(crate) fn leaf(&mut self, k: usize, first: usize, count: usize) -> Result<(), AccelError> {
+        if self.last.0 != k {
+            return Err(self.invalid(format!("leaf {k} counted without its visit")));
+        }
         let range = first.checked_add(count).and_then(|end| self.covered.get_mut(first..end));
         let entries = range.ok_or_else(|| invalid(self.structure, format!("leaf {k} covers {first}+{count}")))?;
         if let Some(j) = entries.iter().position(|&c| c) {
@@ -461,6 +518,7 @@ impl Validation {
         entries.fill(true);
         self.stats.leaves += 1;
         self.stats.references += count;
+        self.stats.reference_levels += count * (self.last.1 + 1);
         self.stats.empty_leaves += usize::from(count == 0);
         Ok(())
     }
@@ -584,8 +642,16 @@ mod tests {
         v.visit(2, 1).unwrap();
         v.leaf(2, 2, 0).unwrap();
         let s = v.finish().unwrap();
-        let want =
-            AccelStats { triangles: 2, nodes: 3, leaves: 2, empty_leaves: 1, max_depth: 1, references: 2, bytes: 10 };
+        let want = AccelStats {
+            triangles: 2,
+            nodes: 3,
+            leaves: 2,
+            empty_leaves: 1,
+            max_depth: 1,
+            references: 2,
+            bytes: 10,
+            reference_levels: 4,
+        };
         assert_eq!(s, want);
         let msg = |e: AccelError| e.to_string();
         let mut v = Validation::new("t", 2, 0, 2, 2);
@@ -595,6 +661,7 @@ mod tests {
         assert!(msg(v.leaf(0, 1, 2).unwrap_err()).contains("covers 1+2"));
         v.leaf(0, 0, 1).unwrap();
         assert!(msg(v.leaf(0, 0, 2).unwrap_err()).contains("entry 0 in two leaves"));
+        assert!(msg(v.leaf(1, 1, 1).unwrap_err()).contains("leaf 1 counted without its visit"));
         assert!(msg(v.finish().unwrap_err()).contains("1 of 2 nodes unreachable"));
         let mut v = Validation::new("t", 2, 0, 1, 2);
         v.visit(0, 0).unwrap();

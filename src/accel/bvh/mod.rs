@@ -337,6 +337,18 @@ impl BvhTree {
         )
     }
 
+    /// [`AccelStats::build_work`] by a walk over the nodes, without [`BvhTree::validate`]'s checks.
+    pub fn build_work(&self) -> Option<f64> {
+        crate::accel::reference_levels_of(self.nodes.len(), |k| {
+            let nd = self.nodes.get(k)?;
+            Some(if nd.is_leaf() {
+                crate::accel::LevelNode::Leaf(nd.count() as usize)
+            } else {
+                crate::accel::LevelNode::Inner(nd.left_or_first as usize, nd.right_or_count as usize)
+            })
+        })
+    }
+
     /// Walks the tree from the root and checks every invariant: indices in range, every node reached exactly once
     /// (no sharing, no cycle, no orphan), children boxes inside their parent's, leaves non-empty and inside the
     /// triangle array, every triangle record in exactly one leaf and inside its leaf's box or a copy

@@ -806,6 +806,9 @@ impl AccelStructure for Bvh {
         StructureName::Bvh
     }
     traversal_methods!(tree);
+    fn build_work(&self) -> Option<f64> {
+        self.tree.build_work()
+    }
     fn validate(&self) -> Result<AccelStats, AccelError> {
         self.tree.validate("bvh")
     }
