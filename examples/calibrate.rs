@@ -308,6 +308,22 @@ fn run(args: Args) -> anyhow::Result<()> {
             s.fit.total
         );
     }
+    let work: Vec<_> = model.structures.iter().filter(|s| s.build_work_coef.len() == 3).collect();
+    if !work.is_empty() {
+        println!("{:<7} {:>8} {:>6} {:>6} | RMS log error: build by work (by n alone)", "work", "ln a'", "b'", "c'");
+        for s in work {
+            let c = &s.build_work_coef;
+            println!(
+                "{:<7} {:>8.3} {:>6.3} {:>6.3} |                {:>6.3} ({:.3})",
+                s.structure.as_str(),
+                c[0],
+                c[1],
+                c[2],
+                s.fit.build_work,
+                s.fit.build
+            );
+        }
+    }
     match &model.trace_device {
         Some(d) => println!(
             "traced with {} on {} ({}, {}, driver version {}, UUID {})",

@@ -162,6 +162,7 @@ fn known_samples_with_rays(count: u64, rays: impl Fn(u64) -> u64) -> (Vec<Sample
                     prim_tests_per_ray: pr,
                     within_noise_of_best: false,
                     total_ms_ci95: None,
+                    build_work: 0.0,
                 }
             })
             .collect();
@@ -196,6 +197,55 @@ fn the_fitter_recovers_known_constants() {
         assert!(sm.fit.box_tests < 0.05 && sm.fit.prim_tests < 0.05, "{s}: {:?}", sm.fit);
         assert!(sm.fit.total < 0.05, "{s}: {:?}", sm.fit);
     }
+}
+
+/// [`known_samples`] whose builds follow the work law `exp(a) n^b (work / n)^c` for each structure's `c` (the
+/// BVH's 0.8, the grid's -0.5: a law in which more work builds faster), with the work per triangle varying
+/// from sample to sample apart from `n`.
+fn samples_with_work() -> Vec<Sample> {
+    let (mut samples, truth) = known_samples(40);
+    for (i, smp) in samples.iter_mut().enumerate() {
+        let n = smp.features.triangles as f64;
+        let per = 4.0 + ((i * 7) % 23) as f64;
+        for (m, (_, a, b, _)) in smp.measured.iter_mut().zip(&truth) {
+            let c = if m.structure == StructureName::Bvh { 0.8 } else { -0.5 };
+            m.build_work = n * per;
+            m.build_ms_per_build = (a + b * n.ln() + c * per.ln()).exp();
+            m.build_ms = m.build_ms_per_build;
+            m.total_ms = m.build_ms + m.trace_ms;
+        }
+    }
+    samples
+}
+
+#[test]
+fn the_work_law_prices_a_probed_build_by_its_work_and_never_makes_work_cheaper() {
+    let samples = samples_with_work();
+    let m = CostModel::fit(&samples, "test", "synthetic").unwrap();
+    let bvh = m.get(StructureName::Bvh).unwrap();
+    let [a, b, c] = bvh.build_work_coef[..] else { panic!("no work law: {:?}", bvh.build_work_coef) };
+    assert!((a + 7.0).abs() < 1e-5 && (b - 1.05).abs() < 1e-5 && (c - 0.8).abs() < 1e-5, "{a} {b} {c}");
+    assert!(bvh.fit.build_work < 1e-6, "{:?}", bvh.fit);
+    // The plain law, fitted on n alone, misses what the work adds.
+    assert!(bvh.fit.build > 0.1, "{:?}", bvh.fit);
+    // A prediction reads the work where a probe gives it, the plain law otherwise.
+    let smp = &samples[5];
+    let meas = smp.get(StructureName::Bvh).unwrap();
+    let n = smp.features.triangles;
+    let floor = meshchar::cost::TestFloor { build_work: meas.build_work, ..Default::default() };
+    let with = bvh.predict_floored(&smp.features.derived(), n, &smp.workload, floor);
+    assert!((with.build_ms_per_build / meas.build_ms_per_build - 1.0).abs() < 1e-5, "{with:?}");
+    let without = bvh.predict(&smp.features.derived(), n, &smp.workload);
+    let plain = (bvh.build_ln_a + bvh.build_exponent * (n as f64).ln()).exp();
+    assert!((without.build_ms_per_build / plain - 1.0).abs() < 1e-12, "{without:?}");
+    // The grid's builds get faster with more work: its exponent is held at 0, the law in n refitted.
+    let grid = m.get(StructureName::Grid).unwrap();
+    assert_eq!(grid.build_work_coef.len(), 3);
+    assert_eq!(grid.build_work_coef[2], 0.0, "{:?}", grid.build_work_coef);
+    // Without counted work (records written before it), no work law.
+    let (plain_samples, _) = known_samples(40);
+    let m = CostModel::fit(&plain_samples, "test", "synthetic").unwrap();
+    assert!(m.structures.iter().all(|s| s.build_work_coef.is_empty() && s.fit.build_work == 0.0));
 }
 
 #[test]

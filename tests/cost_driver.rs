@@ -67,6 +67,7 @@ fn bvh_measured(n: u64) -> Measured {
         prim_tests_per_ray: 3.0,
         within_noise_of_best: false,
         total_ms_ci95: None,
+        build_work: 0.0,
     }
 }
 

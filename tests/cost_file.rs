@@ -541,3 +541,27 @@ fn crossing_means_are_none_or_three_in_range_and_only_with_coefficients() {
     let e = refused(|v| v["structures"][2]["crossing_mean"] = json!([1.0, 1.0, 1.0]));
     assert_invalid(&e, "structures[2] (grid).crossing_mean", Some(StructureName::Grid));
 }
+
+#[test]
+fn a_work_law_is_none_or_three_constants_in_range() {
+    let mut m = shipped();
+    m.structures[2].build_work_coef = vec![-9.0, 0.9, 0.7];
+    let back = CostModel::from_json(&m.to_json()).unwrap();
+    assert_eq!(back.structures[2].build_work_coef, vec![-9.0, 0.9, 0.7]);
+    for bad in [json!([-9.0, 0.9]), json!([-9.0, 0.9, 0.7, 0.1])] {
+        let e = CostModel::from_json(&{
+            let mut v: serde_json::Value = serde_json::from_str(&m.to_json()).unwrap();
+            v["structures"][2]["build_work_coef"] = bad.clone();
+            v.to_string()
+        })
+        .unwrap_err();
+        assert_invalid(&e, "structures[2] (grid).build_work_coef", Some(StructureName::Grid));
+    }
+    // Each constant in its range: ln a as the plain law's, the exponents of n and of the work per triangle in [0, 2].
+    for (j, bad) in [(0, 10.0), (1, -0.1), (2, -0.5), (2, 2.5), (2, f64::NAN)] {
+        let mut b = m.clone();
+        b.structures[2].build_work_coef[j] = bad;
+        let field = format!("structures[2] (grid).build_work_coef[{j}]");
+        assert_invalid(&b.validate().unwrap_err(), &field, Some(StructureName::Grid));
+    }
+}

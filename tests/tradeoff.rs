@@ -323,6 +323,7 @@ fn paper_model() -> meshchar::cost::CostModel {
         crossing_coef: Vec::new(),
         crossing_mean: Vec::new(),
         feature_range: Vec::new(),
+        build_work_coef: Vec::new(),
         fit: FitError::default(),
     };
     let m = CostModel {

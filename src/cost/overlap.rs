@@ -152,6 +152,10 @@ pub struct RayCrossings {
     /// sample of the camera's rays of the workload's kind ([`RayCrossings::probe`]): its primary rays, or the shadow
     /// or diffuse rays their hits start.
     pub probes: [Option<super::ProbeCounts>; super::probe::PROBES],
+    /// When probed ([`ViewCrossings::probes`]): the work of each probed structure's build, in the order of
+    /// [`super::PROBED`] ([`super::Probe::build_work`]; 0 where unknown), whatever rays were traced: what the build
+    /// laws read ([`RayCrossings::build_work`]).
+    pub probe_work: [f64; super::probe::PROBES],
     /// Secondary rays only: the share of them that start on the scene's outer boundary and leave it at once
     /// ([`Crossings::leave_share`]): each tests the root box once and no triangle, in every structure.
     pub leave_share: f64,
@@ -316,6 +320,7 @@ impl Crossings {
             leave_flat_scene: false,
             leave_share: 0.0,
             probes: [None; super::probe::PROBES],
+            probe_work: [0.0; super::probe::PROBES],
         }
     }
 
@@ -338,6 +343,7 @@ impl Crossings {
                 // cells at the rays' origins, keeps the crossings its laws read.
                 image: self.counted(camera).map_or(0.0, |v| v.all),
                 leave_flat_scene: true,
+                probe_work: self.probe_work(camera),
                 ..self.isotropic()
             },
             WorkloadKind::Shadow | WorkloadKind::Diffuse => RayCrossings {
@@ -346,6 +352,7 @@ impl Crossings {
                 probes: self
                     .counted(camera)
                     .map_or([None; super::probe::PROBES], |v| v.probes.map(|p| p.map(|p| *p.of_kind(kind)))),
+                probe_work: self.probe_work(camera),
                 near: self.counted(camera).and_then(|v| v.near).map(|n| {
                     if kind == WorkloadKind::Diffuse {
                         n.holding_origin.lower_bound()
@@ -507,11 +514,25 @@ impl Crossings {
             leave_flat_scene: false,
             leave_share: 0.0,
             probes: counted.map_or([None; super::probe::PROBES], |v| v.probes.map(|p| p.map(|p| p.primary))),
+            probe_work: self.probe_work(camera),
         }
+    }
+
+    /// The work of each probed structure's build ([`RayCrossings::probe_work`]) when the view of `camera` was
+    /// probed; zeros otherwise.
+    fn probe_work(&self, camera: Option<&Camera>) -> [f64; super::probe::PROBES] {
+        self.counted(camera).map_or([0.0; super::probe::PROBES], |v| v.probes.map(|p| p.map_or(0.0, |p| p.build_work)))
     }
 }
 
 impl RayCrossings {
+    /// The work of `structure`'s build in its probe ([`RayCrossings::probe_work`]), when it was probed and built
+    /// something; 0 otherwise.
+    pub fn build_work(&self, structure: StructureName) -> f64 {
+        let i = super::PROBED.iter().position(|s| *s == structure);
+        i.map_or(0.0, |i| self.probe_work[i])
+    }
+
     /// The counts of `structure` on the camera's sample ([`RayCrossings::probes`]), when probed on at least
     /// [`super::probe::MIN_PROBED_RAYS`] rays (a sparse view's few hits start few secondary rays, and a mean of one
     /// or two has no standard error worth the name).
@@ -1179,6 +1200,9 @@ pub struct TestFloor {
     /// ([`super::PROBE_BAND`] times the fit's RMS error of `ln(1 + count)`), the prediction holds it within two standard
     /// errors of that mean instead ([`crate::cost::StructureModel::predict_floored`]).
     pub sampled: Option<super::ProbeCounts>,
+    /// The work of the structure's build where a probe built it ([`RayCrossings::build_work`]; 0 when unknown):
+    /// a model with a work law predicts the build from it ([`crate::cost::StructureModel::build_work_coef`]).
+    pub build_work: f64,
 }
 
 impl Default for TestFloor {
@@ -1191,6 +1215,7 @@ impl Default for TestFloor {
             leave_share: 0.0,
             crossings: f64::NAN,
             sampled: None,
+            build_work: 0.0,
         }
     }
 }
@@ -1204,6 +1229,7 @@ impl PartialEq for TestFloor {
             && self.prim_tests_most == o.prim_tests_most
             && self.leave_share == o.leave_share
             && self.sampled == o.sampled
+            && self.build_work == o.build_work
             && same_count
     }
 }
@@ -1247,6 +1273,7 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
             box_tests_most: 1.0,
             prim_tests_most: 0.0,
             crossings,
+            build_work: c.build_work(structure),
             ..TestFloor::default()
         };
     }
@@ -1282,5 +1309,31 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
     }
     // A probed structure's own counts on the camera's sample of rays of this kind ([`super::probe()`]).
     f.sampled = c.probe(structure);
+    f.build_work = c.build_work(structure);
+    if structure == StructureName::KdTree && c.nondegenerate >= c.all {
+        // The kd-tree, which no probe counts: at least [`KD_TREE_PRIM_FLOOR`] times the fewest triangle tests of the
+        // probed object hierarchies on the same rays (where no triangle has zero area: the kd-tree stores those as
+        // points, which a ray never tests).
+        let fewest = super::PROBED
+            .iter()
+            .filter(|&&s| s != StructureName::Grid)
+            .filter_map(|&s| c.probe(s))
+            .map(|p| p.prim_tests.lower_bound())
+            .fold(f64::INFINITY, f64::min);
+        if fewest.is_finite() {
+            f.prim_tests = f.prim_tests.max(KD_TREE_PRIM_FLOOR * fewest);
+        }
+    }
     f
 }
+
+/// The kd-tree's triangle tests per ray are at least this share of the fewest that the probed object hierarchies
+/// (the BVH, the LBVH, the BIH and the HLBVH) make on the same rays, in a scene without zero-area triangles
+/// ([`overlap_floor`]): a kd-tree leaf holds every triangle that overlaps it, and a ray tests a triangle again in each
+/// leaf it crosses, so on long slivers it makes several times the hierarchies' tests (the engineering family at
+/// 200K triangles close up, diffuse rays: 2,004 against 518-1,270, where its law said 49). Read off the 84
+/// shared-mesh records of 2026-12-06 (`docs/data/oracle-*.jsonl`), where the least ratio is 0.83 (the conference
+/// room, primary rays; records whose fewest count is at least 0.5), and checked on the 252 family records (least
+/// 1.0), the lavapipe records (0.83) and the H200 records (1.22); with zero-area triangles it fails (0.005-0.34 on
+/// the degenerate records), and the floor does not apply there.
+pub const KD_TREE_PRIM_FLOOR: f64 = 0.8;

@@ -32,6 +32,9 @@ pub struct Measured {
     pub within_noise_of_best: bool,
     /// The 95% confidence interval of the median total (ms), when the precise oracle measured it.
     pub total_ms_ci95: Option<[f64; 2]>,
+    /// The build's work ([`crate::accel::AccelStats::build_work`]), which the build law of a probed structure
+    /// reads ([`super::StructureModel::build_work_coef`]); 0 when unknown.
+    pub build_work: f64,
 }
 
 /// What the oracle measured for one driver structure ([`crate::eval::oracle::DriverResult`]), normalized per build

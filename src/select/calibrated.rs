@@ -338,11 +338,12 @@ impl Policy for CalibratedPolicy {
                 reasons.push(format!(
                     "probes: built and traced on {rays} sample {} rays of the view: {} (two standard errors; each \
                      structure's counts below are held there where its laws miss by more than their own error, and \
-                     where a hierarchy's are held the {} take the probed hierarchies' correction; the grid's box \
+                     where a hierarchy's are held the {} {} the probed hierarchies' correction; the grid's box \
                      tests are cells)",
                     self.kind.as_str(),
                     probed.join(", "),
-                    sharing.join(" and ")
+                    sharing.join(" and "),
+                    if sharing.len() == 1 { "takes" } else { "take" }
                 ));
             }
         }
