@@ -1269,6 +1269,13 @@ fn the_lbvhs_sampled_counts_hold_its_primary_prediction_in_their_band() {
             let degenerate = RayCrossings { nondegenerate: 4.0, ..c };
             let without_degenerate = RayCrossings { nondegenerate: 4.0, ..without };
             assert_eq!(overlap_floor(s, p, Some(degenerate)), overlap_floor(s, p, Some(without_degenerate)));
+            // For secondary rays the probes' means count the rays that leave the scene at once, which test no
+            // triangle; the floor bounds the others (the prediction applies it to them alone).
+            for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
+                let leaving = RayCrossings { leave_share: 0.5, ..c };
+                let base = overlap_floor(s, k, Some(RayCrossings { leave_share: 0.5, ..without }));
+                assert_eq!(overlap_floor(s, k, Some(leaving)).prim_tests, base.prim_tests.max(floor / 0.5), "{k:?}");
+            }
         } else {
             assert_eq!(with, base, "{s}");
         }

@@ -280,7 +280,7 @@ pub struct AccelStats {
     /// The sum over leaves of their references times their depth plus one: how many times a top-down build handles
     /// a reference, once on each level from the root to its leaf (the build work of the BVH, the kd-tree and the
     /// BIH, whose every node passes over its references; equal to `references` for the grid). Read by the cost
-    /// model's build law where a probe built the structure (`cost::StructureModel::build_work_exponent`). 0 in
+    /// model's build law where a probe built the structure (`cost::StructureModel::build_work_coef`). 0 in
     /// records written before it existed.
     #[serde(default)]
     pub reference_levels: usize,
@@ -435,7 +435,7 @@ pub(crate) fn reference_levels_of(nodes: usize, node: impl Fn(usize) -> Option<L
             return None;
         }
         match node(k)? {
-            LevelNode::Leaf(count) => levels += count * level,
+            LevelNode::Leaf(count) => levels = levels.saturating_add(count.saturating_mul(level)),
             LevelNode::Inner(l, r) => stack.extend([(l, level + 1), (r, level + 1)]),
         }
     }

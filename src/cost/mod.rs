@@ -8,6 +8,7 @@
 //!
 //! ```text
 //! build_ms(s)        = exp(a_s) * n^b_s                                  (per build; b_s ~ 1 for O(n), > 1 for n log n)
+//!                    = exp(a'_s) * n^b'_s * (work / n)^c'_s             (where a probe built it: work law, below)
 //! box_tests(s)       = exp(theta_box_s . phi(f, kind))                   (per ray)
 //! prim_tests(s)      = exp(theta_prim_s . phi(f, kind))                  (per ray)
 //! trace_ns(s)        = c_ray_s,kind + (c_box_s + [incoherent] c'_box_s) * box_tests(s)
@@ -22,6 +23,9 @@
 //! (device independent); `a_s, b_s, c_s` are the device's constants. The physical reading: builds are linear to
 //! `n log n`; a ray's cost is its node visits and its triangle tests, each at a device-specific price; the counts
 //! grow with `ln n` for hierarchies and with triangles per cell for a grid, and shrink where space is empty.
+//! Where the selection's probe built a structure ([`probe()`], [`PROBED`]), its build is priced by the work that
+//! build did, `work` = [`crate::accel::AccelStats::build_work`] (its references times the levels they were handled
+//! on; the grid's references), with a law of its own ([`StructureModel::build_work_coef`], [`TestFloor::build_work`]).
 //! A calibration fitted with views adds the camera's features to `phi` ([`ViewFeatures`]); one fitted with the
 //! crossings ([`CostModel::fit_with`]) adds `ln(1 + crossings)` ([`crossings_feature`]: the triangle boxes a ray
 //! crosses) with coefficients of its own; and the predictions take each count at least at its overlap floor
@@ -32,7 +36,8 @@
 //!
 //! [`CostModel::fit`] takes oracle results ([`Sample`]: measured build ms, trace ms, tests per ray of every
 //! structure on every scene and workload) and fits, per structure: the build law by least squares in log space
-//! (`ln build = a + b ln n`); the test counts by ridge regression in log space (ridge [`RIDGE`] on all but the
+//! (`ln build = a + b ln n`) and, for the probed structures on samples whose records counted the work, the work
+//! law (`ln build = a' + b' ln n + c' ln(work / n)`, `c'` held at 0 where it fits below); the test counts by ridge regression in log space (ridge [`RIDGE`] on all but the
 //! intercept); the per-ray prices by non-negative least squares on the measured counts, weighted by `1 / t^2` so
 //! that the relative error is minimized. Fit errors are root-mean-square natural-log ratios of prediction to
 //! measurement ([`FitError`]); `0.1` means about 10%.
@@ -75,6 +80,9 @@
 //!   `[-23, 9]`, that is `exp(a)` between 0.1 ps and 8 s: `e^9` ms for a single triangle is beyond any device, and
 //!   the floor, far below one clock cycle, leaves room for the small `a` of fits with `b` up to 2 (a quadratic
 //!   build of a million triangles at 1 ns per pair has `a = -13.8`). The shipped fits are -8.1 to -4.5.
+//! * `build_work_coef` is absent or has three constants `[a', b', c']`: `a'` in [`BUILD_LN_A_RANGE`] and `b'` in
+//!   [`BUILD_EXPONENT_RANGE`] for the reasons above, `c'` in [`BUILD_WORK_EXPONENT_RANGE`], `[0, 2]` (more work per
+//!   triangle never builds faster, and no builder here handles a reference more than quadratically often).
 //! * Each of `box_coef` and `prim_coef` has one coefficient per [`FEATURE_NAMES`], each of magnitude at most
 //!   [`COEF_LIMIT`] (1000): a coefficient is the change of `ln` tests per ray per unit of a feature, and
 //!   [`StructureModel::predict`] clamps `theta . phi` to `±30`; with every `|phi_j| <= 45` (`ln n <= ln 2^64`, the
@@ -373,13 +381,13 @@ impl FitError {
     /// The error figures with their names, in field order.
     fn figures(&self) -> [(&'static str, f64); 7] {
         [
-            ("build_work", self.build_work),
             ("build", self.build),
             ("box_tests", self.box_tests),
             ("prim_tests", self.prim_tests),
             ("trace_given_counts", self.trace_given_counts),
             ("trace", self.trace),
             ("total", self.total),
+            ("build_work", self.build_work),
         ]
     }
 }

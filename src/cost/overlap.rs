@@ -6,7 +6,9 @@
 //! (`docs/cost-model.md`, "No catastrophe"). [`Crossings`] measures the overlap exactly from the mesh,
 //! [`Crossings::for_workload`] turns it into the boxes a ray of a workload crosses on average ([`RayCrossings`]),
 //! and [`overlap_floor`] bounds the hierarchies' box and triangle tests per ray, and the grid's triangle tests per
-//! primary ray, from below with it.
+//! primary ray, from below with it. Where the view was probed ([`Crossings::with_probes`]), [`overlap_floor`] also
+//! carries each probed structure's sampled counts and build work, and bounds the one unprobed hierarchy, the
+//! kd-tree, from below by the probed hierarchies' fewest triangle tests ([`KD_TREE_PRIM_FLOOR`]).
 //!
 //! # Crossings of a view
 //!
@@ -1320,6 +1322,10 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
             .filter_map(|&s| c.probe(s))
             .map(|p| p.prim_tests.lower_bound())
             .fold(f64::INFINITY, f64::min);
+        // The probes' secondary means count the rays that leave the scene at once too; the floor bounds the others
+        // (`predict_floored` applies it to them alone), as the boxes-entered floor above.
+        let stay = 1.0 - leave_share;
+        let fewest = if kind != WorkloadKind::Primary && stay > 0.0 { fewest / stay } else { fewest };
         if fewest.is_finite() {
             f.prim_tests = f.prim_tests.max(KD_TREE_PRIM_FLOOR * fewest);
         }

@@ -15,7 +15,9 @@
 //! primary sample is [`super::near_crossings`]'s where that pass runs (the rays through the pixel centres of a square
 //! image of the camera, at most 32 x 32), the full 32 x 32 otherwise; on request, shadow and diffuse rays start at
 //! their hits as the workloads start theirs (`geom::camera::secondary_start`, the shadow workload's light,
-//! `accel::bounce::diffuse_direction`). Each count is a [`SampledMean`].
+//! `accel::bounce::diffuse_direction`). Each count is a [`SampledMean`]. Each probe also reports the work its
+//! build did ([`Probe::build_work`], [`crate::accel::AccelStructure::build_work`]), which prices the structure's
+//! build ([`super::StructureModel::build_work_coef`]).
 //!
 //! How the policy uses them ([`super::overlap_floor`], [`super::TestFloor::sampled`],
 //! [`super::StructureModel::predict_floored`]): for each kind of ray, where a structure's law misses its sampled
