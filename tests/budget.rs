@@ -1406,6 +1406,12 @@ fn on_zero_area_triangles_the_bvhs_runaway_is_counted_not_predicted() {
         assert!((predicted / counted - 1.0).abs() < 0.2, "{s}: predicted {predicted}, counted {counted}");
     }
     assert_eq!(sel.structure, StructureName::Grid, "{:?}", sel.reasons);
+    // The shipped calibration prices the probed builds by their work, and the reasons say by how much: the grid's
+    // work per triangle is its references per triangle.
+    let grid = meshchar::accel::build_structure(StructureName::Grid, &m).expect("grid");
+    let per = grid.build_work().expect("work") / m.triangle_count() as f64;
+    let line = sel.reasons.iter().find(|r| r.starts_with("builds priced by the probes' work"));
+    assert!(line.is_some_and(|r| r.contains(&format!("grid {per:.1}"))), "{:?}", sel.reasons);
 }
 
 #[test]

@@ -346,6 +346,21 @@ impl Policy for CalibratedPolicy {
                     if sharing.len() == 1 { "takes" } else { "take" }
                 ));
             }
+            // The probes' builds price the structures' builds where the calibration has a work law.
+            let n_tris = scene.features[0].total_triangles.max(scene.features[0].triangles);
+            let by_work: Vec<String> = crate::cost::PROBED
+                .iter()
+                .filter(|&&s| c.build_work(s) > 0.0)
+                .filter(|&&s| self.model.get(s).is_some_and(|m| !m.build_work_coef.is_empty()))
+                .map(|&s| format!("{s} {:.1}", c.build_work(s) / n_tris.max(1) as f64))
+                .collect();
+            if !by_work.is_empty() {
+                reasons.push(format!(
+                    "builds priced by the probes' work (references times the levels they were handled on, per \
+                     triangle): {}",
+                    by_work.join(", ")
+                ));
+            }
         }
         for e in &excluded {
             reasons.push(format!("excluded before choosing: {}", e.reason));
