@@ -284,15 +284,16 @@ fn run(args: Args) -> anyhow::Result<()> {
         100.0 * model.total_rms_log
     );
     println!(
-        "{:<7} {:>8} {:>6} | ns: {:>6} {:>6} {:>6} {:>5} {:>5} {:>5} {:>5} | RMS log error: {:>6} {:>6} {:>6} {:>7} {:>6} {:>6}",
-        "", "ln a", "b", "ray/p", "ray/s", "ray/d", "box", "tri", "box+", "tri+", "build", "box", "tri", "tr|cnt", "trace", "total"
+        "{:<7} {:>8} {:>6} {:>6} | ns: {:>6} {:>6} {:>6} {:>5} {:>5} {:>5} {:>5} {:>5} | RMS log error: {:>6} {:>6} {:>6} {:>7} {:>6} {:>6}",
+        "", "ln a", "b", "d", "ray/p", "ray/s", "ray/d", "box", "tri", "box+", "tri+", "tst+ln", "build", "box", "tri", "tr|cnt", "trace", "total"
     );
     for s in &model.structures {
         println!(
-            "{:<7} {:>8.3} {:>6.3} |     {:>6.1} {:>6.1} {:>6.1} {:>5.2} {:>5.2} {:>5.2} {:>5.2} |                {:>6.3} {:>6.3} {:>6.3} {:>7.3} {:>6.3} {:>6.3}",
+            "{:<7} {:>8.3} {:>6.3} {:>6.3} |     {:>6.1} {:>6.1} {:>6.1} {:>5.2} {:>5.2} {:>5.2} {:>5.2} {:>6.2} |                {:>6.3} {:>6.3} {:>6.3} {:>7.3} {:>6.3} {:>6.3}",
             s.structure.as_str(),
             s.build_ln_a,
             s.build_exponent,
+            s.build_curvature,
             s.trace_price[0],
             s.trace_price[1],
             s.trace_price[2],
@@ -300,6 +301,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             s.trace_price[4],
             s.trace_price[5],
             s.trace_price[6],
+            s.trace_price[7],
             s.fit.build,
             s.fit.box_tests,
             s.fit.prim_tests,
@@ -308,17 +310,21 @@ fn run(args: Args) -> anyhow::Result<()> {
             s.fit.total
         );
     }
-    let work: Vec<_> = model.structures.iter().filter(|s| s.build_work_coef.len() == 3).collect();
+    let work: Vec<_> = model.structures.iter().filter(|s| s.build_work_coef.len() >= 3).collect();
     if !work.is_empty() {
-        println!("{:<7} {:>8} {:>6} {:>6} | RMS log error: build by work (by n alone)", "work", "ln a'", "b'", "c'");
+        println!(
+            "{:<7} {:>8} {:>6} {:>6} {:>6} | RMS log error: build by work (by n alone)",
+            "work", "ln a'", "b'", "c'", "d'"
+        );
         for s in work {
             let c = &s.build_work_coef;
             println!(
-                "{:<7} {:>8.3} {:>6.3} {:>6.3} |                {:>6.3} ({:.3})",
+                "{:<7} {:>8.3} {:>6.3} {:>6.3} {:>6.3} |                {:>6.3} ({:.3})",
                 s.structure.as_str(),
                 c[0],
                 c[1],
                 c[2],
+                c.get(3).copied().unwrap_or(0.0),
                 s.fit.build_work,
                 s.fit.build
             );

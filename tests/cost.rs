@@ -6,7 +6,9 @@ use meshchar::accel::lbvh::Lbvh;
 use meshchar::accel::{AccelStructure, StructureName};
 use meshchar::characterize::features::{exponent, SIZE_BINS};
 use meshchar::characterize::{cpu, features_cpu, Features, Params};
-use meshchar::cost::{phi, price_row, CostModel, Prediction, Workload, COST_MODEL_VERSION, FEATURE_NAMES, PRICE_NAMES};
+use meshchar::cost::{
+    phi, price_row, CostModel, Prediction, StructureModel, Workload, COST_MODEL_VERSION, FEATURE_NAMES, PRICE_NAMES,
+};
 use meshchar::cost::{Measured, Sample};
 use meshchar::eval::compare::compare;
 use meshchar::eval::OracleRecord;
@@ -130,8 +132,8 @@ fn known_samples(count: u64) -> (Vec<Sample>, Vec<Truth>) {
 /// [`known_samples`] with `rays(i)` rays per frame in sample `i`.
 fn known_samples_with_rays(count: u64, rays: impl Fn(u64) -> u64) -> (Vec<Sample>, Vec<Truth>) {
     let truth: Vec<Truth> = vec![
-        (StructureName::Bvh, -7.0, 1.05, vec![2.0, 1.0, 0.5, 0.0, 6.0, 0.0, 3.0]),
-        (StructureName::Grid, -8.0, 0.9, vec![1.0, 20.0, 4.0, 9.0, 12.0, 1.0, 5.0]),
+        (StructureName::Bvh, -7.0, 1.05, vec![2.0, 1.0, 0.5, 0.0, 6.0, 0.0, 3.0, 0.0]),
+        (StructureName::Grid, -8.0, 0.9, vec![1.0, 20.0, 4.0, 9.0, 12.0, 1.0, 5.0, 0.7]),
     ];
     let kinds = [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse];
     let mut samples = Vec::new();
@@ -223,8 +225,10 @@ fn the_work_law_prices_a_probed_build_by_its_work_and_never_makes_work_cheaper()
     let samples = samples_with_work();
     let m = CostModel::fit(&samples, "test", "synthetic").unwrap();
     let bvh = m.get(StructureName::Bvh).unwrap();
-    let [a, b, c] = bvh.build_work_coef[..] else { panic!("no work law: {:?}", bvh.build_work_coef) };
+    let [a, b, c, ref d @ ..] = bvh.build_work_coef[..] else { panic!("no work law: {:?}", bvh.build_work_coef) };
     assert!((a + 7.0).abs() < 1e-5 && (b - 1.05).abs() < 1e-5 && (c - 0.8).abs() < 1e-5, "{a} {b} {c}");
+    // Builds without curvature: none fitted (or a negligible one).
+    assert!(d.iter().all(|d| d.abs() < 1e-6), "{d:?}");
     assert!(bvh.fit.build_work < 1e-6, "{:?}", bvh.fit);
     // The plain law, fitted on n alone, misses what the work adds.
     assert!(bvh.fit.build > 0.1, "{:?}", bvh.fit);
@@ -236,16 +240,66 @@ fn the_work_law_prices_a_probed_build_by_its_work_and_never_makes_work_cheaper()
     let with = bvh.predict_floored(&smp.features.derived(), n, &smp.workload, floor);
     assert!((with.build_ms_per_build / meas.build_ms_per_build - 1.0).abs() < 1e-5, "{with:?}");
     let without = bvh.predict(&smp.features.derived(), n, &smp.workload);
-    let plain = (bvh.build_ln_a + bvh.build_exponent * (n as f64).ln()).exp();
+    let plain = plain_build(bvh, n as f64);
     assert!((without.build_ms_per_build / plain - 1.0).abs() < 1e-12, "{without:?}");
     // The grid's builds get faster with more work: its exponent is held at 0, the law in n refitted.
     let grid = m.get(StructureName::Grid).unwrap();
-    assert_eq!(grid.build_work_coef.len(), 3);
+    assert!(matches!(grid.build_work_coef.len(), 3 | 4), "{:?}", grid.build_work_coef);
     assert_eq!(grid.build_work_coef[2], 0.0, "{:?}", grid.build_work_coef);
     // Without counted work (records written before it), no work law.
     let (plain_samples, _) = known_samples(40);
     let m = CostModel::fit(&plain_samples, "test", "synthetic").unwrap();
     assert!(m.structures.iter().all(|s| s.build_work_coef.is_empty() && s.fit.build_work == 0.0));
+}
+
+/// [`known_samples`] whose builds carry a curvature `d * (ln n - 10)^2` in the structure's law (the BVH's
+/// `d_bvh`, the grid's `d_grid`), and the sizes' `ln n` restricted to `[lo, lo + span]`.
+fn samples_with_curvature(d_bvh: f64, d_grid: f64, lo: f64, span: f64) -> Vec<Sample> {
+    let (mut samples, truth) = known_samples(40);
+    let count = samples.len();
+    for (i, smp) in samples.iter_mut().enumerate() {
+        let n = (lo + span * i as f64 / (count - 1) as f64).exp().round() as u64;
+        smp.features.triangles = n;
+        smp.features.total_triangles = n;
+        let x = (n as f64).ln();
+        for (m, (_, a, b, _)) in smp.measured.iter_mut().zip(&truth) {
+            let d = if m.structure == StructureName::Bvh { d_bvh } else { d_grid };
+            m.build_ms_per_build = (a + b * x + d * (x - 10.0).powi(2)).exp();
+            m.build_ms = m.build_ms_per_build;
+            m.total_ms = m.build_ms + m.trace_ms;
+        }
+    }
+    samples
+}
+
+#[test]
+fn the_build_law_bends_with_the_sizes_only_upward_and_only_where_they_span_enough() {
+    // Sizes from 1K to 1M triangles (ln n 6.9 to 13.8): the BVH's U-shaped time per triangle is recovered exactly;
+    // the grid's, peaked in the middle (a negative curvature), is held at 0.
+    let samples = samples_with_curvature(0.05, -0.05, 6.9, 6.9);
+    let m = CostModel::fit(&samples, "test", "synthetic").unwrap();
+    let bvh = m.get(StructureName::Bvh).unwrap();
+    assert!((bvh.build_curvature - 0.05).abs() < 1e-6, "{bvh:?}");
+    assert!((bvh.build_ln_a + 7.0).abs() < 1e-5 && (bvh.build_exponent - 1.05).abs() < 1e-6, "{bvh:?}");
+    assert!(bvh.fit.build < 1e-6, "{:?}", bvh.fit);
+    let [lo, hi] = bvh.build_ln_n_range[..] else { panic!("no range: {bvh:?}") };
+    assert!((lo - 6.9).abs() < 1e-3 && (hi - 13.8).abs() < 1e-3, "{lo} {hi}");
+    let grid = m.get(StructureName::Grid).unwrap();
+    assert_eq!(grid.build_curvature, 0.0, "{grid:?}");
+    assert!(grid.build_ln_n_range.is_empty(), "{grid:?}");
+    // Beyond the fitted sizes the law follows its tangent: at 100x the largest size, the slope of ln build in ln n
+    // stays the one at the edge (b + 2 d (hi - 10)), not the parabola's steeper one.
+    let d = samples[0].features.derived();
+    let w = samples[0].workload;
+    let at = |ln_n: f64| bvh.predict(&d, ln_n.exp() as u64, &w).build_ms_per_build.ln();
+    let (x1, x2) = (hi + 1.0, hi + 4.6);
+    let slope = (at(x2) - at(x1)) / (((x2.exp() as u64) as f64).ln() - ((x1.exp() as u64) as f64).ln());
+    let edge = bvh.build_exponent + 2.0 * bvh.build_curvature * (hi - 10.0);
+    assert!((slope - edge).abs() < 1e-6, "slope {slope} vs the edge's {edge}");
+    // Sizes within a factor of 20 (ln 3.0, under BUILD_CURVATURE_MIN_SPAN): no curvature is fitted.
+    let narrow = samples_with_curvature(0.05, 0.05, 9.0, 3.0);
+    let m = CostModel::fit(&narrow, "test", "synthetic").unwrap();
+    assert!(m.structures.iter().all(|s| s.build_curvature == 0.0 && s.build_ln_n_range.is_empty()), "{m:?}");
 }
 
 #[test]
@@ -353,12 +407,27 @@ fn reference_totals(model: &CostModel, f: &Features, w: &Workload) -> Vec<(Struc
             let mut ns = ray + price("box") * bx + price("prim") * pr;
             if w.kind != WorkloadKind::Primary {
                 ns += price("box_incoherent") * bx + price("prim_incoherent") * pr;
+                ns += price("test_incoherent_log") * (bx + pr) * (1.0 + bx + pr).ln();
             }
-            let build = sm.build_ln_a.exp() * n.powf(sm.build_exponent);
+            let build = plain_build(sm, n);
             let total = w.builds as f64 * build + (w.frames * w.rays_per_frame) as f64 * ns * 1e-6;
             (sm.structure, w.builds as f64 * build, total)
         })
         .collect()
+}
+
+/// The module docs' plain build law written out again: `exp(a) n^b exp(d q)`, `q` = `(ln n - 10)^2` over the
+/// fitted sizes and along its tangent beyond them.
+fn plain_build(sm: &StructureModel, n: f64) -> f64 {
+    let q = match sm.build_ln_n_range[..] {
+        [lo, hi] => {
+            let x = n.ln();
+            let edge = x.clamp(lo, hi);
+            (edge - 10.0).powi(2) + 2.0 * (edge - 10.0) * (x - edge)
+        }
+        _ => 0.0,
+    };
+    sm.build_ln_a.exp() * n.powf(sm.build_exponent) * (sm.build_curvature * q).exp()
 }
 
 /// The selection rule of the docs, on reference totals: the smallest total; within `margin` of it, the cheapest

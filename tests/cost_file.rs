@@ -543,12 +543,12 @@ fn crossing_means_are_none_or_three_in_range_and_only_with_coefficients() {
 }
 
 #[test]
-fn a_work_law_is_none_or_three_constants_in_range() {
+fn a_work_law_is_none_three_or_four_constants_in_range() {
     let mut m = shipped();
     m.structures[2].build_work_coef = vec![-9.0, 0.9, 0.7];
     let back = CostModel::from_json(&m.to_json()).unwrap();
     assert_eq!(back.structures[2].build_work_coef, vec![-9.0, 0.9, 0.7]);
-    for bad in [json!([-9.0, 0.9]), json!([-9.0, 0.9, 0.7, 0.1])] {
+    for bad in [json!([-9.0, 0.9]), json!([-9.0, 0.9, 0.7, 0.1, 0.2])] {
         let e = CostModel::from_json(&{
             let mut v: serde_json::Value = serde_json::from_str(&m.to_json()).unwrap();
             v["structures"][2]["build_work_coef"] = bad.clone();
@@ -564,4 +564,70 @@ fn a_work_law_is_none_or_three_constants_in_range() {
         let field = format!("structures[2] (grid).build_work_coef[{j}]");
         assert_invalid(&b.validate().unwrap_err(), &field, Some(StructureName::Grid));
     }
+    // A fourth constant, the curvature, in [0, 1], with the range of sizes it was fitted on.
+    m.structures[2].build_work_coef = vec![-9.0, 0.9, 0.7, 0.05];
+    m.structures[2].build_ln_n_range = vec![7.0, 13.0];
+    assert_eq!(CostModel::from_json(&m.to_json()).unwrap(), m);
+    for bad in [-0.01, 1.5, f64::INFINITY] {
+        let mut b = m.clone();
+        b.structures[2].build_work_coef[3] = bad;
+        assert_invalid(
+            &b.validate().unwrap_err(),
+            "structures[2] (grid).build_work_coef[3]",
+            Some(StructureName::Grid),
+        );
+    }
+}
+
+#[test]
+fn a_curved_build_law_needs_its_range_of_sizes_and_a_curvature_in_range() {
+    let m = shipped();
+    // The shipped fit bends its laws (its sizes span 1K to 871K triangles).
+    assert!(m.structures.iter().any(|s| s.build_curvature > 0.0 && s.build_ln_n_range.len() == 2), "{m:?}");
+    let (i, _) = m.structures.iter().enumerate().find(|(_, s)| s.build_curvature > 0.0).unwrap();
+    let st = Some(m.structures[i].structure);
+    let name = m.structures[i].structure.as_str();
+    let field = |f: &str| format!("structures[{i}] ({name}).{f}");
+    for bad in [-0.1, 1.01, f64::NAN] {
+        let mut b = m.clone();
+        b.structures[i].build_curvature = bad;
+        assert_invalid(&b.validate().unwrap_err(), &field("build_curvature"), st);
+    }
+    for bad in [vec![], vec![7.0], vec![13.0, 7.0], vec![7.0, f64::NAN], vec![-1.0, 7.0], vec![7.0, 8.0, 9.0]] {
+        let mut b = m.clone();
+        b.structures[i].build_ln_n_range = bad.clone();
+        let e = b.validate().unwrap_err();
+        assert_invalid(&e, &field("build_ln_n_range"), st);
+    }
+    // Without a curvature the range may go (a law in n alone, as files before it).
+    let mut b = m.clone();
+    for s in &mut b.structures {
+        s.build_curvature = 0.0;
+        s.build_work_coef.truncate(3);
+        s.build_ln_n_range.clear();
+    }
+    assert_eq!(CostModel::from_json(&b.to_json()).unwrap(), b);
+}
+
+#[test]
+fn a_file_written_before_the_last_price_reads_it_as_0_and_predicts_as_before() {
+    let mut v = shipped_json();
+    let names = v["price_names"].as_array_mut().unwrap();
+    assert_eq!(names.len(), PRICE_NAMES.len());
+    names.pop();
+    for s in v["structures"].as_array_mut().unwrap() {
+        s["trace_price"].as_array_mut().unwrap().pop();
+    }
+    let old = CostModel::from_json(&v.to_string()).unwrap();
+    assert_eq!(old.price_names, PRICE_NAMES);
+    let mut want = shipped();
+    for s in &mut want.structures {
+        *s.trace_price.last_mut().unwrap() = 0.0;
+    }
+    assert_eq!(old, want);
+    // A file that names one price fewer but keeps a structure's full row is not such a file: refused by name.
+    let mut v = shipped_json();
+    v["price_names"].as_array_mut().unwrap().pop();
+    let e = CostModel::from_json(&v.to_string()).unwrap_err();
+    assert_invalid(&e, "price_names[7]", None);
 }

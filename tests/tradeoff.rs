@@ -317,13 +317,15 @@ fn paper_model() -> meshchar::cost::CostModel {
         build_exponent: 1.0,
         box_coef: vec![0.0; FEATURE_NAMES.len()],
         prim_coef: vec![0.0; FEATURE_NAMES.len()],
-        trace_price: vec![ns_per_ray, ns_per_ray, ns_per_ray, 0.0, 0.0, 0.0, 0.0],
+        trace_price: vec![ns_per_ray, ns_per_ray, ns_per_ray, 0.0, 0.0, 0.0, 0.0, 0.0],
         view_box_coef: Vec::new(),
         view_prim_coef: Vec::new(),
         crossing_coef: Vec::new(),
         crossing_mean: Vec::new(),
         feature_range: Vec::new(),
         build_work_coef: Vec::new(),
+        build_curvature: 0.0,
+        build_ln_n_range: Vec::new(),
         fit: FitError::default(),
     };
     let m = CostModel {

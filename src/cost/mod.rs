@@ -7,12 +7,13 @@
 //! and `B` builds:
 //!
 //! ```text
-//! build_ms(s)        = exp(a_s) * n^b_s                                  (per build; b_s ~ 1 for O(n), > 1 for n log n)
-//!                    = exp(a'_s) * n^b'_s * (work / n)^c'_s             (where a probe built it: work law, below)
+//! build_ms(s)        = exp(a_s) * n^b_s * exp(d_s q(ln n))               (per build; b_s ~ 1 for O(n), > 1 for n log n)
+//!                    = exp(a'_s) * n^b'_s * (work / n)^c'_s * exp(d'_s q(ln n))   (where a probe built it: work law)
 //! box_tests(s)       = exp(theta_box_s . phi(f, kind))                   (per ray)
 //! prim_tests(s)      = exp(theta_prim_s . phi(f, kind))                  (per ray)
 //! trace_ns(s)        = c_ray_s,kind + (c_box_s + [incoherent] c'_box_s) * box_tests(s)
-//!                                 + (c_prim_s + [incoherent] c'_prim_s) * prim_tests(s)   (per ray, c >= 0)
+//!                                 + (c_prim_s + [incoherent] c'_prim_s) * prim_tests(s)
+//!                                 + [incoherent] c''_s * t(s) ln(1 + t(s))     (per ray, c >= 0; t = box + prim tests)
 //! total_ms(s)        = B * build_ms(s) + F * R * trace_ns(s) * 1e-6
 //! ```
 //!
@@ -32,12 +33,24 @@
 //! ([`overlap_floor`]) when the caller gives one. A fitted calibration clamps the geometric features into the range
 //! it was fitted on ([`StructureModel::feature_range`]).
 //!
+//! Two terms bend the straight laws where measurement showed they must (ninth session, `docs/cost-model.md`).
+//! `q` ([`curvature_term`]) is `(ln n - 10)^2` over the calibration's sizes and its tangent beyond them, with
+//! `d_s, d'_s >= 0` ([`StructureModel::build_curvature`]): the build time per triangle is U-shaped in `n` (the
+//! BVH's 0.28, 0.19 and 0.22 us at 2K, 20K and 200K triangles), fixed costs weighing on small builds and cache
+//! misses on large ones, which one power of `n` cannot follow. `c''_s` (`test_incoherent_log`) prices an
+//! incoherent ray's tests higher the more of them it makes: its neighbours share the top of a tree but not the
+//! deep, scattered nodes and triangles a long traversal reaches (a BVH's diffuse rays in the sliver-filled
+//! engineering models pay 5.2 ns per test at 1,080 tests per ray, 3.1 ns at 430, against 2.2 to 2.5 ns for primary
+//! rays).
+//!
 //! # Fit
 //!
 //! [`CostModel::fit`] takes oracle results ([`Sample`]: measured build ms, trace ms, tests per ray of every
 //! structure on every scene and workload) and fits, per structure: the build law by least squares in log space
-//! (`ln build = a + b ln n`) and, for the probed structures on samples whose records counted the work, the work
-//! law (`ln build = a' + b' ln n + c' ln(work / n)`, `c'` held at 0 where it fits below); the test counts by ridge regression in log space (ridge [`RIDGE`] on all but the
+//! (`ln build = a + b ln n + d q(ln n)`, `d` held at 0 where it fits below or where the sizes span less than
+//! [`BUILD_CURVATURE_MIN_SPAN`]) and, for the probed structures on samples whose records counted the work, the
+//! work law (`ln build = a' + b' ln n + c' ln(work / n) + d' q(ln n)`, `c'` and `d'` held at 0 where they fit
+//! below); the test counts by ridge regression in log space (ridge [`RIDGE`] on all but the
 //! intercept); the per-ray prices by non-negative least squares on the measured counts, weighted by `1 / t^2` so
 //! that the relative error is minimized. Fit errors are root-mean-square natural-log ratios of prediction to
 //! measurement ([`FitError`]); `0.1` means about 10%.
@@ -68,7 +81,9 @@
 //!   calibration is chosen by its device, and a CPU calibration has none.
 //! * `feature_names` equals [`FEATURE_NAMES`] and `price_names` equals [`PRICE_NAMES`], name for name and in
 //!   order: the coefficients are read by position, so a reordered or renamed column would silently multiply the
-//!   wrong feature or count. The error names the first position that differs.
+//!   wrong feature or count. The error names the first position that differs. A file that names the first
+//!   [`LEGACY_PRICES`] (written before `test_incoherent_log`), with that many prices per structure, is read with the
+//!   missing price at 0, which predicts as it did.
 //! * `structures` is not empty; each names one of [`StructureName::ALL`] (brute force is the reference, never
 //!   calibrated) and none appears twice.
 //! * Every number is finite (a NaN or an infinity is written as `null` in JSON, and read back as not finite).
@@ -80,9 +95,13 @@
 //!   `[-23, 9]`, that is `exp(a)` between 0.1 ps and 8 s: `e^9` ms for a single triangle is beyond any device, and
 //!   the floor, far below one clock cycle, leaves room for the small `a` of fits with `b` up to 2 (a quadratic
 //!   build of a million triangles at 1 ns per pair has `a = -13.8`). The shipped fits are -8.1 to -4.5.
-//! * `build_work_coef` is absent or has three constants `[a', b', c']`: `a'` in [`BUILD_LN_A_RANGE`] and `b'` in
-//!   [`BUILD_EXPONENT_RANGE`] for the reasons above, `c'` in [`BUILD_WORK_EXPONENT_RANGE`], `[0, 2]` (more work per
-//!   triangle never builds faster, and no builder here handles a reference more than quadratically often).
+//! * `build_work_coef` is absent or has three or four constants `[a', b', c', d']`: `a'` in [`BUILD_LN_A_RANGE`] and
+//!   `b'` in [`BUILD_EXPONENT_RANGE`] for the reasons above, `c'` in [`BUILD_WORK_EXPONENT_RANGE`], `[0, 2]` (more
+//!   work per triangle never builds faster, and no builder here handles a reference more than quadratically often),
+//!   `d'` as `build_curvature`.
+//! * `build_curvature` (0 when absent) lies in [`BUILD_CURVATURE_RANGE`], `[0, 1]` (see there); with a nonzero
+//!   curvature, `build_ln_n_range` is `[lo, hi]`, both finite in `[0, 45]` and `lo <= hi` (the sizes the law was
+//!   fitted on); without one it may be absent.
 //! * Each of `box_coef` and `prim_coef` has one coefficient per [`FEATURE_NAMES`], each of magnitude at most
 //!   [`COEF_LIMIT`] (1000): a coefficient is the change of `ln` tests per ray per unit of a feature, and
 //!   [`StructureModel::predict`] clamps `theta . phi` to `±30`; with every `|phi_j| <= 45` (`ln n <= ln 2^64`, the
@@ -182,9 +201,24 @@ pub const FEATURE_NAMES: [&str; 10] = [
 pub const SIZE_FEATURES: usize = 4;
 
 /// Names of the trace price columns: a per-ray overhead for each workload kind, ns per box test and per triangle
-/// test for coherent (primary) rays, and the extra ns per test for incoherent (shadow, diffuse) rays.
-pub const PRICE_NAMES: [&str; 7] =
-    ["ray_primary", "ray_shadow", "ray_diffuse", "box", "prim", "box_incoherent", "prim_incoherent"];
+/// test for coherent (primary) rays, the extra ns per test for incoherent (shadow, diffuse) rays, and the extra ns
+/// per incoherent test per unit of `ln(1 + tests per ray)`, box and triangle tests together
+/// (`test_incoherent_log`: an incoherent ray that makes many tests reaches deep, scattered nodes and triangles
+/// that its neighbours do not share, and pays more per test; see the module docs).
+pub const PRICE_NAMES: [&str; 8] = [
+    "ray_primary",
+    "ray_shadow",
+    "ray_diffuse",
+    "box",
+    "prim",
+    "box_incoherent",
+    "prim_incoherent",
+    "test_incoherent_log",
+];
+
+/// How many of [`PRICE_NAMES`] the files written before `test_incoherent_log` name: such a file is read with that
+/// price at 0 (its predictions unchanged).
+pub const LEGACY_PRICES: usize = 7;
 
 /// The price row of [`PRICE_NAMES`] for a kind and test counts.
 pub fn price_row(kind: WorkloadKind, box_tests: f64, prim_tests: f64) -> Vec<f64> {
@@ -197,6 +231,7 @@ pub fn price_row(kind: WorkloadKind, box_tests: f64, prim_tests: f64) -> Vec<f64
         prim_tests,
         inc * box_tests,
         inc * prim_tests,
+        inc * (box_tests + prim_tests) * (box_tests + prim_tests).max(0.0).ln_1p(),
     ]
 }
 
@@ -206,6 +241,29 @@ pub const BUILD_EXPONENT_RANGE: RangeInclusive<f64> = 0.0..=2.0;
 /// Accepted range of the exponent of the build work per triangle in [`StructureModel::build_work_coef`]: `[0, 2]`,
 /// as [`BUILD_EXPONENT_RANGE`] (more work per triangle never builds faster; the fit holds it at 0 or above).
 pub const BUILD_WORK_EXPONENT_RANGE: RangeInclusive<f64> = 0.0..=2.0;
+
+/// Accepted range of the build laws' curvature in `ln n` ([`StructureModel::build_curvature`], the fourth
+/// constant of [`StructureModel::build_work_coef`]): `[0, 1]`. The fit holds it at 0 or above (a time per
+/// triangle that peaks at mid sizes has no mechanism); the shipped fits are below 0.1, and at 1 the law would
+/// double its time per triangle within 0.8 units of `ln n` of the centre.
+pub const BUILD_CURVATURE_RANGE: RangeInclusive<f64> = 0.0..=1.0;
+
+/// The `ln n` about which the curvature terms are centred: `ln 22026`, mid-way through the calibration sizes (the
+/// centre only re-parametrizes `a` and `b` within the fitted range; beyond it the clamp holds the term).
+pub const BUILD_CURVATURE_CENTER: f64 = 10.0;
+
+/// The least span of `ln n` over a structure's calibration builds for a curvature to be fitted: `ln 30`, sizes a
+/// factor of 30 apart. Over a narrower span a parabola through a few sizes fits their noise, not the U-shape of the
+/// time per triangle.
+pub const BUILD_CURVATURE_MIN_SPAN: f64 = 3.4;
+
+/// The curvature terms' shape in `x = ln n`: `(x - BUILD_CURVATURE_CENTER)^2` within `[lo, hi]` (the sizes the law
+/// was fitted on), continued along its tangent beyond them, so that the law keeps the slope it has at the edge of
+/// its sizes instead of bending further.
+pub fn curvature_term(x: f64, lo: f64, hi: f64) -> f64 {
+    let e = x.clamp(lo, hi) - BUILD_CURVATURE_CENTER;
+    e * e + 2.0 * e * (x - x.clamp(lo, hi))
+}
 
 /// Accepted range of [`StructureModel::build_ln_a`]: `exp(a)` from 1e-10 ms to 8 s (see the module docs,
 /// Validation).
@@ -445,8 +503,22 @@ pub struct StructureModel {
     /// `b'` in [`BUILD_EXPONENT_RANGE`], `c'` in [`BUILD_WORK_EXPONENT_RANGE`]. Fitted for the probed structures
     /// ([`PROBED`]) on samples whose records counted the work; absent in files written before it (and for the other
     /// structures).
+    ///
+    /// A fourth constant `d'`, when present, is the law's curvature in `ln n`, as
+    /// [`StructureModel::build_curvature`] is the plain law's.
     #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
     pub build_work_coef: Vec<f64>,
+    /// `d_s`: the plain build law's curvature in `ln n`, in [`BUILD_CURVATURE_RANGE`]: `ln build` gains
+    /// `d_s * curvature_term(ln n)` ([`curvature_term`]: `(ln n - BUILD_CURVATURE_CENTER)^2` over the calibration's
+    /// sizes, [`StructureModel::build_ln_n_range`], and its tangent beyond them). The time per triangle is U-shaped
+    /// in `n`: fixed costs weigh on small builds, cache misses on large ones. 0 in files written before it, and
+    /// where the calibration's sizes span less than [`BUILD_CURVATURE_MIN_SPAN`].
+    #[serde(default, skip_serializing_if = "is_zero", deserialize_with = "f64_or_null")]
+    pub build_curvature: f64,
+    /// `[lo, hi]`: the range of `ln n` over the builds the laws were fitted on, beyond which the curvature terms
+    /// follow their tangent ([`curvature_term`]); required with a curvature, else absent.
+    #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
+    pub build_ln_n_range: Vec<f64>,
     /// Fit errors on the calibration samples.
     pub fit: FitError,
 }
@@ -555,9 +627,22 @@ impl StructureModel {
     /// plain law in `n` otherwise.
     pub fn build_ms(&self, n: u64, work: f64) -> f64 {
         let ln_n = (n.max(1) as f64).ln();
+        let q = self.build_curvature_term(ln_n);
         match self.build_work_coef[..] {
-            [a, b, c] if work > 0.0 && work.is_finite() => (a + b * ln_n + c * (work.ln() - ln_n)).exp(),
-            _ => (self.build_ln_a + self.build_exponent * ln_n).exp(),
+            [a, b, c, ref d @ ..] if work > 0.0 && work.is_finite() && d.len() <= 1 => {
+                let d = d.first().copied().unwrap_or(0.0);
+                (a + b * ln_n + c * (work.ln() - ln_n) + d * q).exp()
+            }
+            _ => (self.build_ln_a + self.build_exponent * ln_n + self.build_curvature * q).exp(),
+        }
+    }
+
+    /// The curvature terms' [`curvature_term`] over [`StructureModel::build_ln_n_range`]; 0 without a range (a
+    /// model without curvature).
+    fn build_curvature_term(&self, ln_n: f64) -> f64 {
+        match self.build_ln_n_range[..] {
+            [lo, hi] if lo <= hi => curvature_term(ln_n, lo, hi),
+            _ => 0.0,
         }
     }
 
@@ -667,11 +752,21 @@ impl CostModel {
             Some(Value::Array(a)) => a,
             Some(x) => return Err(invalid(None, "structures", format!("{}, not an array", json_kind(&x)))),
         };
-        let structures =
+        let structures: Vec<StructureModel> =
             structures.into_iter().enumerate().map(|(i, s)| structure_from_json(i, s)).collect::<Result<_, _>>()?;
         obj.insert("structures".into(), Value::Array(Vec::new()));
         let mut m: CostModel = serde_json::from_value(v).map_err(|e| invalid(None, "top level", e.to_string()))?;
         m.structures = structures;
+        // A file written before the last price names its first LEGACY_PRICES: read it with that price at 0.
+        if m.price_names.len() == LEGACY_PRICES
+            && m.price_names.iter().zip(PRICE_NAMES).all(|(a, b)| a == b)
+            && m.structures.iter().all(|s| s.trace_price.len() == LEGACY_PRICES)
+        {
+            m.price_names = PRICE_NAMES.iter().map(|s| s.to_string()).collect();
+            for s in &mut m.structures {
+                s.trace_price.resize(PRICE_NAMES.len(), 0.0);
+            }
+        }
         m.validate()?;
         Ok(m)
     }
@@ -1119,21 +1214,49 @@ fn check_structure(i: usize, s: &StructureModel) -> Result<(), CostError> {
     }
     check_number(st, at("build_ln_a"), s.build_ln_a, BUILD_LN_A_RANGE, "ln of the build ms of one triangle")?;
     check_number(st, at("build_exponent"), s.build_exponent, BUILD_EXPONENT_RANGE, "the exponent of n in the build")?;
+    check_number(st, at("build_curvature"), s.build_curvature, BUILD_CURVATURE_RANGE, "a curvature in ln n")?;
     match s.build_work_coef[..] {
         [] => {}
-        [a, b, c] => {
+        [a, b, c, ref d @ ..] if d.len() <= 1 => {
             let what = "ln of the build ms of one triangle (work law)";
             check_number(st, at("build_work_coef[0]"), a, BUILD_LN_A_RANGE, what)?;
             let what = "the exponent of n in the build (work law)";
             check_number(st, at("build_work_coef[1]"), b, BUILD_EXPONENT_RANGE, what)?;
             let what = "the exponent of the build work per triangle";
             check_number(st, at("build_work_coef[2]"), c, BUILD_WORK_EXPONENT_RANGE, what)?;
+            if let [d] = d {
+                let what = "a curvature in ln n (work law)";
+                check_number(st, at("build_work_coef[3]"), *d, BUILD_CURVATURE_RANGE, what)?;
+            }
         }
         _ => {
             return Err(invalid(
                 st,
                 at("build_work_coef"),
-                format!("{} coefficients, expected none or three", s.build_work_coef.len()),
+                format!("{} coefficients, expected none, three or four", s.build_work_coef.len()),
+            ))
+        }
+    }
+    let curved = s.build_curvature != 0.0 || s.build_work_coef.get(3).is_some_and(|&d| d != 0.0);
+    match s.build_ln_n_range[..] {
+        [] if curved => {
+            return Err(invalid(st, at("build_ln_n_range"), "missing: a curved build law needs the range of ln n"))
+        }
+        [] => {}
+        [lo, hi] => {
+            let field = at("build_ln_n_range");
+            if !(lo.is_finite() && hi.is_finite() && (0.0..=45.0).contains(&lo) && (0.0..=45.0).contains(&hi)) {
+                return Err(invalid(st, field, format!("[{lo}, {hi}]: the bounds must be finite, in [0, 45]")));
+            }
+            if lo > hi {
+                return Err(invalid(st, field, format!("[{lo}, {hi}]: the low bound exceeds the high one")));
+            }
+        }
+        _ => {
+            return Err(invalid(
+                st,
+                at("build_ln_n_range"),
+                format!("{} values, expected none or two (lo, hi)", s.build_ln_n_range.len()),
             ))
         }
     }
@@ -1262,14 +1385,28 @@ fn fit_structure(
     }
     let err = |what: &str| CostError::Fit(format!("{}: {what} system is singular", s.as_str()));
     // Build law.
-    let bx: Vec<Vec<f64>> = rows
+    let ln_ns: Vec<f64> = rows
         .iter()
-        .map(|(smp, _)| vec![1.0, (smp.features.total_triangles.max(smp.features.triangles).max(1) as f64).ln()])
+        .map(|(smp, _)| (smp.features.total_triangles.max(smp.features.triangles).max(1) as f64).ln())
         .collect();
+    let range = ln_ns.iter().fold([f64::INFINITY, f64::NEG_INFINITY], |[lo, hi], &x| [lo.min(x), hi.max(x)]);
+    // A curvature only where the sizes span enough to show one; the term reads 0 otherwise (and fits to 0).
+    let spans = range[1] - range[0] >= BUILD_CURVATURE_MIN_SPAN;
+    let q = |ln_n: f64| if spans { curvature_term(ln_n, range[0], range[1]) } else { 0.0 };
+    let bx: Vec<Vec<f64>> = ln_ns.iter().map(|&x| vec![1.0, x, q(x)]).collect();
     let by: Vec<f64> = rows.iter().map(|(_, m)| m.build_ms_per_build.ln()).collect();
-    let ones = vec![1.0; rows.len()];
-    let build = linalg::weighted_ridge(&bx, &by, &ones, &[0.0, 1e-9]).ok_or_else(|| err("build"))?;
-    let build_work_coef = if PROBED.contains(&s) { fit_work_law(&rows) } else { Vec::new() };
+    // No fit within the accepted ranges: the plain least squares, which the validation then refuses naming the
+    // constant out of range.
+    let build = match fit_build_law(&bx, &by, &[2]) {
+        Some(c) => c,
+        None => {
+            let x2: Vec<Vec<f64>> = bx.iter().map(|r| r[..2].to_vec()).collect();
+            let c = linalg::weighted_ridge(&x2, &by, &vec![1.0; x2.len()], &[0.0, 1e-9]).ok_or_else(|| err("build"))?;
+            vec![c[0], c[1], 0.0]
+        }
+    };
+    let build_work_coef = if PROBED.contains(&s) { fit_work_law(&rows, &q) } else { Vec::new() };
+    let curved = build[2] != 0.0 || build_work_coef.get(3).is_some_and(|&d| d != 0.0);
     // Test counts.
     let p = FEATURE_NAMES.len();
     let x: Vec<Vec<f64>> = rows
@@ -1358,6 +1495,8 @@ fn fit_structure(
         structure: s,
         build_ln_a: build[0],
         build_exponent: build[1],
+        build_curvature: build[2],
+        build_ln_n_range: if curved { range.to_vec() } else { Vec::new() },
         box_coef,
         prim_coef,
         trace_price: c,
@@ -1414,37 +1553,66 @@ fn fit_structure(
 }
 
 /// The work law of a probed structure's build ([`StructureModel::build_work_coef`]): `ln build = a' + b' ln n +
-/// c' ln(work / n)` by least squares over the rows whose records counted the work, with `c'` held at 0 where it
-/// fits below (more work never builds faster); none with fewer than three such rows or a fit outside the accepted
-/// ranges.
-fn fit_work_law(rows: &[(&Sample, &Measured)]) -> Vec<f64> {
-    let pts: Vec<(f64, f64, f64)> = rows
+/// c' ln(work / n) + d' q(ln n)` (`q` the curvature term) by least squares over the rows whose records counted the
+/// work, with `c'` and `d'` held at 0 where they fit below ([`fit_build_law`]); none with fewer than three such rows
+/// or a fit outside the accepted ranges. The fourth constant is left out when it is 0.
+fn fit_work_law(rows: &[(&Sample, &Measured)], q: &dyn Fn(f64) -> f64) -> Vec<f64> {
+    let (x, y): (Vec<Vec<f64>>, Vec<f64>) = rows
         .iter()
         .filter(|(_, m)| m.build_work > 0.0 && m.build_work.is_finite())
         .map(|(smp, m)| {
             let ln_n = (smp.features.total_triangles.max(smp.features.triangles).max(1) as f64).ln();
-            (ln_n, m.build_work.ln() - ln_n, m.build_ms_per_build.ln())
+            (vec![1.0, ln_n, m.build_work.ln() - ln_n, q(ln_n)], m.build_ms_per_build.ln())
         })
-        .collect();
-    if pts.len() < 3 {
+        .unzip();
+    if x.len() < 3 {
         return Vec::new();
     }
-    let y: Vec<f64> = pts.iter().map(|p| p.2).collect();
-    let ones = vec![1.0; pts.len()];
-    let x3: Vec<Vec<f64>> = pts.iter().map(|p| vec![1.0, p.0, p.1]).collect();
-    let mut coef = linalg::weighted_ridge(&x3, &y, &ones, &[0.0, 1e-9, 1e-9]);
-    if coef.as_ref().is_none_or(|c| c[2] < 0.0) {
-        let x2: Vec<Vec<f64>> = pts.iter().map(|p| vec![1.0, p.0]).collect();
-        coef = linalg::weighted_ridge(&x2, &y, &ones, &[0.0, 1e-9]).map(|c| vec![c[0], c[1], 0.0]);
-    }
-    match coef {
-        Some(c)
-            if BUILD_LN_A_RANGE.contains(&c[0])
-                && BUILD_EXPONENT_RANGE.contains(&c[1])
-                && BUILD_WORK_EXPONENT_RANGE.contains(&c[2]) =>
-        {
+    match fit_build_law(&x, &y, &[2, 3]) {
+        Some(mut c) if BUILD_WORK_EXPONENT_RANGE.contains(&c[2]) => {
+            if c[3] == 0.0 {
+                c.pop();
+            }
             c
         }
         _ => Vec::new(),
     }
+}
+
+/// A build law by least squares over rows `[1, ln n, ...]` (log build ms `y`), the columns `held` (curvature,
+/// work exponent) constrained to `>= 0`: every subset of them left in is fitted and the least squared error among
+/// the fits whose kept constrained constants are all `>= 0` wins (the constrained least squares, exactly, for so
+/// few columns); the left-out constants read 0. The intercept must lie in [`BUILD_LN_A_RANGE`], the exponent of
+/// `n` in [`BUILD_EXPONENT_RANGE`] and a curvature (the last column when `held` names it) in
+/// [`BUILD_CURVATURE_RANGE`]. `None` when no subset gives such a fit.
+fn fit_build_law(x: &[Vec<f64>], y: &[f64], held: &[usize]) -> Option<Vec<f64>> {
+    let p = x.first()?.len();
+    let ones = vec![1.0; x.len()];
+    let mut best: Option<(f64, Vec<f64>)> = None;
+    for mask in 0..(1u32 << held.len()) {
+        let dropped: Vec<usize> =
+            held.iter().enumerate().filter(|(k, _)| mask & (1 << k) != 0).map(|(_, &j)| j).collect();
+        let keep: Vec<usize> = (0..p).filter(|j| !dropped.contains(j)).collect();
+        let xs: Vec<Vec<f64>> = x.iter().map(|r| keep.iter().map(|&j| r[j]).collect()).collect();
+        let ridge: Vec<f64> = keep.iter().map(|&j| if j == 0 { 0.0 } else { 1e-9 }).collect();
+        let Some(c) = linalg::weighted_ridge(&xs, y, &ones, &ridge) else { continue };
+        let mut full = vec![0.0; p];
+        for (&j, v) in keep.iter().zip(c) {
+            full[j] = v;
+        }
+        let curvature = full[p - 1];
+        let ok = held.iter().all(|&j| full[j] >= 0.0)
+            && BUILD_LN_A_RANGE.contains(&full[0])
+            && BUILD_EXPONENT_RANGE.contains(&full[1])
+            && (!held.contains(&(p - 1)) || BUILD_CURVATURE_RANGE.contains(&curvature))
+            && full.iter().all(|v| v.is_finite());
+        if !ok {
+            continue;
+        }
+        let sse: f64 = x.iter().zip(y).map(|(r, yy)| (dot(&full, r) - yy).powi(2)).sum();
+        if best.as_ref().is_none_or(|(b, _)| sse < *b) {
+            best = Some((sse, full));
+        }
+    }
+    best.map(|(_, c)| c)
 }
