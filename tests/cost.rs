@@ -296,6 +296,24 @@ fn the_build_law_bends_with_the_sizes_only_upward_and_only_where_they_span_enoug
     let slope = (at(x2) - at(x1)) / (((x2.exp() as u64) as f64).ln() - ((x1.exp() as u64) as f64).ln());
     let edge = bvh.build_exponent + 2.0 * bvh.build_curvature * (hi - 10.0);
     assert!((slope - edge).abs() < 1e-6, "slope {slope} vs the edge's {edge}");
+    // The term itself: continuous in value and slope at the edges, 0 for a range that is none.
+    let q = |x: f64| meshchar::cost::curvature_term(x, lo, hi);
+    for edge in [lo, hi] {
+        assert!((q(edge + 1e-9) - q(edge - 1e-9)).abs() < 1e-6);
+        let slope = |x: f64| (q(x + 1e-4) - q(x - 1e-4)) / 2e-4;
+        assert!((slope(edge + 1e-3) - slope(edge - 1e-3)).abs() < 1e-2, "{edge}");
+    }
+    assert_eq!(meshchar::cost::curvature_term(12.0, 9.0, 7.0), 0.0);
+    assert_eq!(meshchar::cost::curvature_term(12.0, f64::NAN, 7.0), 0.0);
+    // Two sizes far apart (ln 6.9 and 13.8): a curvature is not identified, none is fitted.
+    let mut two = samples_with_curvature(0.05, 0.05, 6.9, 6.9);
+    for (k, smp) in two.iter_mut().enumerate() {
+        let n = if k % 2 == 0 { 1000 } else { 1_000_000 };
+        smp.features.triangles = n;
+        smp.features.total_triangles = n;
+    }
+    let m = CostModel::fit(&two, "test", "synthetic").unwrap();
+    assert!(m.structures.iter().all(|s| s.build_curvature == 0.0 && s.build_ln_n_range.is_empty()), "{m:?}");
     // Sizes within a factor of 20 (ln 3.0, under BUILD_CURVATURE_MIN_SPAN): no curvature is fitted.
     let narrow = samples_with_curvature(0.05, 0.05, 9.0, 3.0);
     let m = CostModel::fit(&narrow, "test", "synthetic").unwrap();

@@ -303,11 +303,12 @@ fn build_law_constants_are_in_range() {
         let e = refused(|v| v["structures"][0]["build_ln_a"] = json!(a));
         assert_invalid(&e, "structures[0] (bvh).build_ln_a", bvh);
     }
-    // The ends of the ranges are accepted.
+    // The ends of the ranges are accepted (by a law without curvature, whose slope is b at every size).
     for (a, b) in [(-23.0, 0.0), (9.0, 2.0)] {
         let mut v = shipped_json();
         v["structures"][0]["build_ln_a"] = json!(a);
         v["structures"][0]["build_exponent"] = json!(b);
+        v["structures"][0]["build_curvature"] = json!(0.0);
         CostModel::from_json(&v.to_string()).unwrap();
     }
     let e = refused(|v| v["structures"][3]["fit"]["total"] = json!(-0.1));
@@ -593,11 +594,32 @@ fn a_curved_build_law_needs_its_range_of_sizes_and_a_curvature_in_range() {
         b.structures[i].build_curvature = bad;
         assert_invalid(&b.validate().unwrap_err(), &field("build_curvature"), st);
     }
-    for bad in [vec![], vec![7.0], vec![13.0, 7.0], vec![7.0, f64::NAN], vec![-1.0, 7.0], vec![7.0, 8.0, 9.0]] {
+    let beyond = meshchar::cost::BUILD_LN_N_LIMIT + 0.1;
+    for bad in [
+        vec![],
+        vec![7.0],
+        vec![13.0, 7.0],
+        vec![7.0, f64::NAN],
+        vec![-1.0, 7.0],
+        vec![7.0, 8.0, 9.0],
+        vec![7.0, beyond],
+    ] {
         let mut b = m.clone();
         b.structures[i].build_ln_n_range = bad.clone();
         let e = b.validate().unwrap_err();
         assert_invalid(&e, &field("build_ln_n_range"), st);
+    }
+    // A curvature whose law would fall with more triangles at the edge of its sizes (the slope there, b + 2 d (lo -
+    // 10), below 0), or rise faster than quadratically at the other, is refused naming the curvature.
+    let [lo, hi] = m.structures[i].build_ln_n_range[..] else { unreachable!() };
+    let b = m.structures[i].build_exponent;
+    for d in [(b + 0.1) / (2.0 * (10.0 - lo)), (2.1 - b) / (2.0 * (hi - 10.0))] {
+        let mut c = m.clone();
+        c.structures[i].build_curvature = d;
+        assert!(meshchar::cost::BUILD_CURVATURE_RANGE.contains(&d), "{d}");
+        let e = c.validate().unwrap_err();
+        assert_invalid(&e, &field("build_curvature"), st);
+        assert!(e.to_string().contains("slope"), "{e}");
     }
     // Without a curvature the range may go (a law in n alone, as files before it).
     let mut b = m.clone();
