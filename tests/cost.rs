@@ -484,9 +484,20 @@ fn the_calibrated_policy_picks_the_cheapest_prediction() {
             let sel = policy.select(&summary);
             assert_eq!(sel.structure.name(), expect.as_str(), "{kind:?} x {rays}, margin {margin}: {want:?}");
             chosen.push(expect);
-            // One reason per structure with its numbers, plus the verdict.
-            assert_eq!(sel.reasons.len(), 7, "{:?}", sel.reasons);
+            // One reason per structure with its numbers, plus the verdict and the margin to the next structure.
+            assert_eq!(sel.reasons.len(), 8, "{:?}", sel.reasons);
             assert!(sel.reasons.iter().any(|r| r.starts_with(&format!("{expect}: predicted build"))));
+            let chosen_total = want.iter().find(|t| t.0 == expect).unwrap().2;
+            let next = want.iter().filter(|t| t.0 != expect).min_by(|a, b| a.2.total_cmp(&b.2)).unwrap();
+            let margin_line = format!(
+                "margin: the next, {}, is predicted {:.2}x the {expect}'s total",
+                next.0,
+                next.2 / chosen_total
+            );
+            assert!(sel.reasons[1].starts_with(&margin_line), "{margin_line} in {:?}", sel.reasons);
+            let errors = [expect, next.0].map(|s| policy.model.get(s).unwrap().fit.total);
+            let close = (next.2 / chosen_total).ln().abs() < errors.iter().map(|e| e * e).sum::<f64>().sqrt();
+            assert_eq!(sel.reasons[1].contains("a close call"), close, "{}", sel.reasons[1]);
         }
     }
     chosen.sort();

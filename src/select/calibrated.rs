@@ -307,6 +307,9 @@ impl Policy for CalibratedPolicy {
                 String::new()
             }
         )];
+        if let Some(r) = margin_reason(&self.model, &preds, choice) {
+            reasons.push(r);
+        }
         if let Some(c) = &self.camera {
             let f = &scene.features[0];
             let v = ViewFeatures::of(c, f.lo, f.hi);
@@ -421,6 +424,36 @@ impl Policy for CalibratedPolicy {
         }
         Selection { structure: choice, reasons, excluded, driver }
     }
+}
+
+/// How far the choice stands from the next structure the policy could have chosen, against the calibration's
+/// errors: `margin: the next, S, is predicted R x the chosen's total; ...`, the ratio set beside the two
+/// structures' fit errors of the total ([`crate::cost::FitError::total`], RMS of `ln(predicted / measured)` on the
+/// calibration records, in sample, so a lower bound of the error on an unseen scene): a close call where the log of
+/// the ratio is below the two errors combined (`sqrt(e1^2 + e2^2)`). `None` with a single candidate.
+pub fn margin_reason(model: &CostModel, preds: &[Prediction], choice: StructureName) -> Option<String> {
+    let chosen = preds.iter().find(|p| p.structure == choice)?;
+    let next = preds
+        .iter()
+        .filter(|p| p.structure != choice && p.total_ms.is_finite())
+        .min_by(|a, b| a.total_ms.total_cmp(&b.total_ms))?;
+    let ratio = next.total_ms / chosen.total_ms;
+    let err = |s: StructureName| model.get(s).map_or(0.0, |m| m.fit.total);
+    let (e1, e2) = (err(choice), err(next.structure));
+    let combined = (e1 * e1 + e2 * e2).sqrt();
+    let verdict = if ratio.ln().abs() < combined {
+        "a close call: the margin is within the two predictions' errors combined"
+    } else {
+        "the margin exceeds the two predictions' errors combined"
+    };
+    Some(format!(
+        "margin: the next, {}, is predicted {ratio:.2}x the {choice}'s total; the calibration's fit errors of the \
+         total (RMS, in sample) are {:.0}% ({choice}) and {:.0}% ({}): {verdict}",
+        next.structure,
+        100.0 * e1,
+        100.0 * e2,
+        next.structure
+    ))
 }
 
 #[cfg(test)]

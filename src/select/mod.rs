@@ -22,7 +22,7 @@ pub use crate::cost::Crossings;
 pub use budget::{Budget, BuildBounds, Exclusion};
 #[cfg(feature = "eval")]
 pub(crate) use calibrated::planned_total;
-pub use calibrated::{choose, plan_frames, CalibratedPolicy, FrameAction, FrameDecision, FrameRule};
+pub use calibrated::{choose, margin_reason, plan_frames, CalibratedPolicy, FrameAction, FrameDecision, FrameRule};
 pub use driver::{plan_driver_frames, DriverAction, DriverFrameDecision, DriverFrameRule, DriverSelection};
 pub use report::{Bounds, Report, SelectionCost, Timings};
 pub use thesis::ThesisPolicy;
