@@ -48,7 +48,7 @@
 //! [`CostModel::fit`] takes oracle results ([`Sample`]: measured build ms, trace ms, tests per ray of every
 //! structure on every scene and workload) and fits, per structure: the build law by least squares in log space
 //! (`ln build = a + b ln n + d q(ln n)`, `d` held at 0 where it fits below or where the sizes span less than
-//! [`BUILD_CURVATURE_MIN_SPAN`]) and, for the probed structures on samples whose records counted the work, the
+//! [`BUILD_CURVATURE_MIN_SPAN`], every constant within the ranges of the validation below, edge slopes included) and, for the probed structures on samples whose records counted the work, the
 //! work law (`ln build = a' + b' ln n + c' ln(work / n) + d' q(ln n)`, `c'` and `d'` held at 0 where they fit
 //! below); the test counts by ridge regression in log space (ridge [`RIDGE`] on all but the
 //! intercept); the per-ray prices by non-negative least squares on the measured counts, weighted by `1 / t^2` so
@@ -100,8 +100,10 @@
 //!   work per triangle never builds faster, and no builder here handles a reference more than quadratically often),
 //!   `d'` as `build_curvature`.
 //! * `build_curvature` (0 when absent) lies in [`BUILD_CURVATURE_RANGE`], `[0, 1]` (see there); with a nonzero
-//!   curvature, `build_ln_n_range` is `[lo, hi]`, both finite in `[0, 45]` and `lo <= hi` (the sizes the law was
-//!   fitted on); without one it may be absent.
+//!   curvature (of either law), `build_ln_n_range` is `[lo, hi]`, both finite in `[0, BUILD_LN_N_LIMIT]`
+//!   ([`BUILD_LN_N_LIMIT`], `ln 2^40`, so that the term stays finite) and `lo <= hi` (the sizes the law was fitted
+//!   on); without one it may be absent. Each curved law's slopes in `ln n` at `lo` and `hi`
+//!   ([`build_law_slopes`]), which it keeps beyond them, lie in [`BUILD_EXPONENT_RANGE`], for the reasons of `b`.
 //! * Each of `box_coef` and `prim_coef` has one coefficient per [`FEATURE_NAMES`], each of magnitude at most
 //!   [`COEF_LIMIT`] (1000): a coefficient is the change of `ln` tests per ray per unit of a feature, and
 //!   [`StructureModel::predict`] clamps `theta . phi` to `±30`; with every `|phi_j| <= 45` (`ln n <= ln 2^64`, the
@@ -223,6 +225,7 @@ pub const LEGACY_PRICES: usize = 7;
 /// The price row of [`PRICE_NAMES`] for a kind and test counts.
 pub fn price_row(kind: WorkloadKind, box_tests: f64, prim_tests: f64) -> Vec<f64> {
     let inc = (kind != WorkloadKind::Primary) as u8 as f64;
+    let tests = box_tests + prim_tests;
     vec![
         (kind == WorkloadKind::Primary) as u8 as f64,
         (kind == WorkloadKind::Shadow) as u8 as f64,
@@ -231,7 +234,7 @@ pub fn price_row(kind: WorkloadKind, box_tests: f64, prim_tests: f64) -> Vec<f64
         prim_tests,
         inc * box_tests,
         inc * prim_tests,
-        inc * (box_tests + prim_tests) * (box_tests + prim_tests).max(0.0).ln_1p(),
+        inc * tests * tests.max(0.0).ln_1p(),
     ]
 }
 
@@ -679,7 +682,7 @@ impl StructureModel {
     /// model without curvature).
     fn build_curvature_term(&self, ln_n: f64) -> f64 {
         match self.build_ln_n_range[..] {
-            [lo, hi] if lo <= hi => curvature_term(ln_n, lo, hi),
+            [lo, hi] => curvature_term(ln_n, lo, hi),
             _ => 0.0,
         }
     }
