@@ -33,7 +33,7 @@ use meshchar::characterize::{features_cpu, Features, Params};
 use meshchar::cost::drift;
 use meshchar::cost::{CostModel, RefitModel, Sample};
 use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, DeviceRecord, TraceBackend};
-use meshchar::eval::record::{load_samples as load_oracle_samples, tracer_of};
+use meshchar::eval::record::{load_samples_with, tracer_of};
 use meshchar::eval::{OracleConfig, Rebuild};
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::{generate, Animation};
@@ -60,6 +60,12 @@ struct Args {
     /// recorded paths to compute their features
     #[arg(long = "from-oracle", value_name = "FILE")]
     oracle: Vec<PathBuf>,
+    /// With --from-oracle: time probes of every structure on each record's scene and camera on this machine
+    /// (meshchar::cost::timed) and store, per structure and kind of ray, the ratios of the records' times to the
+    /// probes' in the file (`timed`): what lets the calibrated policy blend timed probes in (`characterize
+    /// --timed-probes`). Run it on the machine the records were measured on
+    #[arg(long, requires = "oracle")]
+    timed_probes: bool,
     /// A real scene to measure (repeatable)
     #[arg(long = "scene", value_name = "PATH")]
     scenes: Vec<PathBuf>,
@@ -101,9 +107,9 @@ fn shared() -> PathBuf {
     PathBuf::from("..").join("shared").join("meshes")
 }
 
-fn samples_from_oracle(files: &[PathBuf]) -> anyhow::Result<Vec<Sample>> {
+fn samples_from_oracle(files: &[PathBuf], timed: bool) -> anyhow::Result<Vec<Sample>> {
     let bar = Progress::new("features", None, false);
-    let samples = load_oracle_samples(files, &Params::default(), &|m| {
+    let samples = load_samples_with(files, &Params::default(), timed, &|m| {
         bar.step(m);
         bar.eprintln(&format!("calibrate: features of {m}"));
     })?;
@@ -227,7 +233,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         if tracer.backend == TraceBackend::Vulkan && tracer.device.is_none() {
             anyhow::bail!("--from-oracle: the records were traced with vulkan but name no device");
         }
-        let samples = samples_from_oracle(&args.oracle)?;
+        let samples = samples_from_oracle(&args.oracle, args.timed_probes)?;
         (tracer.backend, tracer.device, samples)
     };
     let device = args.device.clone().unwrap_or_else(|| match &record {
@@ -275,6 +281,20 @@ fn run(args: Args) -> anyhow::Result<()> {
             }
         }
         model.refit = fit_refit(&dirs)?;
+    }
+    if let Some(t) = &model.timed {
+        println!("timed-probe ratios (records' time / probe's, median over {} records):", t.records);
+        let f = |x: Option<f64>| x.map_or_else(|| "-".into(), |x| format!("{x:.3}"));
+        for r in &t.structures {
+            println!(
+                "  {:<7} build {}  ns/ray: primary {}, shadow {}, diffuse {}",
+                r.structure.as_str(),
+                f(r.build),
+                f(r.trace[0]),
+                f(r.trace[1]),
+                f(r.trace[2])
+            );
+        }
     }
     println!(
         "cost model: device {}, {} samples, {} scenes; total fit error {:.1}% RMS (log)",

@@ -34,7 +34,7 @@ use meshchar::eval::chart::BarChart;
 use meshchar::eval::compare::{compare, score};
 use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, RefitCandidate, TraceBackend};
 use meshchar::eval::proxy::{agreement, proxied, Agreement, TestPrices};
-use meshchar::eval::record::{load_samples as load_oracle_samples, tracer_of};
+use meshchar::eval::record::{load_samples_with, tracer_of};
 use meshchar::eval::{OracleConfig, Rebuild, SceneEvaluation};
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::Animation;
@@ -136,6 +136,13 @@ struct Args {
     /// line {"proxy": {"prices", "agreement", "comparison"}}
     #[arg(long, requires = "compare_policies")]
     proxy: bool,
+    /// With --compare-policies: time probes of every structure on each record's scene and camera on this machine
+    /// (meshchar::cost::timed: one build and the fastest of a few single-threaded traces of 64 x 64 sample rays per
+    /// kind) and add the policy `calibrated_timed`: the held-out `calibrated_cv` models with the probes' times
+    /// blended into their predictions, the ratios fitted on the training records. Not deterministic: the probes are
+    /// timed anew on every run
+    #[arg(long, requires = "compare_policies")]
+    timed_probes: bool,
     /// Where the rays are traced: `cpu` (the counting CPU tracer, host wall time) or `vulkan` (the device traversal
     /// kernel on the Vulkan device, GPU timestamps; structures are built on the host and uploaded, the upload
     /// timed apart; every ray's hit is checked against the CPU reference). MESHCHAR_DEVICE picks the device
@@ -607,8 +614,9 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
     // One tracer per comparison: the calibrated policy is fitted on these records, so they must describe one
     // backend and one device.
     let tracer = tracer_of(&args.compare_policies)?;
-    let samples =
-        load_oracle_samples(&args.compare_policies, &Params::default(), &|m| bar.step(&format!("features of {m}")))?;
+    let samples = load_samples_with(&args.compare_policies, &Params::default(), args.timed_probes, &|m| {
+        bar.step(&format!("features of {m}"))
+    })?;
     bar.finish();
     let device = match tracer.as_ref().and_then(|t| t.device.as_ref()) {
         Some(d) => d.name.clone(),
@@ -634,7 +642,19 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
                 .iter()
                 .map(|s| meshchar::select::choose(&s.predict(&model), args.tie_margin.tie_margin))
                 .collect();
-            Some((path.display().to_string(), score(samples.iter().zip(picks))))
+            // With --timed-probes and a file that has their ratios: its predictions with the probes blended in.
+            let timed = model.timed.as_ref().filter(|_| args.timed_probes).map(|r| {
+                let picks: Vec<_> = samples
+                    .iter()
+                    .map(|s| {
+                        let mut p = s.predict(&model);
+                        meshchar::cost::timed::blend_contenders(&mut p, &s.timed, r, &s.workload);
+                        meshchar::select::choose(&p, args.tie_margin.tie_margin)
+                    })
+                    .collect();
+                score(samples.iter().zip(picks))
+            });
+            Some((path.display().to_string(), score(samples.iter().zip(picks)), timed))
         }
         None => None,
     };
@@ -648,8 +668,8 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
     };
     if args.json.json {
         println!("{}", serde_json::json!(c));
-        if let Some((file, sc)) = &fixed {
-            println!("{}", serde_json::json!({"fixed_cost_model": {"file": file, "score": sc}}));
+        if let Some((file, sc, timed)) = &fixed {
+            println!("{}", serde_json::json!({"fixed_cost_model": {"file": file, "score": sc, "timed_score": timed}}));
         }
         if let Some((prices, agree, pc)) = &proxy {
             println!("{}", serde_json::json!({"proxy": {"prices": prices, "agreement": agree, "comparison": pc}}));
@@ -695,17 +715,21 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
                 s.worst
             );
         }
-        if let Some((file, sc)) = &fixed {
-            println!(
-                "{:<34} {:>6} {:>8.1}% {:>11.1}% {:>11.1}% {:>11.1}%  {}",
-                "calibrated, as given",
-                sc.scored,
-                100.0 * sc.accuracy,
-                100.0 * sc.within_noise,
-                100.0 * sc.mean_regret,
-                100.0 * sc.worst_regret,
-                sc.worst
-            );
+        if let Some((file, sc, timed)) = &fixed {
+            for (label, sc) in
+                std::iter::once(("calibrated, as given", sc)).chain(timed.iter().map(|t| ("as given, timed probes", t)))
+            {
+                println!(
+                    "{:<34} {:>6} {:>8.1}% {:>11.1}% {:>11.1}% {:>11.1}%  {}",
+                    label,
+                    sc.scored,
+                    100.0 * sc.accuracy,
+                    100.0 * sc.within_noise,
+                    100.0 * sc.mean_regret,
+                    100.0 * sc.worst_regret,
+                    sc.worst
+                );
+            }
             println!("(as given: --cost-model {file}, not refitted on these records)");
         }
         println!("(tie margin {:.2}; leave-one-out holds out every workload of a scene together)", c.tie_margin);

@@ -177,6 +177,7 @@ fn known_samples_with_rays(count: u64, rays: impl Fn(u64) -> u64) -> (Vec<Sample
             driver: Vec::new(),
             frame_features: Vec::new(),
             crossings: None,
+            timed: Vec::new(),
         });
     }
     (samples, truth)
@@ -1168,4 +1169,50 @@ fn held_out_by_family_the_calibrated_policy_regrets_little_against_the_baselines
         assert!(s.mean_regret <= 0.03, "{w}: mean regret {} (worst {} at {})", s.mean_regret, s.worst_regret, s.worst);
         assert!(s.mean_regret <= 0.5 * single.mean_regret, "{w}: {} against {}", s.mean_regret, single.mean_regret);
     }
+    assert!(b.get("calibrated_timed", "family_out").is_none(), "no timed probes, no timed policy");
+}
+
+/// The timed policy's plumbing, deterministically: probes that read every structure's measured build and time per
+/// ray exactly (at half and twice the records' times, so that the ratios have something to find) are blended into
+/// the held-out models' predictions; the choices must come closer to the best than the model's own.
+#[test]
+fn timed_probes_that_read_the_truth_bring_the_held_out_choices_closer_to_it() {
+    use meshchar::cost::timed::{kind_index, TimedProbe};
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let files: Vec<std::path::PathBuf> =
+        ["primary", "shadow", "diffuse"].iter().map(|w| root.join(format!("docs/data/families-{w}.jsonl"))).collect();
+    let mut samples = meshchar::eval::record::load_samples(&files, &Params::default(), &|_| {}).unwrap();
+    for s in &mut samples {
+        let k = kind_index(s.workload.kind);
+        s.timed = s
+            .measured
+            .iter()
+            .filter(|m| m.valid)
+            .map(|m| {
+                let mut ns = [f64::NAN; 3];
+                ns[k] = 2.0 * m.trace_ns_per_ray;
+                TimedProbe {
+                    structure: m.structure,
+                    build_ms: 0.5 * m.build_ms_per_build,
+                    trace_ns_per_ray: ns,
+                    rays: [4096; 3],
+                }
+            })
+            .collect();
+    }
+    let b = meshchar::eval::compare::compare_baselines(&samples, 0.05, "test");
+    let cv = b.get("calibrated_cv", "family_out").expect("held out by family");
+    let timed = b.get("calibrated_timed", "family_out").expect("the timed policy, held out by family");
+    for ((w, s), (_, t)) in cv.by_workload.iter().zip(&timed.by_workload) {
+        assert_eq!(t.scored, 84, "{w}");
+        assert!(
+            t.mean_regret < s.mean_regret && t.worst_regret <= s.worst_regret,
+            "{w}: timed {} (worst {}) against {} (worst {})",
+            t.mean_regret,
+            t.worst_regret,
+            s.mean_regret,
+            s.worst_regret
+        );
+    }
+    assert!(b.get("calibrated_timed", "scene_out").is_some());
 }

@@ -108,6 +108,7 @@ fn known_samples() -> Vec<Sample> {
             driver,
             frame_features: Vec::new(),
             crossings: None,
+            timed: Vec::new(),
         });
     }
     for (k, n) in [500usize, 2_000, 6_000].into_iter().enumerate() {
@@ -156,6 +157,7 @@ fn known_samples() -> Vec<Sample> {
             driver,
             frame_features: feats,
             crossings: None,
+            timed: Vec::new(),
         });
     }
     out

@@ -345,6 +345,7 @@ fn paper_model() -> meshchar::cost::CostModel {
         trace_backend: Default::default(),
         trace_device: None,
         driver: Vec::new(),
+        timed: None,
         chosen_as: None,
     };
     m.validate().unwrap();

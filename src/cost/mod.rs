@@ -129,6 +129,10 @@
 //!   better than a fresh one on average, and above 1000 a drift of 0.001 would already double the trace cost; the
 //!   shipped fit is 1.08); `refit_ns_per_triangle` in `(0, PRICE_LIMIT_NS]` (a refit visits every node); `fit_rms`
 //!   `>= 0`; `samples >= 1`.
+//! * `timed`, when present ([`timed::TimedRatios`], the timed probes' ratios): each structure at most once, and
+//!   every ratio given (`build`, `trace` per kind; `null` where none was fitted) in [`timed::TIMED_RATIO_RANGE`],
+//!   `[0.001, 1000]`: a probe and the oracle differ by threads, caches and repeats, not by orders of magnitude (the
+//!   shipped ratios are 0.28 to 0.95).
 
 pub mod driver;
 pub mod linalg;
@@ -138,6 +142,7 @@ pub mod view;
 
 pub mod overlap;
 pub mod probe;
+pub mod timed;
 pub use overlap::{
     crossings_feature, near_crossings, near_sample_side, overlap_floor, primary_tests_per_crossing, screen_crossings,
     secondary_rays_leave_the_plane, secondary_tests_per_image_crossing, tests_per_crossing, Crossings, NearCrossings,
@@ -759,6 +764,10 @@ pub struct CostModel {
     /// queries); absent in files written before they existed, and for the CPU tracer.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub driver: Vec<DriverModel>,
+    /// The ratios that turn timed probes into this calibration's times ([`timed::TimedRatios`]), when it was fitted
+    /// with them (`calibrate --timed-probes`); absent otherwise, and then the policy cannot blend timed probes in.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub timed: Option<timed::TimedRatios>,
     /// Which file this model was read from and why it was chosen (`assets/cost-model-lavapipe.json: device name
     /// ...`), set by [`CostModel::for_trace_target`]; not part of the file, `None` for a model made otherwise.
     #[serde(skip)]
@@ -824,6 +833,9 @@ impl CostModel {
         check_names("price_names", &self.price_names, &PRICE_NAMES)?;
         if self.structures.is_empty() {
             return Err(invalid(None, "structures", "empty: no structure is calibrated"));
+        }
+        if let Some(t) = &self.timed {
+            t.validate().map_err(|e| invalid(None, "timed", &e))?;
         }
         for (i, s) in self.structures.iter().enumerate() {
             if let Some(j) = self.structures[..i].iter().position(|t| t.structure == s.structure) {
@@ -1128,6 +1140,7 @@ impl CostModel {
             trace_backend: TraceBackend::Cpu,
             trace_device: None,
             driver: Vec::new(),
+            timed: timed::TimedRatios::fit(samples),
             chosen_as: None,
         };
         let mut se = Vec::new();

@@ -81,7 +81,7 @@ pub const PROBES: usize = 5;
 pub const PROBE_GRID_BUDGET: [usize; 2] = [16, 1 << 22];
 
 /// Builds a probed structure with the options the oracle and the engine use, the grid within [`PROBE_GRID_BUDGET`].
-fn build_probed(structure: StructureName, mesh: &Mesh) -> Option<Box<dyn crate::accel::AccelStructure>> {
+pub(crate) fn build_probed(structure: StructureName, mesh: &Mesh) -> Option<Box<dyn crate::accel::AccelStructure>> {
     #[cfg(feature = "eval")]
     if structure == StructureName::Grid {
         let o = crate::accel::grid::GridOptions {

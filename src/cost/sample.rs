@@ -83,6 +83,9 @@ pub struct Sample {
     /// The triangle boxes the record's rays cross on average (the first frame's [`super::Crossings`] for its
     /// workload and camera, [`super::Crossings::for_workload`]; `None` when not computed): the policies' overlap floor ([`super::overlap_floor`]) reads them.
     pub crossings: Option<super::RayCrossings>,
+    /// The timed probes of the record's scene and camera ([`super::timed::time_probes`]), when taken (empty
+    /// otherwise): what [`super::timed::TimedRatios::fit`] reads and the timed policy blends in.
+    pub timed: Vec<super::timed::TimedProbe>,
 }
 
 impl Sample {

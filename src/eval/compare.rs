@@ -365,8 +365,10 @@ pub fn workload_of(smp: &Sample) -> String {
 /// One policy's selections over the samples and their scores, overall, by workload and by family.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct PolicyRun {
-    /// `thesis`, `best_single`, `size_only`, `calibrated` or `calibrated_cv` (the calibrated model with its ridge
-    /// chosen by cross-validation inside its training samples, [`fit_ridge_by_cv`]).
+    /// `thesis`, `best_single`, `size_only`, `calibrated`, `calibrated_cv` (the calibrated model with its ridge
+    /// chosen by cross-validation inside its training samples, [`fit_ridge_by_cv`]) or `calibrated_timed` (the
+    /// same held-out models with the samples' timed probes blended in, [`crate::cost::timed`]; only where the
+    /// samples have them).
     pub policy: String,
     /// How it was fitted: `recorded` (the thesis policy's recorded choice), `hindsight` (the best single structure
     /// per workload, chosen on all samples), `in_sample`, `scene_out` (fitted without the sample's scene) or
@@ -422,20 +424,43 @@ fn held_out_choices(
     tie_margin: f64,
     geometric: bool,
 ) -> Vec<Option<StructureName>> {
+    held_out_choices_timed(samples, group, fit, tie_margin, geometric).0
+}
+
+/// [`held_out_choices`], and beside them the choices of the same held-out models with the samples' timed probes
+/// blended in ([`crate::cost::timed::blend_contenders`], the ratios fitted on the training samples with the model; a
+/// sample without probes, or a model without ratios, keeps the model's choice).
+fn held_out_choices_timed(
+    samples: &[Sample],
+    group: &dyn Fn(&Sample) -> String,
+    fit: &GroupFit<'_>,
+    tie_margin: f64,
+    geometric: bool,
+) -> (Vec<Option<StructureName>>, Vec<Option<StructureName>>) {
     let keys: Vec<String> = samples.iter().map(group).collect();
     let mut groups = keys.clone();
     groups.sort();
     groups.dedup();
     let mut out = vec![None; samples.len()];
+    let mut timed = vec![None; samples.len()];
     for g in &groups {
         let train: Vec<Sample> = samples.iter().zip(&keys).filter(|(_, k)| *k != g).map(|(s, _)| s.clone()).collect();
         let Ok(model) = fit(g, &train) else { continue };
         for (i, smp) in samples.iter().enumerate().filter(|(i, _)| keys[*i] == *g) {
-            let preds = if geometric { smp.predict(&model) } else { model.predict(&smp.features, &smp.workload) };
+            let mut preds = if geometric { smp.predict(&model) } else { model.predict(&smp.features, &smp.workload) };
             out[i] = choose(&preds, tie_margin);
+            // As the policy does: the contenders' probes only (`cost::timed::contenders`); a sample without probes
+            // (an animation), or a model without ratios, keeps the model's choice.
+            timed[i] = match model.timed.as_ref() {
+                Some(r) => {
+                    crate::cost::timed::blend_contenders(&mut preds, &smp.timed, r, &smp.workload);
+                    choose(&preds, tie_margin)
+                }
+                None => out[i],
+            };
         }
     }
-    out
+    (out, timed)
 }
 
 /// The ridges [`fit_ridge_by_cv`] tries, smallest first: [`crate::cost::RIDGE`] and then a factor of about 4 to
@@ -600,25 +625,36 @@ pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> B
         policies.push(run("calibrated", "family_out", held_out_choices(samples, &family, &full, tie_margin, true)));
     }
     // The ridge each fit chose, under the name of the group it was fitted without.
-    let cv_run = |holdout: &str, group: &dyn Fn(&Sample) -> String| -> PolicyRun {
+    let cv_run = |holdout: &str, group: &dyn Fn(&Sample) -> String| -> (PolicyRun, Option<PolicyRun>) {
         let ridges = std::cell::RefCell::new(Vec::new());
         let cv = |g: &str, t: &[Sample]| {
             let fit = fit_ridge_by_cv(t, device, "held out, ridge by cross-validation", tie_margin)?;
             ridges.borrow_mut().push((g.to_string(), fit.ridge, fit.crossings));
             Ok(fit.model)
         };
-        let choices = held_out_choices(samples, group, &cv, tie_margin, true);
-        PolicyRun { ridges: ridges.into_inner(), ..run("calibrated_cv", holdout, choices) }
+        let (choices, timed) = held_out_choices_timed(samples, group, &cv, tie_margin, true);
+        let ridges = ridges.into_inner();
+        let timed = samples
+            .iter()
+            .any(|s| !s.timed.is_empty())
+            .then(|| PolicyRun { ridges: ridges.clone(), ..run("calibrated_timed", holdout, timed) });
+        (PolicyRun { ridges, ..run("calibrated_cv", holdout, choices) }, timed)
     };
-    policies.push(cv_run("scene_out", &scene));
+    let mut timed_runs = Vec::new();
+    let (cv, timed) = cv_run("scene_out", &scene);
+    policies.push(cv);
+    timed_runs.extend(timed);
     if distinct.len() > 1 {
-        policies.push(cv_run("family_out", &family));
+        let (cv, timed) = cv_run("family_out", &family);
+        policies.push(cv);
+        timed_runs.extend(timed);
     }
     let ins: Vec<Option<StructureName>> = match CostModel::fit(samples, device, "held out") {
         Ok(m) => samples.iter().map(|s| choose(&s.predict(&m), tie_margin)).collect(),
         Err(_) => vec![None; samples.len()],
     };
     policies.push(run("calibrated", "in_sample", ins));
+    policies.extend(timed_runs);
     Baselines { families, workloads, policies }
 }
 

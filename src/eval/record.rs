@@ -462,6 +462,7 @@ impl OracleRecord {
             driver,
             frame_features: Vec::new(),
             crossings: None,
+            timed: Vec::new(),
         }
     }
 }
@@ -543,9 +544,22 @@ pub fn read_jsonl(path: &Path) -> Result<Vec<OracleRecord>, RecordError> {
 /// ([`Sample::frame_features`], against which an updated structure's drift is measured). `progress` receives the
 /// name of each scene loaded.
 pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str)) -> Result<Vec<Sample>, RecordError> {
+    load_samples_with(files, params, false, progress)
+}
+
+/// [`load_samples`], and with `timed`, the timed probes of every static scene's camera
+/// ([`crate::cost::timed::time_probes`] of every structure this build has, every kind of ray; taken once per scene
+/// and camera, on this machine, now) in [`Sample::timed`]: what the timed policy's ratios are fitted on
+/// ([`crate::cost::timed::TimedRatios::fit`]) and what it blends in. Records of animations get none.
+pub fn load_samples_with(
+    files: &[PathBuf],
+    params: &Params,
+    timed: bool,
+    progress: &dyn Fn(&str),
+) -> Result<Vec<Sample>, RecordError> {
     // Per scene: the features of its frames, as far as computed, and the first frame's crossings per camera met
-    // (the three workloads of a view share one).
-    type Views = Vec<(Option<crate::geom::Camera>, crate::cost::Crossings)>;
+    // (the three workloads of a view share one), with its timed probes when taken.
+    type Views = Vec<(Option<crate::geom::Camera>, crate::cost::Crossings, Vec<crate::cost::timed::TimedProbe>)>;
     type Loaded = (crate::mesh::Animation, Vec<Features>, Views);
     let mut cache: std::collections::HashMap<String, Loaded> = std::collections::HashMap::new();
     let mut out = Vec::new();
@@ -575,18 +589,37 @@ pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str))
             let camera = rec.camera.as_ref().map(|c| c.camera());
             // The record's camera counted on its image, what the policy computes from the mesh for the camera it
             // is given.
-            let viewed = match views.iter().find(|v| v.0 == camera) {
-                Some(v) => v.1,
+            let (viewed, probes) = match views.iter().find(|v| v.0 == camera) {
+                Some(v) => (v.1, v.2.clone()),
                 None => {
                     let c = crate::cost::Crossings::of_first_frame_viewed(
                         &scene.frames[0],
                         camera.as_ref(),
                         scene.frames.len(),
                     );
-                    views.push((camera, c));
-                    c
+                    let probes = if timed && scene.frames.len() == 1 {
+                        progress(&format!("{} (timed probes)", rec.mesh));
+                        // A record without a camera was traced from the framing camera, as the policy assumes.
+                        let cam = camera.unwrap_or_else(|| {
+                            let b = crate::trace::workload::mesh_bounds(&scene.frames[0]);
+                            crate::cost::view::framing_camera(b.min.to_array(), b.max.to_array())
+                        });
+                        crate::cost::timed::time_probes(
+                            &scene.frames[0],
+                            &cam,
+                            &StructureName::ALL,
+                            &[WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse],
+                        )
+                    } else {
+                        Vec::new()
+                    };
+                    views.push((camera, c, probes.clone()));
+                    (c, probes)
                 }
             };
+            if rec.rebuild == Rebuild::Once && rec.frames_measured <= 1 {
+                sample.timed = probes;
+            }
             sample.crossings = Some(viewed.for_workload(rec.workload, camera.as_ref(), feats[0].lo, feats[0].hi));
             if wanted > 1 {
                 sample.frame_features = feats[..wanted].to_vec();

@@ -1,0 +1,550 @@
+//! Timed probes: the candidate structures built and a sample of the view's rays traced through each, both timed on
+//! this machine, and the cost model's predictions blended with what they measured.
+//!
+//! The count probes ([`super::probe()`]) make the policy's test counts exact on a sample; what stays predicted is
+//! the time per build and per test, and those are where the held-out errors were left (on the scene families,
+//! replacing the predicted builds of every structure by the measured ones took the mean regret of primary rays from
+//! 3.1% to 1.8%, and the traces from 3.1% to 1.4%, `docs/cost-model.md`, "Ninth session"). A timed probe measures
+//! them directly, at a price: every contender ([`contenders`]) is built once (the count probes already build five of
+//! the six structures) and [`TIMED_SIDE`]`^2` rays of the workload's kind are traced through each, on one thread, a
+//! few times ([`TIMED_REPEATS`], the fastest kept: interruptions only ever add time).
+//!
+//! A probe's times are not the oracle's: one build, cold, against the median of many; one thread against the
+//! tracer's pool; a sample whose rays are fewer and less coherent than the frame's. The calibration fits, per
+//! structure, the ratio of the oracle's build to the probe's and, per structure and kind of ray, of the oracle's
+//! time per ray to the probe's ([`TimedRatios::fit`]: the median of the log ratios over its records). A probe is
+//! noisy where the cost model is biased, so neither replaces the other: the policy takes the geometric mean of the
+//! two, for the build and for the time per ray apart ([`blend`]). The weight (one half each) was not fitted.
+//!
+//! Timed probes are not deterministic: two runs may choose differently where two structures are close. They are
+//! off by default: a caller asks for them with [`crate::select::select_for_scene_timed`] (or
+//! [`crate::select::BuildBounds::with_timed_probes`], which [`crate::select::CalibratedPolicy::timed_probes`]
+//! reads); `evaluate --compare-policies --timed-probes` scores them against the deterministic policy on the same
+//! records (`docs/cost-model.md`, "Tenth session").
+
+use crate::accel::bounce::diffuse_direction;
+use crate::accel::{AccelStructure, StructureName};
+use crate::geom::camera::{default_light, secondary_start, shadow_ray};
+use crate::geom::{Aabb, Camera, Ray, TraceCounters, WorkloadKind};
+use crate::mesh::Mesh;
+use std::time::Instant;
+
+/// The side of the square image of primary rays a timed probe traces (and whose hits start its shadow and diffuse
+/// rays): 64, 4,096 rays.
+pub const TIMED_SIDE: u32 = 64;
+
+/// The most times a timed probe traces its sample of one kind through one structure; it keeps the fastest.
+pub const TIMED_REPEATS: usize = 5;
+
+/// After this many milliseconds spent tracing one structure's sample of one kind, a timed probe stops repeating
+/// (it always makes at least two traces).
+pub const TIMED_TRACE_CAP_MS: f64 = 100.0;
+
+/// The fewest rays of one kind a timed probe's time per ray is read on: fewer (a sparse view's few hits) give a
+/// time dominated by the clock's own cost.
+pub const TIMED_MIN_RAYS: usize = 64;
+
+/// A structure is worth a timed probe when the model predicts its total within this factor of the least predicted
+/// total ([`contenders`]): on the scene families (held out by family) probing only those gave the same choices as
+/// probing all six, with 3.4 structures probed on average instead of 6 (1.5: 2.2 probed, primary rays' mean regret
+/// 0.65% -> 0.83%); the factor was chosen on those records.
+pub const CONTENDER_FACTOR: f64 = 2.0;
+
+/// The structures of `preds` whose predicted total is finite and within [`CONTENDER_FACTOR`] of the least: the
+/// ones a timed probe could make the cheapest.
+pub fn contenders(preds: &[super::Prediction]) -> Vec<StructureName> {
+    let least = preds.iter().map(|p| p.total_ms).filter(|t| t.is_finite()).fold(f64::INFINITY, f64::min);
+    preds
+        .iter()
+        .filter(|p| p.total_ms.is_finite() && p.total_ms <= CONTENDER_FACTOR * least)
+        .map(|p| p.structure)
+        .collect()
+}
+
+/// [`blend`] with only the probes of `preds`'s [`contenders`] (what the policy probes,
+/// [`crate::select::select_for_scene_timed`]): the one blend of the evaluations, which are given every structure's
+/// probe.
+pub fn blend_contenders(
+    preds: &mut [super::Prediction],
+    timed: &[TimedProbe],
+    ratios: &TimedRatios,
+    w: &super::Workload,
+) -> usize {
+    let only = contenders(preds);
+    let probes: Vec<TimedProbe> = timed.iter().filter(|p| only.contains(&p.structure)).copied().collect();
+    blend(preds, &probes, ratios, w)
+}
+
+/// What one structure's timed probe measured.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct TimedProbe {
+    /// The structure.
+    pub structure: StructureName,
+    /// Wall time of its one build, ms.
+    pub build_ms: f64,
+    /// Per kind of ray (primary, shadow, diffuse: [`kind_index`]), the fastest time per ray over the repeats, ns,
+    /// on one thread; NaN where fewer than [`TIMED_MIN_RAYS`] rays of that kind were traced.
+    pub trace_ns_per_ray: [f64; 3],
+    /// Per kind of ray, how many were traced.
+    pub rays: [usize; 3],
+}
+
+impl TimedProbe {
+    /// The time per ray of `kind`, when measured on enough rays.
+    pub fn ns_per_ray(&self, kind: WorkloadKind) -> Option<f64> {
+        let i = kind_index(kind);
+        let t = self.trace_ns_per_ray[i];
+        (self.rays[i] >= TIMED_MIN_RAYS && t.is_finite() && t > 0.0).then_some(t)
+    }
+
+    /// The build time, when measured.
+    pub fn build(&self) -> Option<f64> {
+        (self.build_ms.is_finite() && self.build_ms > 0.0).then_some(self.build_ms)
+    }
+}
+
+/// The index of a kind of ray in [`TimedProbe::trace_ns_per_ray`] and [`StructureRatios::trace`]: primary 0, shadow 1,
+/// diffuse 2.
+pub fn kind_index(kind: WorkloadKind) -> usize {
+    match kind {
+        WorkloadKind::Primary => 0,
+        WorkloadKind::Shadow => 1,
+        WorkloadKind::Diffuse => 2,
+    }
+}
+
+/// Builds each of `structures` over `mesh` and times its build, then traces through each a sample of `kinds` rays
+/// of `camera` ([`TIMED_SIDE`] squared primary rays through the pixel centres; the shadow and diffuse rays their
+/// hits start, as the workloads start theirs), on this thread, and keeps the
+/// fastest of up to [`TIMED_REPEATS`] traces per kind. A structure that does not build (or a grid past the
+/// probes' budget, [`super::probe::PROBE_GRID_BUDGET`]) has no probe. Every structure traces the same rays: the
+/// secondary rays start at the first built structure's hits.
+pub fn time_probes(
+    mesh: &Mesh,
+    camera: &Camera,
+    structures: &[StructureName],
+    kinds: &[WorkloadKind],
+) -> Vec<TimedProbe> {
+    let mut built: Vec<(StructureName, f64, Box<dyn AccelStructure>)> = Vec::new();
+    for &s in structures {
+        let t = Instant::now();
+        let b = super::probe::build_probed(s, mesh);
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        if let Some(b) = b {
+            built.push((s, ms, b));
+        }
+    }
+    let Some(reference) = built.first() else { return Vec::new() };
+    let sets: Vec<(usize, RaySample)> =
+        kinds.iter().map(|&k| (kind_index(k), sample_rays(k, mesh, camera, reference.2.as_ref()))).collect();
+    built
+        .iter()
+        .map(|(s, ms, accel)| {
+            let mut p = TimedProbe { structure: *s, build_ms: *ms, trace_ns_per_ray: [f64::NAN; 3], rays: [0; 3] };
+            for (i, set) in &sets {
+                p.rays[*i] = set.rays.len();
+                if set.rays.len() >= TIMED_MIN_RAYS {
+                    p.trace_ns_per_ray[*i] = fastest_trace(accel.as_ref(), set);
+                }
+            }
+            p
+        })
+        .collect()
+}
+
+/// A timed probe's rays of one kind, and whether they are any-hit (shadow) queries.
+struct RaySample {
+    rays: Vec<Ray>,
+    any_hit: bool,
+}
+
+/// Seed of a timed probe's diffuse bounces (per ray, mixed with the primary ray's index as the workloads mix theirs).
+const TIMED_SEED: u64 = 0x7469_6d65_645f_7072;
+
+/// The box of a mesh's triangles (empty without triangles).
+pub(crate) fn mesh_box(mesh: &Mesh) -> Aabb {
+    let mut b = Aabb::EMPTY;
+    for p in mesh.indices.iter().flatten().filter_map(|&i| mesh.positions.get(i as usize)) {
+        b.grow(glam::Vec3::from_array(*p));
+    }
+    b
+}
+
+/// The [`TIMED_SIDE`]`^2` primary rays of `camera` through the pixel centres, or for shadow and diffuse rays the
+/// rays their hits in `reference` start, as the workloads start theirs (`geom::camera::secondary_start`, the
+/// scene's default light, `accel::bounce::diffuse_direction`).
+fn sample_rays(kind: WorkloadKind, mesh: &Mesh, camera: &Camera, reference: &dyn AccelStructure) -> RaySample {
+    let s = TIMED_SIDE;
+    let primary: Vec<Ray> = (0..s * s).map(|k| camera.ray(k % s, k / s, s, s)).collect();
+    if kind == WorkloadKind::Primary {
+        return RaySample { rays: primary, any_hit: false };
+    }
+    let bounds = mesh_box(mesh);
+    let light = default_light(&bounds);
+    let mut rays = Vec::new();
+    for (k, r) in primary.iter().enumerate() {
+        let Some(h) = reference.intersect(r, &mut TraceCounters::default()) else { continue };
+        let i = h.triangle as usize;
+        if i >= mesh.triangle_count() {
+            continue;
+        }
+        let tri = crate::geom::Triangle::new(&mesh.triangle(i));
+        let Some((origin, n)) = secondary_start(&tri, r.origin + r.dir * h.t, r.dir, &bounds) else { continue };
+        match kind {
+            WorkloadKind::Shadow => rays.extend(shadow_ray(origin, light)),
+            _ => rays.push(Ray::new(origin, diffuse_direction(n, TIMED_SEED, k))),
+        }
+    }
+    RaySample { rays, any_hit: kind == WorkloadKind::Shadow }
+}
+
+/// The fastest of up to [`TIMED_REPEATS`] single-threaded traces of `set` through `accel`, ns per ray.
+fn fastest_trace(accel: &dyn AccelStructure, set: &RaySample) -> f64 {
+    let mut best = f64::INFINITY;
+    let mut spent = 0.0;
+    for r in 0..TIMED_REPEATS {
+        let t = Instant::now();
+        let mut c = TraceCounters::default();
+        let mut hits = 0usize;
+        for ray in &set.rays {
+            hits +=
+                if set.any_hit { accel.occluded(ray, &mut c) } else { accel.intersect(ray, &mut c).is_some() } as usize;
+        }
+        std::hint::black_box((hits, c));
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        best = best.min(ms);
+        spent += ms;
+        if r >= 1 && spent > TIMED_TRACE_CAP_MS {
+            break;
+        }
+    }
+    best * 1e6 / set.rays.len().max(1) as f64
+}
+
+/// What turns a timed probe into the oracle's times, fitted per calibration ([`TimedRatios::fit`]).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimedRatios {
+    /// Per structure with a timed probe in the calibration's records, in [`StructureName::ALL`]'s order.
+    pub structures: Vec<StructureRatios>,
+    /// How many records the ratios were fitted on.
+    pub records: usize,
+}
+
+/// One structure's [`TimedRatios`]: each the median over the calibration's records of the records' time over the
+/// probe's, as `exp(median(ln ratio))`; `None` where no record had both.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StructureRatios {
+    /// The structure.
+    pub structure: StructureName,
+    /// Of one build.
+    pub build: Option<f64>,
+    /// Of the time per ray, per kind of ray (primary, shadow, diffuse: [`kind_index`]).
+    pub trace: [Option<f64>; 3],
+}
+
+/// The range a ratio of [`TimedRatios`] must lie in for a calibration file to be valid: a probe and the oracle
+/// differ by threads, caches and repeats, not by orders of magnitude.
+pub const TIMED_RATIO_RANGE: [f64; 2] = [1e-3, 1e3];
+
+impl TimedRatios {
+    /// The ratios of the timed probes of `samples` ([`super::Sample::timed`]) to their measurements; `None` when no
+    /// sample has a timed probe of a validly measured structure.
+    pub fn fit(samples: &[super::Sample]) -> Option<TimedRatios> {
+        let mut logs: Vec<(StructureName, [Vec<f64>; 4])> = Vec::new();
+        let mut records = 0;
+        for smp in samples {
+            let mut any = false;
+            for p in &smp.timed {
+                let Some(m) = smp.get(p.structure).filter(|m| m.valid) else { continue };
+                let i = match logs.iter().position(|l| l.0 == p.structure) {
+                    Some(i) => i,
+                    None => {
+                        logs.push((p.structure, Default::default()));
+                        logs.len() - 1
+                    }
+                };
+                if let Some(b) = p.build().filter(|_| m.build_ms_per_build > 0.0) {
+                    logs[i].1[0].push((m.build_ms_per_build / b).ln());
+                    any = true;
+                }
+                if let Some(t) = p.ns_per_ray(smp.workload.kind).filter(|_| m.trace_ns_per_ray > 0.0) {
+                    logs[i].1[1 + kind_index(smp.workload.kind)].push((m.trace_ns_per_ray / t).ln());
+                    any = true;
+                }
+            }
+            records += any as usize;
+        }
+        if records == 0 {
+            return None;
+        }
+        let mut structures: Vec<StructureRatios> = logs
+            .into_iter()
+            .map(|(structure, [b, p, s, d])| {
+                // A ratio beyond the file's range (records of another tracer than the probes') is not fitted.
+                let r = |v: Vec<f64>| {
+                    median(v).map(f64::exp).filter(|x| (TIMED_RATIO_RANGE[0]..=TIMED_RATIO_RANGE[1]).contains(x))
+                };
+                StructureRatios { structure, build: r(b), trace: [r(p), r(s), r(d)] }
+            })
+            .collect();
+        structures.sort_by_key(|r| StructureName::ALL.iter().position(|x| *x == r.structure));
+        Some(TimedRatios { structures, records })
+    }
+
+    /// The ratios of `structure`, when fitted.
+    pub fn of(&self, structure: StructureName) -> Option<&StructureRatios> {
+        self.structures.iter().find(|r| r.structure == structure)
+    }
+
+    /// Checks that every ratio given is within [`TIMED_RATIO_RANGE`] and each structure appears once.
+    pub fn validate(&self) -> Result<(), String> {
+        for (i, r) in self.structures.iter().enumerate() {
+            if self.structures[..i].iter().any(|o| o.structure == r.structure) {
+                return Err(format!("{} appears twice", r.structure));
+            }
+            for x in std::iter::once(r.build).chain(r.trace).flatten() {
+                if !(TIMED_RATIO_RANGE[0]..=TIMED_RATIO_RANGE[1]).contains(&x) {
+                    return Err(format!(
+                        "ratio {x} of {} outside [{}, {}]",
+                        r.structure, TIMED_RATIO_RANGE[0], TIMED_RATIO_RANGE[1]
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The predictions `preds` of a static scene (one build) blended with its timed probes `timed` under `ratios`: for
+/// each structure with a probe and fitted ratios, the build of one build becomes the geometric mean of the
+/// predicted one and the probe's times its ratio, and the time per ray likewise for the workload's kind; totals
+/// follow (`build_ms` times the builds, the trace over the predicted rays). Structures without a probe, a ratio or
+/// a positive prediction keep their predictions. Returns how many predictions were blended.
+pub fn blend(
+    preds: &mut [super::Prediction],
+    timed: &[TimedProbe],
+    ratios: &TimedRatios,
+    w: &super::Workload,
+) -> usize {
+    let mut n = 0;
+    for p in preds.iter_mut() {
+        let (Some(t), Some(r)) = (timed.iter().find(|t| t.structure == p.structure), ratios.of(p.structure)) else {
+            continue;
+        };
+        let mut blended = false;
+        let usable = |x: f64| x.is_finite() && x > 0.0;
+        if let (Some(b), Some(rb)) = (t.build(), r.build.filter(|_| usable(p.build_ms_per_build))) {
+            let per = (p.build_ms_per_build * rb * b).sqrt();
+            if usable(per) {
+                p.build_ms = per * w.builds as f64;
+                p.build_ms_per_build = per;
+                blended = true;
+            }
+        }
+        let rk = r.trace[kind_index(w.kind)];
+        if let (Some(ns), Some(rk)) = (t.ns_per_ray(w.kind), rk.filter(|_| usable(p.trace_ns_per_ray))) {
+            let per = (p.trace_ns_per_ray * rk * ns).sqrt();
+            if usable(per) && p.trace_ms.is_finite() {
+                p.trace_ms *= per / p.trace_ns_per_ray;
+                p.trace_ns_per_ray = per;
+                blended = true;
+            }
+        }
+        if blended {
+            p.total_ms = p.build_ms + p.trace_ms;
+            n += 1;
+        }
+    }
+    n
+}
+
+/// The median of `v` (the mean of the middle two for an even count); `None` when empty.
+fn median(mut v: Vec<f64>) -> Option<f64> {
+    v.retain(|x| x.is_finite());
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(v[n / 2]),
+        _ => Some(0.5 * (v[n / 2 - 1] + v[n / 2])),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cost::{Measured, Prediction, Sample, Workload};
+    use crate::mesh::generate;
+
+    fn framing(mesh: &Mesh) -> Camera {
+        let b = mesh_box(mesh);
+        crate::cost::view::framing_camera(b.min.to_array(), b.max.to_array())
+    }
+
+    #[test]
+    fn time_probes_builds_and_times_every_structure_on_the_same_rays() {
+        let mesh = generate::teapot_in_stadium(3);
+        let kinds = [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse];
+        let probes = time_probes(&mesh, &framing(&mesh), &StructureName::ALL, &kinds);
+        assert_eq!(probes.iter().map(|p| p.structure).collect::<Vec<_>>(), StructureName::ALL.to_vec());
+        let side = TIMED_SIDE as usize;
+        for p in &probes {
+            assert!(p.build().is_some(), "{p:?}");
+            assert_eq!(p.rays[0], side * side, "every primary ray of the sample is traced");
+            assert_eq!(p.rays, probes[0].rays, "every structure traces the same rays");
+            for k in kinds {
+                let t =
+                    p.ns_per_ray(k).unwrap_or_else(|| panic!("enough rays of every kind in a closed stadium: {p:?}"));
+                assert!(t.is_finite() && t > 0.0, "{p:?}");
+            }
+        }
+        // Only the kinds asked for are traced.
+        let primary = time_probes(&mesh, &framing(&mesh), &[StructureName::Bvh], &[WorkloadKind::Primary]);
+        assert_eq!(primary.len(), 1);
+        assert_eq!(primary[0].rays[1..], [0, 0]);
+        assert!(primary[0].ns_per_ray(WorkloadKind::Shadow).is_none());
+    }
+
+    #[test]
+    fn time_probes_of_an_empty_mesh_or_a_missed_view_give_no_trace_time() {
+        let empty = Mesh::new("empty", Vec::new(), Vec::new()).expect("an empty mesh is valid");
+        let cam = framing(&generate::single_triangle());
+        for p in time_probes(&empty, &cam, &StructureName::ALL, &[WorkloadKind::Primary, WorkloadKind::Diffuse]) {
+            // Primary rays are traced (and miss); no hit starts a diffuse ray.
+            assert_eq!(p.rays[2], 0, "{p:?}");
+            assert!(p.ns_per_ray(WorkloadKind::Diffuse).is_none());
+        }
+    }
+
+    fn prediction(structure: StructureName, build: f64, ns: f64, rays: f64) -> Prediction {
+        Prediction {
+            structure,
+            build_ms_per_build: build,
+            build_ms: build,
+            box_tests_per_ray: 1.0,
+            prim_tests_per_ray: 1.0,
+            trace_ns_per_ray: ns,
+            trace_ms: ns * rays * 1e-6,
+            total_ms: build + ns * rays * 1e-6,
+        }
+    }
+
+    fn probe(structure: StructureName, build_ms: f64, ns: [f64; 3]) -> TimedProbe {
+        TimedProbe { structure, build_ms, trace_ns_per_ray: ns, rays: [4096; 3] }
+    }
+
+    fn workload(kind: WorkloadKind) -> Workload {
+        Workload { kind, rays_per_frame: 1_000_000, frames: 1, builds: 1, view: None }
+    }
+
+    #[test]
+    fn blend_takes_the_geometric_mean_of_the_prediction_and_the_scaled_probe() {
+        let w = workload(WorkloadKind::Shadow);
+        let mut preds = vec![
+            prediction(StructureName::Bvh, 4.0, 100.0, 1e6),
+            prediction(StructureName::Lbvh, 1.0, 50.0, 1e6),
+            prediction(StructureName::Grid, 2.0, 80.0, 1e6),
+        ];
+        let timed = [
+            probe(StructureName::Bvh, 9.0, [f64::NAN, 200.0, f64::NAN]),
+            probe(StructureName::Lbvh, 1.0, [1.0, f64::NAN, 1.0]),
+        ];
+        let ratios = TimedRatios {
+            structures: vec![
+                StructureRatios { structure: StructureName::Bvh, build: Some(1.0), trace: [None, Some(0.5), None] },
+                StructureRatios { structure: StructureName::Lbvh, build: None, trace: [Some(1.0); 3] },
+            ],
+            records: 3,
+        };
+        assert_eq!(blend(&mut preds, &timed, &ratios, &w), 1, "the LBVH has no shadow time and no build ratio");
+        let bvh = &preds[0];
+        assert!((bvh.build_ms - 6.0).abs() < 1e-12, "sqrt(4 x 9): {bvh:?}");
+        assert!((bvh.trace_ns_per_ray - 100.0).abs() < 1e-12, "sqrt(100 x 0.5 x 200): {bvh:?}");
+        assert!((bvh.total_ms - (6.0 + 100.0)).abs() < 1e-9, "{bvh:?}");
+        assert_eq!(preds[1], prediction(StructureName::Lbvh, 1.0, 50.0, 1e6));
+        assert_eq!(preds[2], prediction(StructureName::Grid, 2.0, 80.0, 1e6), "no probe: unchanged");
+        // A prediction that is not finite is left as it is (no NaN from inf / inf).
+        let mut inf =
+            vec![Prediction { trace_ns_per_ray: f64::INFINITY, ..prediction(StructureName::Bvh, 4.0, 1.0, 1e6) }];
+        inf[0].trace_ms = f64::INFINITY;
+        blend(&mut inf, &timed, &ratios, &w);
+        assert!(inf[0].trace_ns_per_ray.is_infinite() && !inf[0].total_ms.is_nan(), "{inf:?}");
+        // Rebuilt every frame: the blended build counts once per build.
+        let w = Workload { frames: 4, builds: 4, ..w };
+        let mut p = vec![Prediction { build_ms: 16.0, ..prediction(StructureName::Bvh, 4.0, 100.0, 4e6) }];
+        blend(&mut p, &timed, &ratios, &w);
+        assert!((p[0].build_ms - 24.0).abs() < 1e-9 && (p[0].build_ms_per_build - 6.0).abs() < 1e-12, "{p:?}");
+    }
+
+    fn sample(kind: WorkloadKind, build: f64, ns: f64, probe_build: f64, probe_ns: f64) -> Sample {
+        let mut t = [f64::NAN; 3];
+        t[kind_index(kind)] = probe_ns;
+        Sample {
+            scene: "s".into(),
+            workload: workload(kind),
+            features: crate::characterize::features_cpu(&generate::single_triangle(), &Default::default())
+                .expect("features"),
+            measured: vec![Measured {
+                structure: StructureName::Bih,
+                valid: true,
+                total_ms: build + ns,
+                build_ms: build,
+                trace_ms: ns,
+                build_ms_per_build: build,
+                trace_ns_per_ray: ns,
+                box_tests_per_ray: 1.0,
+                prim_tests_per_ray: 1.0,
+                within_noise_of_best: true,
+                total_ms_ci95: None,
+                build_work: 0.0,
+            }],
+            baseline: None,
+            driver: Vec::new(),
+            frame_features: Vec::new(),
+            crossings: None,
+            timed: vec![probe(StructureName::Bih, probe_build, t)],
+        }
+    }
+
+    #[test]
+    fn fit_takes_the_median_ratio_per_structure_and_kind() {
+        let samples = vec![
+            sample(WorkloadKind::Primary, 2.0, 10.0, 1.0, 20.0),
+            sample(WorkloadKind::Primary, 3.0, 10.0, 1.0, 40.0),
+            sample(WorkloadKind::Primary, 8.0, 10.0, 1.0, 10.0),
+            sample(WorkloadKind::Diffuse, 4.0, 30.0, 1.0, 10.0),
+        ];
+        let r = TimedRatios::fit(&samples).expect("fitted");
+        assert_eq!(r.records, 4);
+        let b = r.of(StructureName::Bih).expect("the BIH");
+        assert!((b.build.unwrap() - 12f64.sqrt()).abs() < 1e-12, "the median of the logs of 2, 3, 4, 8: {b:?}");
+        assert!((b.trace[0].unwrap() - 0.5).abs() < 1e-12, "median of 0.5, 0.25, 1: {b:?}");
+        assert_eq!(b.trace[1], None, "no shadow record");
+        assert!((b.trace[2].unwrap() - 3.0).abs() < 1e-12);
+        assert!(r.of(StructureName::Bvh).is_none());
+        assert!(r.validate().is_ok());
+        // A ratio beyond the file's range (records of a far faster tracer than the probes) is left unfitted.
+        let fast = vec![sample(WorkloadKind::Shadow, 2.0, 0.001, 1.0, 10.0)];
+        let r = TimedRatios::fit(&fast).expect("fitted");
+        let b = r.of(StructureName::Bih).expect("the BIH");
+        assert_eq!((b.build, b.trace[1]), (Some(2.0), None), "{b:?}");
+        assert!(r.validate().is_ok());
+        // No timed probes: nothing to fit.
+        let none: Vec<Sample> = samples.into_iter().map(|s| Sample { timed: Vec::new(), ..s }).collect();
+        assert_eq!(TimedRatios::fit(&none), None);
+    }
+
+    #[test]
+    fn validate_refuses_ratios_out_of_range_and_repeated_structures() {
+        let ok = StructureRatios { structure: StructureName::Bvh, build: Some(1.0), trace: [None, Some(0.5), None] };
+        let r = |s: Vec<StructureRatios>| TimedRatios { structures: s, records: 1 };
+        assert!(r(vec![ok]).validate().is_ok());
+        for bad in [0.0, -1.0, 1e4, f64::NAN, f64::INFINITY] {
+            let e = r(vec![StructureRatios { build: Some(bad), ..ok }]).validate();
+            assert!(e.is_err(), "{bad}");
+        }
+        assert!(r(vec![ok, ok]).validate().unwrap_err().contains("twice"));
+    }
+}
