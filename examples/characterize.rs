@@ -23,7 +23,8 @@ use meshchar::characterize::{cpu, Characterization, Characterizer, ClassRule, Pa
 use meshchar::cost::CostModel;
 use meshchar::mesh::Animation;
 use meshchar::select::{
-    select_for_scene_within, BuildBounds, CalibratedPolicy, PolicyChoice, Report, SelectionCost, TargetWorkload,
+    select_for_scene_timed, select_for_scene_within, BuildBounds, CalibratedPolicy, PolicyChoice, Report,
+    SelectionCost, TargetWorkload,
 };
 use meshchar::trace::workload::mesh_bounds;
 use std::path::PathBuf;
@@ -84,6 +85,12 @@ struct Args {
     /// grazing
     #[arg(long, value_name = "PRESET", conflicts_with = "camera", value_parser = args::view)]
     view: Option<meshchar::trace::views::View>,
+    /// Calibrated policy, static scene: build every structure within the budget and time it and a single-threaded
+    /// trace of a 64 x 64 sample of the view's rays (meshchar::cost::timed), and blend those times into the
+    /// predictions when the cost model has their ratios (`calibrate --from-oracle ... --timed-probes`). Costs the
+    /// builds; not deterministic: close calls may go either way between runs
+    #[arg(long)]
+    timed_probes: bool,
 }
 
 impl Args {
@@ -141,7 +148,14 @@ fn process(
     // The crossings of the overlap floor are counted on the image of the camera the policy is given.
     let budget = args.budget.budget();
     let bounds = BuildBounds::of_frames_viewed_within(&scene.frames, workload.camera.as_ref(), &budget)?;
-    let chosen = select_for_scene_within(&scene.name, &results, &features, policy, &workload, bounds, budget);
+    // With --timed-probes, a static scene's contenders are built and timed on a sample of the view (part of the
+    // selection's cost below).
+    let chosen = match scene.frames.as_slice() {
+        [mesh] if args.timed_probes => {
+            select_for_scene_timed(&scene.name, &results, &features, policy, &workload, bounds, budget, mesh)
+        }
+        _ => select_for_scene_within(&scene.name, &results, &features, policy, &workload, bounds, budget),
+    };
     let select_ms = t1.elapsed().as_secs_f64() * 1e3;
     let frames = if scene.frames.len() > 1 { scene.frames.len() as u64 } else { args.frames };
     let cost = SelectionCost::new(

@@ -1437,3 +1437,69 @@ fn a_sparse_view_is_probed_too_and_an_animation_is_not() {
     let single = meshchar::cost::Crossings::of_first_frame_viewed(&m, None, 1);
     assert!(single.view.expect("the framing view").probes.iter().all(Option::is_some));
 }
+
+/// The calibrated policy blends timed probes in only where it is given them and its model has their ratios, and says
+/// so in its reasons either way.
+#[test]
+fn timed_probes_are_blended_into_a_static_scenes_predictions_when_the_model_has_ratios() {
+    let model = CostModel::shipped().expect("shipped model");
+    assert!(model.timed.is_some(), "the shipped CPU calibration has timed-probe ratios");
+    let without_ratios = CostModel { timed: None, ..model.clone() };
+    let m = generate::teapot_in_stadium(5);
+    let params = Params::default();
+    let c = cpu::fast(&m, &params).expect("characterization");
+    let f = features_cpu(&m, &params).expect("features");
+    let (frames, features) = (std::slice::from_ref(&c), std::slice::from_ref(&f));
+    let budget = Budget::default();
+    let bounds = BuildBounds::of_mesh(&m).expect("bounds");
+    let timed = bounds.clone().with_timed_probes(&m, None, WorkloadKind::Primary, &StructureName::ALL, &budget);
+    assert_eq!(timed.timed.len(), StructureName::ALL.len(), "every structure within the default budget: {timed:?}");
+    assert!(timed.timed.iter().all(|p| p.build().is_some() && p.ns_per_ray(WorkloadKind::Primary).is_some()));
+    let select = |model: &CostModel, b: &BuildBounds| {
+        let policy = PolicyChoice::Calibrated { model, tie_margin: 0.05 };
+        select_for_scene_within(&m.name, frames, features, policy, &workload(), Some(b.clone()), budget)
+    };
+    let plain = select(&model, &bounds);
+    let blended = select(&model, &timed);
+    let unblended = select(&without_ratios, &timed);
+    let reason =
+        |s: &meshchar::select::SceneSelection, what: &str| s.selection.reasons.iter().any(|r| r.contains(what));
+    assert!(!reason(&plain, "timed probes"), "{:?}", plain.selection.reasons);
+    assert!(reason(&blended, "timed probes (one build each"), "{:?}", blended.selection.reasons);
+    assert!(reason(&unblended, "not blended in"), "{:?}", unblended.selection.reasons);
+    let (p, b, u) = (plain.predicted.unwrap(), blended.predicted.unwrap(), unblended.predicted.unwrap());
+    assert_eq!(p, u, "no ratios: the predictions are the model's");
+    for (x, y) in p.iter().zip(&b) {
+        assert_eq!(x.structure, y.structure);
+        assert!(y.total_ms.is_finite() && y.total_ms > 0.0, "{y:?}");
+        assert_ne!(x.total_ms, y.total_ms, "{} blended", x.structure);
+        assert_eq!(x.box_tests_per_ray, y.box_tests_per_ray, "the counts are the model's");
+    }
+    // An animation's frames get none.
+    let two = [m.clone(), m.clone()];
+    let b = BuildBounds::of_frames_viewed_within(&two, None, &budget).expect("bounds").expect("some");
+    assert!(b.timed.is_empty());
+    // The whole flow probes the first selection's contenders only, and says which.
+    let policy = PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 };
+    let s = meshchar::select::select_for_scene_timed(
+        &m.name,
+        frames,
+        features,
+        policy,
+        &workload(),
+        Some(bounds.clone()),
+        budget,
+        &m,
+    );
+    let only = meshchar::cost::timed::contenders(&p);
+    assert!(!only.is_empty() && only.len() <= p.len());
+    let line = s.selection.reasons.iter().find(|r| r.starts_with("timed probes (")).expect("timed probes");
+    for st in StructureName::ALL {
+        assert_eq!(line.contains(&format!(" {st} ")), only.contains(&st), "{st}: {line}");
+    }
+    // With no bounds (nothing to probe with) or the thesis policy, the plain selection.
+    let plain_again = select(&model, &bounds);
+    let s = meshchar::select::select_for_scene_timed(&m.name, frames, features, policy, &workload(), None, budget, &m);
+    assert!(!s.selection.reasons.iter().any(|r| r.contains("timed probes")));
+    assert_eq!(plain_again.selection.structure, plain.selection.structure, "the model alone is deterministic");
+}

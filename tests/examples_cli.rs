@@ -241,6 +241,35 @@ fn the_budget_flags_reach_the_policy() {
 }
 
 #[test]
+fn timed_probes_reach_the_policy_and_leave_the_budget_standing() {
+    let run_json = |extra: &[&str]| -> serde_json::Value {
+        let mut a = vec!["degenerate:overlapping:2000:1", "--backend", "cpu", "--json", "--resolution", "16"];
+        a.extend_from_slice(extra);
+        let out = run("characterize", &a);
+        let (stdout, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(0), "{a:?}\n{stderr}");
+        serde_json::from_str(stdout.lines().next().unwrap_or_default()).expect("characterize --json")
+    };
+    let timed = |v: &serde_json::Value| {
+        v["reasons"]
+            .as_array()
+            .expect("reasons")
+            .iter()
+            .filter_map(|r| r.as_str())
+            .any(|r| r.starts_with("timed probes"))
+    };
+    assert!(!timed(&run_json(&[])), "no probes timed unless asked");
+    let v = run_json(&["--timed-probes"]);
+    assert!(timed(&v), "{}", v["reasons"]);
+    // Structures over the budget are neither probed nor selected.
+    let v = run_json(&["--timed-probes", "--budget-references-per-triangle", "1", "--budget-min-references", "1000"]);
+    let r: Vec<&str> = v["reasons"].as_array().expect("reasons").iter().filter_map(|r| r.as_str()).collect();
+    let line = r.iter().find(|r| r.starts_with("timed probes")).expect("timed probes");
+    assert!(!line.contains("grid ") && !line.contains("kdtree "), "{line}");
+    assert!(!["grid", "kdtree"].contains(&v["selected"].as_str().unwrap_or_default()), "{}", v["selected"]);
+}
+
+#[test]
 fn json_equals_false_never_turns_json_on() {
     for (name, args) in [
         ("characterize", &["--backend", "cpu"][..]),

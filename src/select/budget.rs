@@ -200,9 +200,35 @@ pub struct BuildBounds {
     /// ([`Crossings`], `crate::cost::overlap`), from which the calibrated policy floors its test counts; `None`
     /// from features alone. Of the first frame when bounds of several frames are merged ([`BuildBounds::max`]).
     pub box_crossings: Option<Crossings>,
+    /// The timed probes of a static scene's view ([`crate::cost::timed`], [`BuildBounds::with_timed_probes`]),
+    /// which the calibrated policy blends into its predictions when its model has their ratios; empty unless
+    /// asked for (they are not deterministic).
+    pub timed: Vec<crate::cost::timed::TimedProbe>,
 }
 
 impl BuildBounds {
+    /// These bounds with the timed probes ([`crate::cost::timed::time_probes`]) of `mesh` (a static scene) seen
+    /// from `camera` (`None`: the framing camera of its box) for rays of `kind`: each of `structures` that `budget`
+    /// does not exclude ([`Budget::check`]) built once and traced on a sample of the view
+    /// ([`super::select_for_scene_timed`] probes the contenders of a first selection only).
+    pub fn with_timed_probes(
+        mut self,
+        mesh: &Mesh,
+        camera: Option<&crate::geom::Camera>,
+        kind: crate::geom::WorkloadKind,
+        structures: &[Structure],
+        budget: &Budget,
+    ) -> BuildBounds {
+        let excluded = budget.check(&self);
+        let structures: Vec<Structure> =
+            structures.iter().copied().filter(|s| !excluded.iter().any(|e| e.structure == *s)).collect();
+        let b = crate::cost::timed::mesh_box(mesh);
+        let camera =
+            camera.copied().unwrap_or_else(|| crate::cost::view::framing_camera(b.min.to_array(), b.max.to_array()));
+        self.timed = crate::cost::timed::time_probes(mesh, &camera, &structures, &[kind]);
+        self
+    }
+
     /// The bounds of a mesh (see the module docs), with the grid's default rule: one O(n) pass, and the framing
     /// camera's view of the crossings ([`BuildBounds::of_mesh_viewed`]).
     ///
@@ -390,6 +416,7 @@ impl BuildBounds {
             kdtree_references: 0,
             kdtree_bytes: 0,
             box_crossings: None,
+            timed: Vec::new(),
         }
     }
 
@@ -412,6 +439,7 @@ impl BuildBounds {
             // Nodes of 8 bytes (about one per reference), 4-byte references, records, 24-byte boxes, 4-byte ids.
             kdtree_bytes: k.saturating_mul(12).saturating_add(tri).saturating_add(n.saturating_mul(28)),
             box_crossings: None,
+            timed: Vec::new(),
         }
     }
 
@@ -452,6 +480,8 @@ impl BuildBounds {
                 (Some(a), Some(b)) => Some(a.over_frames(&b)),
                 (a, b) => a.or(b),
             },
+            // Timed probes describe a static scene's one mesh; an animation's frames have none.
+            timed: Vec::new(),
         }
     }
 }

@@ -249,7 +249,18 @@ impl CalibratedPolicy {
         let mut w = self.workload(scene.features.len());
         w.view = self.camera.map(|c| ViewFeatures::of(&c, f.lo, f.hi));
         let crossings = self.crossings(scene);
-        Some(self.model.predict_floored(f, &w, &|s| overlap_floor(s, self.kind, crossings)))
+        let mut preds = self.model.predict_floored(f, &w, &|s| overlap_floor(s, self.kind, crossings));
+        if let (Some(r), Some(t)) = (&self.model.timed, self.timed_probes(scene)) {
+            crate::cost::timed::blend(&mut preds, t, r, &w);
+        }
+        Some(preds)
+    }
+
+    /// The timed probes the policy blends in ([`crate::select::BuildBounds::timed`]): those of a static scene's
+    /// bounds, when taken and the model has their ratios ([`crate::cost::CostModel::timed`]); `None` otherwise.
+    pub fn timed_probes<'s>(&self, scene: &'s SceneSummary<'_>) -> Option<&'s [crate::cost::timed::TimedProbe]> {
+        let t = &scene.build_bounds.as_ref()?.timed;
+        (scene.features.len() == 1 && self.model.timed.is_some() && !t.is_empty()).then_some(t.as_slice())
     }
 
     /// The per-frame plan of an animation's frames ([`plan_frames`] with this policy's settings and the first
@@ -309,6 +320,32 @@ impl Policy for CalibratedPolicy {
         )];
         if let Some(r) = margin_reason(&self.model, &preds, choice) {
             reasons.push(r);
+        }
+        if let Some(t) = self.timed_probes(scene) {
+            let timed: Vec<String> = t
+                .iter()
+                .map(|p| {
+                    let ns = p.ns_per_ray(self.kind).map_or_else(|| "no rays".into(), |ns| format!("{ns:.0} ns/ray"));
+                    format!("{} {:.2} ms, {ns}", p.structure, p.build_ms)
+                })
+                .collect();
+            reasons.push(format!(
+                "timed probes (one build each, the fastest of up to {} single-threaded traces of a {}x{} sample of \
+                 {} rays): {}; blended into the predictions (geometric mean of each build and time per ray with \
+                 the probe's times the calibration's ratios, fitted on {} records): not deterministic",
+                crate::cost::timed::TIMED_REPEATS,
+                crate::cost::timed::TIMED_SIDE,
+                crate::cost::timed::TIMED_SIDE,
+                self.kind.as_str(),
+                timed.join(", "),
+                self.model.timed.as_ref().map_or(0, |r| r.records)
+            ));
+        } else if scene.build_bounds.as_ref().is_some_and(|b| !b.timed.is_empty()) {
+            reasons.push(
+                "timed probes: taken, but not blended in (this calibration has no timed-probe ratios, or the scene \
+                 is an animation)"
+                    .into(),
+            );
         }
         if let Some(c) = &self.camera {
             let f = &scene.features[0];

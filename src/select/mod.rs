@@ -300,6 +300,40 @@ pub struct SceneSelection {
     pub predicted: Option<Vec<Prediction>>,
 }
 
+/// [`select_for_scene_within`] with timed probes ([`crate::cost::timed`]) for a static scene whose mesh is `mesh`
+/// (with `policy` calibrated and `bounds` given): a first selection predicts every structure, the contenders among
+/// those the budget allows (predicted within [`crate::cost::timed::CONTENDER_FACTOR`] of the cheapest,
+/// [`crate::cost::timed::contenders`]) are built and timed on a sample of the view
+/// ([`BuildBounds::with_timed_probes`]), and the selection is made again with their times blended in (when the model
+/// has the ratios, [`crate::cost::CostModel::timed`]). Otherwise (an animation, the thesis policy, no bounds, a model
+/// without those ratios: nothing is probed then) it is [`select_for_scene_within`]'s selection. Not deterministic: the probes are timed on this machine now.
+#[allow(clippy::too_many_arguments)]
+pub fn select_for_scene_timed(
+    name: &str,
+    frames: &[Characterization],
+    features: &[Features],
+    policy: PolicyChoice<'_>,
+    workload: &TargetWorkload,
+    bounds: Option<BuildBounds>,
+    budget: Budget,
+    mesh: &crate::mesh::Mesh,
+) -> SceneSelection {
+    let first = select_for_scene_within(name, frames, features, policy, workload, bounds.clone(), budget);
+    // Nothing to blend with: no probe is worth its builds.
+    let ratios = matches!(policy, PolicyChoice::Calibrated { model, .. } if model.timed.is_some());
+    let (Some(b), Some(preds), 1, true) = (bounds, first.predicted.as_ref(), frames.len(), ratios) else {
+        return first;
+    };
+    let allowed: Vec<Prediction> = preds
+        .iter()
+        .filter(|p| !first.selection.excluded.iter().any(|e| e.structure == p.structure))
+        .copied()
+        .collect();
+    let only = crate::cost::timed::contenders(&allowed);
+    let b = b.with_timed_probes(mesh, workload.camera.as_ref(), workload.kind, &only, &budget);
+    select_for_scene_within(name, frames, features, policy, workload, Some(b), budget)
+}
+
 /// Selects a structure for a scene (the characterization of its frames and their features) under a workload: the
 /// one selection routine of the command-line tools and the studies.
 ///
