@@ -653,3 +653,32 @@ fn a_file_written_before_the_last_price_reads_it_as_0_and_predicts_as_before() {
     let e = CostModel::from_json(&v.to_string()).unwrap_err();
     assert_invalid(&e, "price_names[7]", None);
 }
+
+#[test]
+fn the_shipped_file_has_timed_probe_ratios_for_every_structure_and_refuses_bad_ones() {
+    let t = shipped().timed.expect("the shipped CPU calibration carries timed-probe ratios");
+    assert!(t.records > 0);
+    for s in StructureName::ALL {
+        let r = t.of(s).unwrap_or_else(|| panic!("{s}"));
+        assert!(r.build.is_some() && r.trace.iter().all(Option::is_some), "{r:?}");
+    }
+    for bad in [json!(0.0), json!(-2.0), json!(1e9)] {
+        let e = refused(|v| v["timed"]["structures"][0]["build"] = bad.clone());
+        assert_invalid(&e, "timed", None);
+    }
+    let e = refused(|v| {
+        let first = v["timed"]["structures"][0].clone();
+        v["timed"]["structures"].as_array_mut().unwrap().push(first);
+    });
+    assert_invalid(&e, "timed", None);
+    // Without the block, the file loads and the policy has nothing to blend with.
+    let mut v = shipped_json();
+    v.as_object_mut().unwrap().remove("timed");
+    let m = CostModel::from_json(&v.to_string()).expect("a file without timed ratios loads");
+    assert_eq!(m.timed, None);
+    // A ratio not fitted is null.
+    let mut v = shipped_json();
+    v["timed"]["structures"][0]["trace"][1] = Value::Null;
+    let m = CostModel::from_json(&v.to_string()).expect("an unfitted ratio is null");
+    assert_eq!(m.timed.unwrap().structures[0].trace[1], None);
+}
