@@ -209,21 +209,23 @@ fn bad_values_exit_2() {
     }
 }
 
+/// `characterize --json` on 2,000 large overlapping triangles at 16 x 16 rays with `extra` flags: its first report.
+fn overlapping_report(extra: &[&str]) -> serde_json::Value {
+    let mut a = vec!["degenerate:overlapping:2000:1", "--backend", "cpu", "--json", "--resolution", "16"];
+    a.extend_from_slice(extra);
+    let out = run("characterize", &a);
+    let (stdout, stderr) = text(&out);
+    assert_eq!(out.status.code(), Some(0), "{a:?}\n{stderr}");
+    serde_json::from_str(stdout.lines().next().unwrap_or_default()).expect("characterize --json")
+}
+
 #[test]
 fn the_budget_flags_reach_the_policy() {
-    let run_json = |extra: &[&str]| -> serde_json::Value {
-        let mut a = vec!["degenerate:overlapping:2000:1", "--backend", "cpu", "--json", "--resolution", "16"];
-        a.extend_from_slice(extra);
-        let out = run("characterize", &a);
-        let (stdout, stderr) = text(&out);
-        assert_eq!(out.status.code(), Some(0), "{a:?}\n{stderr}");
-        serde_json::from_str(stdout.lines().next().unwrap_or_default()).expect("characterize --json")
-    };
     // The default budget keeps every structure for 2,000 large overlapping triangles (246,329 grid references).
-    let v = run_json(&[]);
+    let v = overlapping_report(&[]);
     assert_eq!(v["excluded"].as_array().map(Vec::len), Some(0), "{}", v["excluded"]);
     // A budget of 1 reference per triangle, at least 1,000, drops the grid (counted exactly) and the kd-tree.
-    let v = run_json(&["--budget-references-per-triangle", "1", "--budget-min-references", "1000"]);
+    let v = overlapping_report(&["--budget-references-per-triangle", "1", "--budget-min-references", "1000"]);
     let out = v["excluded"].as_array().expect("excluded");
     let grid = out.iter().find(|e| e["structure"] == "grid").expect("the grid excluded");
     // Counted exactly: what the built grid holds.
@@ -242,14 +244,6 @@ fn the_budget_flags_reach_the_policy() {
 
 #[test]
 fn timed_probes_reach_the_policy_and_leave_the_budget_standing() {
-    let run_json = |extra: &[&str]| -> serde_json::Value {
-        let mut a = vec!["degenerate:overlapping:2000:1", "--backend", "cpu", "--json", "--resolution", "16"];
-        a.extend_from_slice(extra);
-        let out = run("characterize", &a);
-        let (stdout, stderr) = text(&out);
-        assert_eq!(out.status.code(), Some(0), "{a:?}\n{stderr}");
-        serde_json::from_str(stdout.lines().next().unwrap_or_default()).expect("characterize --json")
-    };
     let timed = |v: &serde_json::Value| {
         v["reasons"]
             .as_array()
@@ -258,11 +252,17 @@ fn timed_probes_reach_the_policy_and_leave_the_budget_standing() {
             .filter_map(|r| r.as_str())
             .any(|r| r.starts_with("timed probes"))
     };
-    assert!(!timed(&run_json(&[])), "no probes timed unless asked");
-    let v = run_json(&["--timed-probes"]);
+    assert!(!timed(&overlapping_report(&[])), "no probes timed unless asked");
+    let v = overlapping_report(&["--timed-probes"]);
     assert!(timed(&v), "{}", v["reasons"]);
     // Structures over the budget are neither probed nor selected.
-    let v = run_json(&["--timed-probes", "--budget-references-per-triangle", "1", "--budget-min-references", "1000"]);
+    let v = overlapping_report(&[
+        "--timed-probes",
+        "--budget-references-per-triangle",
+        "1",
+        "--budget-min-references",
+        "1000",
+    ]);
     let r: Vec<&str> = v["reasons"].as_array().expect("reasons").iter().filter_map(|r| r.as_str()).collect();
     let line = r.iter().find(|r| r.starts_with("timed probes")).expect("timed probes");
     assert!(!line.contains("grid ") && !line.contains("kdtree "), "{line}");
@@ -901,5 +901,59 @@ fn compare_policies_scores_a_given_calibration_and_the_proxy() {
         stdout.contains("calibrated_cv (family_out): ridge chosen without each group (+x: with the crossings): city "),
         "{stdout}"
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `evaluate --compare-policies ... --timed-probes` and `calibrate --from-oracle ... --timed-probes`: the timed policy
+/// held out both ways and the given calibration with probes, scored on every record; a calibration written with the
+/// ratios; both flags refused without the records they need. (What the probes measure is not checked here: it is
+/// timing, not deterministic.)
+#[test]
+fn timed_probes_in_the_comparison_and_the_calibration() {
+    let dir = inputs("compare-timed");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text_in = std::fs::read_to_string(root.join("docs/data/families-primary.jsonl")).expect("family records");
+    // Two sizes, so that the fits are defined.
+    let lines: Vec<&str> = text_in.lines().filter(|l| l.contains(":2k:1\"") || l.contains(":20k:1\"")).collect();
+    assert_eq!(lines.len(), 56, "seven families, two sizes, four views");
+    let file = dir.join("records.jsonl");
+    std::fs::write(&file, lines.join("\n") + "\n").unwrap();
+    let model = root.join("assets/cost-model-cpu.json");
+    let out =
+        run("evaluate", &["--compare-policies", arg(&file), "--cost-model", arg(&model), "--timed-probes", "--json"]);
+    let (stdout, stderr) = text(&out);
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    let json: Vec<serde_json::Value> = stdout.lines().map(|l| serde_json::from_str(l).expect("a JSON line")).collect();
+    let policies = json[0]["baselines"]["policies"].as_array().expect("policies");
+    for holdout in ["scene_out", "family_out"] {
+        let p = policies
+            .iter()
+            .find(|p| p["policy"] == "calibrated_timed" && p["holdout"] == holdout)
+            .unwrap_or_else(|| panic!("calibrated_timed {holdout}: {}", json[0]));
+        assert_eq!(p["overall"]["scored"].as_u64(), Some(56), "{p}");
+    }
+    let timed = &json[1]["fixed_cost_model"]["timed_score"];
+    assert_eq!(timed["scored"].as_u64(), Some(56), "{}", json[1]);
+    // Without the flag: no timed rows.
+    let out = run("evaluate", &["--compare-policies", arg(&file), "--json"]);
+    let (stdout, _) = text(&out);
+    assert!(out.status.success() && !stdout.contains("calibrated_timed"), "{stdout}");
+    // The calibration's ratios.
+    let fitted = dir.join("timed.json");
+    let out = run("calibrate", &["--from-oracle", arg(&file), "--no-refit", "--timed-probes", "--out", arg(&fitted)]);
+    let (stdout, stderr) = text(&out);
+    assert!(out.status.success() && stdout.contains("timed-probe ratios"), "{stdout}\n{stderr}");
+    let written = meshchar::cost::CostModel::load(Some(&fitted)).expect("a valid calibration");
+    let ratios = written.timed.expect("the timed block");
+    assert_eq!(ratios.records, 56);
+    for s in meshchar::accel::StructureName::ALL {
+        let r = ratios.of(s).unwrap_or_else(|| panic!("{s}"));
+        assert!(
+            r.build.is_some() && r.trace[0].is_some() && r.trace[1..] == [None, None],
+            "primary records only: {r:?}"
+        );
+    }
+    assert_usage_error("calibrate", &["--timed-probes"]);
+    assert_usage_error("evaluate", &["--timed-probes", "family:city:2k:1"]);
     let _ = std::fs::remove_dir_all(&dir);
 }
