@@ -557,6 +557,21 @@ fn print_baselines(b: &meshchar::eval::compare::Baselines) {
             list.join(", ")
         );
     }
+    // The worst regret the 95% intervals vouch for, per workload.
+    let keys: Vec<String> =
+        b.policies.first().map(|p| p.by_workload.iter().map(|k| k.0.clone()).collect()).unwrap_or_default();
+    print!("\nworst regret beyond noise by workload");
+    for k in &keys {
+        print!(" {k:>15}");
+    }
+    println!();
+    for p in &b.policies {
+        print!("{:<37}", format!("{} ({})", p.policy, p.holdout));
+        for (_, s) in &p.by_workload {
+            print!(" {:>15}", format!("{:.1}%", 100.0 * s.worst_regret_beyond_noise));
+        }
+        println!();
+    }
     for (what, pick) in [("workload", 0), ("family", 1)] {
         let keys: Vec<String> = match b.policies.first() {
             Some(p) => (if pick == 0 { &p.by_workload } else { &p.by_family }).iter().map(|k| k.0.clone()).collect(),

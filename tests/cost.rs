@@ -1094,6 +1094,11 @@ fn the_regret_beyond_noise_is_the_gap_between_the_intervals() {
     // The policy score averages it beside the raw regret.
     let score = meshchar::eval::compare::score(std::iter::once((&smp, Some(other))));
     assert_eq!((score.mean_regret, score.mean_regret_beyond_noise), (raw, gap));
+    // And its worst, with where.
+    assert_eq!((score.worst_regret, score.worst_regret_beyond_noise), (raw, gap));
+    assert_eq!(score.worst_beyond_noise, score.worst);
+    let within = meshchar::eval::compare::score(std::iter::once((&smp, Some(best))));
+    assert_eq!((within.worst_regret_beyond_noise, within.worst_beyond_noise.as_str()), (0.0, ""));
     // The best itself, and a selection with an interval against a best without one.
     assert_eq!(smp.regret_beyond_noise(best), Some(0.0));
     set(&mut smp, best, None);

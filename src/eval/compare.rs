@@ -29,6 +29,11 @@ pub struct PolicyScore {
     pub worst_regret: f64,
     /// Where the worst regret occurred (`scene (workload)`).
     pub worst: String,
+    /// Worst regret beyond the measurement's noise ([`Sample::regret_beyond_noise`]): the worst regret the
+    /// oracle's 95% intervals vouch for.
+    pub worst_regret_beyond_noise: f64,
+    /// Where it occurred (`scene (workload)`; empty when every selection is within noise of the best).
+    pub worst_beyond_noise: String,
     /// Samples where the selection was not validly measured (it failed to build, over a budget, or disagreed with
     /// the reference) while another structure was: a catastrophe the regret figures cannot show; they are not
     /// scored.
@@ -277,7 +282,12 @@ pub fn score<'a>(pairs: impl Iterator<Item = (&'a Sample, Option<StructureName>)
         hit += (sel == best.structure) as usize;
         near += (sel == best.structure || smp.get(sel).is_some_and(|m| m.within_noise_of_best)) as usize;
         sum += r;
-        beyond += smp.regret_beyond_noise(sel).unwrap_or(r);
+        let b = smp.regret_beyond_noise(sel).unwrap_or(r);
+        beyond += b;
+        if b > s.worst_regret_beyond_noise {
+            s.worst_regret_beyond_noise = b;
+            s.worst_beyond_noise = format!("{} ({})", smp.scene, smp.workload.kind.as_str());
+        }
         if r > s.worst_regret || s.worst.is_empty() {
             s.worst_regret = s.worst_regret.max(r);
             s.worst = format!("{} ({})", smp.scene, smp.workload.kind.as_str());
