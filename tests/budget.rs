@@ -1497,9 +1497,21 @@ fn timed_probes_are_blended_into_a_static_scenes_predictions_when_the_model_has_
     for st in StructureName::ALL {
         assert_eq!(line.contains(&format!(" {st} ")), only.contains(&st), "{st}: {line}");
     }
-    // With no bounds (nothing to probe with) or the thesis policy, the plain selection.
+    // With no bounds (nothing to probe with), the thesis policy or a calibration without ratios: the plain
+    // selection, and a reason saying why no probe was taken.
     let plain_again = select(&model, &bounds);
-    let s = meshchar::select::select_for_scene_timed(&m.name, frames, features, policy, &workload(), None, budget, &m);
-    assert!(!s.selection.reasons.iter().any(|r| r.contains("timed probes")));
     assert_eq!(plain_again.selection.structure, plain.selection.structure, "the model alone is deterministic");
+    let timed = |policy, b: Option<BuildBounds>| {
+        meshchar::select::select_for_scene_timed(&m.name, frames, features, policy, &workload(), b, budget, &m)
+    };
+    let none_taken = |s: &meshchar::select::SceneSelection, why: &str| {
+        let r: Vec<&String> = s.selection.reasons.iter().filter(|r| r.contains("timed probes")).collect();
+        assert!(r.len() == 1 && r[0].starts_with("timed probes: none taken: ") && r[0].contains(why), "{r:?}");
+    };
+    none_taken(&timed(policy, None), "no mesh bounds");
+    none_taken(&timed(PolicyChoice::Thesis, Some(bounds.clone())), "thesis");
+    let no_ratios = PolicyChoice::Calibrated { model: &without_ratios, tie_margin: 0.05 };
+    let s = timed(no_ratios, Some(bounds.clone()));
+    none_taken(&s, "no timed-probe ratios");
+    assert_eq!(s.predicted, Some(p.clone()), "nothing blended");
 }

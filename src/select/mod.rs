@@ -318,12 +318,22 @@ pub fn select_for_scene_timed(
     budget: Budget,
     mesh: &crate::mesh::Mesh,
 ) -> SceneSelection {
-    let first = select_for_scene_within(name, frames, features, policy, workload, bounds.clone(), budget);
-    // Nothing to blend with: no probe is worth its builds.
-    let ratios = matches!(policy, PolicyChoice::Calibrated { model, .. } if model.timed.is_some());
-    let (Some(b), Some(preds), 1, true) = (bounds, first.predicted.as_ref(), frames.len(), ratios) else {
-        return first;
+    let mut first = select_for_scene_within(name, frames, features, policy, workload, bounds.clone(), budget);
+    // Nothing to blend with: no probe is worth its builds. The caller asked for probes: say why none was taken.
+    let why_not = match policy {
+        PolicyChoice::Thesis => Some("the thesis policy predicts no times"),
+        PolicyChoice::Calibrated { model, .. } if model.timed.is_none() => {
+            Some("this calibration has no timed-probe ratios (calibrate --from-oracle ... --timed-probes)")
+        }
+        _ if frames.len() != 1 => Some("the scene is an animation"),
+        _ if bounds.is_none() || first.predicted.is_none() => Some("no mesh bounds or no predictions"),
+        _ => None,
     };
+    if let Some(why) = why_not {
+        first.selection.reasons.push(format!("timed probes: none taken: {why}"));
+        return first;
+    }
+    let (Some(b), Some(preds)) = (bounds, first.predicted.as_ref()) else { return first };
     let allowed: Vec<Prediction> = preds
         .iter()
         .filter(|p| !first.selection.excluded.iter().any(|e| e.structure == p.structure))
