@@ -125,31 +125,27 @@ pub fn time_probes(
     structures: &[StructureName],
     kinds: &[WorkloadKind],
 ) -> Vec<TimedProbe> {
-    let mut built: Vec<(StructureName, f64, Box<dyn AccelStructure>)> = Vec::new();
+    // One structure at a time (built, timed, dropped), so that at most one is held beside the mesh; the first one
+    // built makes the sample's rays.
+    let mut sets: Option<Vec<(usize, RaySample)>> = None;
+    let mut out = Vec::new();
     for &s in structures {
         let t = Instant::now();
-        let b = super::probe::build_probed(s, mesh);
+        let Some(accel) = super::probe::build_probed(s, mesh) else { continue };
         let ms = t.elapsed().as_secs_f64() * 1e3;
-        if let Some(b) = b {
-            built.push((s, ms, b));
-        }
-    }
-    let Some(reference) = built.first() else { return Vec::new() };
-    let sets: Vec<(usize, RaySample)> =
-        kinds.iter().map(|&k| (kind_index(k), sample_rays(k, mesh, camera, reference.2.as_ref()))).collect();
-    built
-        .iter()
-        .map(|(s, ms, accel)| {
-            let mut p = TimedProbe { structure: *s, build_ms: *ms, trace_ns_per_ray: [f64::NAN; 3], rays: [0; 3] };
-            for (i, set) in &sets {
-                p.rays[*i] = set.rays.len();
-                if set.rays.len() >= TIMED_MIN_RAYS {
-                    p.trace_ns_per_ray[*i] = fastest_trace(accel.as_ref(), set);
-                }
+        let sets = sets.get_or_insert_with(|| {
+            kinds.iter().map(|&k| (kind_index(k), sample_rays(k, mesh, camera, accel.as_ref()))).collect()
+        });
+        let mut p = TimedProbe { structure: s, build_ms: ms, trace_ns_per_ray: [f64::NAN; 3], rays: [0; 3] };
+        for (i, set) in sets.iter() {
+            p.rays[*i] = set.rays.len();
+            if set.rays.len() >= TIMED_MIN_RAYS {
+                p.trace_ns_per_ray[*i] = fastest_trace(accel.as_ref(), set);
             }
-            p
-        })
-        .collect()
+        }
+        out.push(p);
+    }
+    out
 }
 
 /// A timed probe's rays of one kind, and whether they are any-hit (shadow) queries.
