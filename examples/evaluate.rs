@@ -31,7 +31,7 @@ use meshchar::accel::{AccelStructure, StructureName};
 use meshchar::characterize::{Characterizer, Params};
 use meshchar::cost::{CostModel, Prediction};
 use meshchar::eval::chart::BarChart;
-use meshchar::eval::compare::{compare, score};
+use meshchar::eval::compare::{compare, score, PolicyScore};
 use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, RefitCandidate, TraceBackend};
 use meshchar::eval::proxy::{agreement, proxied, Agreement, TestPrices};
 use meshchar::eval::record::{load_samples_with, tracer_of};
@@ -557,38 +557,41 @@ fn print_baselines(b: &meshchar::eval::compare::Baselines) {
             list.join(", ")
         );
     }
-    // The worst regret the 95% intervals vouch for, per workload.
-    let keys: Vec<String> =
-        b.policies.first().map(|p| p.by_workload.iter().map(|k| k.0.clone()).collect()).unwrap_or_default();
-    print!("\nworst regret beyond noise by workload");
+    // Per workload (and per family): mean / worst regret, and the worst regret the 95% intervals vouch for.
+    let mean_worst = |s: &PolicyScore| format!("{:.1}/{:.0}%", 100.0 * s.mean_regret, 100.0 * s.worst_regret);
+    let beyond = |s: &PolicyScore| format!("{:.1}%", 100.0 * s.worst_regret_beyond_noise);
+    print_by(b, "worst regret beyond noise by workload", false, &beyond);
+    print_by(b, "mean / worst regret by workload", false, &mean_worst);
+    print_by(b, "mean / worst regret by family", true, &mean_worst);
+}
+
+/// One table of [`print_baselines`]: a row per policy, a column per workload (or per family), `cell` of each score.
+fn print_by(
+    b: &meshchar::eval::compare::Baselines,
+    title: &str,
+    by_family: bool,
+    cell: &dyn Fn(&PolicyScore) -> String,
+) {
+    fn groups(p: &meshchar::eval::compare::PolicyRun, by_family: bool) -> &[(String, PolicyScore)] {
+        if by_family {
+            &p.by_family
+        } else {
+            &p.by_workload
+        }
+    }
+    let keys: Vec<&str> =
+        b.policies.first().map(|p| groups(p, by_family).iter().map(|k| k.0.as_str()).collect()).unwrap_or_default();
+    print!("\n{title:<37}");
     for k in &keys {
         print!(" {k:>15}");
     }
     println!();
     for p in &b.policies {
         print!("{:<37}", format!("{} ({})", p.policy, p.holdout));
-        for (_, s) in &p.by_workload {
-            print!(" {:>15}", format!("{:.1}%", 100.0 * s.worst_regret_beyond_noise));
+        for (_, s) in groups(p, by_family) {
+            print!(" {:>15}", cell(s));
         }
         println!();
-    }
-    for (what, pick) in [("workload", 0), ("family", 1)] {
-        let keys: Vec<String> = match b.policies.first() {
-            Some(p) => (if pick == 0 { &p.by_workload } else { &p.by_family }).iter().map(|k| k.0.clone()).collect(),
-            None => Vec::new(),
-        };
-        print!("\nmean / worst regret by {what:<8}");
-        for k in &keys {
-            print!(" {k:>15}");
-        }
-        println!();
-        for p in &b.policies {
-            print!("{:<34}", format!("{} ({})", p.policy, p.holdout));
-            for (_, s) in if pick == 0 { &p.by_workload } else { &p.by_family } {
-                print!(" {:>15}", format!("{:.1}/{:.0}%", 100.0 * s.mean_regret, 100.0 * s.worst_regret));
-            }
-            println!();
-        }
     }
 }
 

@@ -845,18 +845,25 @@ fn text_of(out: &Output) -> String {
     format!("{a}{b}")
 }
 
+/// The primary-ray family records at 2K and 20K triangles, four views each (56: two sizes, so that the
+/// comparison's and the calibration's fits are defined), written to `dir/records.jsonl`.
+fn family_records(dir: &Path) -> PathBuf {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text_in = std::fs::read_to_string(root.join("docs/data/families-primary.jsonl")).expect("family records");
+    let lines: Vec<&str> = text_in.lines().filter(|l| l.contains(":2k:1\"") || l.contains(":20k:1\"")).collect();
+    assert_eq!(lines.len(), 56, "seven families, two sizes, four views");
+    let file = dir.join("records.jsonl");
+    std::fs::write(&file, lines.join("\n") + "\n").unwrap();
+    file
+}
+
 /// `evaluate --compare-policies ... --cost-model FILE --proxy --json`: the comparison, then the given calibration
 /// scored as it is, then the deterministic proxy, one JSON line each, on records of generated scenes (no mesh files).
 #[test]
 fn compare_policies_scores_a_given_calibration_and_the_proxy() {
     let dir = inputs("compare-fixed-proxy");
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    // The families at 2K and 20K triangles, four views each: two sizes, so that the comparison's fits are defined.
-    let text_in = std::fs::read_to_string(root.join("docs/data/families-primary.jsonl")).expect("family records");
-    let lines: Vec<&str> = text_in.lines().filter(|l| l.contains(":2k:1\"") || l.contains(":20k:1\"")).collect();
-    assert_eq!(lines.len(), 56, "seven families, two sizes, four views");
-    let file = dir.join("records.jsonl");
-    std::fs::write(&file, lines.join("\n") + "\n").unwrap();
+    let file = family_records(&dir);
     let model = root.join("assets/cost-model-cpu.json");
     let out = run("evaluate", &["--compare-policies", arg(&file), "--cost-model", arg(&model), "--proxy", "--json"]);
     let (stdout, stderr) = text(&out);
@@ -912,12 +919,7 @@ fn compare_policies_scores_a_given_calibration_and_the_proxy() {
 fn timed_probes_in_the_comparison_and_the_calibration() {
     let dir = inputs("compare-timed");
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let text_in = std::fs::read_to_string(root.join("docs/data/families-primary.jsonl")).expect("family records");
-    // Two sizes, so that the fits are defined.
-    let lines: Vec<&str> = text_in.lines().filter(|l| l.contains(":2k:1\"") || l.contains(":20k:1\"")).collect();
-    assert_eq!(lines.len(), 56, "seven families, two sizes, four views");
-    let file = dir.join("records.jsonl");
-    std::fs::write(&file, lines.join("\n") + "\n").unwrap();
+    let file = family_records(&dir);
     let model = root.join("assets/cost-model-cpu.json");
     let out =
         run("evaluate", &["--compare-policies", arg(&file), "--cost-model", arg(&model), "--timed-probes", "--json"]);
