@@ -85,10 +85,11 @@ struct Args {
     /// grazing
     #[arg(long, value_name = "PRESET", conflicts_with = "camera", value_parser = args::view)]
     view: Option<meshchar::trace::views::View>,
-    /// Calibrated policy, static scene: build every structure within the budget and time it and a single-threaded
-    /// trace of a 64 x 64 sample of the view's rays (meshchar::cost::timed), and blend those times into the
-    /// predictions when the cost model has their ratios (`calibrate --from-oracle ... --timed-probes`). Costs the
-    /// builds; not deterministic: close calls may go either way between runs
+    /// Calibrated policy, static scene: build each contender (a structure within the budget predicted within 2x of
+    /// the cheapest), time that build and a single-threaded trace of a 64 x 64 sample of the view's rays
+    /// (meshchar::cost::timed), and blend those times into the predictions when the cost model has their ratios
+    /// (`calibrate --from-oracle ... --timed-probes`). Costs the builds; not deterministic: close calls may go
+    /// either way between runs
     #[arg(long)]
     timed_probes: bool,
 }
@@ -150,8 +151,9 @@ fn process(
     let bounds = BuildBounds::of_frames_viewed_within(&scene.frames, workload.camera.as_ref(), &budget)?;
     // With --timed-probes, a static scene's contenders are built and timed on a sample of the view (part of the
     // selection's cost below).
-    let chosen = match scene.frames.as_slice() {
-        [mesh] if args.timed_probes => {
+    // (An animation gets none, and a reason says so.)
+    let chosen = match scene.frames.first() {
+        Some(mesh) if args.timed_probes => {
             select_for_scene_timed(&scene.name, &results, &features, policy, &workload, bounds, budget, mesh)
         }
         _ => select_for_scene_within(&scene.name, &results, &features, policy, &workload, bounds, budget),

@@ -1514,4 +1514,16 @@ fn timed_probes_are_blended_into_a_static_scenes_predictions_when_the_model_has_
     let s = timed(no_ratios, Some(bounds.clone()));
     none_taken(&s, "no timed-probe ratios");
     assert_eq!(s.predicted, Some(p.clone()), "nothing blended");
+    let (two_c, two_f) = ([c.clone(), c.clone()], [f.clone(), f.clone()]);
+    let s = meshchar::select::select_for_scene_timed(
+        &m.name,
+        &two_c,
+        &two_f,
+        policy,
+        &workload(),
+        Some(bounds.clone()),
+        budget,
+        &m,
+    );
+    none_taken(&s, "animation");
 }
