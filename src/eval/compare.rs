@@ -434,34 +434,39 @@ fn held_out_choices(
     tie_margin: f64,
     geometric: bool,
 ) -> Vec<Option<StructureName>> {
-    held_out_choices_timed(samples, group, fit, tie_margin, geometric).0
+    held_out_choices_timed(samples, group, fit, tie_margin, geometric, false).0
 }
 
 /// [`held_out_choices`], and beside them the choices of the same held-out models with the samples' timed probes
 /// blended in ([`crate::cost::timed::blend_contenders`], the ratios fitted on the training samples with the model; a
-/// sample without probes, or a model without ratios, keeps the model's choice).
+/// sample without probes, or a model without ratios, keeps the model's choice); the second list is all `None`
+/// without `timed`.
 fn held_out_choices_timed(
     samples: &[Sample],
     group: &dyn Fn(&Sample) -> String,
     fit: &GroupFit<'_>,
     tie_margin: f64,
     geometric: bool,
+    timed: bool,
 ) -> (Vec<Option<StructureName>>, Vec<Option<StructureName>>) {
     let keys: Vec<String> = samples.iter().map(group).collect();
     let mut groups = keys.clone();
     groups.sort();
     groups.dedup();
     let mut out = vec![None; samples.len()];
-    let mut timed = vec![None; samples.len()];
+    let mut timed_out = vec![None; samples.len()];
     for g in &groups {
         let train: Vec<Sample> = samples.iter().zip(&keys).filter(|(_, k)| *k != g).map(|(s, _)| s.clone()).collect();
         let Ok(model) = fit(g, &train) else { continue };
         for (i, smp) in samples.iter().enumerate().filter(|(i, _)| keys[*i] == *g) {
             let mut preds = if geometric { smp.predict(&model) } else { model.predict(&smp.features, &smp.workload) };
             out[i] = choose(&preds, tie_margin);
+            if !timed {
+                continue;
+            }
             // As the policy does: the contenders' probes only (`cost::timed::contenders`); a sample without probes
             // (an animation), or a model without ratios, keeps the model's choice.
-            timed[i] = match model.timed.as_ref() {
+            timed_out[i] = match model.timed.as_ref() {
                 Some(r) => {
                     crate::cost::timed::blend_contenders(&mut preds, &smp.timed, r, &smp.workload);
                     choose(&preds, tie_margin)
@@ -470,7 +475,7 @@ fn held_out_choices_timed(
             };
         }
     }
-    (out, timed)
+    (out, timed_out)
 }
 
 /// The ridges [`fit_ridge_by_cv`] tries, smallest first: [`crate::cost::RIDGE`] and then a factor of about 4 to
@@ -642,12 +647,10 @@ pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> B
             ridges.borrow_mut().push((g.to_string(), fit.ridge, fit.crossings));
             Ok(fit.model)
         };
-        let (choices, timed) = held_out_choices_timed(samples, group, &cv, tie_margin, true);
+        let probed = samples.iter().any(|s| !s.timed.is_empty());
+        let (choices, timed) = held_out_choices_timed(samples, group, &cv, tie_margin, true, probed);
         let ridges = ridges.into_inner();
-        let timed = samples
-            .iter()
-            .any(|s| !s.timed.is_empty())
-            .then(|| PolicyRun { ridges: ridges.clone(), ..run("calibrated_timed", holdout, timed) });
+        let timed = probed.then(|| PolicyRun { ridges: ridges.clone(), ..run("calibrated_timed", holdout, timed) });
         (PolicyRun { ridges, ..run("calibrated_cv", holdout, choices) }, timed)
     };
     let mut timed_runs = Vec::new();
