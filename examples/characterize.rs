@@ -23,8 +23,8 @@ use meshchar::characterize::{cpu, Characterization, Characterizer, ClassRule, Pa
 use meshchar::cost::CostModel;
 use meshchar::mesh::Animation;
 use meshchar::select::{
-    select_for_scene_timed, select_for_scene_within, BuildBounds, CalibratedPolicy, PolicyChoice, Report,
-    SelectionCost, TargetWorkload,
+    select_for_scene_measured, select_for_scene_timed, select_for_scene_within, BuildBounds, CalibratedPolicy,
+    MeasureBudget, PolicyChoice, Report, SelectionCost, TargetWorkload,
 };
 use meshchar::trace::workload::mesh_bounds;
 use std::path::PathBuf;
@@ -92,6 +92,16 @@ struct Args {
     /// either way between runs
     #[arg(long)]
     timed_probes: bool,
+    /// Calibrated policy, static scene: after the timed probes (implied), settle a close call by measuring it:
+    /// every structure within the budget whose predicted total lies within 20% of the least is built and traced
+    /// over whole frames of the view's rays at --resolution, three times, and the least median total over
+    /// --frames is taken (meshchar::cost::measured). Costs three builds and frames of each; not deterministic
+    #[arg(long)]
+    measure_close_calls: bool,
+    /// With --measure-close-calls: measure only when the predictions put the measurement at no more than MS
+    /// milliseconds
+    #[arg(long, value_name = "MS", default_value_t = MeasureBudget::DEFAULT_MAX_MS, requires = "measure_close_calls", value_parser = args::positive_number)]
+    measure_max_ms: f64,
 }
 
 impl Args {
@@ -153,6 +163,20 @@ fn process(
     // selection's cost below).
     // (An animation gets none, and a reason says so.)
     let chosen = match scene.frames.first() {
+        Some(mesh) if args.measure_close_calls => {
+            let measure = MeasureBudget { resolution: args.workload.resolution, max_ms: args.measure_max_ms };
+            select_for_scene_measured(
+                &scene.name,
+                &results,
+                &features,
+                policy,
+                &workload,
+                bounds,
+                budget,
+                mesh,
+                measure,
+            )
+        }
         Some(mesh) if args.timed_probes => {
             select_for_scene_timed(&scene.name, &results, &features, policy, &workload, bounds, budget, mesh)
         }
@@ -173,7 +197,8 @@ fn process(
             .selection(chosen.kind, chosen.policy, &chosen.selection)
             .zero_area(cpu::zero_area_triangles(frame, params.sample_stride))
             .features(features[i].clone())
-            .selection_cost(cost);
+            .selection_cost(cost)
+            .measured(chosen.measured.clone());
         if let Some(p) = &chosen.predicted {
             report = report.predicted(p.clone());
         }

@@ -34,7 +34,7 @@ use meshchar::eval::chart::BarChart;
 use meshchar::eval::compare::{compare, score, PolicyScore};
 use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, RefitCandidate, TraceBackend};
 use meshchar::eval::proxy::{agreement, proxied, Agreement, TestPrices};
-use meshchar::eval::record::{load_samples_with, tracer_of};
+use meshchar::eval::record::{load_samples_probed, tracer_of, SampleProbes};
 use meshchar::eval::{OracleConfig, Rebuild, SceneEvaluation};
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::Animation;
@@ -143,6 +143,18 @@ struct Args {
     /// timed anew on every run
     #[arg(long, requires = "compare_policies")]
     timed_probes: bool,
+    /// With --compare-policies: measure anew, on this machine, whole frames of every static record's workload
+    /// through every structure (three builds and traced frames each, meshchar::cost::measured; minutes on the
+    /// scene families) and add the policy `calibrated_measured`: the held-out choices (with --timed-probes, the
+    /// timed ones) with their close call (structures predicted within 20% of the least) settled by those frames,
+    /// as `characterize --measure-close-calls` settles it. Not deterministic
+    #[arg(long, requires = "compare_policies")]
+    measure_close_calls: bool,
+    /// With --compare-policies: a second run of the oracle over the same scenes, workloads and cameras (JSONL
+    /// oracle records, repeatable); adds the policy `repeat_oracle`: each record's best by the second run, scored on
+    /// the first. Its regret is the oracle's own noise, the floor under any policy that measures
+    #[arg(long, value_name = "FILE", requires = "compare_policies", conflicts_with = "frames_sweep")]
+    repeat_oracle: Vec<PathBuf>,
     /// Where the rays are traced: `cpu` (the counting CPU tracer, host wall time) or `vulkan` (the device traversal
     /// kernel on the Vulkan device, GPU timestamps; structures are built on the host and uploaded, the upload
     /// timed apart; every ray's hit is checked against the CPU reference). MESHCHAR_DEVICE picks the device
@@ -632,7 +644,8 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
     // One tracer per comparison: the calibrated policy is fitted on these records, so they must describe one
     // backend and one device.
     let tracer = tracer_of(&args.compare_policies)?;
-    let samples = load_samples_with(&args.compare_policies, &Params::default(), args.timed_probes, &|m| {
+    let probes = SampleProbes { timed: args.timed_probes, measured: args.measure_close_calls };
+    let samples = load_samples_probed(&args.compare_policies, &Params::default(), probes, &|m| {
         bar.step(&format!("features of {m}"))
     })?;
     bar.finish();
@@ -650,7 +663,20 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
         Some(f) => meshchar::eval::compare::with_frames(&samples, &f.0),
         None => samples,
     };
-    let c = compare(&samples, args.tie_margin.tie_margin, &device)?;
+    let mut c = compare(&samples, args.tie_margin.tie_margin, &device)?;
+    if !args.repeat_oracle.is_empty() {
+        // The samples come in the records' order, file by file.
+        let mut records = Vec::new();
+        for f in &args.compare_policies {
+            records.extend(meshchar::eval::record::read_jsonl(f)?);
+        }
+        let mut repeat = Vec::new();
+        for f in &args.repeat_oracle {
+            repeat.extend(meshchar::eval::record::read_jsonl(f)?);
+        }
+        let run = meshchar::eval::compare::repeat_oracle(&c.baselines, &samples, &records, &repeat);
+        c.baselines.policies.push(run);
+    }
     // With --cost-model: that calibration as it is, fitted on other records (no refit), scored on these.
     let fixed = match &args.policy.cost_model {
         Some(path) => {
@@ -660,19 +686,33 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
                 .iter()
                 .map(|s| meshchar::select::choose(&s.predict(&model), args.tie_margin.tie_margin))
                 .collect();
-            // With --timed-probes and a file that has their ratios: its predictions with the probes blended in.
-            let timed = model.timed.as_ref().filter(|_| args.timed_probes).map(|r| {
-                let picks: Vec<_> = samples
-                    .iter()
-                    .map(|s| {
-                        let mut p = s.predict(&model);
-                        meshchar::cost::timed::blend_contenders(&mut p, &s.timed, r, &s.workload);
-                        meshchar::select::choose(&p, args.tie_margin.tie_margin)
-                    })
-                    .collect();
-                score(samples.iter().zip(picks))
+            // With --timed-probes and a file that has their ratios: its predictions with the probes blended in;
+            // with --measure-close-calls, then the close call settled by the frames measured.
+            let probed = |s: &meshchar::cost::Sample| {
+                let mut p = s.predict(&model);
+                if let Some(r) = model.timed.as_ref().filter(|_| args.timed_probes) {
+                    meshchar::cost::timed::blend_contenders(&mut p, &s.timed, r, &s.workload);
+                }
+                p
+            };
+            let timed = model.timed.as_ref().filter(|_| args.timed_probes).map(|_| {
+                score(samples.iter().map(|s| (s, meshchar::select::choose(&probed(s), args.tie_margin.tie_margin))))
             });
-            Some((path.display().to_string(), score(samples.iter().zip(picks)), timed))
+            let measured = args.measure_close_calls.then(|| {
+                score(samples.iter().map(|s| {
+                    let p = probed(s);
+                    let w = &s.workload;
+                    let settled = meshchar::cost::measured::settle(
+                        &p,
+                        &s.frame_timings,
+                        w.builds,
+                        w.frames,
+                        meshchar::select::MeasureBudget::DEFAULT_MAX_MS,
+                    );
+                    (s, settled.or_else(|| meshchar::select::choose(&p, args.tie_margin.tie_margin)))
+                }))
+            });
+            Some((path.display().to_string(), score(samples.iter().zip(picks)), timed, measured))
         }
         None => None,
     };
@@ -686,8 +726,11 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
     };
     if args.json.json {
         println!("{}", serde_json::json!(c));
-        if let Some((file, sc, timed)) = &fixed {
-            println!("{}", serde_json::json!({"fixed_cost_model": {"file": file, "score": sc, "timed_score": timed}}));
+        if let Some((file, sc, timed, measured)) = &fixed {
+            println!(
+                "{}",
+                serde_json::json!({"fixed_cost_model": {"file": file, "score": sc, "timed_score": timed, "measured_score": measured}})
+            );
         }
         if let Some((prices, agree, pc)) = &proxy {
             println!("{}", serde_json::json!({"proxy": {"prices": prices, "agreement": agree, "comparison": pc}}));
@@ -733,9 +776,11 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
                 s.worst
             );
         }
-        if let Some((file, sc, timed)) = &fixed {
-            for (label, sc) in
-                std::iter::once(("calibrated, as given", sc)).chain(timed.iter().map(|t| ("as given, timed probes", t)))
+        if let Some((file, sc, timed, measured)) = &fixed {
+            let label = if args.timed_probes { "as given, timed + measured" } else { "as given, close calls measured" };
+            for (label, sc) in std::iter::once(("calibrated, as given", sc))
+                .chain(timed.iter().map(|t| ("as given, timed probes", t)))
+                .chain(measured.iter().map(|t| (label, t)))
             {
                 println!(
                     "{:<34} {:>6} {:>8.1}% {:>11.1}% {:>11.1}% {:>11.1}%  {}",

@@ -1527,3 +1527,98 @@ fn timed_probes_are_blended_into_a_static_scenes_predictions_when_the_model_has_
     );
     none_taken(&s, "animation");
 }
+
+/// A measured close call builds and traces the structures predicted within the margin of the least, and selects the
+/// least measured; the model's predictions (without timed-probe ratios, so deterministic) decide whether there is a
+/// close call, and a reason says what was measured or why nothing was.
+#[test]
+fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
+    use meshchar::cost::measured::{close_calls, MEASURED_REPEATS};
+    use meshchar::select::{select_for_scene_measured, MeasureBudget};
+    let shipped = CostModel::shipped().expect("shipped model");
+    // No ratios: no timed probe is blended, the predictions (and the close calls) are the model's.
+    let model = CostModel { timed: None, ..shipped };
+    let params = Params::default();
+    let budget = Budget::default();
+    let mut settled = 0;
+    for family in meshchar::mesh::families::Family::ALL {
+        let m = meshchar::mesh::families::generate(family, 2000, 1).expect("family scene");
+        let c = cpu::fast(&m, &params).expect("characterization");
+        let f = features_cpu(&m, &params).expect("features");
+        let (frames, features) = (std::slice::from_ref(&c), std::slice::from_ref(&f));
+        let bounds = BuildBounds::of_mesh(&m).expect("bounds");
+        let policy = PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 };
+        let run = |b: MeasureBudget| {
+            select_for_scene_measured(
+                &m.name,
+                frames,
+                features,
+                policy,
+                &workload(),
+                Some(bounds.clone()),
+                budget,
+                &m,
+                b,
+            )
+        };
+        let s = run(MeasureBudget::new(64));
+        let preds = s.predicted.clone().expect("predictions");
+        let allowed: Vec<_> = preds
+            .iter()
+            .filter(|p| !s.selection.excluded.iter().any(|e| e.structure == p.structure))
+            .copied()
+            .collect();
+        let close = close_calls(&allowed);
+        let line = s.selection.reasons.iter().find(|r| r.starts_with("measured close call")).expect("a reason");
+        if close.is_empty() {
+            assert!(line.contains("none: no close call"), "{line}");
+            assert!(s.measured.is_empty());
+            assert_eq!(Some(s.selection.structure), meshchar::select::choose(&preds, 0.05), "the model's choice");
+            continue;
+        }
+        settled += 1;
+        assert_eq!(s.measured.iter().map(|t| t.structure).collect::<Vec<_>>(), close, "{line}");
+        for t in &s.measured {
+            assert_eq!(t.repeats, MEASURED_REPEATS);
+            assert_eq!(t.rays, 64 * 64, "whole primary frames at the given resolution");
+            assert!(t.total_ms > 0.0 && t.total_ms.is_finite() && line.contains(&format!("{} ", t.structure)));
+        }
+        let least = s.measured.iter().min_by(|a, b| a.total_ms.total_cmp(&b.total_ms)).expect("measured");
+        assert_eq!(s.selection.structure, least.structure, "the least measured is selected: {line}");
+        // Over the measuring budget: nothing measured, the predictions' choice stands, and the reason says so.
+        let capped = run(MeasureBudget { resolution: 64, max_ms: 1e-6 });
+        assert!(capped.measured.is_empty());
+        let why = capped.selection.reasons.iter().find(|r| r.starts_with("measured close call")).expect("reason");
+        assert!(why.starts_with("measured close call: none: measuring ") && why.contains("allowed"), "{why}");
+        assert_eq!(Some(capped.selection.structure), meshchar::select::choose(&preds, 0.05));
+        // The thesis policy and an animation measure nothing.
+        let thesis = select_for_scene_measured(
+            &m.name,
+            frames,
+            features,
+            PolicyChoice::Thesis,
+            &workload(),
+            Some(bounds.clone()),
+            budget,
+            &m,
+            MeasureBudget::new(64),
+        );
+        assert!(thesis.measured.is_empty());
+        assert!(thesis.selection.reasons.iter().any(|r| r.starts_with("measured close call: none: the thesis")));
+        let (two_c, two_f) = ([c.clone(), c.clone()], [f.clone(), f.clone()]);
+        let anim = select_for_scene_measured(
+            &m.name,
+            &two_c,
+            &two_f,
+            policy,
+            &workload(),
+            Some(bounds.clone()),
+            budget,
+            &m,
+            MeasureBudget::new(64),
+        );
+        assert!(anim.measured.is_empty());
+        assert!(anim.selection.reasons.iter().any(|r| r == "measured close call: none: the scene is an animation"));
+    }
+    assert!(settled > 0, "some family scene at 2K triangles is a close call for the shipped model");
+}

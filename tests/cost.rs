@@ -178,6 +178,7 @@ fn known_samples_with_rays(count: u64, rays: impl Fn(u64) -> u64) -> (Vec<Sample
             frame_features: Vec::new(),
             crossings: None,
             timed: Vec::new(),
+            frame_timings: Vec::new(),
         });
     }
     (samples, truth)
@@ -1220,4 +1221,81 @@ fn timed_probes_that_read_the_truth_bring_the_held_out_choices_closer_to_it() {
         );
     }
     assert!(b.get("calibrated_timed", "scene_out").is_some());
+}
+
+/// The measured policy's plumbing, deterministically: frames "measured" at exactly the records' builds and traces
+/// settle every close call on the truth, so that no held-out choice is worse than the same model's unmeasured one
+/// (a close call holds the unmeasured choice), and the mean is lower; without frames there is no measured policy.
+#[test]
+fn close_calls_measured_at_the_truth_never_choose_worse_than_the_predictions() {
+    use meshchar::cost::measured::{FrameTiming, MEASURED_REPEATS};
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let files: Vec<std::path::PathBuf> =
+        ["primary", "shadow", "diffuse"].iter().map(|w| root.join(format!("docs/data/families-{w}.jsonl"))).collect();
+    let mut samples = meshchar::eval::record::load_samples(&files, &Params::default(), &|_| {}).unwrap();
+    for s in &mut samples {
+        let frames = s.workload.frames.max(1) as f64;
+        s.frame_timings = s
+            .measured
+            .iter()
+            .filter(|m| m.valid)
+            .map(|m| FrameTiming {
+                structure: m.structure,
+                // The record's total is the median of its repeats' totals: the build is what the traces leave of it.
+                build_ms: vec![m.total_ms - m.trace_ms; MEASURED_REPEATS],
+                trace_ms: vec![m.trace_ms / frames; MEASURED_REPEATS],
+                rays: s.workload.rays_per_frame as usize,
+            })
+            .collect();
+    }
+    let b = meshchar::eval::compare::compare_baselines(&samples, 0.05, "test");
+    assert!(b.get("calibrated_timed", "family_out").is_none(), "no timed probes, no timed policy");
+    for holdout in ["scene_out", "family_out"] {
+        let cv = b.get("calibrated_cv", holdout).expect("held out");
+        let m = b.get("calibrated_measured", holdout).expect("the measured policy");
+        let mut changed = 0;
+        for (i, s) in samples.iter().enumerate() {
+            let (Some(a), Some(c)) = (cv.choices[i], m.choices[i]) else { panic!("{holdout}: {}: no choice", s.scene) };
+            let (ra, rc) = (s.regret(a).unwrap(), s.regret(c).unwrap());
+            assert!(
+                rc <= ra + 1e-12,
+                "{holdout}: {} {:?}: measured {c} ({rc}) worse than {a} ({ra})",
+                s.scene,
+                s.workload.kind
+            );
+            changed += (a != c) as usize;
+        }
+        assert!(changed > 0 && m.overall.mean_regret < cv.overall.mean_regret, "{holdout}: {changed} changed");
+        assert!(m.overall.worst_regret <= cv.overall.worst_regret);
+    }
+    let none: Vec<_> = samples.into_iter().map(|s| meshchar::cost::Sample { frame_timings: Vec::new(), ..s }).collect();
+    let b = meshchar::eval::compare::compare_baselines(&none, 0.05, "test");
+    assert!(b.get("calibrated_measured", "family_out").is_none());
+}
+
+/// The oracle against itself: a "second run" that is the first one names every record's own best (no regret); one
+/// that names another structure is scored on the first run's totals; a record the second run lacks is not chosen.
+#[test]
+fn a_repeated_oracle_run_is_scored_on_the_first_runs_records() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let file = root.join("docs/data/families-shadow.jsonl");
+    let records = meshchar::eval::record::read_jsonl(&file).unwrap();
+    let samples = meshchar::eval::record::load_samples(&[file], &Params::default(), &|_| {}).unwrap();
+    let b = meshchar::eval::compare::compare_baselines(&samples, 0.05, "test");
+    let same = meshchar::eval::compare::repeat_oracle(&b, &samples, &records, &records);
+    assert_eq!((same.policy.as_str(), same.holdout.as_str()), ("repeat_oracle", "repeat"));
+    assert_eq!(same.overall.scored, 84);
+    assert_eq!((same.overall.mean_regret, same.overall.worst_regret), (0.0, 0.0));
+    // A second run whose best is always the BVH, and that lacks the first record.
+    let mut other: Vec<_> = records.clone();
+    for r in &mut other {
+        r.oracle_best = Some(StructureName::Bvh);
+    }
+    other.remove(0);
+    let run = meshchar::eval::compare::repeat_oracle(&b, &samples, &records, &other);
+    assert_eq!(run.choices[0], None);
+    assert!(run.choices[1..].iter().all(|c| *c == Some(StructureName::Bvh)));
+    let want = meshchar::eval::compare::score(samples.iter().zip(&run.choices).map(|(s, c)| (s, *c)));
+    assert_eq!(run.overall, want);
+    assert!(run.overall.mean_regret > 0.0);
 }

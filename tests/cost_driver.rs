@@ -109,6 +109,7 @@ fn known_samples() -> Vec<Sample> {
             frame_features: Vec::new(),
             crossings: None,
             timed: Vec::new(),
+            frame_timings: Vec::new(),
         });
     }
     for (k, n) in [500usize, 2_000, 6_000].into_iter().enumerate() {
@@ -158,6 +159,7 @@ fn known_samples() -> Vec<Sample> {
             frame_features: feats,
             crossings: None,
             timed: Vec::new(),
+            frame_timings: Vec::new(),
         });
     }
     out

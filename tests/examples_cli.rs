@@ -959,3 +959,70 @@ fn timed_probes_in_the_comparison_and_the_calibration() {
     assert_usage_error("evaluate", &["--timed-probes", "family:city:2k:1"]);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `characterize --measure-close-calls`: a reason says what was measured (with the `measured` totals in the JSON) or
+/// why nothing was; `--measure-max-ms` needs the flag. `evaluate --compare-policies ... --measure-close-calls`: the
+/// measured policy held out both ways and the given calibration with its close calls measured, scored on every
+/// record. (What the frames measure is timing, not checked here.)
+#[test]
+fn close_calls_measured_in_the_report_and_the_comparison() {
+    let v = overlapping_report(&["--measure-close-calls"]);
+    let reasons: Vec<&str> = v["reasons"].as_array().expect("reasons").iter().filter_map(|r| r.as_str()).collect();
+    let line = reasons.iter().find(|r| r.starts_with("measured close call")).expect("measured close call");
+    match v["measured"].as_array() {
+        Some(m) => {
+            assert!(m.len() >= 2 && line.starts_with("measured close call ("), "{line}");
+            let least = m
+                .iter()
+                .min_by(|a, b| a["total_ms"].as_f64().unwrap().total_cmp(&b["total_ms"].as_f64().unwrap()))
+                .unwrap();
+            assert_eq!(least["structure"], v["selected"], "{m:?}");
+            assert!(m.iter().all(|t| t["rays"].as_u64() == Some(16 * 16) && t["repeats"].as_u64() == Some(3)));
+        }
+        None => assert!(line.starts_with("measured close call: none: "), "{line}"),
+    }
+    assert!(!overlapping_report(&[])["reasons"].to_string().contains("measured close call"));
+    let v = overlapping_report(&["--measure-close-calls", "--measure-max-ms", "0.000001"]);
+    assert!(v["measured"].is_null(), "{}", v["measured"]);
+    assert_usage_error("characterize", &["--backend", "cpu", "--measure-max-ms", "10"]);
+    assert_usage_error("characterize", &["--backend", "cpu", "--measure-close-calls", "--measure-max-ms", "0"]);
+
+    let dir = inputs("compare-measured");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let file = family_records(&dir);
+    let model = root.join("assets/cost-model-cpu.json");
+    let out = run(
+        "evaluate",
+        &["--compare-policies", arg(&file), "--cost-model", arg(&model), "--measure-close-calls", "--json"],
+    );
+    let (stdout, stderr) = text(&out);
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    let json: Vec<serde_json::Value> = stdout.lines().map(|l| serde_json::from_str(l).expect("a JSON line")).collect();
+    let policies = json[0]["baselines"]["policies"].as_array().expect("policies");
+    for holdout in ["scene_out", "family_out"] {
+        let p = policies
+            .iter()
+            .find(|p| p["policy"] == "calibrated_measured" && p["holdout"] == holdout)
+            .unwrap_or_else(|| panic!("calibrated_measured {holdout}: {}", json[0]));
+        assert_eq!(p["overall"]["scored"].as_u64(), Some(56), "{p}");
+    }
+    assert!(!policies.iter().any(|p| p["policy"] == "calibrated_timed"), "no timed probes asked for");
+    assert_eq!(json[1]["fixed_cost_model"]["measured_score"]["scored"].as_u64(), Some(56), "{}", json[1]);
+    assert!(json[1]["fixed_cost_model"]["timed_score"].is_null());
+    assert_usage_error("evaluate", &["--measure-close-calls", "family:city:2k:1"]);
+    // The oracle against itself: the records as their own second run regret nothing.
+    let out = run("evaluate", &["--compare-policies", arg(&file), "--repeat-oracle", arg(&file), "--json"]);
+    let (stdout, stderr) = text(&out);
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    let json: serde_json::Value = serde_json::from_str(stdout.lines().next().unwrap_or_default()).expect("JSON");
+    let policies = json["baselines"]["policies"].as_array().expect("policies");
+    let p = policies.iter().find(|p| p["policy"] == "repeat_oracle").expect("repeat_oracle");
+    assert_eq!((p["holdout"].as_str(), p["overall"]["scored"].as_u64()), (Some("repeat"), Some(56)), "{p}");
+    assert_eq!(p["overall"]["mean_regret"].as_f64(), Some(0.0), "{p}");
+    assert!(!policies.iter().any(|p| p["policy"] == "calibrated_measured"), "nothing measured unless asked");
+    assert_usage_error(
+        "evaluate",
+        &["--compare-policies", arg(&file), "--repeat-oracle", arg(&file), "--frames-sweep", "1,10"],
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -136,6 +136,7 @@
 
 pub mod driver;
 pub mod linalg;
+pub mod measured;
 pub mod registry;
 mod sample;
 pub mod view;

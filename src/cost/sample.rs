@@ -86,6 +86,9 @@ pub struct Sample {
     /// The timed probes of the record's scene and camera ([`super::timed::time_probes`]), when taken (empty
     /// otherwise): what [`super::timed::TimedRatios::fit`] reads and the timed policy blends in.
     pub timed: Vec<super::timed::TimedProbe>,
+    /// Whole frames of the record's workload measured anew per structure ([`super::measured::measure_frames`]),
+    /// when taken (empty otherwise): what a measured close call ([`super::measured::settle`]) reads.
+    pub frame_timings: Vec<super::measured::FrameTiming>,
 }
 
 impl Sample {

@@ -134,7 +134,7 @@ pub fn time_probes(
         let Some(accel) = super::probe::build_probed(s, mesh) else { continue };
         let ms = t.elapsed().as_secs_f64() * 1e3;
         let sets = sets.get_or_insert_with(|| {
-            kinds.iter().map(|&k| (kind_index(k), sample_rays(k, mesh, camera, accel.as_ref()))).collect()
+            kinds.iter().map(|&k| (kind_index(k), view_rays(k, mesh, camera, accel.as_ref(), TIMED_SIDE))).collect()
         });
         let mut p = TimedProbe { structure: s, build_ms: ms, trace_ns_per_ray: [f64::NAN; 3], rays: [0; 3] };
         for (i, set) in sets.iter() {
@@ -148,10 +148,10 @@ pub fn time_probes(
     out
 }
 
-/// A timed probe's rays of one kind, and whether they are any-hit (shadow) queries.
-struct RaySample {
-    rays: Vec<Ray>,
-    any_hit: bool,
+/// A timed probe's (or a measured frame's) rays of one kind, and whether they are any-hit (shadow) queries.
+pub(crate) struct RaySample {
+    pub(crate) rays: Vec<Ray>,
+    pub(crate) any_hit: bool,
 }
 
 /// Seed of a timed probe's diffuse bounces (per ray, mixed with the primary ray's index as the workloads mix theirs).
@@ -166,11 +166,17 @@ pub(crate) fn mesh_box(mesh: &Mesh) -> Aabb {
     b
 }
 
-/// The [`TIMED_SIDE`]`^2` primary rays of `camera` through the pixel centres, or for shadow and diffuse rays the
-/// rays their hits in `reference` start, as the workloads start theirs (`geom::camera::secondary_start`, the
+/// The `side`^2 primary rays of `camera` through the pixel centres (row by row), or for shadow and diffuse rays
+/// the rays their hits in `reference` start, as the workloads start theirs (`geom::camera::secondary_start`, the
 /// scene's default light, `accel::bounce::diffuse_direction`).
-fn sample_rays(kind: WorkloadKind, mesh: &Mesh, camera: &Camera, reference: &dyn AccelStructure) -> RaySample {
-    let s = TIMED_SIDE;
+pub(crate) fn view_rays(
+    kind: WorkloadKind,
+    mesh: &Mesh,
+    camera: &Camera,
+    reference: &dyn AccelStructure,
+    side: u32,
+) -> RaySample {
+    let s = side;
     let primary: Vec<Ray> = (0..s * s).map(|k| camera.ray(k % s, k / s, s, s)).collect();
     if kind == WorkloadKind::Primary {
         return RaySample { rays: primary, any_hit: false };
@@ -357,7 +363,7 @@ pub fn blend(
 }
 
 /// The median of `v` (the mean of the middle two for an even count); `None` when empty.
-fn median(mut v: Vec<f64>) -> Option<f64> {
+pub(crate) fn median(mut v: Vec<f64>) -> Option<f64> {
     v.retain(|x| x.is_finite());
     v.sort_by(f64::total_cmp);
     let n = v.len();
@@ -501,6 +507,7 @@ mod tests {
             frame_features: Vec::new(),
             crossings: None,
             timed: vec![probe(StructureName::Bih, probe_build, t)],
+            frame_timings: Vec::new(),
         }
     }
 

@@ -378,7 +378,8 @@ pub struct PolicyRun {
     /// `thesis`, `best_single`, `size_only`, `calibrated`, `calibrated_cv` (the calibrated model with its ridge
     /// chosen by cross-validation inside its training samples, [`fit_ridge_by_cv`]) or `calibrated_timed` (the
     /// same held-out models with the samples' timed probes blended in, [`crate::cost::timed`]; only where the
-    /// samples have them).
+    /// samples have them) or `calibrated_measured` (those choices with the close call settled by the samples'
+    /// frames measured anew, [`crate::cost::measured`]; only where the samples have them).
     pub policy: String,
     /// How it was fitted: `recorded` (the thesis policy's recorded choice), `hindsight` (the best single structure
     /// per workload, chosen on all samples), `in_sample`, `scene_out` (fitted without the sample's scene) or
@@ -434,48 +435,67 @@ fn held_out_choices(
     tie_margin: f64,
     geometric: bool,
 ) -> Vec<Option<StructureName>> {
-    held_out_choices_timed(samples, group, fit, tie_margin, geometric, false).0
+    held_out_choices_probed(samples, group, fit, tie_margin, geometric, false, false).0
 }
+
+/// Choices of [`held_out_choices_probed`]: the model's, with the timed probes blended in, and with the close
+/// call then measured.
+type ProbedChoices = (Vec<Option<StructureName>>, Vec<Option<StructureName>>, Vec<Option<StructureName>>);
 
 /// [`held_out_choices`], and beside them the choices of the same held-out models with the samples' timed probes
 /// blended in ([`crate::cost::timed::blend_contenders`], the ratios fitted on the training samples with the model; a
-/// sample without probes, or a model without ratios, keeps the model's choice); the second list is all `None`
-/// without `timed`.
-fn held_out_choices_timed(
+/// sample without probes, or a model without ratios, keeps the model's choice), and with `measured`, those choices
+/// with the close call of the (blended) predictions settled by the sample's measured frames
+/// ([`crate::cost::measured::settle`] under [`crate::select::MeasureBudget::DEFAULT_MAX_MS`]; a sample without
+/// a close call or without frames measured keeps the timed choice); a list not asked for is all `None`.
+fn held_out_choices_probed(
     samples: &[Sample],
     group: &dyn Fn(&Sample) -> String,
     fit: &GroupFit<'_>,
     tie_margin: f64,
     geometric: bool,
     timed: bool,
-) -> (Vec<Option<StructureName>>, Vec<Option<StructureName>>) {
+    measured: bool,
+) -> ProbedChoices {
     let keys: Vec<String> = samples.iter().map(group).collect();
     let mut groups = keys.clone();
     groups.sort();
     groups.dedup();
     let mut out = vec![None; samples.len()];
     let mut timed_out = vec![None; samples.len()];
+    let mut measured_out = vec![None; samples.len()];
     for g in &groups {
         let train: Vec<Sample> = samples.iter().zip(&keys).filter(|(_, k)| *k != g).map(|(s, _)| s.clone()).collect();
         let Ok(model) = fit(g, &train) else { continue };
         for (i, smp) in samples.iter().enumerate().filter(|(i, _)| keys[*i] == *g) {
             let mut preds = if geometric { smp.predict(&model) } else { model.predict(&smp.features, &smp.workload) };
             out[i] = choose(&preds, tie_margin);
-            if !timed {
+            if !timed && !measured {
                 continue;
             }
             // As the policy does: the contenders' probes only (`cost::timed::contenders`); a sample without probes
             // (an animation), or a model without ratios, keeps the model's choice.
-            timed_out[i] = match model.timed.as_ref() {
+            timed_out[i] = match model.timed.as_ref().filter(|_| timed) {
                 Some(r) => {
                     crate::cost::timed::blend_contenders(&mut preds, &smp.timed, r, &smp.workload);
                     choose(&preds, tie_margin)
                 }
                 None => out[i],
             };
+            if measured {
+                let w = &smp.workload;
+                let settled = crate::cost::measured::settle(
+                    &preds,
+                    &smp.frame_timings,
+                    w.builds,
+                    w.frames,
+                    crate::select::MeasureBudget::DEFAULT_MAX_MS,
+                );
+                measured_out[i] = settled.or(timed_out[i]);
+            }
         }
     }
-    (out, timed_out)
+    (out, timed_out, measured_out)
 }
 
 /// The ridges [`fit_ridge_by_cv`] tries, smallest first: [`crate::cost::RIDGE`] and then a factor of about 4 to
@@ -576,6 +596,44 @@ fn best_single(samples: &[Sample], workloads: &[String]) -> Vec<Option<Structure
     workloads.iter().map(|w| pick.get(w).copied().flatten()).collect()
 }
 
+/// What identifies an oracle record's measurement: the scene, the workload, the camera (or view), the resolution, the
+/// frames and the rebuild rule; two records with the same key measured the same thing.
+fn record_key(r: &super::record::OracleRecord) -> String {
+    format!(
+        "{}|{}|{:?}|{}|{}|{}|{:?}|{:?}",
+        r.mesh,
+        r.workload.as_str(),
+        r.view,
+        serde_json::to_string(&r.camera).unwrap_or_default(),
+        r.resolution,
+        r.frames,
+        r.rebuild,
+        r.trace_backend,
+    )
+}
+
+/// The oracle against itself: for each sample of `b` (loaded from `records`, in their order), the best structure of
+/// the record of `repeat` that measured the same thing (the same scene, workload, camera or view, resolution, frames,
+/// rebuild rule and tracer: a second run of the oracle), scored on the
+/// sample's measurements as the policy `repeat_oracle` (holdout `repeat`); `None` where `repeat` has no such
+/// record or names no best. What no policy can beat on average: a second run's best is the most a measuring
+/// policy could know, and its regret is the first run's noise.
+pub fn repeat_oracle(
+    b: &Baselines,
+    samples: &[Sample],
+    records: &[super::record::OracleRecord],
+    repeat: &[super::record::OracleRecord],
+) -> PolicyRun {
+    let best: std::collections::HashMap<String, Option<StructureName>> =
+        repeat.iter().map(|r| (record_key(r), r.oracle_best)).collect();
+    let choices = samples
+        .iter()
+        .enumerate()
+        .map(|(i, _)| records.get(i).and_then(|r| best.get(&record_key(r)).copied().flatten()))
+        .collect();
+    policy_run("repeat_oracle", "repeat", samples, choices, &b.workloads, &b.families)
+}
+
 /// Scores of `choices` over `samples`: overall, per workload and per family.
 fn policy_run(
     policy: &str,
@@ -640,18 +698,26 @@ pub fn compare_baselines(samples: &[Sample], tie_margin: f64, device: &str) -> B
         policies.push(run("calibrated", "family_out", held_out_choices(samples, &family, &full, tie_margin, true)));
     }
     // The ridge each fit chose, under the name of the group it was fitted without.
-    let cv_run = |holdout: &str, group: &dyn Fn(&Sample) -> String| -> (PolicyRun, Option<PolicyRun>) {
+    let probed = samples.iter().any(|s| !s.timed.is_empty());
+    let measured = samples.iter().any(|s| !s.frame_timings.is_empty());
+    let cv_run = |holdout: &str, group: &dyn Fn(&Sample) -> String| -> (PolicyRun, Vec<PolicyRun>) {
         let ridges = std::cell::RefCell::new(Vec::new());
         let cv = |g: &str, t: &[Sample]| {
             let fit = fit_ridge_by_cv(t, device, "held out, ridge by cross-validation", tie_margin)?;
             ridges.borrow_mut().push((g.to_string(), fit.ridge, fit.crossings));
             Ok(fit.model)
         };
-        let probed = samples.iter().any(|s| !s.timed.is_empty());
-        let (choices, timed) = held_out_choices_timed(samples, group, &cv, tie_margin, true, probed);
+        let (choices, timed, settled) =
+            held_out_choices_probed(samples, group, &cv, tie_margin, true, probed, measured);
         let ridges = ridges.into_inner();
-        let timed = probed.then(|| PolicyRun { ridges: ridges.clone(), ..run("calibrated_timed", holdout, timed) });
-        (PolicyRun { ridges, ..run("calibrated_cv", holdout, choices) }, timed)
+        let mut extra = Vec::new();
+        if probed {
+            extra.push(PolicyRun { ridges: ridges.clone(), ..run("calibrated_timed", holdout, timed) });
+        }
+        if measured {
+            extra.push(PolicyRun { ridges: ridges.clone(), ..run("calibrated_measured", holdout, settled) });
+        }
+        (PolicyRun { ridges, ..run("calibrated_cv", holdout, choices) }, extra)
     };
     let mut timed_runs = Vec::new();
     let (cv, timed) = cv_run("scene_out", &scene);

@@ -463,6 +463,7 @@ impl OracleRecord {
             frame_features: Vec::new(),
             crossings: None,
             timed: Vec::new(),
+            frame_timings: Vec::new(),
         }
     }
 }
@@ -557,6 +558,39 @@ pub fn load_samples_with(
     timed: bool,
     progress: &dyn Fn(&str),
 ) -> Result<Vec<Sample>, RecordError> {
+    load_samples_probed(files, params, SampleProbes { timed, measured: false }, progress)
+}
+
+/// The camera a record was traced from: its own, or the framing camera of the mesh (what the oracle and the policy
+/// assume without one).
+fn record_camera(camera: Option<crate::geom::Camera>, mesh: &crate::mesh::Mesh) -> crate::geom::Camera {
+    camera.unwrap_or_else(|| {
+        let b = crate::trace::workload::mesh_bounds(mesh);
+        crate::cost::view::framing_camera(b.min.to_array(), b.max.to_array())
+    })
+}
+
+/// What [`load_samples_probed`] measures anew on this machine, beside the records.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SampleProbes {
+    /// The timed probes of every static scene's camera ([`load_samples_with`]).
+    pub timed: bool,
+    /// Whole frames of every static record's workload at its resolution, through every structure this build has
+    /// ([`crate::cost::measured::measure_frames`], [`crate::cost::measured::MEASURED_REPEATS`] times each):
+    /// [`Sample::frame_timings`], what a measured close call reads ([`crate::cost::measured::settle`]). Records of
+    /// animations, or of several frames measured, or rebuilt every frame, get none.
+    pub measured: bool,
+}
+
+/// [`load_samples`] with the probes of `probes` taken.
+pub fn load_samples_probed(
+    files: &[PathBuf],
+    params: &Params,
+    probes: SampleProbes,
+    progress: &dyn Fn(&str),
+) -> Result<Vec<Sample>, RecordError> {
+    let timed = probes.timed;
+    let probes_measured = probes.measured;
     // Per scene: the features of its frames, as far as computed, and the first frame's crossings per camera met
     // (the three workloads of a view share one), with its timed probes when taken.
     type Views = Vec<(Option<crate::geom::Camera>, crate::cost::Crossings, Vec<crate::cost::timed::TimedProbe>)>;
@@ -599,11 +633,7 @@ pub fn load_samples_with(
                     );
                     let probes = if timed && scene.frames.len() == 1 {
                         progress(&format!("{} (timed probes)", rec.mesh));
-                        // A record without a camera was traced from the framing camera, as the policy assumes.
-                        let cam = camera.unwrap_or_else(|| {
-                            let b = crate::trace::workload::mesh_bounds(&scene.frames[0]);
-                            crate::cost::view::framing_camera(b.min.to_array(), b.max.to_array())
-                        });
+                        let cam = record_camera(camera, &scene.frames[0]);
                         crate::cost::timed::time_probes(
                             &scene.frames[0],
                             &cam,
@@ -619,6 +649,18 @@ pub fn load_samples_with(
             };
             if rec.rebuild == Rebuild::Once && rec.frames_measured <= 1 {
                 sample.timed = probes;
+                if probes_measured && scene.frames.len() == 1 {
+                    let view = rec.view.as_deref().unwrap_or("framing");
+                    progress(&format!("{} (measured frames, {view}, {})", rec.mesh, rec.workload.as_str()));
+                    sample.frame_timings = crate::cost::measured::measure_frames(
+                        &scene.frames[0],
+                        &record_camera(camera, &scene.frames[0]),
+                        rec.resolution,
+                        rec.workload,
+                        &StructureName::ALL,
+                        crate::cost::measured::MEASURED_REPEATS,
+                    );
+                }
             }
             sample.crossings = Some(viewed.for_workload(rec.workload, camera.as_ref(), feats[0].lo, feats[0].hi));
             if wanted > 1 {

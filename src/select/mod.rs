@@ -298,6 +298,9 @@ pub struct SceneSelection {
     pub selection: Selection,
     /// The calibrated policy's predictions for every structure (`None` for the thesis policy, or without features).
     pub predicted: Option<Vec<Prediction>>,
+    /// The close calls measured ([`select_for_scene_measured`], [`crate::cost::measured`]): the structures built
+    /// and traced over whole frames, with their measured totals; empty when none was measured.
+    pub measured: Vec<crate::cost::measured::MeasuredTotal>,
 }
 
 /// [`select_for_scene_within`] with timed probes ([`crate::cost::timed`]) for a static scene whose mesh is `mesh`
@@ -342,6 +345,138 @@ pub fn select_for_scene_timed(
     let only = crate::cost::timed::contenders(&allowed);
     let b = b.with_timed_probes(mesh, workload.camera.as_ref(), workload.kind, &only, &budget);
     select_for_scene_within(name, frames, features, policy, workload, Some(b), budget)
+}
+
+/// What [`select_for_scene_measured`] may spend on measuring a close call.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MeasureBudget {
+    /// The side of the square image whose rays are measured (the workload's resolution: its primary rays, and for
+    /// shadow and diffuse rays those their hits start).
+    pub resolution: u32,
+    /// The most the measurement may take by the predictions, ms ([`crate::cost::measured::measuring_cost_ms`]:
+    /// [`crate::cost::measured::MEASURED_WARMUP`] + [`crate::cost::measured::MEASURED_REPEATS`] builds
+    /// and traced frames of every structure of the close call ([`MeasureBudget::DEFAULT_MAX_MS`] by default).
+    pub max_ms: f64,
+}
+
+impl MeasureBudget {
+    /// The default [`MeasureBudget::max_ms`]: 2 s.
+    pub const DEFAULT_MAX_MS: f64 = 2000.0;
+
+    /// A budget for `resolution` x `resolution` frames, at the default [`MeasureBudget::max_ms`].
+    pub fn new(resolution: u32) -> Self {
+        MeasureBudget { resolution, max_ms: Self::DEFAULT_MAX_MS }
+    }
+}
+
+/// [`select_for_scene_timed`], and then, for a static scene, the close call settled by measuring it
+/// ([`crate::cost::measured`]): the structures the budget allows whose final predicted total lies within
+/// [`crate::cost::measured::CLOSE_CALL_MARGIN`] of the least are built and traced over whole frames of the view's
+/// rays at `measure.resolution` ([`crate::cost::measured::MEASURED_REPEATS`] times after an untimed round,
+/// interleaved), and the one with
+/// the least median total over the workload's frames is selected; a reason lists the measured totals, or says why
+/// nothing was measured (no close call, an animation, the thesis policy, the driver's structure chosen, or the
+/// predicted cost of measuring over `measure.max_ms`). The measurement is what the oracle measures, on this machine
+/// now: the choice is not deterministic, and it costs [`crate::cost::measured::MEASURED_WARMUP`] +
+/// [`crate::cost::measured::MEASURED_REPEATS`] frames and builds of each structure measured.
+#[allow(clippy::too_many_arguments)]
+pub fn select_for_scene_measured(
+    name: &str,
+    frames: &[Characterization],
+    features: &[Features],
+    policy: PolicyChoice<'_>,
+    workload: &TargetWorkload,
+    bounds: Option<BuildBounds>,
+    budget: Budget,
+    mesh: &crate::mesh::Mesh,
+    measure: MeasureBudget,
+) -> SceneSelection {
+    use crate::cost::measured::{
+        close_calls, measure_frames, measuring_cost_ms, MeasuredTotal, CLOSE_CALL_MARGIN, MEASURED_REPEATS,
+    };
+    let mut chosen = select_for_scene_timed(name, frames, features, policy, workload, bounds, budget, mesh);
+    let allowed: Vec<Prediction> = chosen
+        .predicted
+        .iter()
+        .flatten()
+        .filter(|p| !chosen.selection.excluded.iter().any(|e| e.structure == p.structure))
+        .copied()
+        .collect();
+    let close = close_calls(&allowed);
+    let frames_run = workload.frames.max(1);
+    let cost = measuring_cost_ms(&allowed, &close, frames_run);
+    let why_not = match policy {
+        PolicyChoice::Thesis => Some("the thesis policy predicts no times".to_string()),
+        _ if frames.len() != 1 => Some("the scene is an animation".to_string()),
+        _ if chosen.selection.driver.as_ref().is_some_and(|d| d.chosen) => {
+            Some("the driver's structure was chosen".to_string())
+        }
+        _ if chosen.predicted.is_none() => Some("no predictions".to_string()),
+        _ if close.is_empty() => Some(format!(
+            "no close call (no other structure predicted within {:.0}% of the least)",
+            100.0 * CLOSE_CALL_MARGIN
+        )),
+        _ if measure.resolution == 0 => Some("no rays (resolution 0)".to_string()),
+        _ if u64::from(measure.resolution).pow(2) > crate::cost::measured::MAX_MEASURED_RAYS => Some(format!(
+            "{0}x{0} rays per frame, over the {1} a measured frame may hold",
+            measure.resolution,
+            crate::cost::measured::MAX_MEASURED_RAYS
+        )),
+        _ if cost.is_nan() || cost > measure.max_ms => Some(format!(
+            "measuring {} would take about {cost:.0} ms by the predictions, over the {:.0} ms allowed",
+            names(&close),
+            measure.max_ms
+        )),
+        _ => None,
+    };
+    if let Some(why) = why_not {
+        chosen.selection.reasons.push(format!("measured close call: none: {why}"));
+        return chosen;
+    }
+    let b = crate::cost::timed::mesh_box(mesh);
+    let camera =
+        workload.camera.unwrap_or_else(|| crate::cost::view::framing_camera(b.min.to_array(), b.max.to_array()));
+    let timings = measure_frames(mesh, &camera, measure.resolution, workload.kind, &close, MEASURED_REPEATS);
+    let totals: Vec<MeasuredTotal> = timings.iter().filter_map(|t| MeasuredTotal::of(t, 1, frames_run)).collect();
+    let Some(best) = totals.iter().min_by(|a, b| a.total_ms.total_cmp(&b.total_ms)) else {
+        chosen.selection.reasons.push(format!("measured close call: none: no structure of {} built", names(&close)));
+        return chosen;
+    };
+    let list: Vec<String> = totals
+        .iter()
+        .map(|t| {
+            format!("{} {:.3} ms (build {:.3}, trace {:.3} per frame)", t.structure, t.total_ms, t.build_ms, t.trace_ms)
+        })
+        .collect();
+    let measured: Vec<Structure> = totals.iter().map(|t| t.structure).collect();
+    chosen.selection.reasons.push(format!(
+        "measured close call ({}: each built and traced over whole frames of {}x{} {} rays, the median of \
+         {MEASURED_REPEATS} repeats after an untimed one, totals over {frames_run} frame(s); not deterministic): {}: {} {}",
+        names(&measured),
+        measure.resolution,
+        measure.resolution,
+        workload.kind.as_str(),
+        list.join(", "),
+        best.structure,
+        if best.structure == chosen.selection.structure {
+            "confirmed"
+        } else {
+            "taken instead of the predictions' choice"
+        },
+    ));
+    chosen.selection.structure = best.structure;
+    chosen.measured = totals;
+    chosen
+}
+
+/// `a, b and c`.
+fn names(s: &[Structure]) -> String {
+    let v: Vec<&str> = s.iter().map(|s| s.as_str()).collect();
+    match v.split_last() {
+        None => String::new(),
+        Some((last, [])) => last.to_string(),
+        Some((last, rest)) => format!("{} and {last}", rest.join(", ")),
+    }
 }
 
 /// Selects a structure for a scene (the characterization of its frames and their features) under a workload: the
@@ -390,6 +525,7 @@ pub fn select_for_scene_within(
                 kind,
                 selection: ThesisPolicy::default().select(&summary),
                 predicted: None,
+                measured: Vec::new(),
             }
         }
         PolicyChoice::Calibrated { model, tie_margin } => {
@@ -402,7 +538,13 @@ pub fn select_for_scene_within(
             let summary =
                 bounded(SceneSummary::new(name, &frames[..used]).with_features(&features[..used]), &bounds, budget);
             let predicted = p.predictions(&summary);
-            SceneSelection { policy: "calibrated", kind, selection: p.select(&summary), predicted }
+            SceneSelection {
+                policy: "calibrated",
+                kind,
+                selection: p.select(&summary),
+                predicted,
+                measured: Vec::new(),
+            }
         }
     }
 }

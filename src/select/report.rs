@@ -120,6 +120,11 @@ pub struct Report {
     /// What deciding cost against what the decision is about ([`SelectionCost`]), when measured.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub selection_cost: Option<SelectionCost>,
+    /// The close call the policy measured ([`super::select_for_scene_measured`]): per structure measured,
+    /// `structure`, `total_ms` (median over the repeats), `build_ms`, `trace_ms` (one frame), `repeats`, `rays`;
+    /// absent when nothing was measured.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub measured: Vec<crate::cost::measured::MeasuredTotal>,
 }
 
 /// The price of the decision: the characterization (with the features) and the selection, wall time, against the
@@ -221,6 +226,7 @@ impl Report {
             device: c.device.clone(),
             timings_ms: Timings(timings),
             selection_cost: None,
+            measured: Vec::new(),
         }
     }
 
@@ -245,6 +251,12 @@ impl Report {
     /// Sets the calibrated policy's predicted costs.
     pub fn predicted(mut self, p: Vec<crate::cost::Prediction>) -> Report {
         self.predicted = Some(p);
+        self
+    }
+
+    /// Sets the close call measured ([`Report::measured`]).
+    pub fn measured(mut self, m: Vec<crate::cost::measured::MeasuredTotal>) -> Report {
+        self.measured = m;
         self
     }
 
