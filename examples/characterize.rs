@@ -94,8 +94,9 @@ struct Args {
     timed_probes: bool,
     /// Calibrated policy, static scene: after the timed probes (implied), settle a close call by measuring it:
     /// every structure within the budget whose predicted total lies within 20% of the least is built and traced
-    /// over whole frames of the view's rays at --resolution, three times, and the least median total over
-    /// --frames is taken (meshchar::cost::measured). Costs three builds and frames of each; not deterministic
+    /// over whole frames of the view's rays at --resolution, once untimed and then three times, and the least
+    /// median total over --frames is taken (meshchar::cost::measured). Costs four builds and frames of each; not
+    /// deterministic
     #[arg(long)]
     measure_close_calls: bool,
     /// With --measure-close-calls: measure only when the predictions put the measurement at no more than MS

@@ -144,15 +144,16 @@ struct Args {
     #[arg(long, requires = "compare_policies")]
     timed_probes: bool,
     /// With --compare-policies: measure anew, on this machine, whole frames of every static record's workload
-    /// through every structure (three builds and traced frames each, meshchar::cost::measured; minutes on the
-    /// scene families) and add the policy `calibrated_measured`: the held-out choices (with --timed-probes, the
+    /// through every structure (four builds and traced frames each, the first untimed, meshchar::cost::measured;
+    /// minutes on the scene families) and add the policy `calibrated_measured`: the held-out choices (with --timed-probes, the
     /// timed ones) with their close call (structures predicted within 20% of the least) settled by those frames,
     /// as `characterize --measure-close-calls` settles it. Not deterministic
     #[arg(long, requires = "compare_policies")]
     measure_close_calls: bool,
     /// With --compare-policies: a second run of the oracle over the same scenes, workloads and cameras (JSONL
-    /// oracle records, repeatable); adds the policy `repeat_oracle`: each record's best by the second run, scored on
-    /// the first. Its regret is the oracle's own noise, the floor under any policy that measures
+    /// oracle records, repeatable; every record of --compare-policies must have its match there); adds the policy
+    /// `repeat_oracle`: each record's best by the second run, scored on the first. Its regret is the oracle's own
+    /// noise, the floor under any policy that measures
     #[arg(long, value_name = "FILE", requires = "compare_policies", conflicts_with = "frames_sweep")]
     repeat_oracle: Vec<PathBuf>,
     /// Where the rays are traced: `cpu` (the counting CPU tracer, host wall time) or `vulkan` (the device traversal
@@ -674,7 +675,8 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
         for f in &args.repeat_oracle {
             repeat.extend(meshchar::eval::record::read_jsonl(f)?);
         }
-        let run = meshchar::eval::compare::repeat_oracle(&c.baselines, &samples, &records, &repeat);
+        let run = meshchar::eval::compare::repeat_oracle(&c.baselines, &samples, &records, &repeat)
+            .map_err(|e| anyhow::anyhow!("--repeat-oracle: {e}"))?;
         c.baselines.policies.push(run);
     }
     // With --cost-model: that calibration as it is, fitted on other records (no refit), scored on these.

@@ -1578,6 +1578,8 @@ fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
         }
         settled += 1;
         assert_eq!(s.measured.iter().map(|t| t.structure).collect::<Vec<_>>(), close, "{line}");
+        // The workload's frames hold 256x256 rays, the measured ones 64x64: the traces are scaled by 16.
+        assert!(line.contains("traces scaled by 16.000"), "{line}");
         for t in &s.measured {
             assert_eq!(t.repeats, MEASURED_REPEATS);
             assert_eq!(t.rays, 64 * 64, "whole primary frames at the given resolution");
@@ -1591,6 +1593,13 @@ fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
         let why = capped.selection.reasons.iter().find(|r| r.starts_with("measured close call")).expect("reason");
         assert!(why.starts_with("measured close call: none: measuring ") && why.contains("allowed"), "{why}");
         assert_eq!(Some(capped.selection.structure), meshchar::select::choose(&preds, 0.05));
+        // No rays, or more than a measured frame may hold: nothing measured.
+        for (res, why) in [(0, "no rays (resolution 0)"), (4097, "4097x4097 rays per frame, over the")] {
+            let s = run(MeasureBudget { resolution: res, max_ms: 1e9 });
+            assert!(s.measured.is_empty());
+            let r = s.selection.reasons.iter().find(|r| r.starts_with("measured close call")).expect("reason");
+            assert!(r.starts_with(&format!("measured close call: none: {why}")), "{r}");
+        }
         // The thesis policy and an animation measure nothing.
         let thesis = select_for_scene_measured(
             &m.name,

@@ -1282,20 +1282,32 @@ fn a_repeated_oracle_run_is_scored_on_the_first_runs_records() {
     let records = meshchar::eval::record::read_jsonl(&file).unwrap();
     let samples = meshchar::eval::record::load_samples(&[file], &Params::default(), &|_| {}).unwrap();
     let b = meshchar::eval::compare::compare_baselines(&samples, 0.05, "test");
-    let same = meshchar::eval::compare::repeat_oracle(&b, &samples, &records, &records);
+    let same = meshchar::eval::compare::repeat_oracle(&b, &samples, &records, &records).unwrap();
     assert_eq!((same.policy.as_str(), same.holdout.as_str()), ("repeat_oracle", "repeat"));
     assert_eq!(same.overall.scored, 84);
     assert_eq!((same.overall.mean_regret, same.overall.worst_regret), (0.0, 0.0));
-    // A second run whose best is always the BVH, and that lacks the first record.
+    // A second run, in another order, whose best is always the BVH.
     let mut other: Vec<_> = records.clone();
     for r in &mut other {
         r.oracle_best = Some(StructureName::Bvh);
     }
-    other.remove(0);
-    let run = meshchar::eval::compare::repeat_oracle(&b, &samples, &records, &other);
-    assert_eq!(run.choices[0], None);
-    assert!(run.choices[1..].iter().all(|c| *c == Some(StructureName::Bvh)));
+    other.reverse();
+    let run = meshchar::eval::compare::repeat_oracle(&b, &samples, &records, &other).unwrap();
+    assert!(run.choices.iter().all(|c| *c == Some(StructureName::Bvh)));
     let want = meshchar::eval::compare::score(samples.iter().zip(&run.choices).map(|(s, c)| (s, *c)));
     assert_eq!(run.overall, want);
     assert!(run.overall.mean_regret > 0.0);
+    // A second run that lacks a record, holds one twice, or measured other scenes is refused, not scored as no
+    // regret.
+    let e = meshchar::eval::compare::repeat_oracle(&b, &samples, &records, &other[1..]).unwrap_err();
+    assert!(e.starts_with("1 of 84 records have no record"), "{e}");
+    let mut twice = other.clone();
+    twice.push(other[0].clone());
+    let e = meshchar::eval::compare::repeat_oracle(&b, &samples, &records, &twice).unwrap_err();
+    assert!(e.contains("two records"), "{e}");
+    let mut elsewhere = records.clone();
+    elsewhere.iter_mut().for_each(|r| r.mesh = format!("other/{}", r.mesh));
+    let e = meshchar::eval::compare::repeat_oracle(&b, &samples, &records, &elsewhere).unwrap_err();
+    assert!(e.starts_with("84 of 84"), "{e}");
+    assert!(meshchar::eval::compare::repeat_oracle(&b, &samples, &records[1..], &records).is_err());
 }

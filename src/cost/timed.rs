@@ -183,9 +183,16 @@ pub(crate) fn view_rays(
     }
     let bounds = mesh_box(mesh);
     let light = default_light(&bounds);
+    // The hits on the pool (a measured frame's primary rays are many), the rays from them in order.
+    let hits: Vec<Option<crate::geom::Hit>> = {
+        use rayon::prelude::*;
+        let mut out = Vec::new();
+        primary.par_iter().map(|r| reference.intersect(r, &mut TraceCounters::default())).collect_into_vec(&mut out);
+        out
+    };
     let mut rays = Vec::new();
-    for (k, r) in primary.iter().enumerate() {
-        let Some(h) = reference.intersect(r, &mut TraceCounters::default()) else { continue };
+    for (k, (r, h)) in primary.iter().zip(hits).enumerate() {
+        let Some(h) = h else { continue };
         let i = h.triangle as usize;
         if i >= mesh.triangle_count() {
             continue;

@@ -483,6 +483,7 @@ fn held_out_choices_probed(
                 None => out[i],
             };
             if measured {
+                // Like the held-out choices above, no budget exclusion: the records measured every structure.
                 let w = &smp.workload;
                 let settled = crate::cost::measured::settle(
                     &preds,
@@ -614,24 +615,52 @@ fn record_key(r: &super::record::OracleRecord) -> String {
 
 /// The oracle against itself: for each sample of `b` (loaded from `records`, in their order), the best structure of
 /// the record of `repeat` that measured the same thing (the same scene, workload, camera or view, resolution, frames,
-/// rebuild rule and tracer: a second run of the oracle), scored on the
-/// sample's measurements as the policy `repeat_oracle` (holdout `repeat`); `None` where `repeat` has no such
-/// record or names no best. What no policy can beat on average: a second run's best is the most a measuring
-/// policy could know, and its regret is the first run's noise.
+/// rebuild rule and tracer: a second run of the oracle), scored on the sample's measurements as the policy
+/// `repeat_oracle` (holdout `repeat`); `None` where that record names no best. What no policy can beat on average:
+/// a second run's best is the most a measuring policy could know, and its regret is the first run's noise.
+///
+/// Fails when `records` and `samples` differ in number, when `repeat` holds two records of one measurement, or when
+/// a record has none in `repeat` (a second run of other scenes, or of the same scenes under other paths, would
+/// otherwise score nothing and read as no regret).
 pub fn repeat_oracle(
     b: &Baselines,
     samples: &[Sample],
     records: &[super::record::OracleRecord],
     repeat: &[super::record::OracleRecord],
-) -> PolicyRun {
-    let best: std::collections::HashMap<String, Option<StructureName>> =
-        repeat.iter().map(|r| (record_key(r), r.oracle_best)).collect();
-    let choices = samples
-        .iter()
-        .enumerate()
-        .map(|(i, _)| records.get(i).and_then(|r| best.get(&record_key(r)).copied().flatten()))
-        .collect();
-    policy_run("repeat_oracle", "repeat", samples, choices, &b.workloads, &b.families)
+) -> Result<PolicyRun, String> {
+    if records.len() != samples.len() {
+        return Err(format!("{} records for {} samples", records.len(), samples.len()));
+    }
+    let mut best: std::collections::HashMap<String, Option<StructureName>> = std::collections::HashMap::new();
+    for r in repeat {
+        if best.insert(record_key(r), r.oracle_best).is_some() {
+            return Err(format!("the second run holds two records of {} ({})", r.mesh, r.workload.as_str()));
+        }
+    }
+    let mut choices = Vec::with_capacity(records.len());
+    let mut missing = Vec::new();
+    for r in records {
+        match best.get(&record_key(r)) {
+            Some(c) => choices.push(*c),
+            None => {
+                missing.push(format!(
+                    "{} ({}, {})",
+                    r.mesh,
+                    r.workload.as_str(),
+                    r.view.as_deref().unwrap_or("camera")
+                ));
+                choices.push(None);
+            }
+        }
+    }
+    if let Some(first) = missing.first() {
+        return Err(format!(
+            "{} of {} records have no record of the same measurement in the second run, the first {first}",
+            missing.len(),
+            records.len()
+        ));
+    }
+    Ok(policy_run("repeat_oracle", "repeat", samples, choices, &b.workloads, &b.families))
 }
 
 /// Scores of `choices` over `samples`: overall, per workload and per family.

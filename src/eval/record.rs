@@ -576,7 +576,8 @@ pub struct SampleProbes {
     /// The timed probes of every static scene's camera ([`load_samples_with`]).
     pub timed: bool,
     /// Whole frames of every static record's workload at its resolution, through every structure this build has
-    /// ([`crate::cost::measured::measure_frames`], [`crate::cost::measured::MEASURED_REPEATS`] times each):
+    /// ([`crate::cost::measured::measure_frames`], [`crate::cost::measured::MEASURED_REPEATS`] times each after
+    /// [`crate::cost::measured::MEASURED_WARMUP`] untimed rounds):
     /// [`Sample::frame_timings`], what a measured close call reads ([`crate::cost::measured::settle`]). Records of
     /// animations, or of several frames measured, or rebuilt every frame, get none.
     pub measured: bool,

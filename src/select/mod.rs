@@ -373,8 +373,9 @@ impl MeasureBudget {
 /// ([`crate::cost::measured`]): the structures the budget allows whose final predicted total lies within
 /// [`crate::cost::measured::CLOSE_CALL_MARGIN`] of the least are built and traced over whole frames of the view's
 /// rays at `measure.resolution` ([`crate::cost::measured::MEASURED_REPEATS`] times after an untimed round,
-/// interleaved), and the one with
-/// the least median total over the workload's frames is selected; a reason lists the measured totals, or says why
+/// interleaved; each trace scaled to the workload's rays per frame, `rays_per_frame / resolution^2`, so that the
+/// totals compared are the predictions' own), and the one with the least median total over the workload's frames
+/// is selected; a reason lists the measured totals, or says why
 /// nothing was measured (no close call, an animation, the thesis policy, the driver's structure chosen, or the
 /// predicted cost of measuring over `measure.max_ms`). The measurement is what the oracle measures, on this machine
 /// now: the choice is not deterministic, and it costs [`crate::cost::measured::MEASURED_WARMUP`] +
@@ -393,6 +394,7 @@ pub fn select_for_scene_measured(
 ) -> SceneSelection {
     use crate::cost::measured::{
         close_calls, measure_frames, measuring_cost_ms, MeasuredTotal, CLOSE_CALL_MARGIN, MEASURED_REPEATS,
+        MEASURED_WARMUP,
     };
     let mut chosen = select_for_scene_timed(name, frames, features, policy, workload, bounds, budget, mesh);
     let allowed: Vec<Prediction> = chosen
@@ -407,6 +409,7 @@ pub fn select_for_scene_measured(
     let cost = measuring_cost_ms(&allowed, &close, frames_run);
     let why_not = match policy {
         PolicyChoice::Thesis => Some("the thesis policy predicts no times".to_string()),
+        _ if frames.is_empty() => Some("no frame".to_string()),
         _ if frames.len() != 1 => Some("the scene is an animation".to_string()),
         _ if chosen.selection.driver.as_ref().is_some_and(|d| d.chosen) => {
             Some("the driver's structure was chosen".to_string())
@@ -422,7 +425,7 @@ pub fn select_for_scene_measured(
             measure.resolution,
             crate::cost::measured::MAX_MEASURED_RAYS
         )),
-        _ if cost.is_nan() || cost > measure.max_ms => Some(format!(
+        _ if cost.is_nan() || measure.max_ms.is_nan() || cost > measure.max_ms => Some(format!(
             "measuring {} would take about {cost:.0} ms by the predictions, over the {:.0} ms allowed",
             names(&close),
             measure.max_ms
@@ -437,7 +440,11 @@ pub fn select_for_scene_measured(
     let camera =
         workload.camera.unwrap_or_else(|| crate::cost::view::framing_camera(b.min.to_array(), b.max.to_array()));
     let timings = measure_frames(mesh, &camera, measure.resolution, workload.kind, &close, MEASURED_REPEATS);
-    let totals: Vec<MeasuredTotal> = timings.iter().filter_map(|t| MeasuredTotal::of(t, 1, frames_run)).collect();
+    // The frames measured hold `resolution^2` primary rays (and the secondary rays their hits start); the
+    // predictions, and so the totals compared, are for the workload's rays per frame: the traces are scaled to it.
+    let scale = workload.rays_per_frame as f64 / (f64::from(measure.resolution) * f64::from(measure.resolution));
+    let totals: Vec<MeasuredTotal> =
+        timings.iter().filter_map(|t| MeasuredTotal::of(&t.scaled(scale), 1, frames_run)).collect();
     let Some(best) = totals.iter().min_by(|a, b| a.total_ms.total_cmp(&b.total_ms)) else {
         chosen.selection.reasons.push(format!("measured close call: none: no structure of {} built", names(&close)));
         return chosen;
@@ -451,11 +458,14 @@ pub fn select_for_scene_measured(
     let measured: Vec<Structure> = totals.iter().map(|t| t.structure).collect();
     chosen.selection.reasons.push(format!(
         "measured close call ({}: each built and traced over whole frames of {}x{} {} rays, the median of \
-         {MEASURED_REPEATS} repeats after an untimed one, totals over {frames_run} frame(s); not deterministic): {}: {} {}",
+         {MEASURED_REPEATS} repeats after {MEASURED_WARMUP} untimed, totals over {frames_run} frame(s) of {} rays{}; \
+         not deterministic): {}: {} {}",
         names(&measured),
         measure.resolution,
         measure.resolution,
         workload.kind.as_str(),
+        workload.rays_per_frame,
+        if scale == 1.0 { String::new() } else { format!(", traces scaled by {scale:.3}") },
         list.join(", "),
         best.structure,
         if best.structure == chosen.selection.structure {
