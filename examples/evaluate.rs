@@ -703,15 +703,7 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
             let measured = args.measure_close_calls.then(|| {
                 score(samples.iter().map(|s| {
                     let p = probed(s);
-                    let w = &s.workload;
-                    let settled = meshchar::cost::measured::settle(
-                        &p,
-                        &s.frame_timings,
-                        w.builds,
-                        w.frames,
-                        meshchar::select::MeasureBudget::DEFAULT_MAX_MS,
-                    );
-                    (s, settled.or_else(|| meshchar::select::choose(&p, args.tie_margin.tie_margin)))
+                    (s, s.settle_close_call(&p).or_else(|| meshchar::select::choose(&p, args.tie_margin.tie_margin)))
                 }))
             });
             Some((path.display().to_string(), score(samples.iter().zip(picks)), timed, measured))

@@ -1,5 +1,6 @@
 //! The diffuse bounce direction: the CPU diffuse workload (`trace::workload`) and the probes' secondary rays
-//! ([`crate::cost::probe()`]) draw their bounces with it, and the device tracer reproduces it to the bit.
+//! ([`crate::cost::probe()`]) draw their bounces with it, and the device tracer reproduces it to the bit; and the
+//! secondary rays primary hits start ([`secondary_from_hits`]), for the workloads and the timed and measured probes.
 
 use glam::Vec3;
 
@@ -51,4 +52,40 @@ pub fn cosine_direction(n: Vec3, rng: &mut crate::rng::SplitMix64) -> Vec3 {
 pub fn diffuse_direction(n: Vec3, seed: u64, index: usize) -> Vec3 {
     let mut rng = crate::rng::SplitMix64(seed ^ (index as u64).wrapping_mul(0x2545_f491_4f6c_dd1d));
     cosine_direction(n, &mut rng)
+}
+
+/// The shadow or diffuse rays that the hits `hits` of the primary rays `primary` start, in the primary rays' order:
+/// per hit on a triangle of `mesh`, the start off the surface (`geom::camera::secondary_start`, within `bounds`),
+/// then a shadow ray to `light` (`geom::camera::shadow_ray`) or a diffuse ray drawn with `seed` and the primary
+/// ray's index ([`diffuse_direction`]); a primary workload gives the primary rays that hit. Misses, hits on no
+/// triangle of the mesh and starts that fail make no ray.
+pub fn secondary_from_hits(
+    kind: crate::geom::WorkloadKind,
+    mesh: &crate::mesh::Mesh,
+    primary: &[crate::geom::Ray],
+    hits: &[Option<crate::geom::Hit>],
+    bounds: &crate::geom::Aabb,
+    light: Vec3,
+    seed: u64,
+) -> Vec<crate::geom::Ray> {
+    use crate::geom::camera::{secondary_start, shadow_ray};
+    use crate::geom::{Ray, Triangle, WorkloadKind};
+    let mut rays = Vec::new();
+    for (k, (r, h)) in primary.iter().zip(hits).enumerate() {
+        let Some(h) = h else { continue };
+        let i = h.triangle as usize;
+        if i >= mesh.triangle_count() {
+            continue;
+        }
+        let p = r.origin + r.dir * h.t;
+        let Some((origin, n)) = secondary_start(&Triangle::new(&mesh.triangle(i)), p, r.dir, bounds) else {
+            continue;
+        };
+        match kind {
+            WorkloadKind::Shadow => rays.extend(shadow_ray(origin, light)),
+            WorkloadKind::Diffuse => rays.push(Ray::new(origin, diffuse_direction(n, seed, k))),
+            WorkloadKind::Primary => rays.push(*r),
+        }
+    }
+    rays
 }

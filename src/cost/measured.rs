@@ -46,6 +46,10 @@ pub const MEASURED_REPEATS: usize = 3;
 /// hold the primary rays and their own, 512 MiB each, and each trace writes 320 MiB of hits, beside the structure).
 pub const MAX_MEASURED_RAYS: u64 = 1 << 24;
 
+/// The most a measured close call may take by the predictions unless the caller says otherwise, ms
+/// ([`measuring_cost_ms`]; `select::MeasureBudget::DEFAULT_MAX_MS`, `--measure-max-ms`): 2 s.
+pub const DEFAULT_MAX_MS: f64 = 2000.0;
+
 /// The structures of `preds` whose predicted total is finite and within [`CLOSE_CALL_MARGIN`] of the least, the
 /// least first and then in `preds`'s order; empty unless there are at least two (nothing to settle).
 pub fn close_calls(preds: &[super::Prediction]) -> Vec<StructureName> {

@@ -100,6 +100,14 @@ impl Sample {
         })
     }
 
+    /// The choice a measured close call of `preds` (this sample's predictions) makes from the sample's
+    /// [`Sample::frame_timings`], over its workload's builds and frames, within the default measuring budget
+    /// ([`super::measured::settle`], [`super::measured::DEFAULT_MAX_MS`]); `None` where nothing is settled.
+    pub fn settle_close_call(&self, preds: &[super::Prediction]) -> Option<StructureName> {
+        let w = &self.workload;
+        super::measured::settle(preds, &self.frame_timings, w.builds, w.frames, super::measured::DEFAULT_MAX_MS)
+    }
+
     /// The measurement of one structure.
     pub fn get(&self, s: StructureName) -> Option<&Measured> {
         self.measured.iter().find(|m| m.structure == s)

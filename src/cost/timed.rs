@@ -22,9 +22,8 @@
 //! reads); `evaluate --compare-policies --timed-probes` scores them against the deterministic policy on the same
 //! records (`docs/cost-model.md`, "Tenth session").
 
-use crate::accel::bounce::diffuse_direction;
 use crate::accel::{AccelStructure, StructureName};
-use crate::geom::camera::{default_light, secondary_start, shadow_ray};
+use crate::geom::camera::default_light;
 use crate::geom::{Aabb, Camera, Ray, TraceCounters, WorkloadKind};
 use crate::mesh::Mesh;
 use std::time::Instant;
@@ -190,20 +189,7 @@ pub(crate) fn view_rays(
         primary.par_iter().map(|r| reference.intersect(r, &mut TraceCounters::default())).collect_into_vec(&mut out);
         out
     };
-    let mut rays = Vec::new();
-    for (k, (r, h)) in primary.iter().zip(hits).enumerate() {
-        let Some(h) = h else { continue };
-        let i = h.triangle as usize;
-        if i >= mesh.triangle_count() {
-            continue;
-        }
-        let tri = crate::geom::Triangle::new(&mesh.triangle(i));
-        let Some((origin, n)) = secondary_start(&tri, r.origin + r.dir * h.t, r.dir, &bounds) else { continue };
-        match kind {
-            WorkloadKind::Shadow => rays.extend(shadow_ray(origin, light)),
-            _ => rays.push(Ray::new(origin, diffuse_direction(n, TIMED_SEED, k))),
-        }
-    }
+    let rays = crate::accel::bounce::secondary_from_hits(kind, mesh, &primary, &hits, &bounds, light, TIMED_SEED);
     RaySample { rays, any_hit: kind == WorkloadKind::Shadow }
 }
 

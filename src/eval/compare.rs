@@ -446,7 +446,7 @@ type ProbedChoices = (Vec<Option<StructureName>>, Vec<Option<StructureName>>, Ve
 /// blended in ([`crate::cost::timed::blend_contenders`], the ratios fitted on the training samples with the model; a
 /// sample without probes, or a model without ratios, keeps the model's choice), and with `measured`, those choices
 /// with the close call of the (blended) predictions settled by the sample's measured frames
-/// ([`crate::cost::measured::settle`] under [`crate::select::MeasureBudget::DEFAULT_MAX_MS`]; a sample without
+/// ([`Sample::settle_close_call`]; a sample without
 /// a close call or without frames measured keeps the timed choice); a list not asked for is all `None`.
 fn held_out_choices_probed(
     samples: &[Sample],
@@ -484,14 +484,7 @@ fn held_out_choices_probed(
             };
             if measured {
                 // Like the held-out choices above, no budget exclusion: the records measured every structure.
-                let w = &smp.workload;
-                let settled = crate::cost::measured::settle(
-                    &preds,
-                    &smp.frame_timings,
-                    w.builds,
-                    w.frames,
-                    crate::select::MeasureBudget::DEFAULT_MAX_MS,
-                );
+                let settled = smp.settle_close_call(&preds);
                 measured_out[i] = settled.or(timed_out[i]);
             }
         }

@@ -360,8 +360,8 @@ pub struct MeasureBudget {
 }
 
 impl MeasureBudget {
-    /// The default [`MeasureBudget::max_ms`]: 2 s.
-    pub const DEFAULT_MAX_MS: f64 = 2000.0;
+    /// The default [`MeasureBudget::max_ms`]: 2 s ([`crate::cost::measured::DEFAULT_MAX_MS`]).
+    pub const DEFAULT_MAX_MS: f64 = crate::cost::measured::DEFAULT_MAX_MS;
 
     /// A budget for `resolution` x `resolution` frames, at the default [`MeasureBudget::max_ms`].
     pub fn new(resolution: u32) -> Self {

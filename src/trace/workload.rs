@@ -6,7 +6,7 @@
 
 use super::{trace, Camera};
 use crate::accel::AccelStructure;
-use crate::geom::{Aabb, Hit, Ray, Triangle, WorkloadKind};
+use crate::geom::{Aabb, Hit, Ray, WorkloadKind};
 use crate::mesh::Mesh;
 use glam::Vec3;
 
@@ -62,26 +62,7 @@ pub fn secondary_rays(
     light: Vec3,
     seed: u64,
 ) -> RaySet {
-    let bounds = mesh_bounds(mesh);
-    let mut rays = Vec::new();
-    for (k, (r, h)) in primary.iter().zip(hits).enumerate() {
-        let Some(h) = h else { continue };
-        let i = h.triangle as usize;
-        if i >= mesh.triangle_count() {
-            continue;
-        }
-        let p = r.origin + r.dir * h.t;
-        let Some((origin, n)) = secondary_start(&Triangle::new(&mesh.triangle(i)), p, r.dir, &bounds) else {
-            continue;
-        };
-        match kind {
-            WorkloadKind::Shadow => rays.extend(shadow_ray(origin, light)),
-            WorkloadKind::Diffuse => {
-                rays.push(Ray::new(origin, diffuse_direction(n, seed, k)));
-            }
-            WorkloadKind::Primary => rays.push(*r),
-        }
-    }
+    let rays = crate::accel::bounce::secondary_from_hits(kind, mesh, primary, hits, &mesh_bounds(mesh), light, seed);
     RaySet { kind, rays, any_hit: kind == WorkloadKind::Shadow }
 }
 
