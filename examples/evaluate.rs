@@ -4,7 +4,7 @@
 //!
 //! ```text
 //! cargo run --release --example evaluate -- [FILE|DIR ...] [--json] [--workload primary|shadow|diffuse]
-//!     [--resolution N] [--frames F] [--repeats R] [--precision FRACTION] [--max-repeats R] [--rebuild once|frame] [--structures bvh,kdtree,...]
+//!     [--resolution N] [--frames F] [--repeats R] [--precision FRACTION] [--max-repeats R] [--precision-ms MS] [--rebuild once|frame] [--structures bvh,kdtree,...]
 //!     [--camera EX,EY,EZ,TX,TY,TZ[,FOV]] [--charts DIR] [--policy thesis|calibrated] [--cost-model FILE]
 //!     [--budget-references-per-triangle R] [--budget-min-references N] [--budget-bytes BYTES]
 //!     [--tie-margin X] [--oracle-cache FILE] [--trace-backend cpu|vulkan] [--max-tests-per-ray TESTS] [--help]
@@ -78,15 +78,20 @@ struct Args {
     /// Repeats of every measurement; medians are reported
     #[arg(long, value_name = "R", default_value_t = 3, value_parser = args::positive())]
     repeats: usize,
-    /// The precise oracle: repeat each structure (at least --repeats times, interleaved with the others) until the
-    /// 95% confidence interval of its median total lies within this fraction of the median (0.02: +-2%), or
-    /// --max-repeats; "within noise" then means overlapping intervals [default: exactly --repeats repeats]
+    /// The precise oracle: repeat every structure (at least --repeats times, in rounds of all of them) until the
+    /// 95% confidence interval of each one's median total lies within this fraction of the median (0.02: +-2%), or
+    /// --max-repeats rounds; "within noise" then means overlapping intervals [default: exactly --repeats repeats]
     #[arg(long, value_name = "FRACTION", value_parser = args::alpha)]
     precision: Option<f64>,
     /// The most repeats of one structure under --precision
     #[arg(long, value_name = "R", default_value_t = meshchar::eval::oracle::DEFAULT_MAX_REPEATS,
           value_parser = args::positive())]
     max_repeats: usize,
+    /// Under --precision, go on past --max-repeats (up to 500 rounds) while a structure is short of the target and
+    /// the record's builds and traces so far took under MS milliseconds: cheap records repeated until precise
+    #[arg(long, value_name = "MS", default_value_t = 0.0, requires = "precision",
+          value_parser = args::nonnegative_number)]
+    precision_ms: f64,
     /// Build once (static scenes, the default) or every frame (the default for animations)
     #[arg(long, value_name = "once|frame", value_parser = rebuild())]
     rebuild: Option<Rebuild>,
@@ -239,6 +244,7 @@ impl Args {
             max_tests_per_ray: self.max_tests_per_ray,
             precision: self.precision,
             max_repeats: self.max_repeats,
+            precision_ms: self.precision_ms,
             ..default
         }
     }

@@ -357,6 +357,48 @@ fn the_precise_oracle_repeats_until_the_interval_is_narrow_or_the_cap() {
 }
 
 #[test]
+fn the_precise_oracle_measures_every_structure_in_every_round_and_goes_on_while_its_time_allows() {
+    let anim = Animation::new("static", vec![scene(300, 0.0)]).unwrap();
+    let mut c = config(WorkloadKind::Primary);
+    c.structures = StructureName::ALL.to_vec();
+    // A real target: structures settle at different repeats on their own; in rounds every one is measured as
+    // often as the last to settle (or the cap), so that drift over the record hits all of them alike.
+    c.precision = Some(0.02);
+    c.max_repeats = 30;
+    for _ in 0..3 {
+        let e = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
+        let n = e.structures[0].total_ms.samples;
+        assert!((6..=30).contains(&n), "{n}");
+        for s in &e.structures {
+            assert_eq!(s.total_ms.samples, n, "{:?}: every structure in every round", s.name);
+        }
+        // The rounds stop at the first where every interval met the target, or at the cap.
+        let all_met = e.structures.iter().all(|s| s.precision_met == Some(true));
+        assert!(all_met || n == 30, "stopped at {n} with a structure short of the target");
+    }
+    // A target no timing meets: `max_repeats` rounds without a time allowance; with an unbounded one, on to
+    // `MAX_PRECISION_REPEATS`; with a finite one, past `max_repeats` only while the record's time allows.
+    c.structures = vec![StructureName::Lbvh, StructureName::Bih];
+    c.precision = Some(1e-12);
+    c.max_repeats = 6;
+    let e = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
+    assert!(e.structures.iter().all(|s| s.total_ms.samples == 6 && s.precision_met == Some(false)));
+    c.precision_ms = f64::INFINITY;
+    let e = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
+    assert!(e.structures.iter().all(|s| s.total_ms.samples == meshchar::eval::oracle::MAX_PRECISION_REPEATS));
+    let per_round: f64 = e.structures.iter().map(|s| s.total_ms.median).sum();
+    c.precision_ms = 40.0 * per_round;
+    let e = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
+    let n = e.structures[0].total_ms.samples;
+    assert!(n > 6 && n < meshchar::eval::oracle::MAX_PRECISION_REPEATS, "{n} rounds for about 40 rounds' time");
+    assert!(e.structures.iter().all(|s| s.total_ms.samples == n));
+    // Without a target the allowance is not read.
+    c.precision = None;
+    let e = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
+    assert!(e.structures.iter().all(|s| s.total_ms.samples == 3));
+}
+
+#[test]
 fn the_precise_oracle_repeats_every_frame_of_an_animation_as_often_as_the_first() {
     let anim = Animation::new("anim", vec![scene(200, 0.0), scene(200, 0.3)]).unwrap();
     let mut c = config(WorkloadKind::Primary);

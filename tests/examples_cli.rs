@@ -164,6 +164,8 @@ fn bad_values_exit_2() {
         ("evaluate", &["x.obj", "--precision", "0"]),
         ("evaluate", &["x.obj", "--precision", "2"]),
         ("evaluate", &["x.obj", "--max-repeats", "0"]),
+        ("evaluate", &["x.obj", "--precision-ms", "100"]),
+        ("evaluate", &["x.obj", "--precision", "0.02", "--precision-ms", "-1"]),
         ("evaluate", &["x.obj", "--view", "sideways"]),
         ("evaluate", &["x.obj", "--resolution", "abc"]),
         ("evaluate", &["x.obj", "--resolution", "16385"]),

@@ -35,13 +35,17 @@
 //!
 //! # The precise oracle
 //!
-//! With [`OracleConfig::precision`] set (0.02 for +-2%), each structure is measured `repeats` times and then again,
-//! interleaved with the others still short of the target, until the distribution-free 95% confidence interval of
-//! its median total ([`median_ci95`], the sign-test interval from order statistics: at least 6 repeats) lies within
-//! the target of the median, or [`OracleConfig::max_repeats`] is reached; each structure's `precision_met` says
-//! which. With intervals, two totals are within noise when their intervals overlap. On an animation, frame 0
-//! decides the repeats and later frames repeat each structure as often, so that every repeat's total covers every
-//! frame.
+//! With [`OracleConfig::precision`] set (0.02 for +-2%), every structure is measured `repeats` times and then in
+//! further rounds, each round measuring every structure once (interleaved), until the distribution-free 95%
+//! confidence interval of each structure's median total ([`median_ci95`], the sign-test interval from order
+//! statistics: at least 6 repeats) lies within the target of its median, or [`OracleConfig::max_repeats`] rounds
+//! are reached (more while [`OracleConfig::precision_ms`] allows); each structure's `precision_met` says whether
+//! its interval met the target. Every structure takes part in every round so that the machine's drift hits all
+//! alike: on the 2-core VM the same build and trace run up to 1.6x slower for seconds at a time, and when a
+//! structure already precise stopped while another went on into such a stretch, the one measured on was judged
+//! slower than it is (`docs/cost-model.md`, "Twelfth session"). With intervals, two totals are within noise when
+//! their intervals overlap. On an animation, frame 0 decides the repeats and later frames repeat each structure as
+//! often, so that every repeat's total covers every frame.
 //!
 //! # Trace budget
 //!
@@ -349,12 +353,18 @@ pub struct OracleConfig {
     /// is reported as failed instead of traced (see the module docs).
     pub max_tests_per_ray: f64,
     /// The precise oracle: when set (a fraction, 0.02 for +-2%), every structure is measured at least `repeats`
-    /// times and then again, interleaved with the others still short of it, until the 95% confidence interval of
-    /// its median total ([`median_ci95`]) lies within this fraction of the median, or `max_repeats` is reached
-    /// (the structure's `precision_met` is then `false`). `None`: exactly `repeats` repeats.
+    /// times and then in further rounds of all of them (interleaved), until the 95% confidence interval of each
+    /// one's median total ([`median_ci95`]) lies within this fraction of its median, or `max_repeats` rounds are
+    /// reached (see `precision_ms`; a structure whose interval is still wider has `precision_met` `false`).
+    /// `None`: exactly `repeats` repeats.
     pub precision: Option<f64>,
-    /// The most repeats of one structure under `precision`.
+    /// The most repeats of one structure under `precision`, unless `precision_ms` allows more.
     pub max_repeats: usize,
+    /// Under `precision`, the rounds go on past `max_repeats` (up to [`MAX_PRECISION_REPEATS`]) while a structure
+    /// is still short of the target and the record's frame-0 builds and traces so far took less than this many
+    /// milliseconds: cheap records are repeated until precise, costly ones stop at `max_repeats`. 0: no rounds
+    /// past `max_repeats`.
+    pub precision_ms: f64,
     /// Refit candidates to measure on an animation beside the rebuilt structures ([`RefitCandidate`]): frame 0
     /// built, every later frame refitted. Ignored for a static scene; measured on the CPU tracer only.
     pub refit: Vec<RefitCandidate>,
@@ -472,6 +482,9 @@ pub const TRACE_SAMPLE_RAYS: usize = 1024;
 /// The default [`OracleConfig::max_repeats`].
 pub const DEFAULT_MAX_REPEATS: usize = 60;
 
+/// The most repeats of one structure under a precision target, whatever [`OracleConfig::precision_ms`] allows.
+pub const MAX_PRECISION_REPEATS: usize = 500;
+
 /// The default [`OracleConfig::max_tests_per_ray`].
 pub const DEFAULT_MAX_TESTS_PER_RAY: f64 = 4096.0;
 
@@ -530,6 +543,7 @@ impl Default for OracleConfig {
             max_tests_per_ray: DEFAULT_MAX_TESTS_PER_RAY,
             precision: None,
             max_repeats: DEFAULT_MAX_REPEATS,
+            precision_ms: 0.0,
             refit: Vec::new(),
         }
     }
@@ -1140,6 +1154,14 @@ pub fn evaluate_scene_on(
         // structure as often as frame 0 did, so that every repeat's total covers every frame.
         let mut r = 0;
         loop {
+            // Frame 0, past `repeats`: another round of every structure while one is short of the target, up to
+            // `max_repeats` rounds, or past them while the record's measured time allows.
+            let another_round = fi == 0 && r >= repeats && precision.is_some() && {
+                let live = acc.iter().filter(|a| a.error.is_none());
+                let short = live.clone().any(|a| !settled(a));
+                let spent: f64 = live.flat_map(|a| a.build.iter().chain(&a.trace)).sum();
+                short && (r < max_repeats || (r < MAX_PRECISION_REPEATS && spent < config.precision_ms))
+            };
             let mut ran = false;
             for (si, &name) in names.iter().enumerate() {
                 let a = &mut acc[si];
@@ -1147,7 +1169,7 @@ pub fn evaluate_scene_on(
                     continue;
                 }
                 let wanted = match fi {
-                    0 => r < repeats || (r < max_repeats && !settled(a)),
+                    0 => r < repeats || another_round,
                     _ => r < a.build.len(),
                 };
                 if !wanted {
@@ -1159,7 +1181,7 @@ pub fn evaluate_scene_on(
                     a.upload.push(0.0);
                     a.trace.push(0.0);
                 }
-                let bound = if fi == 0 { max_repeats } else { a.build.len() };
+                let bound = if fi == 0 { max_repeats.max(r + 1) } else { a.build.len() };
                 progress(&format!(
                     "{}: frame {}/{} repeat {}/{}{}: {name}",
                     scene.name,
