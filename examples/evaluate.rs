@@ -83,12 +83,13 @@ struct Args {
     /// --max-repeats rounds; "within noise" then means overlapping intervals [default: exactly --repeats repeats]
     #[arg(long, value_name = "FRACTION", value_parser = args::alpha)]
     precision: Option<f64>,
-    /// The most repeats of one structure under --precision
+    /// The most rounds under --precision (more with --precision-ms)
     #[arg(long, value_name = "R", default_value_t = meshchar::eval::oracle::DEFAULT_MAX_REPEATS,
           value_parser = args::positive())]
     max_repeats: usize,
     /// Under --precision, go on past --max-repeats (up to 500 rounds) while a structure is short of the target and
-    /// the record's builds and traces so far took under MS milliseconds: cheap records repeated until precise
+    /// the builds and traces measured so far (one frame's) sum to under MS milliseconds: cheap records repeated
+    /// until precise
     #[arg(long, value_name = "MS", default_value_t = 0.0, requires = "precision",
           value_parser = args::nonnegative_number)]
     precision_ms: f64,
@@ -404,7 +405,7 @@ fn print_table(e: &SceneEvaluation) {
                 100.0 * (hi / m - 1.0),
                 s.total_ms.samples,
                 match s.precision_met {
-                    Some(false) => ", precision not met (--max-repeats)",
+                    Some(false) => ", precision not met (--max-repeats, --precision-ms)",
                     _ => "",
                 }
             );

@@ -361,9 +361,10 @@ pub struct OracleConfig {
     /// The most repeats of one structure under `precision`, unless `precision_ms` allows more.
     pub max_repeats: usize,
     /// Under `precision`, the rounds go on past `max_repeats` (up to [`MAX_PRECISION_REPEATS`]) while a structure
-    /// is still short of the target and the record's frame-0 builds and traces so far took less than this many
-    /// milliseconds: cheap records are repeated until precise, costly ones stop at `max_repeats`. 0: no rounds
-    /// past `max_repeats`.
+    /// is still short of the target and the record's frame-0 builds and traces so far (the times measured: a static
+    /// scene's one frame, not the `frames` it stands for; on the device the traces' timestamps) sum to less than
+    /// this many milliseconds: cheap records are repeated until precise, costly ones stop at `max_repeats`. 0: no
+    /// rounds past `max_repeats`.
     pub precision_ms: f64,
     /// Refit candidates to measure on an animation beside the rebuilt structures ([`RefitCandidate`]): frame 0
     /// built, every later frame refitted. Ignored for a static scene; measured on the CPU tracer only.
@@ -482,7 +483,8 @@ pub const TRACE_SAMPLE_RAYS: usize = 1024;
 /// The default [`OracleConfig::max_repeats`].
 pub const DEFAULT_MAX_REPEATS: usize = 60;
 
-/// The most repeats of one structure under a precision target, whatever [`OracleConfig::precision_ms`] allows.
+/// The most rounds [`OracleConfig::precision_ms`] may add up to under a precision target (a larger
+/// [`OracleConfig::max_repeats`] is still run in full).
 pub const MAX_PRECISION_REPEATS: usize = 500;
 
 /// The default [`OracleConfig::max_tests_per_ray`].
@@ -689,8 +691,9 @@ pub struct StructureResult {
     pub disagreements: usize,
     /// Whether its total is within noise of the best total.
     pub within_noise_of_best: bool,
-    /// Under [`OracleConfig::precision`]: whether the total's confidence interval met it within
-    /// [`OracleConfig::max_repeats`]; `None` without a precision target.
+    /// Under [`OracleConfig::precision`]: whether the total's confidence interval met it by the last round
+    /// ([`OracleConfig::max_repeats`], or more under [`OracleConfig::precision_ms`]); `None` without a precision
+    /// target.
     pub precision_met: Option<bool>,
     /// The build or validation error, if any.
     pub error: Option<String>,
@@ -1149,9 +1152,10 @@ pub fn evaluate_scene_on(
             }
             (None, _) => None,
         };
-        // Repeats, interleaved across structures. On frame 0 a structure runs `repeats` times and, under a
-        // precision target, on until its total is precise enough (or `max_repeats`); later frames repeat each
-        // structure as often as frame 0 did, so that every repeat's total covers every frame.
+        // Repeats, in rounds of every structure (interleaved). On frame 0 each structure runs `repeats` times and,
+        // under a precision target, further rounds of all of them follow until every total is precise enough (or
+        // `max_repeats` rounds, more while `precision_ms` allows); later frames repeat each structure as often as
+        // frame 0 did, so that every repeat's total covers every frame.
         let mut r = 0;
         loop {
             // Frame 0, past `repeats`: another round of every structure while one is short of the target, up to
@@ -1181,7 +1185,11 @@ pub fn evaluate_scene_on(
                     a.upload.push(0.0);
                     a.trace.push(0.0);
                 }
-                let bound = if fi == 0 { max_repeats.max(r + 1) } else { a.build.len() };
+                let bound = match fi {
+                    0 if r < max_repeats => max_repeats,
+                    0 => MAX_PRECISION_REPEATS.max(r + 1),
+                    _ => a.build.len(),
+                };
                 progress(&format!(
                     "{}: frame {}/{} repeat {}/{}{}: {name}",
                     scene.name,

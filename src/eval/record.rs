@@ -175,7 +175,8 @@ pub struct StructureRecord {
     /// present, "within noise" means overlapping intervals.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub total_ms_ci95: Option<[f64; 2]>,
-    /// Repeats measured of this structure (the precise oracle repeats each until its interval is narrow enough);
+    /// Repeats measured of this structure (the precise oracle measures every structure in rounds until every
+    /// interval is narrow enough, or its cap);
     /// absent in records written before the field existed (then the record's `repeats`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub repeats_measured: Option<usize>,
@@ -281,8 +282,8 @@ pub struct OracleRecord {
     /// of the scene's bounds). The calibrated policy reads it as the sample's view ([`crate::cost::ViewFeatures`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<CameraRecord>,
-    /// The precise oracle's target: each structure's total was repeated until the 95% confidence interval of its
-    /// median lay within this fraction of it (each structure's `precision_met` says whether it did).
+    /// The precise oracle's target: the structures' totals were repeated until the 95% confidence interval of each
+    /// median lay within this fraction of it, or the cap (each structure's `precision_met` says whether it did).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub precision: Option<f64>,
     /// Image side of the workload.
