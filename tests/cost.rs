@@ -1152,6 +1152,12 @@ fn a_fitted_calibration_clamps_the_geometric_features_into_the_range_it_was_fitt
     assert!(old.validate().is_ok(), "a file written before the range existed loads");
 }
 
+/// The primary, shadow and diffuse record files of one set of family records, `docs/data/SET-{workload}.jsonl`.
+fn family_record_files(set: &str) -> Vec<std::path::PathBuf> {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    ["primary", "shadow", "diffuse"].iter().map(|w| root.join(format!("docs/data/{set}-{w}.jsonl"))).collect()
+}
+
 /// The measure on the project's own scene families (`docs/data/families-*.jsonl`, 252 records measured by
 /// the precise oracle): the calibrated policy with its ridge chosen inside the training records, held out by family
 /// (every family's model fitted on the other six), regrets at most 3% on average in every workload and at most half
@@ -1160,9 +1166,7 @@ fn a_fitted_calibration_clamps_the_geometric_features_into_the_range_it_was_fitt
 /// gives them (1.6%, 1.2% and 2.5% against 41.9%, 22.8% and 30.8%).
 #[test]
 fn held_out_by_family_the_calibrated_policy_regrets_little_against_the_baselines() {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let files: Vec<std::path::PathBuf> =
-        ["primary", "shadow", "diffuse"].iter().map(|w| root.join(format!("docs/data/families-{w}.jsonl"))).collect();
+    let files = family_record_files("families");
     let samples = meshchar::eval::record::load_samples(&files, &Params::default(), &|_| {}).unwrap();
     assert_eq!(samples.len(), 252);
     let b = meshchar::eval::compare::compare_baselines(&samples, 0.05, "test");
@@ -1185,10 +1189,8 @@ fn held_out_by_family_the_calibrated_policy_regrets_little_against_the_baselines
 /// half the best single structure's.
 #[test]
 fn the_family_records_in_rounds_measure_every_structure_alike_and_hold_the_mean_goals() {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     for set in ["families-rounds", "families-rounds-repeat"] {
-        let files: Vec<std::path::PathBuf> =
-            ["primary", "shadow", "diffuse"].iter().map(|w| root.join(format!("docs/data/{set}-{w}.jsonl"))).collect();
+        let files = family_record_files(set);
         let mut met = 0;
         for f in &files {
             for r in meshchar::eval::record::read_jsonl(f).unwrap() {
@@ -1222,9 +1224,7 @@ fn the_family_records_in_rounds_measure_every_structure_alike_and_hold_the_mean_
 #[test]
 fn timed_probes_that_read_the_truth_bring_the_held_out_choices_closer_to_it() {
     use meshchar::cost::timed::{kind_index, TimedProbe};
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let files: Vec<std::path::PathBuf> =
-        ["primary", "shadow", "diffuse"].iter().map(|w| root.join(format!("docs/data/families-{w}.jsonl"))).collect();
+    let files = family_record_files("families");
     let mut samples = meshchar::eval::record::load_samples(&files, &Params::default(), &|_| {}).unwrap();
     for s in &mut samples {
         let k = kind_index(s.workload.kind);
@@ -1267,9 +1267,7 @@ fn timed_probes_that_read_the_truth_bring_the_held_out_choices_closer_to_it() {
 #[test]
 fn close_calls_measured_at_the_truth_never_choose_worse_than_the_predictions() {
     use meshchar::cost::measured::{FrameTiming, MEASURED_REPEATS};
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let files: Vec<std::path::PathBuf> =
-        ["primary", "shadow", "diffuse"].iter().map(|w| root.join(format!("docs/data/families-{w}.jsonl"))).collect();
+    let files = family_record_files("families");
     let mut samples = meshchar::eval::record::load_samples(&files, &Params::default(), &|_| {}).unwrap();
     for s in &mut samples {
         let frames = s.workload.frames.max(1) as f64;

@@ -75,6 +75,24 @@ fn run(name: &str, args: &[&str]) -> Output {
         .unwrap_or_else(|e| panic!("cannot run {name}: {e}"))
 }
 
+/// Runs `evaluate ARGS` (which must include `--json`), asserts it succeeds, and returns its JSON lines.
+fn evaluate_json(args: &[&str]) -> Vec<serde_json::Value> {
+    let out = run("evaluate", args);
+    let (stdout, stderr) = text(&out);
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    stdout.lines().map(|l| serde_json::from_str(l).expect("a JSON line")).collect()
+}
+
+/// The scored policy `name` held out as `holdout` in a comparison's first JSON line.
+fn policy_run<'a>(json: &'a serde_json::Value, name: &str, holdout: &str) -> &'a serde_json::Value {
+    json["baselines"]["policies"]
+        .as_array()
+        .expect("policies")
+        .iter()
+        .find(|p| p["policy"] == name && p["holdout"] == holdout)
+        .unwrap_or_else(|| panic!("{name} {holdout}: {json}"))
+}
+
 fn text(out: &Output) -> (String, String) {
     (String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr).into_owned())
 }
@@ -868,11 +886,8 @@ fn compare_policies_scores_a_given_calibration_and_the_proxy() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let file = family_records(&dir);
     let model = root.join("assets/cost-model-cpu.json");
-    let out = run("evaluate", &["--compare-policies", arg(&file), "--cost-model", arg(&model), "--proxy", "--json"]);
-    let (stdout, stderr) = text(&out);
-    assert!(out.status.success(), "{stdout}\n{stderr}");
-    let json: Vec<serde_json::Value> = stdout.lines().map(|l| serde_json::from_str(l).expect("a JSON line")).collect();
-    assert_eq!(json.len(), 3, "{stdout}");
+    let json = evaluate_json(&["--compare-policies", arg(&file), "--cost-model", arg(&model), "--proxy", "--json"]);
+    assert_eq!(json.len(), 3, "{json:?}");
     let fixed = &json[1]["fixed_cost_model"];
     assert_eq!(fixed["file"], serde_json::json!(arg(&model)));
     assert_eq!(fixed["score"]["scored"].as_u64().unwrap() + fixed["score"]["failed"].as_u64().unwrap(), 56, "{fixed}");
@@ -924,17 +939,10 @@ fn timed_probes_in_the_comparison_and_the_calibration() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let file = family_records(&dir);
     let model = root.join("assets/cost-model-cpu.json");
-    let out =
-        run("evaluate", &["--compare-policies", arg(&file), "--cost-model", arg(&model), "--timed-probes", "--json"]);
-    let (stdout, stderr) = text(&out);
-    assert!(out.status.success(), "{stdout}\n{stderr}");
-    let json: Vec<serde_json::Value> = stdout.lines().map(|l| serde_json::from_str(l).expect("a JSON line")).collect();
-    let policies = json[0]["baselines"]["policies"].as_array().expect("policies");
+    let json =
+        evaluate_json(&["--compare-policies", arg(&file), "--cost-model", arg(&model), "--timed-probes", "--json"]);
     for holdout in ["scene_out", "family_out"] {
-        let p = policies
-            .iter()
-            .find(|p| p["policy"] == "calibrated_timed" && p["holdout"] == holdout)
-            .unwrap_or_else(|| panic!("calibrated_timed {holdout}: {}", json[0]));
+        let p = policy_run(&json[0], "calibrated_timed", holdout);
         assert_eq!(p["overall"]["scored"].as_u64(), Some(56), "{p}");
     }
     let timed = &json[1]["fixed_cost_model"]["timed_score"];
@@ -1011,19 +1019,17 @@ fn close_calls_measured_in_the_report_and_the_comparison() {
 
     let file = family_records(&dir);
     let model = root.join("assets/cost-model-cpu.json");
-    let out = run(
-        "evaluate",
-        &["--compare-policies", arg(&file), "--cost-model", arg(&model), "--measure-close-calls", "--json"],
-    );
-    let (stdout, stderr) = text(&out);
-    assert!(out.status.success(), "{stdout}\n{stderr}");
-    let json: Vec<serde_json::Value> = stdout.lines().map(|l| serde_json::from_str(l).expect("a JSON line")).collect();
+    let json = evaluate_json(&[
+        "--compare-policies",
+        arg(&file),
+        "--cost-model",
+        arg(&model),
+        "--measure-close-calls",
+        "--json",
+    ]);
     let policies = json[0]["baselines"]["policies"].as_array().expect("policies");
     for holdout in ["scene_out", "family_out"] {
-        let p = policies
-            .iter()
-            .find(|p| p["policy"] == "calibrated_measured" && p["holdout"] == holdout)
-            .unwrap_or_else(|| panic!("calibrated_measured {holdout}: {}", json[0]));
+        let p = policy_run(&json[0], "calibrated_measured", holdout);
         assert_eq!(p["overall"]["scored"].as_u64(), Some(56), "{p}");
     }
     assert!(!policies.iter().any(|p| p["policy"] == "calibrated_timed"), "no timed probes asked for");
@@ -1031,13 +1037,10 @@ fn close_calls_measured_in_the_report_and_the_comparison() {
     assert!(json[1]["fixed_cost_model"]["timed_score"].is_null());
     assert_usage_error("evaluate", &["--measure-close-calls", "family:city:2k:1"]);
     // The oracle against itself: the records as their own second run regret nothing.
-    let out = run("evaluate", &["--compare-policies", arg(&file), "--repeat-oracle", arg(&file), "--json"]);
-    let (stdout, stderr) = text(&out);
-    assert!(out.status.success(), "{stdout}\n{stderr}");
-    let json: serde_json::Value = serde_json::from_str(stdout.lines().next().unwrap_or_default()).expect("JSON");
-    let policies = json["baselines"]["policies"].as_array().expect("policies");
-    let p = policies.iter().find(|p| p["policy"] == "repeat_oracle").expect("repeat_oracle");
-    assert_eq!((p["holdout"].as_str(), p["overall"]["scored"].as_u64()), (Some("repeat"), Some(56)), "{p}");
+    let json = evaluate_json(&["--compare-policies", arg(&file), "--repeat-oracle", arg(&file), "--json"]);
+    let policies = json[0]["baselines"]["policies"].as_array().expect("policies");
+    let p = policy_run(&json[0], "repeat_oracle", "repeat");
+    assert_eq!(p["overall"]["scored"].as_u64(), Some(56), "{p}");
     assert_eq!(p["overall"]["mean_regret"].as_f64(), Some(0.0), "{p}");
     assert!(!policies.iter().any(|p| p["policy"] == "calibrated_measured"), "nothing measured unless asked");
     assert_usage_error(
