@@ -134,7 +134,8 @@ struct Args {
     #[arg(long, value_name = "F,F,...", value_parser = args::list(clap::value_parser!(u64).range(1..)))]
     frames_sweep: Option<args::List<u64>>,
     /// (With --compare-policies, --cost-model FILE adds that calibration as it is, not refitted, scored on the
-    /// records: how a calibration fitted on other scenes does on these.)
+    /// records, over all of them and per workload: how a calibration fitted on other scenes does on these; with
+    /// --json, a line {"fixed_cost_model": {"file", "score", "timed_score", "measured_score", "by_workload"}}.)
     ///
     /// With --compare-policies: also score the policies against the deterministic proxy (every structure's counted
     /// box and triangle tests times per-test prices measured in isolation on this machine, the builds as measured)
@@ -705,15 +706,18 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
                 p
             };
             let timed = model.timed.as_ref().filter(|_| args.timed_probes).map(|_| {
-                score(samples.iter().map(|s| (s, meshchar::select::choose(&probed(s), args.tie_margin.tie_margin))))
+                samples.iter().map(|s| meshchar::select::choose(&probed(s), args.tie_margin.tie_margin)).collect()
             });
             let measured = args.measure_close_calls.then(|| {
-                score(samples.iter().map(|s| {
-                    let p = probed(s);
-                    (s, s.settle_close_call(&p).or_else(|| meshchar::select::choose(&p, args.tie_margin.tie_margin)))
-                }))
+                samples
+                    .iter()
+                    .map(|s| {
+                        let p = probed(s);
+                        s.settle_close_call(&p).or_else(|| meshchar::select::choose(&p, args.tie_margin.tie_margin))
+                    })
+                    .collect()
             });
-            Some((path.display().to_string(), score(samples.iter().zip(picks)), timed, measured))
+            Some(FixedScores::of(path.display().to_string(), &samples, &picks, timed, measured))
         }
         None => None,
     };
@@ -727,11 +731,8 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
     };
     if args.json.json {
         println!("{}", serde_json::json!(c));
-        if let Some((file, sc, timed, measured)) = &fixed {
-            println!(
-                "{}",
-                serde_json::json!({"fixed_cost_model": {"file": file, "score": sc, "timed_score": timed, "measured_score": measured}})
-            );
+        if let Some(f) = &fixed {
+            println!("{}", serde_json::json!({ "fixed_cost_model": f }));
         }
         if let Some((prices, agree, pc)) = &proxy {
             println!("{}", serde_json::json!({"proxy": {"prices": prices, "agreement": agree, "comparison": pc}}));
@@ -777,11 +778,12 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
                 s.worst
             );
         }
-        if let Some((file, sc, timed, measured)) = &fixed {
+        if let Some(f) = &fixed {
             let label = if args.timed_probes { "as given, timed + measured" } else { "as given, close calls measured" };
-            for (label, sc) in std::iter::once(("calibrated, as given", sc))
-                .chain(timed.iter().map(|t| ("as given, timed probes", t)))
-                .chain(measured.iter().map(|t| (label, t)))
+            let file = &f.file;
+            for (label, sc) in std::iter::once(("calibrated, as given", &f.score))
+                .chain(f.timed_score.iter().map(|t| ("as given, timed probes", t)))
+                .chain(f.measured_score.iter().map(|t| (label, t)))
             {
                 println!(
                     "{:<34} {:>6} {:>8.1}% {:>11.1}% {:>11.1}% {:>11.1}%  {}",
@@ -794,7 +796,25 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
                     sc.worst
                 );
             }
-            println!("(as given: --cost-model {file}, not refitted on these records)");
+            for w in &f.by_workload {
+                let pc = |x: &Option<PolicyScore>| {
+                    x.as_ref().map_or_else(String::new, |x| {
+                        format!(" {:.1}% ({:.1}%)", 100.0 * x.mean_regret, 100.0 * x.worst_regret)
+                    })
+                };
+                println!(
+                    "  {:<16} {:>4}: as given {:.1}% ({:.1}%), timed{}, measured{}",
+                    w.workload,
+                    w.score.scored,
+                    100.0 * w.score.mean_regret,
+                    100.0 * w.score.worst_regret,
+                    pc(&w.timed_score),
+                    pc(&w.measured_score)
+                );
+            }
+            println!(
+                "(as given: --cost-model {file}, not refitted on these records; mean (worst) regret by workload above)"
+            );
         }
         println!("(tie margin {:.2}; leave-one-out holds out every workload of a scene together)", c.tie_margin);
         if let Some(k) = &c.candidates {
@@ -1048,4 +1068,79 @@ fn run(args: Args) -> anyhow::Result<()> {
 
 fn main() -> ExitCode {
     cli::main_with(run)
+}
+
+/// A calibration given with `--cost-model`, scored as it is on the records (`fixed_cost_model` in the JSON): its
+/// own choices, with the timed probes blended in, and with the close calls then measured, over all the records
+/// and per workload.
+#[derive(serde::Serialize)]
+struct FixedScores {
+    /// The calibration file.
+    file: String,
+    /// Its choices' score.
+    score: PolicyScore,
+    /// With `--timed-probes` and a file that has their ratios.
+    timed_score: Option<PolicyScore>,
+    /// With `--measure-close-calls`.
+    measured_score: Option<PolicyScore>,
+    /// The same per workload ([`meshchar::eval::compare::workload_of`]), in the order first met.
+    by_workload: Vec<WorkloadScores>,
+}
+
+/// [`FixedScores`] of one workload.
+#[derive(serde::Serialize)]
+struct WorkloadScores {
+    /// `primary`, `shadow x100`, ...
+    workload: String,
+    /// The calibration's own choices.
+    score: PolicyScore,
+    /// With the timed probes blended in.
+    timed_score: Option<PolicyScore>,
+    /// With the close calls then measured.
+    measured_score: Option<PolicyScore>,
+}
+
+/// One choice per sample (`None`: no choice).
+type Picks = Vec<Option<meshchar::accel::StructureName>>;
+
+impl FixedScores {
+    /// The scores of `picks`, `timed` and `measured` (one choice per sample each) over `samples`.
+    fn of(
+        file: String,
+        samples: &[meshchar::cost::Sample],
+        picks: &Picks,
+        timed: Option<Picks>,
+        measured: Option<Picks>,
+    ) -> Self {
+        let scored = |keep: &dyn Fn(&meshchar::cost::Sample) -> bool, c: &Picks| {
+            score(samples.iter().zip(c).filter(|(s, _)| keep(s)).map(|(s, c)| (s, *c)))
+        };
+        let mut workloads: Vec<String> = Vec::new();
+        for s in samples {
+            let w = meshchar::eval::compare::workload_of(s);
+            if !workloads.contains(&w) {
+                workloads.push(w);
+            }
+        }
+        let all = |_: &meshchar::cost::Sample| true;
+        let by_workload = workloads
+            .into_iter()
+            .map(|w| {
+                let keep = |s: &meshchar::cost::Sample| meshchar::eval::compare::workload_of(s) == w;
+                WorkloadScores {
+                    score: scored(&keep, picks),
+                    timed_score: timed.as_ref().map(|c| scored(&keep, c)),
+                    measured_score: measured.as_ref().map(|c| scored(&keep, c)),
+                    workload: w,
+                }
+            })
+            .collect();
+        FixedScores {
+            file,
+            score: scored(&all, picks),
+            timed_score: timed.as_ref().map(|c| scored(&all, c)),
+            measured_score: measured.as_ref().map(|c| scored(&all, c)),
+            by_workload,
+        }
+    }
 }

@@ -383,6 +383,11 @@ fn the_precise_oracle_measures_every_structure_in_every_round_and_goes_on_while_
     c.max_repeats = 6;
     let e = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
     assert!(e.structures.iter().all(|s| s.total_ms.samples == 6 && s.precision_met == Some(false)));
+    // The record says how it was measured, and reads back the same.
+    let rec = e.record();
+    assert_eq!((rec.precision, rec.max_repeats, rec.precision_ms), (Some(1e-12), Some(6), Some(0.0)));
+    assert_eq!(rec.rounds.as_deref(), Some(meshchar::eval::oracle::ROUNDS_EVERY_STRUCTURE));
+    assert_eq!(meshchar::eval::OracleRecord::from_json_line(&rec.to_json_line()).unwrap(), rec);
     c.precision_ms = f64::INFINITY;
     let e = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
     assert!(e.structures.iter().all(|s| s.total_ms.samples == meshchar::eval::oracle::MAX_PRECISION_REPEATS));
@@ -393,10 +398,14 @@ fn the_precise_oracle_measures_every_structure_in_every_round_and_goes_on_while_
     let n = e.structures[0].total_ms.samples;
     assert!(n > 6 && n < meshchar::eval::oracle::MAX_PRECISION_REPEATS, "{n} rounds for about 200 rounds' time");
     assert!(e.structures.iter().all(|s| s.total_ms.samples == n));
-    // Without a target the allowance is not read.
+    // Without a target the allowance is not read, and the record carries none of the target's fields.
     c.precision = None;
     let e = evaluate_scene(&anim, &c, None, &|_| {}).unwrap();
     assert!(e.structures.iter().all(|s| s.total_ms.samples == 3));
+    let line = e.record().to_json_line();
+    for field in ["\"precision\"", "\"max_repeats\"", "\"precision_ms\"", "\"rounds\""] {
+        assert!(!line.contains(field), "{field} in {line}");
+    }
 }
 
 #[test]

@@ -929,6 +929,52 @@ fn compare_policies_scores_a_given_calibration_and_the_proxy() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `evaluate --compare-policies ... --cost-model FILE`: the given calibration scored per workload too, and the
+/// workloads' scores add up to the whole.
+#[test]
+fn a_given_calibration_is_scored_per_workload() {
+    let dir = inputs("compare-fixed-workloads");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    for w in ["primary", "shadow"] {
+        let text_in = std::fs::read_to_string(root.join(format!("docs/data/families-{w}.jsonl"))).expect("records");
+        let lines: Vec<&str> = text_in.lines().filter(|l| l.contains(":2k:1\"") || l.contains(":20k:1\"")).collect();
+        assert_eq!(lines.len(), 56, "{w}: seven families, two sizes, four views");
+        let file = dir.join(format!("{w}.jsonl"));
+        std::fs::write(&file, lines.join("\n") + "\n").unwrap();
+        files.push(file);
+    }
+    let model = root.join("assets/cost-model-cpu.json");
+    let args =
+        ["--compare-policies", arg(&files[0]), "--compare-policies", arg(&files[1]), "--cost-model", arg(&model)];
+    let json = evaluate_json(&[&args[..], &["--json"][..]].concat());
+    let fixed = &json[1]["fixed_cost_model"];
+    let by = fixed["by_workload"].as_array().expect("by_workload");
+    let names: Vec<&str> = by.iter().filter_map(|w| w["workload"].as_str()).collect();
+    assert_eq!(names, ["primary", "shadow"], "{fixed}");
+    let n = |s: &serde_json::Value| s["scored"].as_u64().unwrap();
+    let (mut scored, mut sum, mut worst) = (0, 0.0, 0.0f64);
+    for w in by {
+        assert_eq!(n(&w["score"]) + w["score"]["failed"].as_u64().unwrap(), 56, "{w}");
+        assert!(w["timed_score"].is_null() && w["measured_score"].is_null(), "not asked for: {w}");
+        scored += n(&w["score"]);
+        sum += w["score"]["mean_regret"].as_f64().unwrap() * n(&w["score"]) as f64;
+        worst = worst.max(w["score"]["worst_regret"].as_f64().unwrap());
+    }
+    let all = &fixed["score"];
+    assert_eq!(scored, n(all));
+    assert!((sum / scored as f64 - all["mean_regret"].as_f64().unwrap()).abs() < 1e-12, "{fixed}");
+    assert_eq!(worst, all["worst_regret"].as_f64().unwrap());
+    // The text names each workload's line.
+    let out = run("evaluate", &args);
+    let (stdout, _) = text(&out);
+    assert!(out.status.success(), "{stdout}");
+    for w in ["primary", "shadow"] {
+        assert!(stdout.lines().any(|l| l.trim_start().starts_with(w) && l.contains(": as given ")), "{w}: {stdout}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// `evaluate --compare-policies ... --timed-probes` and `calibrate --from-oracle ... --timed-probes`: the timed policy
 /// held out both ways and the given calibration with probes, scored on every record; a calibration written with the
 /// ratios; both flags refused without the records they need. (What the probes measure is not checked here: it is

@@ -487,6 +487,10 @@ pub const DEFAULT_MAX_REPEATS: usize = 60;
 /// [`OracleConfig::max_repeats`] is still run in full).
 pub const MAX_PRECISION_REPEATS: usize = 500;
 
+/// The records' `rounds` under a precision target ([`crate::eval::OracleRecord::rounds`]): every structure is measured
+/// in every round until all of them meet the target, as this oracle measures.
+pub const ROUNDS_EVERY_STRUCTURE: &str = "every_structure";
+
 /// The default [`OracleConfig::max_tests_per_ray`].
 pub const DEFAULT_MAX_TESTS_PER_RAY: f64 = 4096.0;
 
@@ -723,6 +727,10 @@ pub struct SceneEvaluation {
     pub camera: Camera,
     /// The precision target ([`OracleConfig::precision`]), when one was set.
     pub precision: Option<f64>,
+    /// Under a precision target: [`OracleConfig::max_repeats`].
+    pub max_repeats: Option<usize>,
+    /// Under a precision target: [`OracleConfig::precision_ms`].
+    pub precision_ms: Option<f64>,
     /// Rays per frame (first frame).
     pub rays_per_frame: usize,
     /// The selection passed in (from the characterization's policy), if any.
@@ -952,6 +960,9 @@ impl SceneEvaluation {
             regret_within_noise: self.regret_within_noise,
             repeats: self.repeats,
             precision: self.precision,
+            max_repeats: self.max_repeats,
+            precision_ms: self.precision_ms,
+            rounds: self.precision.map(|_| ROUNDS_EVERY_STRUCTURE.to_string()),
             view: None,
             camera: Some((&self.camera).into()),
             resolution: self.resolution,
@@ -1509,6 +1520,8 @@ pub fn evaluate_scene_on(
         rebuild: config.rebuild,
         repeats,
         precision,
+        max_repeats: precision.map(|_| max_repeats),
+        precision_ms: precision.and(Some(config.precision_ms).filter(|x| x.is_finite()).map(|x| x.max(0.0))),
         camera,
         rays_per_frame,
         selected,
