@@ -5,7 +5,7 @@
 //!     [--morton-bits 30|63] [--alpha A] [--sample-stride S] [--class-rule doane|sturges|sqrt|N]
 //!     [--policy thesis|calibrated] [--cost-model FILE] [--budget-references-per-triangle R]
 //!     [--budget-min-references N] [--budget-bytes BYTES] [--workload primary|shadow|diffuse] [--resolution N]
-//!     [--frames F] [--trace-backend cpu|vulkan]
+//!     [--frames F] [--secondary-rays N] [--trace-backend cpu|vulkan]
 //! ```
 //!
 //! A FILE is a static mesh (.obj or .ply); a DIR holds the frames of an animation (one report per frame, `kind`
@@ -42,8 +42,8 @@ mod cli;
 #[command(mut_arg("json", |a| a.help("One JSON object per mesh or frame per line (default: a report for people)")))]
 #[command(mut_arg("workload", |a| a.help("Calibrated policy: the kind of rays")))]
 #[command(mut_arg("resolution", |a| {
-    a.help("Calibrated policy: N x N rays per frame (for shadow and diffuse rays an upper bound, as only rays that \
-            hit spawn them)")
+    a.help("Calibrated policy: N x N primary rays per frame (shadow and diffuse rays start where they hit: their \
+            number is estimated from a sample of them, or given with --secondary-rays)")
 }))]
 struct Args {
     /// None: the embedded default scene. A mesh (.obj, .ply): a static scene; or a directory: the frames of an
@@ -74,6 +74,12 @@ struct Args {
     trace_backend: TraceBackendArg,
     #[command(flatten)]
     workload: WorkloadArgs,
+    /// Calibrated policy, shadow or diffuse rays: how many a frame traces, when known (an engine's primary pass
+    /// knows its hits) [default: estimated by tracing a sample of at most 128 x 128 of the primary rays through a
+    /// reference LBVH, meshchar::trace::workload::estimate_secondary_rays, the whole image at --resolution 128 and
+    /// below]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64))]
+    secondary_rays: Option<u64>,
     /// Calibrated policy: frames rendered with one build of a static scene
     #[arg(long, value_name = "F", default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
     frames: u64,
@@ -142,18 +148,20 @@ fn process(
         Policy::Calibrated => PolicyChoice::Calibrated { model, tie_margin: CalibratedPolicy::DEFAULT_TIE_MARGIN },
     };
     let resolution = u64::from(args.workload.resolution);
+    let bounds_all = || scene.frames.iter().fold(meshchar::geom::Aabb::EMPTY, |a, m| a.union(&mesh_bounds(m)));
+    let camera = args.camera.or_else(|| args.view.map(|v| v.camera(&bounds_all())));
+    // Shadow and diffuse rays start where the primary rays hit: as many as the caller says, or as a sample of the
+    // primary rays makes (on the first frame, from the camera the policy assumes). The thesis policy reads no count.
+    let (rays_per_frame, rays_reason) = secondary_rays(args, scene, camera, resolution * resolution);
     let workload = TargetWorkload {
         kind: args.workload.workload,
-        rays_per_frame: resolution * resolution,
+        rays_per_frame,
         frames: args.frames,
         animation_frames: None,
         // The driver's structures are weighed when the cost model chosen for this device calibrated them (a device
         // calibration: `calibrate --trace-backend vulkan` on a device with ray queries).
         driver: !model.driver.is_empty(),
-        camera: args.camera.or_else(|| {
-            let b = scene.frames.iter().fold(meshchar::geom::Aabb::EMPTY, |a, m| a.union(&mesh_bounds(m)));
-            args.view.map(|v| v.camera(&b))
-        }),
+        camera,
     };
     // The build bounds from the meshes themselves (tighter than the features'): no structure whose grid or kd-tree
     // references would exceed the budget (--budget-*) is a candidate.
@@ -163,7 +171,7 @@ fn process(
     // With --timed-probes, a static scene's contenders are built and timed on a sample of the view (part of the
     // selection's cost below).
     // (An animation gets none, and a reason says so.)
-    let chosen = match scene.frames.first() {
+    let mut chosen = match scene.frames.first() {
         Some(mesh) if args.measure_close_calls => {
             let measure = MeasureBudget { resolution: args.workload.resolution, max_ms: args.measure_max_ms };
             select_for_scene_measured(
@@ -183,6 +191,9 @@ fn process(
         }
         _ => select_for_scene_within(&scene.name, &results, &features, policy, &workload, bounds, budget),
     };
+    if let Some(r) = rays_reason {
+        chosen.selection.reasons.insert(0, r);
+    }
     let select_ms = t1.elapsed().as_secs_f64() * 1e3;
     let frames = if scene.frames.len() > 1 { scene.frames.len() as u64 } else { args.frames };
     let cost = SelectionCost::new(
@@ -215,6 +226,50 @@ fn process(
         });
     }
     Ok(())
+}
+
+/// The rays per frame the calibrated policy is told, and a reason saying where the number comes from (none for
+/// primary rays or the thesis policy): `pixels` primary rays; for shadow and diffuse rays, `--secondary-rays` or
+/// the estimate of [`meshchar::trace::workload::estimate_secondary_rays`] on the first frame, seen from `camera` or
+/// else the camera framing the scene (as the policy assumes without one).
+fn secondary_rays(
+    args: &Args,
+    scene: &Animation,
+    camera: Option<meshchar::trace::Camera>,
+    pixels: u64,
+) -> (u64, Option<String>) {
+    use meshchar::trace::workload::{estimate_secondary_rays, SECONDARY_SAMPLE_SIDE};
+    let kind = args.workload.workload;
+    if kind == meshchar::geom::WorkloadKind::Primary || args.policy.policy == Policy::Thesis {
+        return (pixels, None);
+    }
+    if let Some(n) = args.secondary_rays {
+        return (n, Some(format!("{} rays per frame: {n} (--secondary-rays)", kind.as_str())));
+    }
+    let Some(first) = scene.frames.first() else { return (pixels, None) };
+    let camera = camera.unwrap_or_else(|| {
+        let b = scene.frames.iter().fold(meshchar::geom::Aabb::EMPTY, |a, m| a.union(&mesh_bounds(m)));
+        meshchar::trace::Camera::frame(&b)
+    });
+    match estimate_secondary_rays(kind, first, &camera, args.workload.resolution, SECONDARY_SAMPLE_SIDE) {
+        Ok(e) => (
+            e.rays,
+            Some(format!(
+                "{} rays per frame: {} estimated from {}x{} of the {}x{} primary rays ({} of them made one; {:.1} ms)",
+                kind.as_str(),
+                e.rays,
+                e.side,
+                e.side,
+                args.workload.resolution,
+                args.workload.resolution,
+                e.made,
+                e.ms
+            )),
+        ),
+        Err(err) => {
+            (pixels, Some(format!("{} rays per frame: {pixels}, one per pixel (not estimated: {err})", kind.as_str())))
+        }
+    }
 }
 
 fn run(args: Args) -> anyhow::Result<()> {

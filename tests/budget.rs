@@ -1631,3 +1631,57 @@ fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
     }
     assert!(settled > 0, "some family scene at 2K triangles is a close call for the shipped model");
 }
+
+/// A measured close call of shadow or diffuse rays: the frames measured trace the secondary rays the view's hits
+/// start, and their traces are scaled to the workload's rays per frame over those (not over the image's pixels):
+/// told the count the frame makes (`estimate_secondary_rays` over the whole image), nothing is scaled; told
+/// twice as many, every trace is scaled by 2.
+#[test]
+fn a_measured_close_call_of_secondary_rays_scales_its_traces_by_the_rays_it_traced() {
+    use meshchar::select::{select_for_scene_measured, MeasureBudget};
+    use meshchar::trace::workload::estimate_secondary_rays;
+    let model = CostModel { timed: None, ..CostModel::shipped().expect("shipped model") };
+    let params = Params::default();
+    let mut settled = 0;
+    for family in meshchar::mesh::families::Family::ALL {
+        let m = meshchar::mesh::families::generate(family, 2000, 1).expect("family scene");
+        let c = cpu::fast(&m, &params).expect("characterization");
+        let f = features_cpu(&m, &params).expect("features");
+        let b = meshchar::trace::workload::mesh_bounds(&m);
+        for (view, kind) in meshchar::trace::views::View::ALL
+            .into_iter()
+            .flat_map(|v| [(v, WorkloadKind::Shadow), (v, WorkloadKind::Diffuse)])
+        {
+            let camera = view.camera(&b);
+            let made = estimate_secondary_rays(kind, &m, &camera, 64, 64).expect("estimate").rays;
+            let run = |rays_per_frame: u64| {
+                let w = TargetWorkload { kind, rays_per_frame, camera: Some(camera), ..workload() };
+                select_for_scene_measured(
+                    &m.name,
+                    std::slice::from_ref(&c),
+                    std::slice::from_ref(&f),
+                    PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 },
+                    &w,
+                    Some(BuildBounds::of_mesh(&m).expect("bounds")),
+                    Budget::default(),
+                    &m,
+                    MeasureBudget::new(64),
+                )
+            };
+            let s = run(made);
+            if s.measured.is_empty() || made == 0 {
+                continue;
+            }
+            settled += 1;
+            let line = s.selection.reasons.iter().find(|r| r.starts_with("measured close call")).expect("a reason");
+            assert!(s.measured.iter().all(|t| t.rays as u64 == made), "{}: {line}", m.name);
+            assert!(!line.contains("traces scaled"), "{}: {line}", m.name);
+            let doubled = run(2 * made);
+            if !doubled.measured.is_empty() {
+                let line = doubled.selection.reasons.iter().find(|r| r.starts_with("measured close call")).unwrap();
+                assert!(line.contains("traces scaled by 2.000"), "{}: {line}", m.name);
+            }
+        }
+    }
+    assert!(settled > 0, "some family scene at 2K triangles is a close call of secondary rays");
+}

@@ -494,3 +494,49 @@ fn refit_candidates_build_frame_0_refit_the_rest_and_agree_with_the_reference() 
     let e = evaluate_scene(&one, &c, None, &|_| {}).unwrap();
     assert!(e.refit_structures.is_empty() && e.best_candidate.is_none());
 }
+
+/// The secondary rays of a workload, estimated from a sample of the primary rays (what `characterize` tells the
+/// calibrated policy for shadow and diffuse rays): with the whole image as the sample, the count of the rays the
+/// oracle traces (its reference a BVH, the estimate's an LBVH: the same primary rays hit); with a quarter of the
+/// rays (every second pixel each way), within a few percent of it where the image is not too sparse; primary rays
+/// are the pixels; no triangle, no ray.
+#[test]
+fn the_secondary_rays_estimated_from_a_sample_of_the_primary_rays_count_the_workloads_own() {
+    use meshchar::mesh::families::{generate, Family};
+    use meshchar::trace::workload::{build_workload, estimate_secondary_rays, mesh_bounds};
+    use meshchar::trace::{views::View, Camera};
+    let meshes = [
+        generate(Family::Vegetation, 2000, 3).unwrap(),
+        generate(Family::Interior, 2000, 3).unwrap(),
+        generate(Family::Particles, 2000, 3).unwrap(),
+        meshchar::mesh::generate::random_soup(1500, 5),
+        meshchar::mesh::generate::long_thin(1000, 2),
+        scene(300, 0.0),
+    ];
+    for m in &meshes {
+        let b = mesh_bounds(m);
+        let reference = meshchar::accel::build_structure(StructureName::Bvh, m).unwrap();
+        for camera in [Camera::frame(&b), View::Inside.camera(&b), View::Grazing.camera(&b)] {
+            for kind in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
+                let res = 48;
+                let want = build_workload(kind, m, &camera, res, reference.as_ref()).rays.len() as u64;
+                let whole = estimate_secondary_rays(kind, m, &camera, res, 64).unwrap();
+                assert_eq!((whole.side, whole.rays), (res, want), "{} {kind:?}", m.name);
+                assert!(whole.ms >= 0.0 && whole.made == want);
+                let half = estimate_secondary_rays(kind, m, &camera, res, res / 2).unwrap();
+                assert_eq!(half.side, res / 2);
+                let err = (half.rays as f64 - want as f64).abs();
+                assert!(err <= 0.1 * want as f64 + 16.0, "{} {kind:?}: {} against {want}", m.name, half.rays);
+            }
+        }
+    }
+    let m = &meshes[0];
+    let camera = Camera::frame(&mesh_bounds(m));
+    let p = estimate_secondary_rays(WorkloadKind::Primary, m, &camera, 100, 8).unwrap();
+    assert_eq!(p.rays, 10_000);
+    let empty = Mesh::from_triangles("empty", &[]).unwrap();
+    assert_eq!(estimate_secondary_rays(WorkloadKind::Shadow, &empty, &camera, 100, 8).unwrap().rays, 0);
+    // A sample side beyond the cap is capped, not allocated.
+    let big = estimate_secondary_rays(WorkloadKind::Shadow, m, &camera, 64, u32::MAX).unwrap();
+    assert_eq!(big.side, 64);
+}

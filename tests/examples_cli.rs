@@ -929,6 +929,48 @@ fn compare_policies_scores_a_given_calibration_and_the_proxy() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `characterize --workload shadow|diffuse`: the calibrated policy is told the secondary rays a frame makes (the
+/// oracle's count where the sample is the whole image), or `--secondary-rays N`; a reason says which.
+#[test]
+fn characterize_tells_the_policy_the_secondary_rays_a_frame_makes() {
+    for (scene, kind) in [("family:vegetation:2k:1", "shadow"), ("family:terrain:2k:1", "diffuse")] {
+        let common = [scene, "--workload", kind, "--resolution", "64", "--json"];
+        let out = run("evaluate", &[&common[..], &["--repeats", "1", "--structures", "lbvh"][..]].concat());
+        let (stdout, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(0), "{stderr}");
+        let record: serde_json::Value = serde_json::from_str(stdout.lines().next().unwrap_or_default()).expect("JSON");
+        let want = record["rays_per_frame"].as_u64().expect("rays_per_frame");
+        assert!(want > 0 && want < 64 * 64, "{scene}: {want} of 4,096 primary rays start one");
+        let reasons = |extra: &[&str]| {
+            let out = run("characterize", &[&common[..], &["--backend", "cpu"][..], extra].concat());
+            let (stdout, stderr) = text(&out);
+            assert_eq!(out.status.code(), Some(0), "{stderr}");
+            let v: serde_json::Value = serde_json::from_str(stdout.lines().next().unwrap_or_default()).expect("JSON");
+            v["reasons"]
+                .as_array()
+                .expect("reasons")
+                .iter()
+                .filter_map(|r| r.as_str().map(String::from))
+                .collect::<Vec<_>>()
+        };
+        let r = reasons(&[]);
+        let line = format!("{kind} rays per frame: {want} estimated from 64x64 of the 64x64 primary rays");
+        assert!(r[0].starts_with(&line), "{scene}: {r:?}");
+        assert!(r.iter().any(|x| x.contains(&format!("for {want} {kind} rays/frame"))), "{scene}: {r:?}");
+        let r = reasons(&["--secondary-rays", "1234"]);
+        assert_eq!(r[0], format!("{kind} rays per frame: 1234 (--secondary-rays)"));
+        assert!(r.iter().any(|x| x.contains(&format!("for 1234 {kind} rays/frame"))), "{scene}: {r:?}");
+    }
+    // Primary rays are the image's pixels: no such reason.
+    let out = run("characterize", &["family:city:2k:1", "--backend", "cpu", "--json", "--resolution", "64"]);
+    let (stdout, _) = text(&out);
+    assert!(
+        out.status.success() && !stdout.contains("rays per frame:") && stdout.contains("4096 primary rays/frame"),
+        "{stdout}"
+    );
+    assert_usage_error("characterize", &["--secondary-rays", "-5"]);
+}
+
 /// `evaluate --compare-policies ... --cost-model FILE`: the given calibration scored per workload too, and the
 /// workloads' scores add up to the whole.
 #[test]

@@ -273,7 +273,9 @@ impl PolicyChoice<'_> {
 pub struct TargetWorkload {
     /// Kind of rays.
     pub kind: WorkloadKind,
-    /// Rays per frame.
+    /// Rays per frame: for shadow and diffuse rays the secondary rays the frame traces (one per primary ray that
+    /// hits, as the oracle makes them), not the image's pixels; an engine knows them from its primary pass, and
+    /// [`crate::trace::workload::estimate_secondary_rays`] estimates them from a sample of the primary rays.
     pub rays_per_frame: u64,
     /// Frames of a static scene rendered with one build.
     pub frames: u64,
@@ -373,8 +375,9 @@ impl MeasureBudget {
 /// ([`crate::cost::measured`]): the structures the budget allows whose final predicted total lies within
 /// [`crate::cost::measured::CLOSE_CALL_MARGIN`] of the least are built and traced over whole frames of the view's
 /// rays at `measure.resolution` ([`crate::cost::measured::MEASURED_REPEATS`] times after an untimed round,
-/// interleaved; each trace scaled to the workload's rays per frame, `rays_per_frame / resolution^2`, so that the
-/// totals compared are the predictions' own), and the one with the least median total over the workload's frames
+/// interleaved; each trace scaled to the workload's rays per frame, `rays_per_frame` over the rays the frame traced
+/// (`resolution^2` primary rays, or the secondary rays their hits start), so that the totals compared are the
+/// predictions' own), and the one with the least median total over the workload's frames
 /// is selected; a reason lists the measured totals, or says why
 /// nothing was measured (no close call, an animation, the thesis policy, the driver's structure chosen, or the
 /// predicted cost of measuring over `measure.max_ms`). The measurement is what the oracle measures, on this machine
@@ -440,9 +443,11 @@ pub fn select_for_scene_measured(
     let camera =
         workload.camera.unwrap_or_else(|| crate::cost::view::framing_camera(b.min.to_array(), b.max.to_array()));
     let timings = measure_frames(mesh, &camera, measure.resolution, workload.kind, &close, MEASURED_REPEATS);
-    // The frames measured hold `resolution^2` primary rays (and the secondary rays their hits start); the
-    // predictions, and so the totals compared, are for the workload's rays per frame: the traces are scaled to it.
-    let scale = workload.rays_per_frame as f64 / (f64::from(measure.resolution) * f64::from(measure.resolution));
+    // The frames measured hold `resolution^2` primary rays, or the secondary rays their hits start (every structure
+    // traces the same rays); the predictions, and so the totals compared, are for the workload's rays per frame:
+    // the traces are scaled to it (a frame without a ray has no trace to scale).
+    let traced = timings.first().map_or(0, |t| t.rays);
+    let scale = if traced == 0 { 1.0 } else { workload.rays_per_frame as f64 / traced as f64 };
     let totals: Vec<MeasuredTotal> =
         timings.iter().filter_map(|t| MeasuredTotal::of(&t.scaled(scale), 1, frames_run)).collect();
     let Some(best) = totals.iter().min_by(|a, b| a.total_ms.total_cmp(&b.total_ms)) else {

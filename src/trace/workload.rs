@@ -88,6 +88,78 @@ pub fn build_workload(
     secondary_rays(kind, mesh, &primary.rays, &out.hits, light, WORKLOAD_SEED)
 }
 
+/// The largest side of the sample of primary rays [`estimate_secondary_rays`] traces by default: 128 x 128 = 16,384
+/// rays, the whole image at 128 x 128 and below.
+pub const SECONDARY_SAMPLE_SIDE: u32 = 128;
+
+/// The most [`estimate_secondary_rays`] samples whatever it is asked: 4096 x 4096 primary rays (512 MiB of rays).
+pub const MAX_SECONDARY_SAMPLE_SIDE: u32 = 4096;
+
+/// How many secondary rays a frame makes, estimated from a sample of its primary rays ([`estimate_secondary_rays`]).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct SecondaryRayEstimate {
+    /// The estimate: secondary rays of one frame at the full resolution.
+    pub rays: u64,
+    /// Side of the sample: `side x side` primary rays were traced, spread evenly over the image.
+    pub side: u32,
+    /// Secondary rays the sample made (a primary ray that hits makes at most one).
+    pub made: u64,
+    /// Wall time of the estimate (a reference LBVH built over the mesh, the sample traced), ms.
+    pub ms: f64,
+}
+
+/// How many `kind` rays one frame of `camera` at `resolution x resolution` makes: for primary rays the image's
+/// pixels; for shadow and diffuse rays, one per primary ray that hits and starts one (as [`build_workload`] makes
+/// them), estimated by tracing an evenly spread sample of at most `max_side x max_side` of the primary rays (`max_side`
+/// at most [`MAX_SECONDARY_SAMPLE_SIDE`]; the
+/// pixels at the centres of the sample's cells) through a reference LBVH and scaling what they make to the image.
+/// When the sample is the whole image (`resolution <= max_side`) the count is the workload's own (up to ties between
+/// equally close hits). This is what the calibrated policy is to be told as the rays per frame of a secondary
+/// workload when the caller does not know it; an engine that does (its primary pass's hits) passes its own.
+pub fn estimate_secondary_rays(
+    kind: WorkloadKind,
+    mesh: &Mesh,
+    camera: &Camera,
+    resolution: u32,
+    max_side: u32,
+) -> Result<SecondaryRayEstimate, crate::accel::AccelError> {
+    let pixels = u64::from(resolution) * u64::from(resolution);
+    if kind == WorkloadKind::Primary {
+        return Ok(SecondaryRayEstimate { rays: pixels, side: resolution, made: pixels, ms: 0.0 });
+    }
+    let t = std::time::Instant::now();
+    let side = resolution.min(max_side.clamp(1, MAX_SECONDARY_SAMPLE_SIDE));
+    if side == 0 || mesh.triangle_count() == 0 {
+        return Ok(SecondaryRayEstimate { rays: 0, side, made: 0, ms: 0.0 });
+    }
+    // The centre pixel of each of the sample's `side x side` cells (every pixel when `side == resolution`).
+    let at = |i: u32| ((2 * u64::from(i) + 1) * u64::from(resolution) / (2 * u64::from(side))) as u32;
+    let mut primary = Vec::with_capacity(side as usize * side as usize);
+    for y in 0..side {
+        for x in 0..side {
+            primary.push(camera.ray(at(x), at(y), resolution, resolution));
+        }
+    }
+    let reference = crate::accel::build_structure(crate::accel::StructureName::Lbvh, mesh)?;
+    let set = RaySet { kind: WorkloadKind::Primary, rays: primary, any_hit: false };
+    let hits = trace(reference.as_ref(), &set).hits;
+    let bounds = mesh_bounds(mesh);
+    let made = crate::accel::bounce::secondary_from_hits(
+        kind,
+        mesh,
+        &set.rays,
+        &hits,
+        &bounds,
+        default_light(&bounds),
+        WORKLOAD_SEED,
+    )
+    .len() as u64;
+    let sampled = u64::from(side) * u64::from(side);
+    // Rounded to the nearest ray, in integers.
+    let rays = ((u128::from(made) * u128::from(pixels) + u128::from(sampled / 2)) / u128::from(sampled)) as u64;
+    Ok(SecondaryRayEstimate { rays, side, made, ms: t.elapsed().as_secs_f64() * 1e3 })
+}
+
 #[cfg(test)]
 mod tests {
     use super::turn_sin_cos;
