@@ -273,6 +273,14 @@ fn secondary_rays(
 }
 
 fn run(args: Args) -> anyhow::Result<()> {
+    if args.secondary_rays.is_some()
+        && (args.workload.workload == meshchar::geom::WorkloadKind::Primary || args.policy.policy == Policy::Thesis)
+    {
+        cli::usage_error::<Args>(
+            clap::error::ErrorKind::ArgumentConflict,
+            "--secondary-rays counts shadow or diffuse rays for the calibrated policy (--workload shadow|diffuse)",
+        );
+    }
     let mut engine = Characterizer::new(args.backend.backend)?;
     if let Some(note) = engine.note() {
         eprintln!("characterize: {note}");

@@ -120,6 +120,10 @@ struct Args {
     structure: Candidates,
     #[command(flatten)]
     workload: WorkloadArgs,
+    /// With --workload shadow or diffuse: the rays one frame traces, when known [default: estimated from a sample
+    /// of at most 128 x 128 of the primary rays of a camera framing the rest poses]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64))]
+    secondary_rays: Option<u64>,
     #[command(flatten)]
     tie_margin: TieMarginArg,
     #[command(flatten)]
@@ -1548,6 +1552,34 @@ struct Outcome {
     picture: Option<(Vec<Vec<TraceHit>>, meshchar::trace::Camera)>,
 }
 
+/// The rays of one frame the per-frame rule weighs: `--resolution` squared primary rays, or for shadow and diffuse
+/// rays `--secondary-rays`, or else as many as the primary rays of a camera framing the rest poses make
+/// ([`meshchar::trace::workload::estimate_secondary_rays`] over all the meshes together; printed on standard error).
+fn frame_rays(args: &Args, scene: &[SceneMesh]) -> Result<u64> {
+    use meshchar::trace::workload::{estimate_secondary_rays, mesh_bounds, SECONDARY_SAMPLE_SIDE};
+    let (kind, res) = (args.workload.workload, args.workload.resolution);
+    if kind == meshchar::geom::WorkloadKind::Primary {
+        return Ok(u64::from(res).pow(2));
+    }
+    if let Some(n) = args.secondary_rays {
+        return Ok(n);
+    }
+    let tris: Vec<[glam::Vec3; 3]> =
+        scene.iter().flat_map(|m| (0..m.rest.triangle_count()).map(|i| m.rest.triangle(i))).collect();
+    let all = Mesh::from_triangles("rest poses", &tris).context("the rest poses")?;
+    let camera = meshchar::trace::Camera::frame(&mesh_bounds(&all));
+    let e = estimate_secondary_rays(kind, &all, &camera, res, SECONDARY_SAMPLE_SIDE).context("secondary rays")?;
+    eprintln!(
+        "engine_frame: {} rays per frame: {} estimated from {}x{} of the {res}x{res} primary rays of a camera framing \
+         the rest poses (--secondary-rays N to give them)",
+        kind.as_str(),
+        e.rays,
+        e.side,
+        e.side
+    );
+    Ok(e.rays)
+}
+
 /// Runs the frames on the engine.
 fn frames(
     args: &Args,
@@ -1609,10 +1641,11 @@ fn frames(
         });
     }
     let structures = [StructureName::Lbvh];
+    let rays_per_frame = frame_rays(args, scene)?;
     let rule = FrameRule {
         model: &model,
         kind: args.workload.workload,
-        rays_per_frame: u64::from(args.workload.resolution).pow(2),
+        rays_per_frame,
         tie_margin: args.tie_margin.tie_margin,
         structures: &structures,
         // The meshes live in the engine's device buffers and only the features come back to the host, not the
@@ -1620,7 +1653,6 @@ fn frames(
         // change which structure a rebuild takes).
         crossings: None,
     };
-    let rays_per_frame = u64::from(args.workload.resolution).pow(2);
     let driver = match (engine.ray_query, model.get_driver(DriverFlags::Update)) {
         (true, Some(_)) => Some((
             DriverBuilder::new(&ctx)?,
@@ -1724,6 +1756,12 @@ fn frames(
 }
 
 fn run(args: Args) -> Result<()> {
+    if args.secondary_rays.is_some() && args.workload.workload == meshchar::geom::WorkloadKind::Primary {
+        cli::usage_error::<Args>(
+            clap::error::ErrorKind::ArgumentConflict,
+            "--secondary-rays counts shadow or diffuse rays (--workload shadow|diffuse)",
+        );
+    }
     let sink = Arc::new(MessageSink::default());
     let scene = scene(&args)?;
     let outcome = {

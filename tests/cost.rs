@@ -1238,6 +1238,8 @@ fn the_second_family_set_is_measured_in_rounds_and_held_out_the_policy_beats_the
                 if set.ends_with("repeat") {
                     assert_eq!((r.max_repeats, r.precision_ms), (Some(20), Some(2000.0)), "{set}: {}", r.mesh);
                     assert_eq!(r.rounds.as_deref(), Some(meshchar::eval::oracle::ROUNDS_EVERY_STRUCTURE));
+                } else {
+                    assert!(r.max_repeats.is_none() && r.precision_ms.is_none() && r.rounds.is_none(), "{}", r.mesh);
                 }
                 let valid: Vec<_> = r.structures.iter().filter(|s| s.valid).collect();
                 let n = valid[0].repeats_measured.expect("repeats recorded");

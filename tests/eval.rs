@@ -536,7 +536,18 @@ fn the_secondary_rays_estimated_from_a_sample_of_the_primary_rays_count_the_work
     assert_eq!(p.rays, 10_000);
     let empty = Mesh::from_triangles("empty", &[]).unwrap();
     assert_eq!(estimate_secondary_rays(WorkloadKind::Shadow, &empty, &camera, 100, 8).unwrap().rays, 0);
-    // A sample side beyond the cap is capped, not allocated.
-    let big = estimate_secondary_rays(WorkloadKind::Shadow, m, &camera, 64, u32::MAX).unwrap();
-    assert_eq!(big.side, 64);
+    // Thousands of coincident triangles: every ray tests all of them; the pilot refuses before the sample is traced.
+    let big = [Vec3::new(-1.0, -1.0, 0.0), Vec3::new(1.0, -1.0, 0.0), Vec3::new(0.0, 1.0, 0.0)];
+    let stack = Mesh::from_triangles("stack", &vec![big; 6000]).unwrap();
+    let front = Camera::look_at(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, Vec3::Y, 45.0).unwrap();
+    match estimate_secondary_rays(WorkloadKind::Shadow, &stack, &front, 64, 64) {
+        Err(meshchar::trace::workload::SecondaryEstimateError::OverBudget { rays, tests_per_ray, .. }) => {
+            assert!(rays == 256 && tests_per_ray > 4096.0, "{rays} {tests_per_ray}")
+        }
+        other => panic!("{other:?}"),
+    }
+    // A sample side beyond the cap is capped (an empty mesh returns before allocating), and at least 1.
+    let cap = meshchar::trace::workload::MAX_SECONDARY_SAMPLE_SIDE;
+    assert_eq!(estimate_secondary_rays(WorkloadKind::Shadow, &empty, &camera, 100_000, u32::MAX).unwrap().side, cap);
+    assert_eq!(estimate_secondary_rays(WorkloadKind::Shadow, m, &camera, 64, 0).unwrap().side, 1);
 }

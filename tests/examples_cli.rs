@@ -969,6 +969,13 @@ fn characterize_tells_the_policy_the_secondary_rays_a_frame_makes() {
         "{stdout}"
     );
     assert_usage_error("characterize", &["--secondary-rays", "-5"]);
+    // Only shadow or diffuse rays under the calibrated policy are counted so.
+    assert_usage_error("characterize", &["--backend", "cpu", "--secondary-rays", "5"]);
+    assert_usage_error(
+        "characterize",
+        &["--backend", "cpu", "--workload", "shadow", "--policy", "thesis", "--secondary-rays", "5"],
+    );
+    assert_usage_error("engine_frame", &["--secondary-rays", "5"]);
 }
 
 /// `evaluate --compare-policies ... --cost-model FILE`: the given calibration scored per workload too, and the

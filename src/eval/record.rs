@@ -286,12 +286,13 @@ pub struct OracleRecord {
     /// median lay within this fraction of it, or the cap (each structure's `precision_met` says whether it did).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub precision: Option<f64>,
-    /// Under a precision target: the cap on rounds the oracle was given (`evaluate --max-repeats`), absent in
-    /// records written before the field existed.
+    /// Under a precision target: the cap on rounds the oracle ran under (`evaluate --max-repeats`, at least
+    /// `--repeats`), absent in records written before the field existed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_repeats: Option<usize>,
     /// Under a precision target: the measured time past which no round beyond `max_repeats` was begun, ms
-    /// (`evaluate --precision-ms`; 0: none), absent in records written before the field existed.
+    /// (`evaluate --precision-ms`; 0: none), absent in records written before the field existed (and where a library
+    /// caller gave a non-finite allowance, which the command line refuses).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub precision_ms: Option<f64>,
     /// Under a precision target: how the repeats past the first were made. `every_structure`: in rounds of every

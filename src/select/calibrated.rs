@@ -119,7 +119,8 @@ pub struct FrameRule<'a> {
     pub model: &'a CostModel,
     /// Kind of the rays traced per frame.
     pub kind: crate::geom::WorkloadKind,
-    /// Rays per frame.
+    /// Rays per frame (for shadow and diffuse rays the secondary rays traced, not the image's pixels; see
+    /// [`crate::select::TargetWorkload::rays_per_frame`]).
     pub rays_per_frame: u64,
     /// Relative margin within which the cheaper build wins ([`choose`]).
     pub tie_margin: f64,
@@ -191,7 +192,8 @@ pub struct CalibratedPolicy {
     pub model: CostModel,
     /// Rays of the workload per frame and their kind.
     pub kind: crate::geom::WorkloadKind,
-    /// Rays per frame.
+    /// Rays per frame (for shadow and diffuse rays the secondary rays traced, not the image's pixels; see
+    /// [`crate::select::TargetWorkload::rays_per_frame`]).
     pub rays_per_frame: u64,
     /// Frames of a static scene rendered with one build (animations: one frame per characterized frame, rebuilt or
     /// refitted every frame).

@@ -55,7 +55,8 @@ pub struct DriverFrameRule<'a> {
     pub model: &'a CostModel,
     /// Kind of the rays traced per frame.
     pub kind: WorkloadKind,
-    /// Rays per frame.
+    /// Rays per frame (for shadow and diffuse rays the secondary rays traced, not the image's pixels; see
+    /// [`crate::select::TargetWorkload::rays_per_frame`]).
     pub rays_per_frame: u64,
 }
 
