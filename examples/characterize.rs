@@ -191,8 +191,9 @@ fn process(
         }
         _ => select_for_scene_within(&scene.name, &results, &features, policy, &workload, bounds, budget),
     };
+    // Last, so that the policy's own reasons keep their places (docs/spec.md: the first, the margin second).
     if let Some(r) = rays_reason {
-        chosen.selection.reasons.insert(0, r);
+        chosen.selection.reasons.push(r);
     }
     let select_ms = t1.elapsed().as_secs_f64() * 1e3;
     let frames = if scene.frames.len() > 1 { scene.frames.len() as u64 } else { args.frames };
