@@ -152,7 +152,7 @@ fn process(
     let camera = args.camera.or_else(|| args.view.map(|v| v.camera(&bounds_all())));
     // Shadow and diffuse rays start where the primary rays hit: as many as the caller says, or as a sample of the
     // primary rays makes (on the first frame, from the camera the policy assumes). The thesis policy reads no count.
-    let (rays_per_frame, rays_reason) = secondary_rays(args, scene, camera, resolution * resolution);
+    let (rays_per_frame, rays_reason) = secondary_rays(args, scene, camera, &bounds_all, resolution * resolution);
     let workload = TargetWorkload {
         kind: args.workload.workload,
         rays_per_frame,
@@ -232,11 +232,12 @@ fn process(
 /// The rays per frame the calibrated policy is told, and a reason saying where the number comes from (none for
 /// primary rays or the thesis policy): `pixels` primary rays; for shadow and diffuse rays, `--secondary-rays` or
 /// the estimate of [`meshchar::trace::workload::estimate_secondary_rays`] on the first frame, seen from `camera` or
-/// else the camera framing the scene (as the policy assumes without one).
+/// else the camera framing the scene's bounds (`bounds`; as the policy assumes without a camera).
 fn secondary_rays(
     args: &Args,
     scene: &Animation,
     camera: Option<meshchar::trace::Camera>,
+    bounds: &dyn Fn() -> meshchar::geom::Aabb,
     pixels: u64,
 ) -> (u64, Option<String>) {
     use meshchar::trace::workload::{estimate_secondary_rays, SECONDARY_SAMPLE_SIDE};
@@ -248,10 +249,7 @@ fn secondary_rays(
         return (n, Some(format!("{} rays per frame: {n} (--secondary-rays)", kind.as_str())));
     }
     let Some(first) = scene.frames.first() else { return (pixels, None) };
-    let camera = camera.unwrap_or_else(|| {
-        let b = scene.frames.iter().fold(meshchar::geom::Aabb::EMPTY, |a, m| a.union(&mesh_bounds(m)));
-        meshchar::trace::Camera::frame(&b)
-    });
+    let camera = camera.unwrap_or_else(|| meshchar::trace::Camera::frame(&bounds()));
     match estimate_secondary_rays(kind, first, &camera, args.workload.resolution, SECONDARY_SAMPLE_SIDE) {
         Ok(e) => (
             e.rays,

@@ -1158,6 +1158,20 @@ fn family_record_files(set: &str) -> Vec<std::path::PathBuf> {
     ["primary", "shadow", "diffuse"].iter().map(|w| root.join(format!("docs/data/{set}-{w}.jsonl"))).collect()
 }
 
+/// Checks that record `r` of `set` was measured by the precise oracle in rounds (`--precision 0.02 --max-repeats 20`):
+/// at least five structures valid, every one measured as often (the rounds), and the rounds stopped where every
+/// interval met the target or at the cap of 20 or past it. Returns how many of its measurements met the target.
+fn measured_in_rounds(set: &str, r: &meshchar::eval::OracleRecord) -> usize {
+    assert_eq!(r.precision, Some(0.02), "{set}: {}", r.mesh);
+    let valid: Vec<_> = r.structures.iter().filter(|s| s.valid).collect();
+    assert!(valid.len() >= 5, "{set}: {} ({})", r.mesh, r.workload.as_str());
+    let n = valid[0].repeats_measured.expect("repeats recorded");
+    assert!(valid.iter().all(|s| s.repeats_measured == Some(n)), "{set}: {} in rounds", r.mesh);
+    let all_met = valid.iter().all(|s| s.precision_met == Some(true));
+    assert!(all_met || n >= 20, "{set}: {} stopped at {n} rounds short of the target", r.mesh);
+    valid.iter().filter(|s| s.precision_met == Some(true)).count()
+}
+
 /// The measure on the project's own scene families (`docs/data/families-*.jsonl`, 252 records measured by
 /// the precise oracle): the calibrated policy with its ridge chosen inside the training records, held out by family
 /// (every family's model fitted on the other six), regrets at most 3% on average in every workload and at most half
@@ -1194,14 +1208,7 @@ fn the_family_records_in_rounds_measure_every_structure_alike_and_hold_the_mean_
         let mut met = 0;
         for f in &files {
             for r in meshchar::eval::record::read_jsonl(f).unwrap() {
-                assert_eq!(r.precision, Some(0.02), "{set}: {}", r.mesh);
-                let valid: Vec<_> = r.structures.iter().filter(|s| s.valid).collect();
-                assert!(valid.len() >= 5, "{set}: {} ({})", r.mesh, r.workload.as_str());
-                let n = valid[0].repeats_measured.expect("repeats recorded");
-                assert!(valid.iter().all(|s| s.repeats_measured == Some(n)), "{set}: {} in rounds", r.mesh);
-                let all_met = valid.iter().all(|s| s.precision_met == Some(true));
-                assert!(all_met || n >= 20, "{set}: {} stopped at {n} rounds short of the target", r.mesh);
-                met += valid.iter().filter(|s| s.precision_met == Some(true)).count();
+                met += measured_in_rounds(set, &r);
             }
         }
         assert!(met > 900, "{set}: {met} of 1,510 measurements within +-2%");
@@ -1234,18 +1241,13 @@ fn the_second_family_set_is_measured_in_rounds_and_held_out_the_policy_beats_the
                 records += 1;
                 let spec = meshchar::mesh::families::parse_spec(&r.mesh).expect("a family scene").unwrap();
                 assert!(spec.2 == 2 && [5_000, 50_000].contains(&spec.1), "{set}: {}", r.mesh);
-                assert_eq!(r.precision, Some(0.02), "{set}: {}", r.mesh);
+                measured_in_rounds(set, &r);
                 if set.ends_with("repeat") {
                     assert_eq!((r.max_repeats, r.precision_ms), (Some(20), Some(2000.0)), "{set}: {}", r.mesh);
                     assert_eq!(r.rounds.as_deref(), Some(meshchar::eval::oracle::ROUNDS_EVERY_STRUCTURE));
                 } else {
                     assert!(r.max_repeats.is_none() && r.precision_ms.is_none() && r.rounds.is_none(), "{}", r.mesh);
                 }
-                let valid: Vec<_> = r.structures.iter().filter(|s| s.valid).collect();
-                let n = valid[0].repeats_measured.expect("repeats recorded");
-                assert!(valid.iter().all(|s| s.repeats_measured == Some(n)), "{set}: {} in rounds", r.mesh);
-                let all_met = valid.iter().all(|s| s.precision_met == Some(true));
-                assert!(all_met || n >= 20, "{set}: {} stopped at {n} rounds short of the target", r.mesh);
             }
         }
         assert_eq!(records, 168, "{set}: 7 families x 2 sizes x 4 views x 3 workloads");

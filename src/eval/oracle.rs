@@ -477,9 +477,6 @@ pub struct RefitResult {
     pub frame_trace_ms: Vec<f64>,
 }
 
-/// Rays the trace-budget check traces per structure and frame (fewer when the workload has fewer).
-pub const TRACE_SAMPLE_RAYS: usize = 1024;
-
 /// The default [`OracleConfig::max_repeats`].
 pub const DEFAULT_MAX_REPEATS: usize = 60;
 
@@ -491,49 +488,10 @@ pub const MAX_PRECISION_REPEATS: usize = 500;
 /// in every round until all of them meet the target, as this oracle measures.
 pub const ROUNDS_EVERY_STRUCTURE: &str = "every_structure";
 
-/// The default [`OracleConfig::max_tests_per_ray`].
-pub const DEFAULT_MAX_TESTS_PER_RAY: f64 = 4096.0;
+/// The default [`OracleConfig::max_tests_per_ray`] (the trace budget's, [`crate::trace::DEFAULT_MAX_TESTS_PER_RAY`]).
+pub use crate::trace::DEFAULT_MAX_TESTS_PER_RAY;
 
-/// [`TRACE_SAMPLE_RAYS`] of `rays` (all when there are fewer), spread over the whole set: ray
-/// `floor(frac(i * phi) * len)` for `i` in `0 .. TRACE_SAMPLE_RAYS`, the golden-ratio sequence, so that a sample
-/// of an image's rays (row by row) covers its columns as well as its rows (a stride equal to the image width
-/// would sample one column).
-fn sample_rays(rays: &[crate::geom::Ray]) -> Vec<crate::geom::Ray> {
-    if rays.len() <= TRACE_SAMPLE_RAYS {
-        return rays.to_vec();
-    }
-    const PHI_FRAC: f64 = 0.618_033_988_749_894_8;
-    (0..TRACE_SAMPLE_RAYS)
-        .map(|i| rays[(((i as f64 * PHI_FRAC).fract() * rays.len() as f64) as usize).min(rays.len() - 1)])
-        .collect()
-}
-
-/// Traces a sample of `rays` ([`TRACE_SAMPLE_RAYS`] of them, spread over the set) through `s` with counters (not part of any
-/// timing) and fails with the reason when the tests per ray exceed `max_tests_per_ray`.
-pub fn check_trace_budget(s: &dyn AccelStructure, rays: &RaySet, max_tests_per_ray: f64) -> Result<(), String> {
-    if rays.rays.is_empty() {
-        return Ok(());
-    }
-    let sample = RaySet { kind: rays.kind, rays: sample_rays(&rays.rays), any_hit: rays.any_hit };
-    let out = trace(s, &sample);
-    let k = sample.rays.len() as f64;
-    let per_ray = (out.counters.box_tests + out.counters.prim_tests) as f64 / k;
-    if per_ray > max_tests_per_ray {
-        return Err(format!(
-            "{}: over the trace budget: a sample of {} rays needs {:.0} tests per ray ({:.0} box, {:.0} triangle), \
-             about {:.2e} for the {} rays, over the budget of {max_tests_per_ray} per ray (--max-tests-per-ray); \
-             coincident or heavily overlapping triangles make every ray test them all",
-            s.name(),
-            sample.rays.len(),
-            per_ray,
-            out.counters.box_tests as f64 / k,
-            out.counters.prim_tests as f64 / k,
-            per_ray * rays.rays.len() as f64,
-            rays.rays.len()
-        ));
-    }
-    Ok(())
-}
+pub use crate::trace::{check_trace_budget, TRACE_SAMPLE_RAYS};
 
 impl Default for OracleConfig {
     fn default() -> Self {

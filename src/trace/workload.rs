@@ -96,33 +96,16 @@ pub const SECONDARY_SAMPLE_SIDE: u32 = 128;
 /// most: the primary rays, their hits and the secondary rays they make, 32 MiB each, beside the reference LBVH).
 pub const MAX_SECONDARY_SAMPLE_SIDE: u32 = 1024;
 
-/// The most box and triangle tests per ray [`estimate_secondary_rays`] lets its sample make (the mean over a pilot
-/// of at most [`SECONDARY_PILOT_RAYS`] of them, traced first): the oracle's default trace budget
-/// (`eval::oracle::DEFAULT_MAX_TESTS_PER_RAY`), so that heavily overlapping or coincident triangles end the estimate
-/// with an error instead of a long trace.
-pub const SECONDARY_MAX_TESTS_PER_RAY: f64 = 4096.0;
-
-/// Rays of the pilot [`estimate_secondary_rays`] traces before its sample ([`SECONDARY_MAX_TESTS_PER_RAY`]).
-pub const SECONDARY_PILOT_RAYS: usize = 256;
-
 /// Why [`estimate_secondary_rays`] gave no estimate.
 #[derive(Debug, thiserror::Error)]
 pub enum SecondaryEstimateError {
     /// The reference LBVH did not build.
     #[error("the reference LBVH: {0}")]
     Build(#[from] crate::accel::AccelError),
-    /// The pilot's rays made more tests each than [`SECONDARY_MAX_TESTS_PER_RAY`].
-    #[error(
-        "a pilot of {rays} primary rays made {tests_per_ray:.0} box and triangle tests each, over the {budget} allowed"
-    )]
-    OverBudget {
-        /// Rays of the pilot.
-        rays: usize,
-        /// Their mean box and triangle tests.
-        tests_per_ray: f64,
-        /// [`SECONDARY_MAX_TESTS_PER_RAY`].
-        budget: f64,
-    },
+    /// The sample's rays would make more tests each than the trace budget allows
+    /// ([`super::check_trace_budget`], [`super::DEFAULT_MAX_TESTS_PER_RAY`]): the reason.
+    #[error("{0}")]
+    OverBudget(String),
 }
 
 /// How many secondary rays a frame makes, estimated from a sample of its primary rays ([`estimate_secondary_rays`]).
@@ -140,13 +123,14 @@ pub struct SecondaryRayEstimate {
 
 /// How many `kind` rays one frame of `camera` at `resolution x resolution` makes: for primary rays the image's
 /// pixels; for shadow and diffuse rays, one per primary ray that hits and starts one (as [`build_workload`] makes
-/// them), estimated by tracing an evenly spread sample of at most `max_side x max_side` of the primary rays (`max_side`
-/// at most [`MAX_SECONDARY_SAMPLE_SIDE`]; the
-/// pixels at the centres of the sample's cells) through a reference LBVH and scaling what they make to the image.
+/// them), estimated by tracing an evenly spread sample of at most `max_side x max_side` of the primary rays
+/// (`max_side` at most [`MAX_SECONDARY_SAMPLE_SIDE`]; the pixels at the centres of the sample's cells) through a
+/// reference LBVH and scaling what they make to the image.
 /// When the sample is the whole image (`resolution <= max_side`) the count is the workload's own (up to ties between
-/// equally close hits). An error when the LBVH does not build or the rays would make more than
-/// [`SECONDARY_MAX_TESTS_PER_RAY`] tests each (a pilot of [`SECONDARY_PILOT_RAYS`] of them says). This is what the calibrated policy is to be told as the rays per frame of a secondary
-/// workload when the caller does not know it; an engine that does (its primary pass's hits) passes its own.
+/// equally close hits). An error when the LBVH does not build or the rays would make more tests each than the trace
+/// budget allows ([`super::check_trace_budget`] on a sample of them). This is what the calibrated policy is to be
+/// told as the rays per frame of a secondary workload when the caller does not know it; an engine that does (its
+/// primary pass's hits) passes its own.
 pub fn estimate_secondary_rays(
     kind: WorkloadKind,
     mesh: &Mesh,
@@ -172,24 +156,10 @@ pub fn estimate_secondary_rays(
         }
     }
     let reference = crate::accel::build_structure(crate::accel::StructureName::Lbvh, mesh)?;
-    // A pilot spread over the sample first: a scene whose rays each test thousands of boxes and triangles (heavily
-    // overlapping or coincident triangles) is refused before the whole sample is traced.
-    let pilot_n = primary.len().min(SECONDARY_PILOT_RAYS);
-    let pilot = RaySet {
-        kind: WorkloadKind::Primary,
-        rays: (0..pilot_n).map(|i| primary[i * primary.len() / pilot_n]).collect(),
-        any_hit: false,
-    };
-    let c = trace(reference.as_ref(), &pilot).counters;
-    let tests_per_ray = (c.box_tests + c.prim_tests) as f64 / pilot_n as f64;
-    if tests_per_ray > SECONDARY_MAX_TESTS_PER_RAY {
-        return Err(SecondaryEstimateError::OverBudget {
-            rays: pilot_n,
-            tests_per_ray,
-            budget: SECONDARY_MAX_TESTS_PER_RAY,
-        });
-    }
     let set = RaySet { kind: WorkloadKind::Primary, rays: primary, any_hit: false };
+    // Heavily overlapping or coincident triangles: refused on a sample of the rays before all of them are traced.
+    super::check_trace_budget(reference.as_ref(), &set, super::DEFAULT_MAX_TESTS_PER_RAY)
+        .map_err(SecondaryEstimateError::OverBudget)?;
     let hits = trace(reference.as_ref(), &set).hits;
     let bounds = mesh_bounds(mesh);
     let made = crate::accel::bounce::secondary_from_hits(
