@@ -9,7 +9,7 @@ use meshchar::characterize::{cpu, features_cpu, Params};
 use meshchar::cost::CostModel;
 use meshchar::geom::{Aabb, Camera, WorkloadKind};
 use meshchar::mesh::{generate, Mesh};
-use meshchar::select::budget::{Bound, GridRule};
+use meshchar::select::budget::{grid_count_threshold, Bound, GridRule};
 use meshchar::select::{
     select_for_scene, select_for_scene_within, Budget, BuildBounds, PolicyChoice, Selection, Structure, TargetWorkload,
 };
@@ -30,7 +30,8 @@ fn degenerate() -> Vec<Mesh> {
 
 /// A budget and the builder options that enforce the same one: small enough that several generators exceed it.
 fn tight() -> (Budget, GridOptions, KdOptions) {
-    let budget = Budget { references_per_triangle: 64.0, min_references: 1 << 16, max_bytes: 4 << 30 };
+    let budget =
+        Budget { references_per_triangle: 64.0, min_references: 1 << 16, ..Budget::BUILDERS }.same_for_the_grid();
     let grid = GridOptions { min_reference_budget: 1 << 16, ..GridOptions::default() };
     let kd = KdOptions { min_reference_budget: 1 << 16, ..KdOptions::default() };
     (budget, grid, kd)
@@ -122,7 +123,7 @@ fn the_grid_bound_is_never_below_the_grids_references() {
                     assert_eq!(b.grid_references, actual as u64, "{}: the exact count", m.name);
                 } else {
                     assert!(
-                        b.grid_references <= Budget::default().references(m.triangle_count() as u64)
+                        b.grid_references <= grid_count_threshold(m.triangle_count() as u64)
                             || b.grid_references > Budget::BUILDERS.references(m.triangle_count() as u64),
                         "{}: an upper bound {} where the count is exact below the builders' budget",
                         m.name,
@@ -148,8 +149,12 @@ fn past_the_default_budget_the_grids_references_are_counted_exactly() {
     let b = BuildBounds::of_mesh(&m).expect("bounds");
     assert_eq!(b.grid_bound, Bound::Exact);
     assert_eq!(b.grid_references, grid_refs(&m, &GridOptions::default()).expect("grid") as u64);
-    assert!(b.grid_references > Budget::default().references(20_000), "{b:?}");
-    let out = Budget::default().check(&b);
+    assert!(b.grid_references > grid_count_threshold(20_000), "{b:?}");
+    // The default budget keeps the grid (within its builder's limit), whose build the policy prices by the count;
+    // a budget with the kd-tree's limits for the grid too excludes it, saying the count is exact.
+    assert_eq!(b.grid_build_work(), Some(b.grid_references as f64));
+    assert!(Budget::default().check(&b).iter().all(|e| e.structure != StructureName::Grid), "{b:?}");
+    let out = Budget::default().same_for_the_grid().check(&b);
     assert!(out.iter().any(|e| e.structure == StructureName::Grid && e.reason.contains("exactly")), "{out:?}");
     // A count that passes the grid builder's own budget stops there: an upper bound, at least what the builder
     // counts before it gives up (copies of one triangle over every cell).
@@ -1202,15 +1207,18 @@ fn a_probe_counts_the_structures_own_tests_on_its_sample() {
 
 #[test]
 fn the_grid_is_probed_within_the_default_selection_budget() {
-    // A probe must never build a grid the policy would exclude: the probe's budget is the default selection's.
+    // A probe never builds a grid past the count threshold, where the bound pass counts the references exactly
+    // instead (and the policy prices the build by them): the probe's budget is that threshold, and the kd-tree's
+    // default budget.
     let [per, least] = meshchar::cost::probe::PROBE_GRID_BUDGET;
     let b = Budget::default();
     assert_eq!((per as f64, least as u64), (b.references_per_triangle, b.min_references));
-    // 20,000 large overlapping triangles need 9.8 million references (`docs/cost-model.md`): over the budget, no
-    // probe.
+    assert_eq!(grid_count_threshold(20_000), b.references(20_000));
+    // 20,000 large overlapping triangles need 9.8 million references (`docs/cost-model.md`): past the threshold,
+    // counted exactly, no probe.
     let m = generate::overlapping_large(20_000, 1);
     let bounds = BuildBounds::of_mesh(&m).expect("bounds");
-    assert!(b.check(&bounds).iter().any(|e| e.structure == StructureName::Grid), "{bounds:?}");
+    assert_eq!(bounds.grid_bound, Bound::Exact, "{bounds:?}");
     let cam = Camera::frame(&scene_box(&m));
     assert!(meshchar::cost::probe(StructureName::Grid, &m, &scene_box(&m), &cam, 8, false).is_none());
     // The selection's bounds do not even try: the grid they exclude has no probe, the hierarchies have theirs.
@@ -1226,7 +1234,7 @@ fn the_grid_is_probed_within_the_default_selection_budget() {
     let cam = Camera::frame(&scene_box(&ok));
     assert!(meshchar::cost::probe(StructureName::Grid, &ok, &scene_box(&ok), &cam, 8, false).is_some());
     assert_eq!(probes(&BuildBounds::of_mesh(&ok).expect("bounds"), &ok), (true, true));
-    let strict = Budget { references_per_triangle: 0.5, min_references: 100, max_bytes: 4 << 30 };
+    let strict = Budget { references_per_triangle: 0.5, min_references: 100, ..Budget::BUILDERS }.same_for_the_grid();
     let within = BuildBounds::of_frames_viewed_within(std::slice::from_ref(&ok), None, &strict)
         .expect("bounds")
         .expect("one frame");

@@ -179,6 +179,7 @@ fn known_samples_with_rays(count: u64, rays: impl Fn(u64) -> u64) -> (Vec<Sample
             crossings: None,
             timed: Vec::new(),
             frame_timings: Vec::new(),
+            grid_build_work: 0.0,
         });
     }
     (samples, truth)

@@ -110,6 +110,7 @@ fn known_samples() -> Vec<Sample> {
             crossings: None,
             timed: Vec::new(),
             frame_timings: Vec::new(),
+            grid_build_work: 0.0,
         });
     }
     for (k, n) in [500usize, 2_000, 6_000].into_iter().enumerate() {
@@ -160,6 +161,7 @@ fn known_samples() -> Vec<Sample> {
             crossings: None,
             timed: Vec::new(),
             frame_timings: Vec::new(),
+            grid_build_work: 0.0,
         });
     }
     out

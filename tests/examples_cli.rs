@@ -264,6 +264,51 @@ fn the_budget_flags_reach_the_policy() {
 }
 
 #[test]
+fn a_grid_counted_exactly_is_priced_by_its_references_and_the_grid_flags_reach_the_policy() {
+    // 20,000 large overlapping triangles: the grid needs 9.7 million references (487 per triangle), counted
+    // exactly. The default budget keeps it (within its builder's limit) and prices its build by that count: the
+    // shipped work law at 487 references per triangle, not the law in n alone (fitted on a few per triangle).
+    let report = |extra: &[&str]| {
+        let mut a = vec!["degenerate:overlapping:20000:1", "--backend", "cpu", "--json", "--resolution", "16"];
+        a.extend_from_slice(extra);
+        let out = run("characterize", &a);
+        let (stdout, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(0), "{a:?}\n{stderr}");
+        serde_json::from_str::<serde_json::Value>(stdout.lines().next().unwrap_or_default()).expect("json")
+    };
+    let v = report(&[]);
+    let excluded = v["excluded"].as_array().expect("excluded");
+    assert!(excluded.iter().all(|e| e["structure"] != "grid"), "{excluded:?}");
+    let scene = meshchar::mesh::load_path(Path::new("degenerate:overlapping:20000:1")).expect("scene");
+    let mesh = &scene.frames[0];
+    let bounds = meshchar::select::BuildBounds::of_mesh(mesh).expect("bounds");
+    let work = bounds.grid_build_work().expect("counted exactly");
+    let model = meshchar::cost::CostModel::shipped().expect("shipped model");
+    let grid = model.get(meshchar::accel::StructureName::Grid).expect("grid model");
+    let n = mesh.triangle_count() as u64;
+    let predicted = v["predicted"].as_array().expect("predicted");
+    let g = predicted.iter().find(|p| p["structure"] == "grid").expect("the grid predicted");
+    let build = g["build_ms_per_build"].as_f64().expect("build");
+    assert!((build / grid.build_ms(n, work) - 1.0).abs() < 1e-9, "{build} vs {}", grid.build_ms(n, work));
+    assert!(build > 10.0 * grid.build_ms(n, 0.0), "{build} vs the law in n: {}", grid.build_ms(n, 0.0));
+    // The grid's own flags: 16 per triangle, at least 2^22, exclude it; the kd-tree's flags set the grid's too.
+    for flags in [
+        &["--budget-grid-references-per-triangle", "16", "--budget-grid-min-references", "4194304"][..],
+        &["--budget-references-per-triangle", "16", "--budget-min-references", "4194304"][..],
+    ] {
+        let v = report(flags);
+        let excluded = v["excluded"].as_array().expect("excluded");
+        let e = excluded.iter().find(|e| e["structure"] == "grid").unwrap_or_else(|| panic!("{flags:?}: {excluded:?}"));
+        assert_eq!((e["needed"].as_f64(), e["bound"].as_str()), (Some(work), Some("exact")), "{e}");
+    }
+    // The grid's flag overrides the kd-tree's for the grid alone.
+    let v = report(&["--budget-references-per-triangle", "16", "--budget-grid-references-per-triangle", "64"]);
+    let excluded: Vec<&str> =
+        v["excluded"].as_array().expect("excluded").iter().filter_map(|e| e["structure"].as_str()).collect();
+    assert_eq!(excluded, ["kdtree"]);
+}
+
+#[test]
 fn timed_probes_reach_the_policy_and_leave_the_budget_standing() {
     let timed = |v: &serde_json::Value| {
         v["reasons"]

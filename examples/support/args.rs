@@ -72,16 +72,24 @@ impl PolicyArgs {
 /// before a policy drops them ([`Budget`]; the bounds are computed from the mesh before anything is built).
 #[derive(clap::Args, Clone, Copy, Debug)]
 pub struct BudgetArgs {
-    /// Budget: cell references per triangle the grid or the kd-tree may need, at most the builders' own 64; a
-    /// structure whose bound exceeds the budget is no candidate, and the report lists it under excluded with the
-    /// numbers
-    #[arg(long, value_name = "R", default_value_t = Budget::default().references_per_triangle,
-          value_parser = budget_per_triangle)]
-    pub budget_references_per_triangle: f64,
-    /// Budget: cell references always allowed, however few the triangles, at most the builders' own 2^25
-    #[arg(long, value_name = "N", default_value_t = Budget::default().min_references,
-          value_parser = clap::value_parser!(u64).range(..=Budget::BUILDERS.min_references))]
-    pub budget_min_references: u64,
+    /// Budget: cell references per triangle the kd-tree may need, and the grid too when given, at most the
+    /// builders' own 64; a structure whose bound exceeds the budget is no candidate, and the report lists it under
+    /// excluded with the numbers [default: 16 for the kd-tree; for the grid, whose build the calibrated policy
+    /// prices by its references counted exactly, the builder's own 64]
+    #[arg(long, value_name = "R", value_parser = budget_per_triangle)]
+    pub budget_references_per_triangle: Option<f64>,
+    /// Budget: cell references always allowed, however few the triangles, for the kd-tree, and the grid too when
+    /// given, at most the builders' own 2^25 [default: 4194304 for the kd-tree, 33554432 for the grid]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(..=Budget::BUILDERS.min_references))]
+    pub budget_min_references: Option<u64>,
+    /// Budget: the grid's cell references per triangle, whatever --budget-references-per-triangle says, at most the
+    /// builder's own 64 [default: 64, or --budget-references-per-triangle when given]
+    #[arg(long, value_name = "R", value_parser = budget_per_triangle)]
+    pub budget_grid_references_per_triangle: Option<f64>,
+    /// Budget: the grid's cell references always allowed, whatever --budget-min-references says, at most the
+    /// builder's own 2^25 [default: 33554432, or --budget-min-references when given]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(..=Budget::BUILDERS.grid_min_references))]
+    pub budget_grid_min_references: Option<u64>,
     /// Budget: bytes the grid or the kd-tree may need, at most the builders' own 4 GiB
     #[arg(long, value_name = "BYTES", default_value_t = Budget::default().max_bytes,
           value_parser = clap::value_parser!(u64).range(..=Budget::BUILDERS.max_bytes))]
@@ -99,12 +107,21 @@ fn budget_per_triangle(s: &str) -> Result<f64, String> {
 }
 
 impl BudgetArgs {
-    /// The budget the flags describe.
+    /// The budget the flags describe: [`Budget::default`] where none is given; a kd-tree flag sets the grid's limit
+    /// too unless the grid's own flag is given.
     pub fn budget(&self) -> Budget {
+        let d = Budget::default();
+        let per = self.budget_references_per_triangle;
+        let least = self.budget_min_references;
         Budget {
-            references_per_triangle: self.budget_references_per_triangle,
-            min_references: self.budget_min_references,
+            references_per_triangle: per.unwrap_or(d.references_per_triangle),
+            min_references: least.unwrap_or(d.min_references),
             max_bytes: self.budget_bytes,
+            grid_references_per_triangle: self
+                .budget_grid_references_per_triangle
+                .or(per)
+                .unwrap_or(d.grid_references_per_triangle),
+            grid_min_references: self.budget_grid_min_references.or(least).unwrap_or(d.grid_min_references),
         }
     }
 }

@@ -89,14 +89,23 @@ pub struct Sample {
     /// Whole frames of the record's workload measured anew per structure ([`super::measured::measure_frames`]),
     /// when taken (empty otherwise): what a measured close call ([`super::measured::settle`]) reads.
     pub frame_timings: Vec<super::measured::FrameTiming>,
+    /// The grid's references counted exactly from the record's static scene where the selection's bound pass counts
+    /// them (`select::BuildBounds::grid_build_work`: past `select::budget::grid_count_threshold`), which prices the
+    /// grid's build as the policy does; 0 otherwise (not computed, an animation, or within the threshold).
+    pub grid_build_work: f64,
 }
 
 impl Sample {
     /// The model's predictions for this sample's scene and workload, with the overlap floor of
-    /// [`Sample::crossings`] (what the calibrated policy predicts with the mesh at hand).
+    /// [`Sample::crossings`] and the grid's build priced by [`Sample::grid_build_work`] where known (what the
+    /// calibrated policy predicts with the mesh at hand).
     pub fn predict(&self, model: &super::CostModel) -> Vec<super::Prediction> {
         model.predict_floored(&self.features, &self.workload, &|s| {
-            super::overlap_floor(s, self.workload.kind, self.crossings)
+            let mut floor = super::overlap_floor(s, self.workload.kind, self.crossings);
+            if s == StructureName::Grid && self.grid_build_work > 0.0 {
+                floor.build_work = self.grid_build_work;
+            }
+            floor
         })
     }
 

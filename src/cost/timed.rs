@@ -501,6 +501,7 @@ mod tests {
             crossings: None,
             timed: vec![probe(StructureName::Bih, probe_build, t)],
             frame_timings: Vec::new(),
+            grid_build_work: 0.0,
         }
     }
 

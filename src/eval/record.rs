@@ -480,6 +480,7 @@ impl OracleRecord {
             crossings: None,
             timed: Vec::new(),
             frame_timings: Vec::new(),
+            grid_build_work: 0.0,
         }
     }
 }
@@ -611,7 +612,8 @@ pub fn load_samples_probed(
     // Per scene: the features of its frames, as far as computed, and the first frame's crossings per camera met
     // (the three workloads of a view share one), with its timed probes when taken.
     type Views = Vec<(Option<crate::geom::Camera>, crate::cost::Crossings, Vec<crate::cost::timed::TimedProbe>)>;
-    type Loaded = (crate::mesh::Animation, Vec<Features>, Views);
+    // And the grid's references where the selection's bound pass counts them exactly (static scenes).
+    type Loaded = (crate::mesh::Animation, Vec<Features>, Views, f64);
     let mut cache: std::collections::HashMap<String, Loaded> = std::collections::HashMap::new();
     let mut out = Vec::new();
     for file in files {
@@ -623,9 +625,17 @@ pub fn load_samples_probed(
                 let scene = crate::mesh::load_path(Path::new(&rec.mesh)).map_err(|e| scene_err(e.to_string()))?;
                 let first = scene.frames.first().ok_or_else(|| scene_err("the scene has no frames".into()))?;
                 let f = features_cpu(first, params).map_err(|e| scene_err(format!("features: {e}")))?;
-                cache.insert(rec.mesh.clone(), (scene, vec![f], Vec::new()));
+                let grid_work = match &scene.frames[..] {
+                    [only] => crate::select::BuildBounds::of_mesh_with(only, &Default::default())
+                        .map_err(|e| scene_err(format!("build bounds: {e}")))?
+                        .grid_build_work()
+                        .unwrap_or(0.0),
+                    _ => 0.0,
+                };
+                cache.insert(rec.mesh.clone(), (scene, vec![f], Vec::new(), grid_work));
             }
-            let (scene, feats, views) = cache.get_mut(&rec.mesh).ok_or_else(|| scene_err("not loaded".into()))?;
+            let (scene, feats, views, grid_work) =
+                cache.get_mut(&rec.mesh).ok_or_else(|| scene_err("not loaded".into()))?;
             let wanted = if rec.frames_measured > 1 && !rec.driver_structures.is_empty() {
                 rec.frames_measured.min(scene.frames.len())
             } else {
@@ -680,6 +690,7 @@ pub fn load_samples_probed(
                 }
             }
             sample.crossings = Some(viewed.for_workload(rec.workload, camera.as_ref(), feats[0].lo, feats[0].hi));
+            sample.grid_build_work = *grid_work;
             if wanted > 1 {
                 sample.frame_features = feats[..wanted].to_vec();
             }

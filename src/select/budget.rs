@@ -17,15 +17,15 @@
 //! cell, as the grid stores it. Per slab the bound is the product of the clipped polygon's cells along the two
 //! other axes, where the grid clips once more per row, so the sum is an **upper bound** of the grid's references,
 //! exact for a triangle one slab thick and one row wide; it costs one clip per slab a triangle meets (one or two for
-//! a small triangle), not one per row and cell as the build's count does. Where that bound exceeds the budget (the
-//! default one, or the smaller one a caller passes to [`BuildBounds::of_frames_viewed_within`]), the budget's
-//! verdict rests on it and it can be several times the grid's count (large triangles cross many rows of a slab:
+//! a small triangle), not one per row and cell as the build's count does. Where that bound exceeds [`grid_count_threshold`]
+//! (or the smaller grid budget a caller passes to [`BuildBounds::of_frames_viewed_within`]), the budget's verdict
+//! and the grid's priced build rest on it, and it can be several times the grid's count (large triangles cross many rows of a slab:
 //! 39.3 million against 9.8 million for 20,000 large overlapping triangles), so the references are then **counted
 //! exactly**, by the grid's own rule ([`GridFrame::for_each_run`]: one clip per row, the same code the grid builds
 //! with), in index order until the count passes the grid builder's own budget ([`Budget::BUILDERS`]; past it the
 //! figure stays an upper bound, [`Bound::Upper`], and no budget keeps a grid that builds); 77 ms against the slab
 //! bound's 9 ms there, 3 ms for a fan of 2,000 triangles over one polygon, and nothing on a scene within the
-//! budget. The bytes follow as the grid counts them (cell starts, references, triangle records).
+//! threshold. The bytes follow as the grid counts them (cell starts, references, triangle records).
 //!
 //! [`BuildBounds::of_features`] bounds the same from the [`Features`] alone (when no mesh is at hand): a triangle
 //! of size bin `k` has a largest extent below `2^(e(S) - k + 1)`, so at most that many cells (plus two) along each
@@ -49,11 +49,20 @@
 //!
 //! # The budget
 //!
-//! A [`Budget`] allows `max(references_per_triangle * n, min_references)` references and `max_bytes` bytes per
-//! structure. [`Budget::default`] is 16 references per triangle (three times the most the grid needs on a shared
-//! mesh, 5.0 on the teapot, and a quarter of the builders' 64), at least `2^22`, and 4 GiB: below the builders' own budgets
-//! ([`Budget::BUILDERS`]), so a structure the policy keeps never fails its build with `OverBudget`.
-//! [`Budget::check`] lists the structures whose bound exceeds the budget as [`Exclusion`]s, with the numbers.
+//! A [`Budget`] allows the kd-tree `max(references_per_triangle * n, min_references)` references, the grid
+//! `max(grid_references_per_triangle * n, grid_min_references)`, and each `max_bytes` bytes. [`Budget::default`]
+//! gives the kd-tree 16 references per triangle (three times the most the grid needs on a shared mesh, 5.0 on the
+//! teapot, and a quarter of the builders' 64), at least `2^22`, and the grid its builder's own limit (64 per
+//! triangle, at least `2^25`); both 4 GiB. The grid's is the looser because its count is exact where it matters:
+//! past [`grid_count_threshold`] (the kd-tree's default, `max(16 n, 2^22)`) the bound pass counts the grid's
+//! references exactly, and the calibrated policy prices the grid's build by them ([`BuildBounds::grid_build_work`],
+//! the work law of `cost::StructureModel::build_work_coef`): 20,000 large overlapping triangles need 9.7 million
+//! references, a build of 265 ms that the law in `n` alone put at 3.2 ms and the work law at 170 ms. A slow grid is
+//! then left out by its predicted total, and a fast one (the best there for primary rays, at a third of the BVH's
+//! total) stays a candidate. The kd-tree's figure is an estimate with no exact count, so its budget stays the
+//! guard. Both are below the builders' own budgets ([`Budget::BUILDERS`]), so a structure the policy keeps never
+//! fails its build with `OverBudget` (the kd-tree's estimate permitting). [`Budget::check`] lists the structures
+//! whose bound exceeds the budget as [`Exclusion`]s, with the numbers.
 
 use super::Structure;
 use crate::accel::grid_rule::{GridFrame, GridOptions};
@@ -207,6 +216,17 @@ pub struct BuildBounds {
 }
 
 impl BuildBounds {
+    /// The grid's build work ([`crate::accel::AccelStats::build_work`]: its references) where it is known without
+    /// building the grid: the references counted exactly from the mesh ([`Bound::Exact`]; the bound pass counts them
+    /// where their slab bound exceeds [`grid_count_threshold`] or the budget). The calibrated policy prices the
+    /// grid's build by it ([`crate::cost::StructureModel::build_work_coef`]) instead of by its law in `n` alone, which
+    /// was fitted on grids of a few references per triangle. `None` otherwise: an upper bound would overprice the
+    /// build (1.1 to 1.9 times the count on the generated families, 2.5 on large overlapping triangles).
+    pub fn grid_build_work(&self) -> Option<f64> {
+        (self.source == "mesh" && self.grid_bound == Bound::Exact && self.grid_references > 0)
+            .then_some(self.grid_references as f64)
+    }
+
     /// These bounds with the timed probes ([`crate::cost::timed::time_probes`]) of `mesh` (a static scene) seen
     /// from `camera` (`None`: the framing camera of its box) for rays of `kind`: each of `structures` that `budget`
     /// does not exclude ([`Budget::check`]) built once and traced on a sample of the view
@@ -262,7 +282,8 @@ impl BuildBounds {
 
     /// [`BuildBounds::of_frames_viewed`] for a policy that will check them against `budget`: the grid's
     /// references are counted exactly where their slab bound, or the bytes it implies, exceeds the smaller of
-    /// `budget` and the default one (see the module docs), so that the budget's verdict never rests on the looser
+    /// `budget`'s grid limits and [`grid_count_threshold`] (see the module docs), so that neither the budget's verdict
+    /// nor the grid's priced build rests on the looser
     /// bound (up to the builders' own budget, [`Budget::BUILDERS`], past which no grid builds).
     pub fn of_frames_viewed_within(
         frames: &[Mesh],
@@ -337,7 +358,7 @@ impl BuildBounds {
         // bound can be several times the grid's count (large triangles across many rows of a slab): count exactly,
         // up to what the grid's builder allows (past it no budget keeps a grid that builds).
         let nu = n as u64;
-        let refs_allowed = budget.references(nu).min(Budget::default().references(nu));
+        let refs_allowed = budget.grid_references(nu).min(grid_count_threshold(nu));
         let bytes_allowed = budget.max_bytes.min(Budget::default().max_bytes);
         let over = |g: u64| g > refs_allowed || BuildBounds::grid_bytes(&grid, nu, g) > bytes_allowed;
         let (g, kind) = if over(g) {
@@ -489,42 +510,92 @@ impl BuildBounds {
 /// How many references and bytes a policy lets a structure have (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Budget {
-    /// References allowed per triangle.
+    /// References allowed per triangle: the kd-tree's.
     pub references_per_triangle: f64,
-    /// References always allowed, however few the triangles.
+    /// References always allowed, however few the triangles: the kd-tree's.
     pub min_references: u64,
     /// Bytes allowed per structure.
     pub max_bytes: u64,
+    /// The grid's references allowed per triangle. The bound pass counts the grid's references exactly wherever
+    /// they may exceed [`grid_count_threshold`], and the calibrated policy then prices the grid's build by them, so
+    /// the default is the builder's own limit: a slow grid is left out by its predicted time, not by a guess at it.
+    pub grid_references_per_triangle: f64,
+    /// The grid's references always allowed, however few the triangles.
+    pub grid_min_references: u64,
 }
 
 impl Default for Budget {
     fn default() -> Self {
-        Budget { references_per_triangle: 16.0, min_references: 1 << 22, max_bytes: 4 << 30 }
+        Budget {
+            references_per_triangle: 16.0,
+            min_references: 1 << 22,
+            max_bytes: 4 << 30,
+            grid_references_per_triangle: Budget::BUILDERS.grid_references_per_triangle,
+            grid_min_references: Budget::BUILDERS.grid_min_references,
+        }
     }
+}
+
+/// References above which the bound pass counts the grid's references exactly, so that the calibrated policy prices
+/// the grid's build by them: `max(16 n, 2^22)` for `n` triangles, three times the most a grid needs on a shared mesh
+/// (5.0 per triangle, the teapot) and far beyond the grids the build laws were fitted on (at most 5.25 per triangle).
+/// It is the probes' own grid budget ([`crate::cost::probe::PROBE_GRID_BUDGET`]): a grid past it is neither built
+/// for a probe nor left to the law in `n`.
+pub fn grid_count_threshold(n: u64) -> u64 {
+    let [per, least] = crate::cost::probe::PROBE_GRID_BUDGET;
+    allowed(per as f64, least as u64, n)
 }
 
 impl Budget {
     /// The builders' own budgets (`GridOptions`, `KdOptions` defaults: 64 per triangle, at least `2^25`, 4 GiB):
     /// the loosest budget under which a kept grid never fails its build with `OverBudget`.
-    pub const BUILDERS: Budget = Budget { references_per_triangle: 64.0, min_references: 1 << 25, max_bytes: 4 << 30 };
+    pub const BUILDERS: Budget = Budget {
+        references_per_triangle: 64.0,
+        min_references: 1 << 25,
+        max_bytes: 4 << 30,
+        grid_references_per_triangle: 64.0,
+        grid_min_references: 1 << 25,
+    };
 
     /// No limit: nothing is ever excluded.
-    pub const UNLIMITED: Budget =
-        Budget { references_per_triangle: f64::INFINITY, min_references: u64::MAX, max_bytes: u64::MAX };
+    pub const UNLIMITED: Budget = Budget {
+        references_per_triangle: f64::INFINITY,
+        min_references: u64::MAX,
+        max_bytes: u64::MAX,
+        grid_references_per_triangle: f64::INFINITY,
+        grid_min_references: u64::MAX,
+    };
 
-    /// The references allowed for `n` triangles: `max(references_per_triangle * n, min_references)`.
+    /// This budget with the kd-tree's reference limits for the grid too.
+    pub fn same_for_the_grid(self) -> Budget {
+        Budget {
+            grid_references_per_triangle: self.references_per_triangle,
+            grid_min_references: self.min_references,
+            ..self
+        }
+    }
+
+    /// The kd-tree's references allowed for `n` triangles: `max(references_per_triangle * n, min_references)`.
     pub fn references(&self, n: u64) -> u64 {
-        let per = self.references_per_triangle.max(0.0) * n as f64;
-        let per = if per >= u64::MAX as f64 || per.is_nan() { u64::MAX } else { per as u64 };
-        per.max(self.min_references)
+        allowed(self.references_per_triangle, self.min_references, n)
+    }
+
+    /// The grid's references allowed for `n` triangles: `max(grid_references_per_triangle * n,
+    /// grid_min_references)`.
+    pub fn grid_references(&self, n: u64) -> u64 {
+        allowed(self.grid_references_per_triangle, self.grid_min_references, n)
     }
 
     /// The structures whose bounds exceed this budget, grid first.
     pub fn check(&self, bounds: &BuildBounds) -> Vec<Exclusion> {
-        let allowed = self.references(bounds.triangles);
         let mut out = Vec::new();
         for s in [Structure::Grid, Structure::KdTree] {
             let Some((refs, bytes)) = bounds.of(s) else { continue };
+            let (allowed, per_triangle, least) = if s == Structure::Grid {
+                (self.grid_references(bounds.triangles), self.grid_references_per_triangle, self.grid_min_references)
+            } else {
+                (self.references(bounds.triangles), self.references_per_triangle, self.min_references)
+            };
             let kind = if s == Structure::Grid { bounds.grid_bound } else { Bound::Estimate };
             let word = match kind {
                 Bound::Exact => "exactly",
@@ -542,7 +613,7 @@ impl Budget {
                     reason: format!(
                         "{s}: {word} {refs} references ({per:.1} per triangle, from the {}) exceed the budget of \
                          {allowed} ({} per triangle for {} triangles, at least {})",
-                        bounds.source, self.references_per_triangle, bounds.triangles, self.min_references
+                        bounds.source, per_triangle, bounds.triangles, least
                     ),
                 });
             } else if bytes > self.max_bytes {
@@ -561,6 +632,13 @@ impl Budget {
         }
         out
     }
+}
+
+/// `max(per * n, least)`, saturating.
+fn allowed(per: f64, least: u64, n: u64) -> u64 {
+    let v = per.max(0.0) * n as f64;
+    let v = if v >= u64::MAX as f64 || v.is_nan() { u64::MAX } else { v as u64 };
+    v.max(least)
 }
 
 /// A structure a policy did not consider because its bound exceeds the budget.

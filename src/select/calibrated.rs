@@ -251,7 +251,14 @@ impl CalibratedPolicy {
         let mut w = self.workload(scene.features.len());
         w.view = self.camera.map(|c| ViewFeatures::of(&c, f.lo, f.hi));
         let crossings = self.crossings(scene);
-        let mut preds = self.model.predict_floored(f, &w, &|s| overlap_floor(s, self.kind, crossings));
+        let grid_work = scene.build_bounds.as_ref().and_then(|b| b.grid_build_work());
+        let mut preds = self.model.predict_floored(f, &w, &|s| {
+            let mut floor = overlap_floor(s, self.kind, crossings);
+            if let (StructureName::Grid, Some(work)) = (s, grid_work) {
+                floor.build_work = work;
+            }
+            floor
+        });
         if let (Some(r), Some(t)) = (&self.model.timed, self.timed_probes(scene)) {
             crate::cost::timed::blend(&mut preds, t, r, &w);
         }
