@@ -4,7 +4,8 @@
 //! cargo run --release --example characterize -- [FILE|DIR ...] [--json] [--backend vulkan|cpu|naive]
 //!     [--morton-bits 30|63] [--alpha A] [--sample-stride S] [--class-rule doane|sturges|sqrt|N]
 //!     [--policy thesis|calibrated] [--cost-model FILE] [--budget-references-per-triangle R]
-//!     [--budget-min-references N] [--budget-bytes BYTES] [--workload primary|shadow|diffuse] [--resolution N]
+//!     [--budget-min-references N] [--budget-bytes BYTES] [--budget-grid-references-per-triangle R]
+//!     [--budget-grid-min-references N] [--workload primary|shadow|diffuse] [--resolution N]
 //!     [--frames F] [--secondary-rays N] [--trace-backend cpu|vulkan]
 //! ```
 //!

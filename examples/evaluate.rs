@@ -7,6 +7,7 @@
 //!     [--resolution N] [--frames F] [--repeats R] [--precision FRACTION] [--max-repeats R] [--precision-ms MS] [--rebuild once|frame] [--structures bvh,kdtree,...]
 //!     [--camera EX,EY,EZ,TX,TY,TZ[,FOV]] [--charts DIR] [--policy thesis|calibrated] [--cost-model FILE]
 //!     [--budget-references-per-triangle R] [--budget-min-references N] [--budget-bytes BYTES]
+//!     [--budget-grid-references-per-triangle R] [--budget-grid-min-references N]
 //!     [--tie-margin X] [--oracle-cache FILE] [--trace-backend cpu|vulkan] [--max-tests-per-ray TESTS] [--help]
 //! cargo run --release --example evaluate -- --compare-policies FILE.jsonl ... [--charts DIR] [--json]
 //!     [--frames-sweep F,F,...] [--proxy]

@@ -92,7 +92,7 @@ fn the_grid_bound_is_never_below_the_grids_references() {
     let mut exact = 0;
     for m in &meshes {
         let b = BuildBounds::of_mesh(m).expect("bounds");
-        // Exact where the slab bound exceeds the default budget (and the count stays within the builders'
+        // Exact where the slab bound exceeds the count threshold (and the count stays within the builders'
         // budget), an upper bound otherwise.
         assert_ne!(b.grid_bound, Bound::Estimate, "{}", m.name);
         let f = features_cpu(m, &Params::default()).expect("features");
@@ -166,6 +166,44 @@ fn past_the_default_budget_the_grids_references_are_counted_exactly() {
         other => panic!("the grid should exceed its builder's budget: {other:?}"),
     }
     assert!(b.grid_references > Budget::BUILDERS.references(3000), "{b:?}");
+}
+
+#[test]
+fn the_grids_own_budget_holds_only_where_its_build_is_priced() {
+    // 20,000 large overlapping triangles: 9.7 million references, past the count threshold, within the builder's.
+    let m = generate::overlapping_large(20_000, 1);
+    let exact = BuildBounds::of_mesh(&m).expect("bounds");
+    let threshold = grid_count_threshold(20_000);
+    assert!(exact.grid_build_work().is_some() && exact.grid_references > threshold, "{exact:?}");
+    let grid_out = |out: Vec<meshchar::select::Exclusion>| out.into_iter().find(|e| e.structure == StructureName::Grid);
+    // Counted exactly: the calibrated policy prices the build, the grid's own limit holds.
+    assert_eq!(grid_out(Budget::default().check(&exact)), None);
+    // A policy that prices no build (the thesis policy) holds the grid to the kd-tree's limits (by default the
+    // threshold).
+    let e = grid_out(Budget::default().check_unpriced(&exact)).expect("excluded unpriced");
+    assert_eq!((e.needed, e.budget, e.bound), (exact.grid_references, threshold, Bound::Exact));
+    let c = cpu::fast(&m, &Params::default()).expect("characterization");
+    let f = features_cpu(&m, &Params::default()).expect("features");
+    let (frames, features) = (std::slice::from_ref(&c), std::slice::from_ref(&f));
+    let sel = select_for_scene_within(
+        &m.name,
+        frames,
+        features,
+        PolicyChoice::Thesis,
+        &workload(),
+        Some(exact.clone()),
+        Budget::default(),
+    );
+    let out = &sel.selection.excluded;
+    assert!(out.iter().any(|e| e.structure == StructureName::Grid), "{out:?}");
+    // Bounds from the features alone are never priced: held to the kd-tree's limits too (the threshold, by default).
+    let from_features = BuildBounds::of_features(&f);
+    assert!(from_features.grid_build_work().is_none() && from_features.grid_references > threshold);
+    let e = grid_out(Budget::default().check(&from_features)).expect("excluded from features");
+    assert_eq!(e.budget, threshold);
+    // A caller's grid limit below the threshold holds either way.
+    let strict = Budget { grid_references_per_triangle: 1.0, grid_min_references: 1000, ..Budget::default() };
+    assert_eq!(grid_out(strict.check(&exact)).map(|e| e.budget), Some(20_000));
 }
 
 #[test]
@@ -1221,7 +1259,7 @@ fn the_grid_is_probed_within_the_default_selection_budget() {
     assert_eq!(bounds.grid_bound, Bound::Exact, "{bounds:?}");
     let cam = Camera::frame(&scene_box(&m));
     assert!(meshchar::cost::probe(StructureName::Grid, &m, &scene_box(&m), &cam, 8, false).is_none());
-    // The selection's bounds do not even try: the grid they exclude has no probe, the hierarchies have theirs.
+    // The selection's bounds do not even try: the grid past the threshold has no probe, the hierarchies have theirs.
     let probes = |bounds: &BuildBounds, m: &Mesh| {
         let b = scene_box(m);
         let c = bounds.box_crossings.expect("crossings");

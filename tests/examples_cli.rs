@@ -178,6 +178,9 @@ fn bad_values_exit_2() {
         ("characterize", &["--budget-min-references", "many"]),
         ("characterize", &["--budget-references-per-triangle", "65"]),
         ("characterize", &["--budget-min-references", "33554433"]),
+        ("characterize", &["--budget-grid-references-per-triangle", "65"]),
+        ("characterize", &["--budget-grid-min-references", "33554433"]),
+        ("evaluate", &["x.obj", "--budget-grid-references-per-triangle", "-1"]),
         ("evaluate", &["x.obj", "--budget-bytes", "-5"]),
         ("evaluate", &["x.obj", "--precision", "0"]),
         ("evaluate", &["x.obj", "--precision", "2"]),
@@ -301,8 +304,15 @@ fn a_grid_counted_exactly_is_priced_by_its_references_and_the_grid_flags_reach_t
         let e = excluded.iter().find(|e| e["structure"] == "grid").unwrap_or_else(|| panic!("{flags:?}: {excluded:?}"));
         assert_eq!((e["needed"].as_f64(), e["bound"].as_str()), (Some(work), Some("exact")), "{e}");
     }
-    // The grid's flag overrides the kd-tree's for the grid alone.
-    let v = report(&["--budget-references-per-triangle", "16", "--budget-grid-references-per-triangle", "64"]);
+    // The grid's flags override the kd-tree's for the grid alone.
+    let v = report(&[
+        "--budget-references-per-triangle",
+        "16",
+        "--budget-grid-references-per-triangle",
+        "64",
+        "--budget-grid-min-references",
+        "33554432",
+    ]);
     let excluded: Vec<&str> =
         v["excluded"].as_array().expect("excluded").iter().filter_map(|e| e["structure"].as_str()).collect();
     assert_eq!(excluded, ["kdtree"]);

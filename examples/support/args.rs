@@ -72,8 +72,8 @@ impl PolicyArgs {
 /// before a policy drops them ([`Budget`]; the bounds are computed from the mesh before anything is built).
 #[derive(clap::Args, Clone, Copy, Debug)]
 pub struct BudgetArgs {
-    /// Budget: cell references per triangle the kd-tree may need, and the grid too when given, at most the
-    /// builders' own 64; a structure whose bound exceeds the budget is no candidate, and the report lists it under
+    /// Budget: cell references per triangle the kd-tree may need, and the grid too when given (either kd-tree flag
+    /// gives the grid both of the kd-tree's limits), at most the builders' own 64; a structure whose bound exceeds the budget is no candidate, and the report lists it under
     /// excluded with the numbers [default: 16 for the kd-tree; for the grid, whose build the calibrated policy
     /// prices by its references counted exactly, the builder's own 64]
     #[arg(long, value_name = "R", value_parser = budget_per_triangle)]
@@ -83,11 +83,11 @@ pub struct BudgetArgs {
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(..=Budget::BUILDERS.min_references))]
     pub budget_min_references: Option<u64>,
     /// Budget: the grid's cell references per triangle, whatever --budget-references-per-triangle says, at most the
-    /// builder's own 64 [default: 64, or --budget-references-per-triangle when given]
+    /// builder's own 64 [default: 64, or the kd-tree's when either kd-tree flag is given]
     #[arg(long, value_name = "R", value_parser = budget_per_triangle)]
     pub budget_grid_references_per_triangle: Option<f64>,
     /// Budget: the grid's cell references always allowed, whatever --budget-min-references says, at most the
-    /// builder's own 2^25 [default: 33554432, or --budget-min-references when given]
+    /// builder's own 2^25 [default: 33554432, or the kd-tree's when either kd-tree flag is given]
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(..=Budget::BUILDERS.grid_min_references))]
     pub budget_grid_min_references: Option<u64>,
     /// Budget: bytes the grid or the kd-tree may need, at most the builders' own 4 GiB
@@ -111,17 +111,18 @@ impl BudgetArgs {
     /// too unless the grid's own flag is given.
     pub fn budget(&self) -> Budget {
         let d = Budget::default();
-        let per = self.budget_references_per_triangle;
-        let least = self.budget_min_references;
+        let per = self.budget_references_per_triangle.unwrap_or(d.references_per_triangle);
+        let least = self.budget_min_references.unwrap_or(d.min_references);
+        // Either kd-tree flag given: the grid takes the kd-tree's resolved limits (both), unless its own are given.
+        let kd_given = self.budget_references_per_triangle.is_some() || self.budget_min_references.is_some();
+        let (grid_per, grid_least) =
+            if kd_given { (per, least) } else { (d.grid_references_per_triangle, d.grid_min_references) };
         Budget {
-            references_per_triangle: per.unwrap_or(d.references_per_triangle),
-            min_references: least.unwrap_or(d.min_references),
+            references_per_triangle: per,
+            min_references: least,
             max_bytes: self.budget_bytes,
-            grid_references_per_triangle: self
-                .budget_grid_references_per_triangle
-                .or(per)
-                .unwrap_or(d.grid_references_per_triangle),
-            grid_min_references: self.budget_grid_min_references.or(least).unwrap_or(d.grid_min_references),
+            grid_references_per_triangle: self.budget_grid_references_per_triangle.unwrap_or(grid_per),
+            grid_min_references: self.budget_grid_min_references.unwrap_or(grid_least),
         }
     }
 }

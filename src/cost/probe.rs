@@ -62,7 +62,7 @@ impl ProbeCounts {
 /// its counts where slivers or overlapping triangles make its traversal explode (the engineering family close up,
 /// `overlapping:2000`: chosen there at 1.8x the best), and probed, the families read 2.4% / 3.0% -> 2.6% / 2.7% by
 /// scene / by family (`docs/cost-model.md`, "Eighth session"). The BIH and the grid exist only with the `eval`
-/// feature; a build that fails (or a grid over the default budget) gives no probe.
+/// feature; a build that fails (or a grid past its count threshold, [`PROBE_GRID_BUDGET`]) gives no probe.
 pub const PROBED: [StructureName; PROBES] =
     [StructureName::Lbvh, StructureName::Bvh, StructureName::Bih, StructureName::Grid, StructureName::Hlbvh];
 

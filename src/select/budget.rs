@@ -59,7 +59,9 @@
 //! the work law of `cost::StructureModel::build_work_coef`): 20,000 large overlapping triangles need 9.7 million
 //! references, a build of 265 ms that the law in `n` alone put at 3.2 ms and the work law at 170 ms. A slow grid is
 //! then left out by its predicted total, and a fast one (the best there for primary rays, at a third of the BVH's
-//! total) stays a candidate. The kd-tree's figure is an estimate with no exact count, so its budget stays the
+//! total) stays a candidate. Where nothing prices the build (an upper bound, bounds from features alone, or the
+//! thesis policy, [`Budget::check_unpriced`]) the grid is held to the kd-tree's limits too, as before (by default
+//! the threshold). The kd-tree's figure is an estimate with no exact count, so its budget stays the
 //! guard. Both are below the builders' own budgets ([`Budget::BUILDERS`]), so a structure the policy keeps never
 //! fails its build with `OverBudget` (the kd-tree's estimate permitting). [`Budget::check`] lists the structures
 //! whose bound exceeds the budget as [`Exclusion`]s, with the numbers.
@@ -240,8 +242,18 @@ impl BuildBounds {
         budget: &Budget,
     ) -> BuildBounds {
         let excluded = budget.check(&self);
-        let structures: Vec<Structure> =
-            structures.iter().copied().filter(|s| !excluded.iter().any(|e| e.structure == *s)).collect();
+        // A grid past the count threshold has no probe ([`crate::cost::probe::PROBE_GRID_BUDGET`]): not built for
+        // one here either (its build is priced by its references instead).
+        let past = self.grid_references > grid_count_threshold(self.triangles);
+        let structures: Vec<Structure> = structures
+            .iter()
+            .copied()
+            .filter(|s| {
+                let out = excluded.iter().any(|e| e.structure == *s);
+                let unprobed = *s == Structure::Grid && past;
+                !out && !unprobed
+            })
+            .collect();
         let b = crate::cost::timed::mesh_box(mesh);
         let camera =
             camera.copied().unwrap_or_else(|| crate::cost::view::framing_camera(b.min.to_array(), b.max.to_array()));
@@ -354,15 +366,16 @@ impl BuildBounds {
             .zip(&upper)
             .map(|(t, &c)| (c, if t.is_degenerate() { 1 } else { c.saturating_mul(KD_FACTOR) }))
             .reduce(|| (0u64, 0u64), |a, b| (a.0.saturating_add(b.0), a.1.saturating_add(b.1)));
-        // Where the slab bound exceeds the budget (references or bytes), the budget's verdict rests on it, and the
-        // bound can be several times the grid's count (large triangles across many rows of a slab): count exactly,
-        // up to what the grid's builder allows (past it no budget keeps a grid that builds).
+        // Where the slab bound exceeds the count threshold or the caller's grid budget (references or bytes), the
+        // budget's verdict and the grid's priced build rest on it, and the bound can be several times the grid's
+        // count (large triangles across many rows of a slab): count exactly, up to what the grid's builder allows
+        // (past it no budget keeps a grid that builds).
         let nu = n as u64;
         let refs_allowed = budget.grid_references(nu).min(grid_count_threshold(nu));
         let bytes_allowed = budget.max_bytes.min(Budget::default().max_bytes);
         let over = |g: u64| g > refs_allowed || BuildBounds::grid_bytes(&grid, nu, g) > bytes_allowed;
         let (g, kind) = if over(g) {
-            exact_references(&grid, &tris, &boxes, &upper, Budget::BUILDERS.references(nu))
+            exact_references(&grid, &tris, &boxes, &upper, Budget::BUILDERS.grid_references(nu))
         } else {
             (g, Bound::Upper)
         };
@@ -370,8 +383,8 @@ impl BuildBounds {
         if let Some((camera, near)) = view {
             crossings = crossings.viewed_from(&boxes, if near { &tris } else { &[] }, &scene, camera);
             if near {
-                // A grid over the smaller of the caller's budget and the default one (the probe's own,
-                // `cost::probe::PROBE_GRID_BUDGET`) is excluded, or past what a probe builds: none is built for one.
+                // A grid past the count threshold (the probe's own budget, `cost::probe::PROBE_GRID_BUDGET`) or the
+                // caller's grid budget is priced by its count or excluded: none is built for a probe.
                 let skip: &[Structure] = if over(g) { &[Structure::Grid] } else { &[] };
                 crossings = crossings.with_probes_but(mesh, &scene, skip);
             }
@@ -587,12 +600,32 @@ impl Budget {
     }
 
     /// The structures whose bounds exceed this budget, grid first.
+    ///
+    /// The grid's own limits hold where its build is priced by its references ([`BuildBounds::grid_build_work`]);
+    /// elsewhere (an upper bound, or bounds from features) the grid is held to the kd-tree's limits too, as before
+    /// the grid had its own (by default [`grid_count_threshold`]), since nothing would price a larger grid's build.
     pub fn check(&self, bounds: &BuildBounds) -> Vec<Exclusion> {
+        self.check_priced(bounds, bounds.grid_build_work().is_some())
+    }
+
+    /// [`Budget::check`] for a policy that prices no build (the thesis policy): the grid held to the kd-tree's
+    /// limits too (by default [`grid_count_threshold`]), whatever its count.
+    pub fn check_unpriced(&self, bounds: &BuildBounds) -> Vec<Exclusion> {
+        self.check_priced(bounds, false)
+    }
+
+    fn check_priced(&self, bounds: &BuildBounds, grid_priced: bool) -> Vec<Exclusion> {
         let mut out = Vec::new();
         for s in [Structure::Grid, Structure::KdTree] {
             let Some((refs, bytes)) = bounds.of(s) else { continue };
             let (allowed, per_triangle, least) = if s == Structure::Grid {
-                (self.grid_references(bounds.triangles), self.grid_references_per_triangle, self.grid_min_references)
+                let own = self.grid_references(bounds.triangles);
+                let kd = self.references(bounds.triangles);
+                if grid_priced || own <= kd {
+                    (own, self.grid_references_per_triangle, self.grid_min_references)
+                } else {
+                    (kd, self.references_per_triangle, self.min_references)
+                }
             } else {
                 (self.references(bounds.triangles), self.references_per_triangle, self.min_references)
             };

@@ -251,7 +251,10 @@ impl CalibratedPolicy {
         let mut w = self.workload(scene.features.len());
         w.view = self.camera.map(|c| ViewFeatures::of(&c, f.lo, f.hi));
         let crossings = self.crossings(scene);
-        let grid_work = scene.build_bounds.as_ref().and_then(|b| b.grid_build_work());
+        // A static scene's grid counted exactly is priced by its references (an animation's builds are priced by the
+        // law in `n`, as its frames' counts differ).
+        let grid_work =
+            scene.build_bounds.as_ref().and_then(|b| b.grid_build_work()).filter(|_| scene.features.len() == 1);
         let mut preds = self.model.predict_floored(f, &w, &|s| {
             let mut floor = overlap_floor(s, self.kind, crossings);
             if let (StructureName::Grid, Some(work)) = (s, grid_work) {

@@ -180,6 +180,11 @@ impl<'a> SceneSummary<'a> {
         self.bounds().map(|b| self.budget.check(&b)).unwrap_or_default()
     }
 
+    /// [`SceneSummary::exclusions`] for a policy that prices no build ([`Budget::check_unpriced`]).
+    pub fn exclusions_unpriced(&self) -> Vec<Exclusion> {
+        self.bounds().map(|b| self.budget.check_unpriced(&b)).unwrap_or_default()
+    }
+
     /// The summary with the cost-model features of every frame.
     pub fn with_features(mut self, features: &'a [Features]) -> Self {
         self.features = features;

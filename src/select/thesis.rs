@@ -158,7 +158,8 @@ impl Policy for ThesisPolicy {
     }
 
     fn select(&self, scene: &SceneSummary<'_>) -> Selection {
-        let excluded = scene.exclusions();
+        // The thesis's rules price no build: a grid past the count threshold is excluded whatever its count.
+        let excluded = scene.exclusions_unpriced();
         let mut sel = self.rules(scene, &excluded);
         for e in &excluded {
             if !sel.reasons.iter().any(|r| r.contains(&e.reason)) {
