@@ -180,6 +180,7 @@ fn known_samples_with_rays(count: u64, rays: impl Fn(u64) -> u64) -> (Vec<Sample
             timed: Vec::new(),
             frame_timings: Vec::new(),
             grid_build_work: 0.0,
+            trace_backend: Default::default(),
         });
     }
     (samples, truth)

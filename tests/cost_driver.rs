@@ -111,6 +111,7 @@ fn known_samples() -> Vec<Sample> {
             timed: Vec::new(),
             frame_timings: Vec::new(),
             grid_build_work: 0.0,
+            trace_backend: Default::default(),
         });
     }
     for (k, n) in [500usize, 2_000, 6_000].into_iter().enumerate() {
@@ -162,6 +163,7 @@ fn known_samples() -> Vec<Sample> {
             timed: Vec::new(),
             frame_timings: Vec::new(),
             grid_build_work: 0.0,
+            trace_backend: Default::default(),
         });
     }
     out

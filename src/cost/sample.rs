@@ -93,6 +93,10 @@ pub struct Sample {
     /// them (`select::BuildBounds::grid_build_work`: past `select::budget::grid_count_threshold`), which prices the
     /// grid's build as the policy does; 0 otherwise (not computed, an animation, or within the threshold).
     pub grid_build_work: f64,
+    /// Where the record's rays were traced: the CPU tracer's samples fit their trace prices with each triangle-test
+    /// price at least its box-test price ([`super::StructureModel::trace_price`]; `fit_prices` in `cost`), devices'
+    /// without.
+    pub trace_backend: crate::accel::device::TraceBackend,
 }
 
 impl Sample {

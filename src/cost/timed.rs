@@ -502,6 +502,7 @@ mod tests {
             timed: vec![probe(StructureName::Bih, probe_build, t)],
             frame_timings: Vec::new(),
             grid_build_work: 0.0,
+            trace_backend: Default::default(),
         }
     }
 

@@ -481,6 +481,7 @@ impl OracleRecord {
             timed: Vec::new(),
             frame_timings: Vec::new(),
             grid_build_work: 0.0,
+            trace_backend: self.trace_backend,
         }
     }
 }
