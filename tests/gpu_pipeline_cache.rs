@@ -1,7 +1,8 @@
 //! Pipelines ready before work is timed: the crate's own pipeline-cache file (round trip; corrupted, truncated,
 //! foreign files ignored with a warning), a host engine's pipeline cache and allocation callbacks through
 //! `Context::from_raw` (every object created and destroyed with them), and the warm-up of `VulkanBackend::new`.
-//! Runs on lavapipe with the validation layer on.
+//! Runs on lavapipe with the validation layer on, one test at a time (`gpu_support::one_at_a_time`: these tests
+//! create devices back to back, and the validation layer can crash when a device is created beside work on another).
 
 mod gpu_support;
 
@@ -54,6 +55,7 @@ const HEADER: usize = 64;
 
 #[test]
 fn pipeline_cache_round_trip() {
+    let _apart = gpu_support::one_at_a_time();
     let dir = scratch_dir("round-trip");
     let path = dir.join("nested").join("pipelines.bin");
     let Some(file) = saved_cache(&path) else { return };
@@ -93,6 +95,7 @@ fn assert_ignored(dir: &Path, name: &str, bytes: &[u8], reason: &str) {
 
 #[test]
 fn corrupted_and_truncated_files_are_ignored_with_a_warning() {
+    let _apart = gpu_support::one_at_a_time();
     let dir = scratch_dir("corrupted");
     let Some(file) = saved_cache(&dir.join("valid.bin")) else { return };
     let mut corrupted = file.clone();
@@ -107,6 +110,7 @@ fn corrupted_and_truncated_files_are_ignored_with_a_warning() {
 
 #[test]
 fn a_file_of_another_device_or_driver_is_ignored_with_a_warning() {
+    let _apart = gpu_support::one_at_a_time();
     let dir = scratch_dir("foreign");
     let Some(file) = saved_cache(&dir.join("valid.bin")) else { return };
     // deviceUUID at bytes 16..32, driverUUID at 32..48 of the crate's header.
@@ -121,6 +125,7 @@ fn a_file_of_another_device_or_driver_is_ignored_with_a_warning() {
 
 #[test]
 fn warm_up_is_reported_apart() {
+    let _apart = gpu_support::one_at_a_time();
     let Some(ctx) = gpu_support::context() else { return };
     let waits = ctx.host_waits();
     let mut backend = VulkanBackend::new(&ctx).expect("backend");
@@ -229,6 +234,7 @@ unsafe extern "system" fn record_message(
 
 #[test]
 fn engine_pipeline_cache_and_allocation_callbacks() {
+    let _apart = gpu_support::one_at_a_time();
     // The machine's device with meshchar's own context first: skip (or fail under REQUIRE_GPU) like every test.
     if gpu_support::context().is_none() {
         return;
