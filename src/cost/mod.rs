@@ -146,9 +146,9 @@ pub mod overlap;
 pub mod probe;
 pub mod timed;
 pub use overlap::{
-    crossings_feature, near_crossings, near_sample_side, overlap_floor, primary_tests_per_crossing, screen_crossings,
-    secondary_rays_leave_the_plane, secondary_tests_per_image_crossing, tests_per_crossing, Crossings, NearCrossings,
-    RayCrossings, SampledMean, TestFloor, ViewCrossings, KD_TREE_PRIM_FLOOR, NEAR_SAMPLES,
+    crossings_feature, near_crossings, near_sample_side, overlap_floor, priced_floor, primary_tests_per_crossing,
+    screen_crossings, secondary_rays_leave_the_plane, secondary_tests_per_image_crossing, tests_per_crossing,
+    Crossings, NearCrossings, RayCrossings, SampledMean, TestFloor, ViewCrossings, KD_TREE_PRIM_FLOOR, NEAR_SAMPLES,
 };
 pub use probe::{probe, Probe, ProbeCounts, PROBED};
 

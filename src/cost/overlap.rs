@@ -1262,6 +1262,27 @@ pub fn crossings_feature(kind: WorkloadKind, c: Option<RayCrossings>) -> f64 {
 /// With [`RayCrossings::probes`], a probed structure's floor carries its counts sampled on rays of this kind
 /// ([`TestFloor::sampled`]).
 pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
+    priced_floor(structure, kind, c, 0.0)
+}
+
+/// [`overlap_floor`] with the grid's build work given: `grid_work` (`> 0`) is the grid's references counted exactly
+/// from the mesh (`select::BuildBounds::grid_build_work`), which prices its build by the work law
+/// ([`super::StructureModel::build_work_coef`]) in place of the probe's work or the law in `n`; 0 leaves the floor
+/// as [`overlap_floor`] gives it.
+pub fn priced_floor(
+    structure: StructureName,
+    kind: WorkloadKind,
+    c: Option<RayCrossings>,
+    grid_work: f64,
+) -> TestFloor {
+    let mut f = floor_of(structure, kind, c);
+    if structure == StructureName::Grid && grid_work > 0.0 {
+        f.build_work = grid_work;
+    }
+    f
+}
+
+fn floor_of(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
     let Some(c) = c else { return TestFloor::default() };
     let crossings = crossings_feature(kind, Some(c));
     let hierarchy = matches!(

@@ -105,11 +105,7 @@ impl Sample {
     /// calibrated policy predicts with the mesh at hand).
     pub fn predict(&self, model: &super::CostModel) -> Vec<super::Prediction> {
         model.predict_floored(&self.features, &self.workload, &|s| {
-            let mut floor = super::overlap_floor(s, self.workload.kind, self.crossings);
-            if s == StructureName::Grid && self.grid_build_work > 0.0 {
-                floor.build_work = self.grid_build_work;
-            }
-            floor
+            super::priced_floor(s, self.workload.kind, self.crossings, self.grid_build_work)
         })
     }
 

@@ -11,7 +11,7 @@
 use super::{Policy, SceneSummary, Selection, ThesisPolicy};
 use crate::accel::StructureName;
 use crate::characterize::Features;
-use crate::cost::{overlap_floor, CostModel, Prediction, RayCrossings, ViewFeatures, Workload};
+use crate::cost::{overlap_floor, priced_floor, CostModel, Prediction, RayCrossings, ViewFeatures, Workload};
 
 /// The calibrated choice among predictions: the smallest predicted total, then, within `tie_margin` (relative) of
 /// it, the smallest predicted build. `None` for no predictions.
@@ -253,15 +253,13 @@ impl CalibratedPolicy {
         let crossings = self.crossings(scene);
         // A static scene's grid counted exactly is priced by its references (an animation's builds are priced by the
         // law in `n`, as its frames' counts differ).
-        let grid_work =
-            scene.build_bounds.as_ref().and_then(|b| b.grid_build_work()).filter(|_| scene.features.len() == 1);
-        let mut preds = self.model.predict_floored(f, &w, &|s| {
-            let mut floor = overlap_floor(s, self.kind, crossings);
-            if let (StructureName::Grid, Some(work)) = (s, grid_work) {
-                floor.build_work = work;
-            }
-            floor
-        });
+        let grid_work = scene
+            .build_bounds
+            .as_ref()
+            .and_then(|b| b.grid_build_work())
+            .filter(|_| scene.features.len() == 1)
+            .unwrap_or(0.0);
+        let mut preds = self.model.predict_floored(f, &w, &|s| priced_floor(s, self.kind, crossings, grid_work));
         if let (Some(r), Some(t)) = (&self.model.timed, self.timed_probes(scene)) {
             crate::cost::timed::blend(&mut preds, t, r, &w);
         }
