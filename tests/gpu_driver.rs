@@ -16,7 +16,7 @@ use meshchar::trace::workload::{build_workload, mesh_bounds};
 use meshchar::trace::Camera;
 
 /// A context with ray queries, or `None` (skip) when the device has none and `REQUIRE_GPU` is not `1`.
-fn ray_query_context() -> Option<Context> {
+fn ray_query_context() -> Option<gpu_support::GpuTest> {
     let ctx = gpu_support::context()?;
     if !ctx.caps().ray_query {
         if std::env::var("REQUIRE_GPU").is_ok_and(|v| v == "1") {

@@ -6,7 +6,7 @@ use meshchar::gpu::{Context, ContextDesc};
 
 /// A context with the Khronos validation layer on, or `None` (with a note on stderr) when no usable device exists
 /// and `REQUIRE_GPU` is not `1`.
-pub fn context() -> Option<Context> {
+pub fn context() -> Option<GpuTest> {
     context_with(ContextDesc { validation: true, ..Default::default() })
 }
 
@@ -16,7 +16,7 @@ pub fn context() -> Option<Context> {
 pub const TEST_DISPATCH_GROUPS: u32 = 4096;
 
 /// [`context`] with the dispatch size capped at [`TEST_DISPATCH_GROUPS`] (see `ContextDesc::max_dispatch_groups`).
-pub fn capped_context() -> Option<Context> {
+pub fn capped_context() -> Option<GpuTest> {
     context_with(ContextDesc {
         validation: true,
         max_dispatch_groups: Some(TEST_DISPATCH_GROUPS),
@@ -24,9 +24,11 @@ pub fn capped_context() -> Option<Context> {
     })
 }
 
-fn context_with(desc: ContextDesc) -> Option<Context> {
+fn context_with(desc: ContextDesc) -> Option<GpuTest> {
+    // The turn is taken before the device is created and given up after it is destroyed.
+    let turn = one_at_a_time();
     match Context::new(&desc) {
-        Ok(ctx) => Some(ctx),
+        Ok(ctx) => Some(GpuTest { ctx, _turn: turn }),
         Err(e) => {
             if std::env::var("REQUIRE_GPU").is_ok_and(|v| v == "1") {
                 panic!("REQUIRE_GPU=1 but no usable Vulkan device with validation: {e}");
@@ -76,14 +78,73 @@ pub fn in_caller_command_buffer<T>(ctx: &Context, record: impl FnOnce(&mut meshc
     }
 }
 
-/// Holds the calling test apart from every other test of its binary that takes it. The Khronos validation layer of
-/// Debian 12 (1.3.239) can crash when one thread creates a device while another calls into a different device: two
-/// core dumps of `tests/gpu_pipeline_cache.rs` (2 crashes in 1,575 runs) show one thread in `vkCreateDevice` and
-/// the other inside the layer, called from a command being recorded or from a pipeline being destroyed, jumping to
-/// a small address. Tests that create devices back to back take this lock for their whole run.
-#[allow(dead_code)]
-pub fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
-    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    // A test that panicked while holding the lock has failed already; the others may still run.
-    LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+/// Holds the calling test apart from every other test of its binary that takes a turn: every test that gets its
+/// context from [`context`] or [`capped_context`] holds one while the context lives, and tests that create devices
+/// themselves take one for their whole run. The Khronos validation layer of Debian 12 (1.3.239) can crash when one
+/// thread creates a device while another calls into a different device: two core dumps of
+/// `tests/gpu_pipeline_cache.rs` (2 crashes in 1,575 runs) show one thread in `vkCreateDevice` and the other inside
+/// the layer, called from a command being recorded or from a pipeline being destroyed, jumping to a small address.
+/// A thread may hold several turns at once (a test that creates a second context while holding the first); other
+/// threads wait until it has dropped them all.
+pub fn one_at_a_time() -> Turn {
+    let (lock, freed) = &TURN;
+    let me = std::thread::current().id();
+    // A test that panicked while holding a turn has failed already; the others may still run.
+    let mut state = lock.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    loop {
+        match *state {
+            Some((owner, ref mut held)) if owner == me => {
+                *held += 1;
+                break;
+            }
+            None => {
+                *state = Some((me, 1));
+                break;
+            }
+            Some(_) => state = freed.wait(state).unwrap_or_else(|poisoned| poisoned.into_inner()),
+        }
+    }
+    Turn(())
+}
+
+/// Which thread holds the turn and how many times, and the signal that it was given up.
+type TurnState = (std::sync::Mutex<Option<(std::thread::ThreadId, usize)>>, std::sync::Condvar);
+
+static TURN: TurnState = (std::sync::Mutex::new(None), std::sync::Condvar::new());
+
+/// A test's turn ([`one_at_a_time`]), given up when dropped.
+pub struct Turn(());
+
+impl Drop for Turn {
+    fn drop(&mut self) {
+        let (lock, freed) = &TURN;
+        let mut state = lock.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        if let Some((_, held)) = state.as_mut() {
+            *held -= 1;
+            if *held == 0 {
+                *state = None;
+                freed.notify_all();
+            }
+        }
+    }
+}
+
+/// A test's context and its turn ([`one_at_a_time`]): the context is destroyed before the turn is given up. Reads as
+/// the [`Context`] it holds.
+pub struct GpuTest {
+    ctx: Context,
+    _turn: Turn,
+}
+
+impl std::ops::Deref for GpuTest {
+    type Target = Context;
+    fn deref(&self) -> &Context {
+        &self.ctx
+    }
+}
+
+impl std::ops::DerefMut for GpuTest {
+    fn deref_mut(&mut self) -> &mut Context {
+        &mut self.ctx
+    }
 }
