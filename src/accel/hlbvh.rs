@@ -322,7 +322,7 @@ impl Hlbvh {
             .zip(offsets.par_iter())
             .map(|(&(s, e), &offset)| {
                 let m = e - s;
-                let mut nodes = karras_nodes(&keys[s..e], o.bits, &|i| boxes[i as usize], s);
+                let mut nodes = karras_nodes(&keys[s..e], o.bits, &|p| boxes[keys[s + p].1 as usize], s);
                 for nd in nodes[..m - 1].iter_mut() {
                     nd.left_or_first += offset as u32;
                     nd.right_or_count += offset as u32;
