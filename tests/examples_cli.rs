@@ -1200,3 +1200,31 @@ fn close_calls_measured_in_the_report_and_the_comparison() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// An output that cannot be written (`> /dev/full`: no space left) ends a tool with the error on standard error and
+/// status 1, not a panic: `characterize` (text and JSON) and `build_bvh`, all through `support::cli::main_with`.
+#[test]
+fn a_full_standard_output_is_an_error_not_a_panic() {
+    let full = Path::new("/dev/full");
+    if !full.exists() {
+        eprintln!("skipping: no /dev/full on this system");
+        return;
+    }
+    let cases: [(&str, &[&str]); 3] = [
+        ("characterize", &["family:city:200:1", "--backend", "cpu"]),
+        ("characterize", &["family:city:200:1", "--backend", "cpu", "--json"]),
+        ("build_bvh", &["family:city:200:1", "--builder", "sah"]),
+    ];
+    for (name, args) in cases {
+        let out = Command::new(binary(name))
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(std::fs::OpenOptions::new().write(true).open(full).expect("open /dev/full"))
+            .output()
+            .unwrap_or_else(|e| panic!("cannot run {name}: {e}"));
+        let (_, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(1), "{name} {args:?}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{name}: {stderr}");
+        assert!(stderr.starts_with(&format!("{name}: cannot write to standard output: ")), "{name}: {stderr:?}");
+    }
+}

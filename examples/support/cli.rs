@@ -65,7 +65,8 @@ pub fn usage_error<A: CommandFactory>(kind: clap::error::ErrorKind, msg: impl st
 }
 
 /// Makes a closed standard output (`example | head`) end the program quietly with status 141, as a shell tool
-/// would, instead of a panic message: Rust ignores SIGPIPE, so `println!` panics on a closed pipe.
+/// would, and any other failure to write it (a full disk, `> /dev/full`) end it with the error on standard error and
+/// status 1, instead of a panic message: Rust ignores SIGPIPE, and `println!` panics where it cannot write.
 pub fn exit_quietly_on_broken_pipe() {
     let default = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
@@ -77,6 +78,15 @@ pub fn exit_quietly_on_broken_pipe() {
             .unwrap_or("");
         if msg.contains("Broken pipe") {
             std::process::exit(141);
+        }
+        if let Some(why) = msg.strip_prefix("failed printing to stdout: ") {
+            let program = std::env::args().next().unwrap_or_default();
+            let name = std::path::Path::new(&program).file_name().map(|n| n.to_string_lossy().into_owned());
+            eprintln!("{}: cannot write to standard output: {why}", name.unwrap_or_default());
+            std::process::exit(1);
+        }
+        if msg.starts_with("failed printing to stderr: ") {
+            std::process::exit(1);
         }
         default(info);
     }));
