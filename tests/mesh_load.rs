@@ -1543,3 +1543,33 @@ proptest::proptest! {
         check_outcome(apply(&edits, bytes), format)?;
     }
 }
+
+/// A PLY header that does not end within `MAX_PLY_HEADER_BYTES` is refused before the header parser copies it (a
+/// file of gigabytes without a line end used to abort on memory); a long comment within the limit still parses.
+#[test]
+fn a_ply_header_past_the_limit_is_refused_and_one_within_it_parses() {
+    use meshchar::mesh::load::MAX_PLY_HEADER_BYTES;
+    let with_comment = |len: usize| {
+        let mut b = b"ply\nformat ascii 1.0\ncomment ".to_vec();
+        b.extend(std::iter::repeat_n(b'x', len));
+        b.extend_from_slice(b"\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n");
+        b.extend_from_slice(b"element face 1\nproperty list uchar int vertex_indices\nend_header\n");
+        b.extend_from_slice(b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n");
+        b
+    };
+    let short = with_comment(MAX_PLY_HEADER_BYTES / 2);
+    let m = parse_mesh("long-comment.ply", &short, MeshFormat::Ply).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(m.triangle_count(), 1);
+    let long = with_comment(MAX_PLY_HEADER_BYTES);
+    match parse_mesh("endless.ply", &long, MeshFormat::Ply) {
+        Err(MeshError::Parse { file, place, reason }) => {
+            assert_eq!((file.as_str(), place.as_str()), ("endless.ply", "header"));
+            assert!(reason.contains("end_header") && reason.contains(&MAX_PLY_HEADER_BYTES.to_string()), "{reason}");
+        }
+        other => panic!("expected a header error, got {other:?}"),
+    }
+    // No line end at all: the same.
+    let mut endless = b"ply\nformat ascii 1.0\ncomment ".to_vec();
+    endless.resize(MAX_PLY_HEADER_BYTES + 10, b'x');
+    assert!(matches!(parse_mesh("endless.ply", &endless, MeshFormat::Ply), Err(MeshError::Parse { .. })));
+}

@@ -1026,6 +1026,27 @@ impl PlyPlace<'_> {
     }
 }
 
+/// The most bytes a PLY header may take, `end_header` line included: 1 MiB. Headers are a few hundred bytes (a few
+/// kilobytes with comments); the header parser copies a line whole, more than once, so a file of gigabytes whose
+/// header never ends would otherwise be copied into memory several times over before any error.
+pub const MAX_PLY_HEADER_BYTES: usize = 1 << 20;
+
+/// Refuses a PLY file whose `end_header` line does not end within its first [`MAX_PLY_HEADER_BYTES`]; a shorter file
+/// without one is left to the header parser, which names what is missing.
+fn check_ply_header_length(file: &str, bytes: &[u8]) -> Result<(), MeshError> {
+    if bytes.len() <= MAX_PLY_HEADER_BYTES {
+        return Ok(());
+    }
+    let head = bytes.get(..MAX_PLY_HEADER_BYTES).unwrap_or_default();
+    let mut lines = head.split(|&c| c == b'\n');
+    // The last piece has no line end within the limit: it is not a whole line.
+    lines.next_back();
+    if lines.any(|l| l.strip_suffix(b"\r").unwrap_or(l).trim_ascii() == b"end_header") {
+        return Ok(());
+    }
+    Err(ply_header_error(file, format!("no end_header line within the first {MAX_PLY_HEADER_BYTES} bytes")))
+}
+
 /// The message of a `ply-rs-bw` error without its `Line N:` prefix (the place is given separately).
 fn ply_message(e: &ParseError) -> String {
     let s = e.to_string();
@@ -1367,6 +1388,7 @@ fn binary_count(raw: &[u8], t: &ScalarType, big: bool) -> Option<u64> {
 }
 
 fn parse_ply_checked(name: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
+    check_ply_header_length(name, bytes)?;
     let mut reader = Reader::new(bytes);
     let header = Parser::<PlySkip>::new().read_header(&mut reader).map_err(|e| MeshError::Parse {
         file: name.to_string(),
