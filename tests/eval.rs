@@ -552,3 +552,35 @@ fn the_secondary_rays_estimated_from_a_sample_of_the_primary_rays_count_the_work
     assert_eq!(estimate_secondary_rays(WorkloadKind::Shadow, &empty, &camera, 100_000, u32::MAX).unwrap().side, cap);
     assert_eq!(estimate_secondary_rays(WorkloadKind::Shadow, m, &camera, 64, 0).unwrap().side, 1);
 }
+
+/// A record whose camera no rays can be made from (zero vectors, a zero or non-finite field of view) is refused
+/// where records are read, naming the file, the line and the field; a real record's camera passes.
+#[test]
+fn records_with_a_camera_no_rays_can_come_from_are_refused() {
+    use meshchar::eval::record::{parse_jsonl, RecordError};
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/data/families-seed2-primary.jsonl"))
+        .expect("the shipped records");
+    let line = text.lines().next().expect("a record");
+    let good = parse_jsonl(line, "good.jsonl").expect("a real record");
+    assert!(good[0].camera.is_some(), "the shipped record carries its camera");
+    let mut v: serde_json::Value = serde_json::from_str(line).expect("JSON");
+    let cases: [(&str, serde_json::Value, &str); 4] = [
+        ("forward", serde_json::json!([0.0, 0.0, 0.0]), "camera.forward"),
+        ("up", serde_json::json!([0.0, 30.0, 0.0]), "camera.up"),
+        ("tan_half_fov", serde_json::json!(0.0), "camera.tan_half_fov"),
+        ("tan_half_fov", serde_json::json!(-1.0), "camera.tan_half_fov"),
+    ];
+    for (field, value, named) in cases {
+        let keep = v["camera"][field].clone();
+        v["camera"][field] = value;
+        match parse_jsonl(&format!("\n{v}"), "bad.jsonl") {
+            Err(RecordError::Parse { place, reason }) => {
+                assert_eq!(place, "bad.jsonl:2");
+                assert!(reason.contains(named), "{field}: {reason}");
+            }
+            other => panic!("{field}: expected a parse error, got {other:?}"),
+        }
+        v["camera"][field] = keep;
+    }
+    assert!(parse_jsonl(&v.to_string(), "restored.jsonl").is_ok());
+}

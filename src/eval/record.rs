@@ -106,6 +106,31 @@ impl From<&Camera> for CameraRecord {
 }
 
 impl CameraRecord {
+    /// Checks that the record describes a camera rays can be made from: every number finite, the three directions of
+    /// about unit length (0.5 to 2: the oracle writes them normalized, a hand-edited file may round them), and
+    /// `tan_half_fov` in `(0, 1e4]` (a field of view short of 180 degrees). A record without these (all-zero
+    /// vectors, a zero field of view) made every ray of a view the same and the measured policies trace minutes of
+    /// them.
+    pub fn check(&self) -> Result<(), String> {
+        let vectors = [("eye", self.eye), ("forward", self.forward), ("right", self.right), ("up", self.up)];
+        for (name, v) in vectors {
+            if !v.iter().all(|x| x.is_finite()) {
+                return Err(format!("camera.{name} {v:?} is not finite"));
+            }
+        }
+        for (name, v) in &vectors[1..] {
+            let len = v.iter().map(|x| f64::from(*x).powi(2)).sum::<f64>().sqrt();
+            if !(0.5..=2.0).contains(&len) {
+                return Err(format!("camera.{name} {v:?} has length {len}, not about 1"));
+            }
+        }
+        let t = self.tan_half_fov;
+        if !(t.is_finite() && t > 0.0 && t <= 1e4) {
+            return Err(format!("camera.tan_half_fov {t} is not in (0, 1e4]"));
+        }
+        Ok(())
+    }
+
     /// The camera.
     pub fn camera(&self) -> Camera {
         use glam::Vec3;
@@ -493,6 +518,7 @@ pub fn parse_jsonl(text: &str, file: &str) -> Result<Vec<OracleRecord>, RecordEr
         .filter(|(_, l)| !l.trim().is_empty())
         .map(|(i, l)| {
             OracleRecord::from_json_line(l)
+                .and_then(|r| r.camera.as_ref().map_or(Ok(()), CameraRecord::check).map(|()| r))
                 .map_err(|reason| RecordError::Parse { place: format!("{file}:{}", i + 1), reason })
         })
         .collect()
