@@ -97,7 +97,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         ho.cluster_bits = b;
     }
     let file = &args.file;
-    let mesh = meshchar::mesh::load::load_mesh(file)?;
+    let mesh = cli::load_mesh_checked(file, cli::BUILD_BYTES_PER_TRIANGLE)?;
     let mut passes: Vec<(String, f64)> = Vec::new();
     let (tree, build_ms): (BvhTree, f64) = if backend == BuildBackend::Cpu {
         let t = Instant::now();

@@ -129,7 +129,7 @@ fn measure(args: &Args, device: Option<&DeviceOracle<'_>>, ray_query: bool) -> a
         }
     }
     for p in &paths {
-        scenes.push(meshchar::mesh::load_path(p)?);
+        scenes.push(cli::load_path_checked(p)?);
     }
     let mut out = Vec::new();
     let kinds = [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse];
@@ -164,7 +164,7 @@ fn fit_refit(dirs: &[PathBuf]) -> anyhow::Result<Option<RefitModel>> {
     let bar = Progress::new("refit", Some(dirs.len()), false);
     for (k, dir) in dirs.iter().enumerate() {
         bar.item(k, 1, &format!("loading {}", dir.display()));
-        let anim = meshchar::mesh::load_path(dir)?;
+        let anim = cli::load_path_checked(dir)?;
         if anim.frames.len() < 2 {
             continue;
         }

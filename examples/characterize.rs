@@ -301,7 +301,7 @@ fn run(args: Args) -> anyhow::Result<()> {
     let mut ok = true;
     for (i, path) in args.paths.iter().enumerate() {
         bar.item(i, 1, &path.display().to_string());
-        let result = meshchar::mesh::load_path(path).map_err(anyhow::Error::from).and_then(|scene| {
+        let result = cli::load_path_checked(path).and_then(|scene| {
             if scene.frames.is_empty() {
                 return Err(anyhow::anyhow!("no frames found")).with_context(|| path.display().to_string());
             }

@@ -749,7 +749,7 @@ fn scene(args: &Args) -> Result<Vec<SceneMesh>> {
     let (lo, hi) = bounds(&soup.positions);
     let diag = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f32>().sqrt();
     let mut turning = match &args.mesh {
-        Some(path) => meshchar::mesh::load_mesh(path)?,
+        Some(path) => cli::load_mesh_checked(path, cli::BYTES_PER_TRIANGLE)?,
         None => generate::subdivide(&meshchar::mesh::default_scene(), args.subdivide)?,
     };
     ensure!(turning.triangle_count() > 0, "{}: no triangles", turning.name);

@@ -261,7 +261,7 @@ fn rebuild() -> impl TypedValueParser<Value = Rebuild> {
 
 /// Loads a mesh file as a one-frame scene, or a directory of `.obj`/`.ply` frames (sorted by name) as an animation.
 fn load_scene(path: &Path) -> anyhow::Result<Animation> {
-    Ok(meshchar::mesh::load_path(path)?)
+    cli::load_path_checked(path)
 }
 
 /// A selection (the project's structure and the overall candidate, a driver structure's name when the policy chose

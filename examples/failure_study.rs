@@ -13,7 +13,6 @@ use cli::Progress;
 use meshchar::characterize::{Characterizer, Params};
 use meshchar::eval::failure_study::{self, Case, CaseStats};
 use meshchar::eval::{evaluate_scene, OracleConfig, Rebuild, SceneEvaluation};
-use meshchar::mesh::load_mesh;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -80,7 +79,7 @@ fn run(args: Args) -> anyhow::Result<()> {
     let params = Params::default();
     let mut cases = failure_study::generated_cases(a.large_n_max)?;
     if let Some(path) = &a.conference {
-        let mesh = load_mesh(path)?;
+        let mesh = cli::load_mesh_checked(path, cli::BYTES_PER_TRIANGLE)?;
         cases.push(Case::fixed("conference", "the conference room (real zero-area triangles)", mesh));
     }
     let backend = engine.backend().name();

@@ -11,7 +11,6 @@ use clap::Parser;
 use cli::args::{self, BackendArg, MortonBitsArg};
 use meshchar::characterize::{Characterizer, Params};
 use meshchar::eval::render::{class_colour, interior_camera, render_classes};
-use meshchar::mesh::load_path;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -48,7 +47,7 @@ struct Args {
 }
 
 fn run(a: Args) -> anyhow::Result<()> {
-    let anim = load_path(&a.input)?;
+    let anim = cli::load_path_checked(&a.input)?;
     let count = anim.frames.len();
     let mesh = anim
         .frames

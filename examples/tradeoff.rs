@@ -124,7 +124,7 @@ fn run(mut args: Args) -> anyhow::Result<()> {
     let bar = Progress::new("loading", Some(args.inputs.len()), false);
     for (i, p) in args.inputs.iter().enumerate() {
         bar.item(i, 1, &p.display().to_string());
-        scenes.push(meshchar::mesh::load_path(p)?);
+        scenes.push(cli::load_path_checked(p)?);
     }
     bar.finish();
 

@@ -1228,3 +1228,32 @@ fn a_full_standard_output_is_an_error_not_a_panic() {
         assert!(stderr.starts_with(&format!("{name}: cannot write to standard output: ")), "{name}: {stderr:?}");
     }
 }
+
+/// A scene that would need more memory than the process may have is refused with the figures, not aborted in an
+/// allocation: under an address-space limit of about 1.9 GiB (`ulimit -v`), 5 million triangles (2.4 GiB at
+/// `BYTES_PER_TRIANGLE`) are refused by `characterize`, 8 million (2.4 GiB at `BUILD_BYTES_PER_TRIANGLE`) by
+/// `build_bvh`, and 20,000 run.
+#[test]
+fn a_scene_past_the_memory_it_may_have_is_refused_with_the_figures() {
+    if !Path::new("/proc/self/limits").exists() || !Path::new("/bin/sh").exists() {
+        eprintln!("skipping: no /proc/self/limits or /bin/sh on this system");
+        return;
+    }
+    let limited = |name: &str, args: &str| {
+        let cmd = format!("ulimit -v 2000000 && exec '{}' {args}", binary(name).display());
+        Command::new("/bin/sh").args(["-c", &cmd]).stdin(Stdio::null()).output().expect("run under sh")
+    };
+    for (name, args) in
+        [("characterize", "family:city:5000000:1 --backend cpu"), ("build_bvh", "family:city:8000000:1 --builder sah")]
+    {
+        let out = limited(name, args);
+        let (_, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(1), "{name}: {stderr}");
+        assert!(!stderr.contains("panicked") && !stderr.contains("memory allocation"), "{name}: {stderr}");
+        let scene = args.split(' ').next().unwrap_or_default();
+        let n = scene.split(':').nth(2).unwrap_or_default();
+        assert!(stderr.starts_with(&format!("{name}: {scene}: {n} triangles need about ")), "{name}: {stderr:?}");
+    }
+    let out = limited("characterize", "family:city:20000:1 --backend cpu");
+    assert!(out.status.success(), "{}", text(&out).1);
+}
