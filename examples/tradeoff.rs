@@ -110,7 +110,23 @@ fn run(mut args: Args) -> anyhow::Result<()> {
     // Oracle results from files.
     let mut oracle: Vec<OracleRecord> = Vec::new();
     for f in &args.oracle {
-        oracle.extend(meshchar::eval::record::read_jsonl(f)?);
+        let records = meshchar::eval::record::read_jsonl(f)?;
+        // A record without a validly measured structure has no best to score a selection against.
+        let unscored = records.iter().filter(|r| r.best().is_none()).count();
+        anyhow::ensure!(
+            records.is_empty() || unscored < records.len(),
+            "{}: no record names a validly measured structure (each has only errors, invalid times or no \
+             structures)",
+            f.display()
+        );
+        if unscored > 0 {
+            eprintln!(
+                "tradeoff: {}: {unscored} of {} records name no validly measured structure; no regret is scored on them",
+                f.display(),
+                records.len()
+            );
+        }
+        oracle.extend(records);
     }
     if args.inputs.is_empty() {
         for o in &oracle {

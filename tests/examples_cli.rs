@@ -1257,3 +1257,32 @@ fn a_scene_past_the_memory_it_may_have_is_refused_with_the_figures() {
     let out = limited("characterize", "family:city:20000:1 --backend cpu");
     assert!(out.status.success(), "{}", text(&out).1);
 }
+
+/// `tradeoff --oracle FILE` refuses a file whose records name no validly measured structure (every structure
+/// invalid, or a negative total), as `evaluate` does, instead of scoring nothing and succeeding.
+#[test]
+fn tradeoff_refuses_oracle_records_without_a_valid_structure() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let lines = std::fs::read_to_string(root.join("docs/data/families-seed2-primary.jsonl")).expect("records");
+    let mut rec: serde_json::Value = serde_json::from_str(lines.lines().next().expect("a record")).expect("JSON");
+    let dir = std::env::temp_dir().join(format!("meshchar-examples-cli-tradeoff-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let structures = rec["structures"].as_array().expect("structures").len();
+    for (label, field, value) in
+        [("invalid", "valid", serde_json::json!(false)), ("negative", "total_ms", serde_json::json!(-1.0))]
+    {
+        for k in 0..structures {
+            rec["structures"][k][field] = value.clone();
+        }
+        let file = dir.join(format!("{label}.jsonl"));
+        std::fs::write(&file, format!("{rec}\n")).expect("write");
+        let out = run("tradeoff", &["--oracle", file.to_str().expect("path"), "--out", dir.to_str().expect("path")]);
+        let (_, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(1), "{label}: {stderr}");
+        assert!(stderr.contains("no record names a validly measured structure"), "{label}: {stderr}");
+        let mut restore: serde_json::Value =
+            serde_json::from_str(lines.lines().next().expect("a record")).expect("JSON");
+        std::mem::swap(&mut rec, &mut restore);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -227,9 +227,9 @@ fn known_structure<'de, D: Deserializer<'de>>(d: D) -> Result<Option<StructureNa
 }
 
 impl StructureRecord {
-    /// Built, validated, agreed with the reference hits, and has a finite total.
+    /// Built, validated, agreed with the reference hits, and has a finite total that is not negative (no time is).
     pub fn ok(&self) -> bool {
-        self.name.is_some() && self.valid && self.hits_agree && self.total_ms.is_finite()
+        self.name.is_some() && self.valid && self.hits_agree && self.total_ms.is_finite() && self.total_ms >= 0.0
     }
 
     /// The total as a [`Measurement`]: the median with a symmetric range of the recorded spread.
