@@ -72,8 +72,8 @@ struct Args {
     /// Image side of the measurements
     #[arg(long, value_name = "N", default_value_t = 128, value_parser = args::resolution(1, 4096))]
     resolution: u32,
-    /// Repeats per measurement
-    #[arg(long, value_name = "R", default_value_t = 1, value_parser = args::positive())]
+    /// Repeats per measurement (at most 10,000)
+    #[arg(long, value_name = "R", default_value_t = 1, value_parser = args::repeats())]
     repeats: usize,
     /// An animation (directory of frames) for the refit model (repeatable) [default: the BART animations under
     /// ../shared/meshes/bart when present]

@@ -76,17 +76,17 @@ struct Args {
     /// animation]
     #[arg(long, value_name = "F", value_parser = args::positive())]
     frames: Option<usize>,
-    /// Repeats of every measurement; medians are reported
-    #[arg(long, value_name = "R", default_value_t = 3, value_parser = args::positive())]
+    /// Repeats of every measurement (at most 10,000); medians are reported
+    #[arg(long, value_name = "R", default_value_t = 3, value_parser = args::repeats())]
     repeats: usize,
     /// The precise oracle: repeat every structure (at least --repeats times, in rounds of all of them) until the
     /// 95% confidence interval of each one's median total lies within this fraction of the median (0.02: +-2%), or
     /// --max-repeats rounds; "within noise" then means overlapping intervals [default: exactly --repeats repeats]
     #[arg(long, value_name = "FRACTION", value_parser = args::alpha)]
     precision: Option<f64>,
-    /// The most rounds under --precision (more with --precision-ms)
+    /// The most rounds under --precision (more with --precision-ms; at most 10,000)
     #[arg(long, value_name = "R", default_value_t = meshchar::eval::oracle::DEFAULT_MAX_REPEATS,
-          value_parser = args::positive())]
+          value_parser = args::repeats())]
     max_repeats: usize,
     /// Under --precision, go on past --max-repeats (up to 500 rounds) while a structure is short of the target and
     /// the builds and traces measured so far (one frame's) sum to under MS milliseconds: cheap records repeated

@@ -64,8 +64,8 @@ struct Args {
     /// Image side for a measured oracle
     #[arg(long, value_name = "N", default_value_t = 64, value_parser = args::resolution(1, 16384))]
     oracle_resolution: u32,
-    /// Repeats for a measured oracle
-    #[arg(long, value_name = "R", default_value_t = 3, value_parser = args::positive())]
+    /// Repeats for a measured oracle (at most 10,000)
+    #[arg(long, value_name = "R", default_value_t = 3, value_parser = args::repeats())]
     oracle_repeats: usize,
     /// Frames of an animation used by a measured oracle
     #[arg(long, value_name = "F", default_value_t = 3, value_parser = args::positive())]
@@ -83,8 +83,8 @@ struct Args {
     /// Comma-separated class rules: doane, sturges, sqrt and fixed counts [default: doane,sturges,sqrt,8,16,32,64]
     #[arg(long, value_name = "LIST", value_parser = args::list(args::class_rule))]
     rules: Option<List<ClassRule>>,
-    /// Timed repeats per setting and scene, median reported
-    #[arg(long, value_name = "R", default_value_t = 3, value_parser = args::positive())]
+    /// Timed repeats per setting and scene (at most 10,000), median reported
+    #[arg(long, value_name = "R", default_value_t = 3, value_parser = args::repeats())]
     repeats: usize,
 }
 

@@ -225,6 +225,15 @@ pub fn positive() -> impl TypedValueParser<Value = usize> {
     RangedU64ValueParser::<usize>::new().range(1..)
 }
 
+/// The most repeats (or rounds) a measuring tool takes: 10,000, far past any interval's need and short of a run
+/// that never ends.
+pub const MAX_REPEATS: u64 = 10_000;
+
+/// A count of repeats in `1..=`[`MAX_REPEATS`].
+pub fn repeats() -> impl TypedValueParser<Value = usize> {
+    positive_max(MAX_REPEATS)
+}
+
 /// A count in `1..=max`.
 pub fn positive_max(max: u64) -> impl TypedValueParser<Value = usize> {
     RangedU64ValueParser::<usize>::new().range(1..=max)
