@@ -58,7 +58,9 @@ fn run(a: Args) -> anyhow::Result<()> {
     let c = engine.characterize(mesh, &params)?;
     let per = c.per_triangle.as_ref().context("the backend returned no per-triangle classes")?;
     let camera = if a.inside {
-        Some(interior_camera(mesh).context("--inside: the mesh has no extent to stand in")?)
+        Some(interior_camera(mesh).context(
+            "--inside: no camera fits inside the mesh's bounds (empty, too thin, too large or too far out for f32)",
+        )?)
     } else {
         None
     };

@@ -172,7 +172,9 @@ fn draw_number(img: &mut ClassImage, x: u32, y: u32, n: u64) {
 
 /// A camera inside the bounds of `mesh` (for interiors such as an atrium): at the centre, moved back by 45% of the
 /// longest horizontal extent and down by 20% of the height, looking along that axis at the far wall, with a 70
-/// degree field of view and +y up.
+/// degree field of view and +y up. `None` for an empty mesh, and where that camera's f32 arithmetic fails: bounds
+/// too large (an extent past `f32::MAX`), too thin to look along, or so far from the origin for their size that the
+/// eye and the target round to one point.
 pub fn interior_camera(mesh: &Mesh) -> Option<Camera> {
     let b = mesh_bounds(mesh);
     if b.is_empty() {
