@@ -16,9 +16,10 @@ use std::process::ExitCode;
 
 /// Parses the command line with clap and runs. Exit codes: 0 after `--help` or a successful `run`; 2 with a message
 /// for a bad command line (clap's); 1 when `run` fails, with the error (and its causes, `: `-separated) prefixed by
-/// the command's name, unless it is [`Reported`]; 141, quietly, on a closed standard output.
+/// the command's name, unless it is [`Reported`]; 141, quietly, on a closed standard output; 1, with the error, on
+/// one that cannot be written.
 pub fn main_with<A: Parser>(run: impl FnOnce(A) -> anyhow::Result<()>) -> ExitCode {
-    exit_quietly_on_broken_pipe();
+    exit_on_output_errors(A::command().get_name().to_string());
     let args = A::parse();
     match run(args) {
         Ok(()) => ExitCode::SUCCESS,
@@ -66,8 +67,9 @@ pub fn usage_error<A: CommandFactory>(kind: clap::error::ErrorKind, msg: impl st
 
 /// Makes a closed standard output (`example | head`) end the program quietly with status 141, as a shell tool
 /// would, and any other failure to write it (a full disk, `> /dev/full`) end it with the error on standard error and
-/// status 1, instead of a panic message: Rust ignores SIGPIPE, and `println!` panics where it cannot write.
-pub fn exit_quietly_on_broken_pipe() {
+/// status 1, prefixed by `name` as [`main_with`] prefixes every error, instead of a panic message: Rust ignores
+/// SIGPIPE, and `println!` panics where it cannot write.
+pub fn exit_on_output_errors(name: String) {
     let default = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
         let msg = info
@@ -80,9 +82,7 @@ pub fn exit_quietly_on_broken_pipe() {
             std::process::exit(141);
         }
         if let Some(why) = msg.strip_prefix("failed printing to stdout: ") {
-            let program = std::env::args().next().unwrap_or_default();
-            let name = std::path::Path::new(&program).file_name().map(|n| n.to_string_lossy().into_owned());
-            eprintln!("{}: cannot write to standard output: {why}", name.unwrap_or_default());
+            eprintln!("{name}: cannot write to standard output: {why}");
             std::process::exit(1);
         }
         if msg.starts_with("failed printing to stderr: ") {

@@ -142,9 +142,3 @@ impl std::ops::Deref for GpuTest {
         &self.ctx
     }
 }
-
-impl std::ops::DerefMut for GpuTest {
-    fn deref_mut(&mut self) -> &mut Context {
-        &mut self.ctx
-    }
-}
