@@ -33,7 +33,7 @@ use meshchar::characterize::{features_cpu, Features, Params};
 use meshchar::cost::drift;
 use meshchar::cost::{CostModel, RefitModel, Sample};
 use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, DeviceRecord, TraceBackend};
-use meshchar::eval::record::{load_samples_with, tracer_of};
+use meshchar::eval::record::{load_samples_admitted, tracer_of, SampleProbes};
 use meshchar::eval::{OracleConfig, Rebuild};
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::{generate, Animation};
@@ -109,7 +109,8 @@ fn shared() -> PathBuf {
 
 fn samples_from_oracle(files: &[PathBuf], timed: bool) -> anyhow::Result<Vec<Sample>> {
     let bar = Progress::new("features", None, false);
-    let samples = load_samples_with(files, &Params::default(), timed, &|m| {
+    let probes = SampleProbes { timed, measured: false };
+    let samples = load_samples_admitted(files, &Params::default(), probes, &cli::admit_record_scene, &|m| {
         bar.step(m);
         bar.eprintln(&format!("calibrate: features of {m}"));
     })?;

@@ -35,7 +35,7 @@ use meshchar::eval::chart::BarChart;
 use meshchar::eval::compare::{compare, score, PolicyScore};
 use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, RefitCandidate, TraceBackend};
 use meshchar::eval::proxy::{agreement, proxied, Agreement, TestPrices};
-use meshchar::eval::record::{load_samples_probed, tracer_of, SampleProbes};
+use meshchar::eval::record::{load_samples_admitted, tracer_of, SampleProbes};
 use meshchar::eval::{OracleConfig, Rebuild, SceneEvaluation};
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::Animation;
@@ -655,9 +655,10 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
     // backend and one device.
     let tracer = tracer_of(&args.compare_policies)?;
     let probes = SampleProbes { timed: args.timed_probes, measured: args.measure_close_calls };
-    let samples = load_samples_probed(&args.compare_policies, &Params::default(), probes, &|m| {
-        bar.step(&format!("features of {m}"))
-    })?;
+    let samples =
+        load_samples_admitted(&args.compare_policies, &Params::default(), probes, &cli::admit_record_scene, &|m| {
+            bar.step(&format!("features of {m}"))
+        })?;
     bar.finish();
     let device = match tracer.as_ref().and_then(|t| t.device.as_ref()) {
         Some(d) => d.name.clone(),

@@ -1206,7 +1206,8 @@ fn close_calls_measured_in_the_report_and_the_comparison() {
 }
 
 /// An output that cannot be written (`> /dev/full`: no space left) ends a tool with the error on standard error and
-/// status 1, not a panic: `characterize` (text and JSON) and `build_bvh`, all through `support::cli::main_with`.
+/// status 1, not a panic: `characterize` (text and JSON) and `build_bvh`, all through `support::cli::main_with`; and
+/// `--help` / `-h`, which clap would print itself and report as written.
 #[test]
 fn a_full_standard_output_is_an_error_not_a_panic() {
     let full = Path::new("/dev/full");
@@ -1214,10 +1215,12 @@ fn a_full_standard_output_is_an_error_not_a_panic() {
         eprintln!("skipping: no /dev/full on this system");
         return;
     }
-    let cases: [(&str, &[&str]); 3] = [
+    let cases: [(&str, &[&str]); 5] = [
         ("characterize", &["family:city:200:1", "--backend", "cpu"]),
         ("characterize", &["family:city:200:1", "--backend", "cpu", "--json"]),
         ("build_bvh", &["family:city:200:1", "--builder", "sah"]),
+        ("evaluate", &["--help"]),
+        ("tradeoff", &["-h"]),
     ];
     for (name, args) in cases {
         let out = Command::new(binary(name))
@@ -1236,7 +1239,8 @@ fn a_full_standard_output_is_an_error_not_a_panic() {
 /// A scene that would need more memory than the process may have is refused with the figures, not aborted in an
 /// allocation: under an address-space limit of about 1.9 GiB (`ulimit -v`), 5 million triangles (2.4 GiB at
 /// `BYTES_PER_TRIANGLE`) are refused by `characterize`, 8 million (2.4 GiB at `BUILD_BYTES_PER_TRIANGLE`) by
-/// `build_bvh`, and 20,000 run.
+/// `build_bvh`, and 20,000 run; a record naming 5 million is refused by `evaluate --compare-policies` and `calibrate
+/// --from-oracle`.
 #[test]
 fn a_scene_past_the_memory_it_may_have_is_refused_with_the_figures() {
     if !Path::new("/proc/self/limits").exists() || !Path::new("/bin/sh").exists() {
@@ -1260,6 +1264,25 @@ fn a_scene_past_the_memory_it_may_have_is_refused_with_the_figures() {
     }
     let out = limited("characterize", "family:city:20000:1 --backend cpu");
     assert!(out.status.success(), "{}", text(&out).1);
+    // A scene named by an oracle record, not on the command line: `evaluate --compare-policies` and `calibrate
+    // --from-oracle` refuse it the same way, naming the file and the record's mesh.
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let lines = std::fs::read_to_string(root.join("docs/data/families-seed2-primary.jsonl")).expect("records");
+    let mut rec: serde_json::Value = serde_json::from_str(lines.lines().next().expect("a record")).expect("JSON");
+    rec["mesh"] = serde_json::json!("family:city:5000000:1");
+    let dir = std::env::temp_dir().join(format!("meshchar-examples-cli-memory-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let file = dir.join("huge.jsonl");
+    std::fs::write(&file, format!("{rec}\n")).expect("write");
+    for (name, flag) in [("evaluate", "--compare-policies"), ("calibrate", "--from-oracle")] {
+        let out = limited(name, &format!("{flag} '{}'", file.display()));
+        let (_, stderr) = text(&out);
+        assert_eq!(out.status.code(), Some(1), "{name}: {stderr}");
+        assert!(!stderr.contains("panicked") && !stderr.contains("memory allocation"), "{name}: {stderr}");
+        let want = format!("{}: family:city:5000000:1: 5000000 triangles need about ", file.display());
+        assert!(stderr.contains(&want), "{name}: {stderr:?}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `tradeoff --oracle FILE` refuses a file whose records name no validly measured structure (every structure

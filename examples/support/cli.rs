@@ -19,8 +19,26 @@ use std::process::ExitCode;
 /// the command's name, unless it is [`Reported`]; 141, quietly, on a closed standard output; 1, with the error, on
 /// one that cannot be written.
 pub fn main_with<A: Parser>(run: impl FnOnce(A) -> anyhow::Result<()>) -> ExitCode {
-    exit_on_output_errors(A::command().get_name().to_string());
-    let args = A::parse();
+    let name = A::command().get_name().to_string();
+    exit_on_output_errors(name.clone());
+    let args = match A::try_parse() {
+        Ok(args) => args,
+        // clap prints `--help` and `--version` to standard output itself and ignores a failed write: print them
+        // here, so that a help that cannot be written fails as any other output does.
+        Err(e) if matches!(e.kind(), clap::error::ErrorKind::DisplayHelp | clap::error::ErrorKind::DisplayVersion) => {
+            use std::io::Write;
+            let written = e.print().and_then(|()| std::io::stdout().flush());
+            return match written {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(w) if w.kind() == std::io::ErrorKind::BrokenPipe => ExitCode::from(141),
+                Err(w) => {
+                    eprintln!("{name}: cannot write to standard output: {w}");
+                    ExitCode::FAILURE
+                }
+            };
+        }
+        Err(e) => e.exit(),
+    };
     match run(args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) if e.is::<Reported>() => ExitCode::FAILURE,
@@ -108,16 +126,30 @@ pub const BUILD_BYTES_PER_TRIANGLE: u64 = 320;
 /// and, when set, the address-space limit (`ulimit -v`) less what the process maps already; nothing is refused
 /// where neither can be read.
 pub fn check_memory(what: &str, triangles: usize, bytes_per_triangle: u64) -> anyhow::Result<()> {
+    match memory_refusal(triangles, bytes_per_triangle) {
+        Some(why) => anyhow::bail!("{what}: {why}"),
+        None => Ok(()),
+    }
+}
+
+/// Why [`check_memory`] refuses `triangles` triangles at `bytes_per_triangle` (the figures), or `None`.
+fn memory_refusal(triangles: usize, bytes_per_triangle: u64) -> Option<String> {
     let need = (triangles as u64).saturating_mul(bytes_per_triangle);
     match available_memory() {
-        Some(have) if need > have => anyhow::bail!(
-            "{what}: {triangles} triangles need about {:.2} GiB of memory here ({bytes_per_triangle} bytes each), \
+        Some(have) if need > have => Some(format!(
+            "{triangles} triangles need about {:.2} GiB of memory here ({bytes_per_triangle} bytes each), \
              and this process can have {:.2} GiB",
             need as f64 / GIB,
             have as f64 / GIB
-        ),
-        _ => Ok(()),
+        )),
+        _ => None,
     }
+}
+
+/// [`check_memory`] at [`BYTES_PER_TRIANGLE`] for a scene an oracle record names, as
+/// [`meshchar::eval::record::load_samples_admitted`] asks (the error names the file and the mesh itself).
+pub fn admit_record_scene(_mesh: &str, triangles: usize) -> Result<(), String> {
+    memory_refusal(triangles, BYTES_PER_TRIANGLE).map_or(Ok(()), Err)
 }
 
 const GIB: f64 = (1u64 << 30) as f64;

@@ -634,6 +634,21 @@ pub fn load_samples_probed(
     probes: SampleProbes,
     progress: &dyn Fn(&str),
 ) -> Result<Vec<Sample>, RecordError> {
+    load_samples_admitted(files, params, probes, &|_, _| Ok(()), progress)
+}
+
+/// [`load_samples_probed`], with every scene passed to `admit` (its recorded path and its first frame's triangle
+/// count) as soon as it is loaded and before any work on it: an `Err(reason)` fails the load with
+/// [`RecordError::Scene`] naming the file, the record's mesh and the reason. A tool uses it to refuse a record
+/// whose scene would need more memory than the process may have ([`Sample`]s keep every scene loaded until the
+/// last record), as it refuses a scene given on its command line.
+pub fn load_samples_admitted(
+    files: &[PathBuf],
+    params: &Params,
+    probes: SampleProbes,
+    admit: &dyn Fn(&str, usize) -> Result<(), String>,
+    progress: &dyn Fn(&str),
+) -> Result<Vec<Sample>, RecordError> {
     let timed = probes.timed;
     let probes_measured = probes.measured;
     // Per scene: the features of its frames, as far as computed, and the first frame's crossings per camera met
@@ -651,6 +666,7 @@ pub fn load_samples_probed(
                 progress(&rec.mesh);
                 let scene = crate::mesh::load_path(Path::new(&rec.mesh)).map_err(|e| scene_err(e.to_string()))?;
                 let first = scene.frames.first().ok_or_else(|| scene_err("the scene has no frames".into()))?;
+                admit(&rec.mesh, first.triangle_count()).map_err(scene_err)?;
                 let f = features_cpu(first, params).map_err(|e| scene_err(format!("features: {e}")))?;
                 let grid_work = match &scene.frames[..] {
                     [only] => crate::select::BuildBounds::of_mesh_with(only, &Default::default())
