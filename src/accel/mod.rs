@@ -308,7 +308,7 @@ pub trait AccelStructure: Send + Sync {
     /// `cost::probe`): the hierarchies the policy probes walk their nodes, the grid counts its references; the
     /// default validates. `None` for an empty structure.
     fn build_work(&self) -> Option<f64> {
-        self.validate().ok().and_then(|s| s.build_work())
+        self.validate().ok().and_then(|s| s.build_work(self.name()))
     }
     /// Memory of the structure in bytes (same as `validate().bytes`, without the walk).
     fn memory_bytes(&self) -> usize;
@@ -406,13 +406,36 @@ pub(crate) fn renumber_by_first_use(
 }
 
 impl AccelStats {
-    /// The work of the structure's build: its [`AccelStats::reference_levels`] (for the grid, its references), which
-    /// the cost model's build law reads where a probe built the structure (`cost::StructureModel::build_work_coef`).
-    /// The nodes are left out: a grid's cells (about four per triangle in every grid here) cost a prefix sum, far
-    /// less than its references, and would drown them (`docs/cost-model.md`, "Eighth session"). `None` for
-    /// statistics without reference levels (records written before they were counted) and for an empty structure.
-    pub fn build_work(&self) -> Option<f64> {
-        (self.reference_levels > 0).then_some(self.reference_levels as f64)
+    /// The work of the build of `structure` (the structure these statistics are of): its
+    /// [`AccelStats::reference_levels`] (for the grid, its references) plus [`node_build_work`] per node, which the
+    /// cost model's build law reads where a probe built the structure (`cost::StructureModel::build_work_coef`).
+    /// Only the SAH BVH's nodes count ([`BVH_NODE_WORK`]); a grid's cells (about four per triangle in every grid
+    /// here) cost a prefix sum, far less than its references, and would drown them (`docs/cost-model.md`, "Eighth
+    /// session"). `None` for statistics without reference levels (records written before they were counted) and for
+    /// an empty structure.
+    pub fn build_work(&self, structure: StructureName) -> Option<f64> {
+        (self.reference_levels > 0)
+            .then_some(self.reference_levels as f64 + node_build_work(structure) * self.nodes as f64)
+    }
+}
+
+/// What a node of the binned-SAH BVH costs its build, in [`AccelStats::reference_levels`]: every node sweeps its
+/// bins and is written, whatever its references, so a tree of one-triangle leaves (a particle soup, vegetation:
+/// two nodes per triangle) takes longer than one of the same reference levels with fewer, fuller leaves
+/// (engineering models: 0.6 nodes per triangle). Chosen on the first set of family records
+/// (`docs/data/families-rounds-*.jsonl`, the BVH's median build per scene, the build law's RMS error of `ln` ms
+/// 0.115 -> 0.077 at 3 over 0 to 240) and checked on the second (`families-seed2-*`, fitted on the first: 0.196 ->
+/// 0.146); neutral on the shared meshes (0.84-1.15 nodes per triangle; leave-one-scene-out 0.089 -> 0.091).
+/// `docs/cost-model.md`, "Sixteenth session".
+pub const BVH_NODE_WORK: f64 = 3.0;
+
+/// The build work a node of `structure` adds to its [`AccelStats::build_work`]: [`BVH_NODE_WORK`] for the SAH BVH,
+/// 0 for every other structure (the LBVH's and the HLBVH's nodes come from the sorted keys at a cost their
+/// references already carry; the BIH's and the kd-tree's showed no gain, and the grid's cells are left out).
+pub fn node_build_work(structure: StructureName) -> f64 {
+    match structure {
+        StructureName::Bvh => BVH_NODE_WORK,
+        _ => 0.0,
     }
 }
 

@@ -461,7 +461,7 @@ impl OracleRecord {
                     prim_tests_per_ray: finite(s.prim_tests_per_ray),
                     within_noise_of_best: s.within_noise_of_best,
                     total_ms_ci95: s.total_ms_ci95,
-                    build_work: s.stats.and_then(|st| st.build_work()).unwrap_or(0.0),
+                    build_work: s.stats.and_then(|st| st.build_work(name)).unwrap_or(0.0),
                 })
             })
             .collect();

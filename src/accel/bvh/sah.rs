@@ -807,7 +807,8 @@ impl AccelStructure for Bvh {
     }
     traversal_methods!(tree);
     fn build_work(&self) -> Option<f64> {
-        self.tree.build_work()
+        let nodes = self.tree.nodes.len() as f64;
+        self.tree.build_work().map(|levels| levels + crate::accel::node_build_work(StructureName::Bvh) * nodes)
     }
     fn validate(&self) -> Result<AccelStats, AccelError> {
         self.tree.validate("bvh")
