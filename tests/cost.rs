@@ -186,6 +186,29 @@ fn known_samples_with_rays(count: u64, rays: impl Fn(u64) -> u64) -> (Vec<Sample
     (samples, truth)
 }
 
+/// A model fitted on samples all traced on a device is a device model (its backend, a device named by the fit's
+/// `device`), which keeps a law within one RMS of a probe's sample; one fitted on CPU samples holds every probed
+/// count to its sample (`CostModel::own_probe_band`).
+#[test]
+fn a_fit_on_device_samples_is_a_device_model_and_keeps_the_probe_band() {
+    use meshchar::accel::device::TraceBackend;
+    let (samples, _) = known_samples(40);
+    let cpu = CostModel::fit(&samples, "test", "synthetic").unwrap();
+    assert_eq!((cpu.trace_backend, cpu.trace_device.as_ref()), (TraceBackend::Cpu, None));
+    assert_eq!(cpu.own_probe_band(), meshchar::cost::OWN_PROBE_BAND_CPU);
+    let on_device: Vec<Sample> =
+        samples.iter().map(|s| Sample { trace_backend: TraceBackend::Vulkan, ..s.clone() }).collect();
+    let dev = CostModel::fit(&on_device, "a device", "synthetic").unwrap();
+    assert_eq!(dev.trace_backend, TraceBackend::Vulkan);
+    assert_eq!(dev.trace_device.as_ref().map(|d| d.name.as_str()), Some("a device"));
+    assert_eq!(dev.own_probe_band(), meshchar::cost::PROBE_BAND);
+    dev.validate().expect("a device model a file can hold");
+    // One CPU sample among them keeps the model a CPU one.
+    let mut mixed = on_device.clone();
+    mixed[0].trace_backend = TraceBackend::Cpu;
+    assert_eq!(CostModel::fit(&mixed, "a device", "synthetic").unwrap().trace_backend, TraceBackend::Cpu);
+}
+
 #[test]
 fn the_fitter_recovers_known_constants() {
     let (samples, truth) = known_samples(40);

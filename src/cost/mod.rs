@@ -160,6 +160,17 @@ pub use probe::{probe, Probe, ProbeCounts, PROBED};
 /// sets (`docs/cost-model.md`, "Probes").
 pub const PROBE_BAND: f64 = 1.0;
 
+/// The band ([`PROBE_BAND`]'s unit) within which a model traced on the CPU keeps a probed structure's own law
+/// ([`CostModel::own_probe_band`]): 0, every probed count is held to its sample. On the CPU tracer the probe traces
+/// the very tree the frame would trace, with a sample of the frame's rays, so its mean is that structure's count up
+/// to the sample's error, and a law that differs from it has nothing to add. The probed structures' shared
+/// correction of the unprobed kd-tree still reads its counts held at [`PROBE_BAND`] (a correction from counts held
+/// everywhere picked the kd-tree for sliver-rich scenes over many frames at up to 11x the grid, seventh session). A
+/// device calibration keeps [`PROBE_BAND`]: there the probe's CPU tree stands in for the device's own build (held
+/// at 0 its LBVH and BVH counts cost the H200 family records' primary rays 3.9% -> 19.6%, worst 313%). Measured in
+/// `docs/cost-model.md`, "Sixteenth session".
+pub const OWN_PROBE_BAND_CPU: f64 = 0.0;
+
 /// The hierarchy that is not probed but takes the probed hierarchies' correction of its counts
 /// ([`CostModel::predict_floored`]): the kd-tree, whose laws' errors on the scene families follow the LBVH's
 /// (residual correlation 0.83). The HLBVH shared it too until it was probed (eighth session, [`PROBED`]). The
@@ -638,14 +649,17 @@ impl StructureModel {
     /// [`StructureModel::predict`] with the box and triangle tests per ray bounded by `floor` (bounds the caller
     /// knows from the scene, such as the selection's overlap floor, [`overlap_floor`]: at least its lower bounds, at
     /// most its upper ones, and the share of rays that leave the scene at once counted at one box test and no
-    /// triangle test); the trace time follows from the bounded counts.
+    /// triangle test); the trace time follows from the bounded counts. A law within [`PROBE_BAND`] of a sampled
+    /// count ([`TestFloor::sampled`]) stands; [`CostModel::predict_floored`] applies the calibration's own band
+    /// ([`CostModel::own_probe_band`]).
     pub fn predict_floored(&self, d: &Derived, n: u64, w: &Workload, floor: TestFloor) -> Prediction {
-        self.predict_corrected(d, n, w, floor, [1.0, 1.0])
+        self.predict_corrected(d, n, w, floor, [1.0, 1.0], PROBE_BAND)
     }
 
     /// [`StructureModel::predict_floored`] with the laws' box and triangle tests per ray multiplied by
     /// `correction` before the floor bounds them (the probed structures' shared correction,
-    /// [`CostModel::predict_floored`]).
+    /// [`CostModel::predict_floored`]), and a law kept where it lies within `band` of its sample (in the fit's RMS
+    /// errors, as [`PROBE_BAND`]).
     fn predict_corrected(
         &self,
         d: &Derived,
@@ -653,6 +667,7 @@ impl StructureModel {
         w: &Workload,
         floor: TestFloor,
         correction: [f64; 2],
+        band: f64,
     ) -> Prediction {
         let mut x = phi(d, w.kind);
         if self.feature_range.len() == x.len() {
@@ -687,10 +702,10 @@ impl StructureModel {
         let (mut bx, mut pr) = (leave + (1.0 - leave) * bx, (1.0 - leave) * pr);
         if let Some(p) = floor.sampled {
             // The structure's own counts on a sample of the rays: where the law's count lies outside its own error
-            // band about the sampled mean (`PROBE_BAND` times its fit's RMS error of `ln(1 + count)`), the law has
+            // band about the sampled mean (`band` times its fit's RMS error of `ln(1 + count)`), the law has
             // missed this scene, and the count is held within two standard errors of that mean instead.
             let held = |law: f64, m: overlap::SampledMean, rms: f64| {
-                let within = count_error(law, m.mean).abs() <= PROBE_BAND * rms.max(0.0);
+                let within = count_error(law, m.mean).abs() <= band * rms.max(0.0);
                 if within {
                     law
                 } else {
@@ -1003,16 +1018,31 @@ impl CostModel {
             *w
         };
         let n = f.total_triangles.max(f.triangles);
-        let mut preds: Vec<Prediction> =
-            self.structures.iter().map(|m| m.predict_floored(&d, n, &w, floor(m.structure))).collect();
+        let band = self.own_probe_band();
+        let mut preds: Vec<Prediction> = self
+            .structures
+            .iter()
+            .map(|m| m.predict_corrected(&d, n, &w, floor(m.structure), [1.0, 1.0], band))
+            .collect();
         self.share_probed_corrections(&d, n, &w, floor, &mut preds);
         preds
     }
 
+    /// The band within which a probed structure keeps its own law instead of its sample's count
+    /// ([`StructureModel::predict_floored`]): [`OWN_PROBE_BAND_CPU`] for a calibration traced on the CPU, where the
+    /// probe traces the frame's own tree; [`PROBE_BAND`] for a device calibration.
+    pub fn own_probe_band(&self) -> f64 {
+        match self.trace_backend {
+            TraceBackend::Cpu => OWN_PROBE_BAND_CPU,
+            TraceBackend::Vulkan => PROBE_BAND,
+        }
+    }
+
     /// Where probed structures' counts were held to their samples ([`TestFloor::sampled`]), the unprobed structures
     /// of [`SHARES_PROBES`] take the same correction: their laws' box and triangle tests per ray times the geometric
-    /// mean, over the probed structures, of the held count over the law's (1 where a law lies within its band),
-    /// then their own floors as before. The
+    /// mean, over the probed structures, of the count held at [`PROBE_BAND`] over the law's (1 where a law lies
+    /// within that band, whatever [`CostModel::own_probe_band`] held the structure's own count to), then their own
+    /// floors as before. The
     /// laws' errors are shared across the hierarchies (see the module docs, Probes), so a count held for some
     /// alone would set them against others that keep the same error. `preds` are the predictions of
     /// [`CostModel::structures`], in that order.
@@ -1033,12 +1063,13 @@ impl CostModel {
                 acc.1 += 1;
             }
         };
-        for (m, p) in self.structures.iter().zip(preds.iter()) {
+        for m in &self.structures {
             let f = floor(m.structure);
             if f.sampled.is_some() && m.structure != StructureName::Grid {
                 let law = m.predict_floored(d, n, w, TestFloor { sampled: None, ..f });
-                add(&mut boxes, p.box_tests_per_ray, law.box_tests_per_ray);
-                add(&mut prims, p.prim_tests_per_ray, law.prim_tests_per_ray);
+                let held = m.predict_corrected(d, n, w, f, [1.0, 1.0], PROBE_BAND);
+                add(&mut boxes, held.box_tests_per_ray, law.box_tests_per_ray);
+                add(&mut prims, held.prim_tests_per_ray, law.prim_tests_per_ray);
             }
         }
         let mean = |(sum, k): (f64, u32)| if k > 0 { (sum / f64::from(k)).exp() } else { 1.0 };
@@ -1050,7 +1081,7 @@ impl CostModel {
             let f = floor(m.structure);
             if SHARES_PROBES.contains(&m.structure) && f.sampled.is_none() {
                 // The law corrected, then bounded by the structure's own floor as before.
-                *p = m.predict_corrected(d, n, w, f, [gb, gp]);
+                *p = m.predict_corrected(d, n, w, f, [gb, gp], PROBE_BAND);
             }
         }
     }
@@ -1164,6 +1195,17 @@ impl CostModel {
         let mut scenes: Vec<String> = samples.iter().map(|s| s.scene.clone()).collect();
         scenes.sort();
         scenes.dedup();
+        // Samples all traced on a device make a device calibration (`calibrate` then names the device in full).
+        let on_device = !samples.is_empty() && samples.iter().all(|s| s.trace_backend == TraceBackend::Vulkan);
+        let (trace_backend, trace_device) = if on_device {
+            let name = if device.is_empty() { "unnamed device" } else { device };
+            (
+                TraceBackend::Vulkan,
+                Some(crate::accel::device::DeviceRecord { name: name.to_string(), ..Default::default() }),
+            )
+        } else {
+            (TraceBackend::Cpu, None)
+        };
         let mut m = CostModel {
             version: COST_MODEL_VERSION,
             device: device.to_string(),
@@ -1174,8 +1216,8 @@ impl CostModel {
             structures,
             total_rms_log: 0.0,
             refit: None,
-            trace_backend: TraceBackend::Cpu,
-            trace_device: None,
+            trace_backend,
+            trace_device,
             driver: Vec::new(),
             timed: timed::TimedRatios::fit(samples),
             chosen_as: None,

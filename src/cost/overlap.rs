@@ -1199,8 +1199,9 @@ pub struct TestFloor {
     pub crossings: f64,
     /// The structure's own tests per ray of the workload counted on a sample of its rays ([`super::probe()`]): where
     /// a law's count (with the bounds above) lies outside its own error band about the sampled mean
-    /// ([`super::PROBE_BAND`] times the fit's RMS error of `ln(1 + count)`), the prediction holds it within two standard
-    /// errors of that mean instead ([`crate::cost::StructureModel::predict_floored`]).
+    /// ([`super::CostModel::own_probe_band`] times the fit's RMS error of `ln(1 + count)`: none for a calibration
+    /// traced on the CPU), the prediction holds it within two standard errors of that mean instead
+    /// ([`crate::cost::StructureModel::predict_floored`]).
     pub sampled: Option<super::ProbeCounts>,
     /// The work of the structure's build where a probe built it ([`RayCrossings::build_work`]; 0 when unknown):
     /// a model with a work law predicts the build from it ([`crate::cost::StructureModel::build_work_coef`]).

@@ -21,8 +21,10 @@
 //!
 //! How the policy uses them ([`super::overlap_floor`], [`super::TestFloor::sampled`],
 //! [`super::StructureModel::predict_floored`]): for each kind of ray, where a structure's law misses its sampled
-//! mean by more than its own error band ([`super::PROBE_BAND`] times the fit's RMS error either way, both read on
-//! `ln(1 + count)`), the count is held within two standard errors of that mean; within the band the law stands. The
+//! mean by more than its own error band (for a calibration traced on the CPU none, [`super::OWN_PROBE_BAND_CPU`]:
+//! the probe traced the frame's own tree; for a device calibration [`super::PROBE_BAND`] times the fit's RMS error
+//! either way, both read on `ln(1 + count)`), the count is held within two standard errors of that mean; within the
+//! band the law stands. The
 //! hierarchy that is not probed (the kd-tree) takes the probed hierarchies' correction
 //! ([`super::SHARES_PROBES`], [`super::CostModel::predict_floored`]): exact counts for some structures beside others
 //! whose laws miss in the same direction made the choices worse on the family records (`docs/cost-model.md`,

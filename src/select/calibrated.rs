@@ -385,10 +385,14 @@ impl Policy for CalibratedPolicy {
                 .collect();
             if let Some(rays) = crate::cost::PROBED.iter().find_map(|&s| c.probe(s)).map(|p| p.box_tests.rays) {
                 let sharing: Vec<String> = crate::cost::SHARES_PROBES.iter().map(|s| s.to_string()).collect();
+                let held = if self.model.own_probe_band() == 0.0 {
+                    "each structure's counts below are held there"
+                } else {
+                    "each structure's counts below are held there where its laws miss by more than their own error"
+                };
                 reasons.push(format!(
-                    "probes: built and traced on {rays} sample {} rays of the view: {} (two standard errors; each \
-                     structure's counts below are held there where its laws miss by more than their own error, and \
-                     where a hierarchy's are held the {} {} the probed hierarchies' correction; the grid's box \
+                    "probes: built and traced on {rays} sample {} rays of the view: {} (two standard errors; {held}, \
+                     and where a hierarchy's are held the {} {} the probed hierarchies' correction; the grid's box \
                      tests are cells)",
                     self.kind.as_str(),
                     probed.join(", "),
