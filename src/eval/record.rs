@@ -589,20 +589,7 @@ pub fn read_jsonl(path: &Path) -> Result<Vec<OracleRecord>, RecordError> {
 /// ([`Sample::frame_features`], against which an updated structure's drift is measured). `progress` receives the
 /// name of each scene loaded.
 pub fn load_samples(files: &[PathBuf], params: &Params, progress: &dyn Fn(&str)) -> Result<Vec<Sample>, RecordError> {
-    load_samples_with(files, params, false, progress)
-}
-
-/// [`load_samples`], and with `timed`, the timed probes of every static scene's camera
-/// ([`crate::cost::timed::time_probes`] of every structure this build has, every kind of ray; taken once per scene
-/// and camera, on this machine, now) in [`Sample::timed`]: what the timed policy's ratios are fitted on
-/// ([`crate::cost::timed::TimedRatios::fit`]) and what it blends in. Records of animations get none.
-pub fn load_samples_with(
-    files: &[PathBuf],
-    params: &Params,
-    timed: bool,
-    progress: &dyn Fn(&str),
-) -> Result<Vec<Sample>, RecordError> {
-    load_samples_probed(files, params, SampleProbes { timed, measured: false }, progress)
+    load_samples_admitted(files, params, SampleProbes::default(), &|_, _| Ok(()), progress)
 }
 
 /// The camera a record was traced from: its own, or the framing camera of the mesh (what the oracle and the policy
@@ -614,10 +601,13 @@ fn record_camera(camera: Option<crate::geom::Camera>, mesh: &crate::mesh::Mesh) 
     })
 }
 
-/// What [`load_samples_probed`] measures anew on this machine, beside the records.
+/// What [`load_samples_admitted`] measures anew on this machine, beside the records.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SampleProbes {
-    /// The timed probes of every static scene's camera ([`load_samples_with`]).
+    /// The timed probes of every static scene's camera ([`crate::cost::timed::time_probes`] of every structure this
+    /// build has, every kind of ray; taken once per scene and camera, on this machine, now) in [`Sample::timed`]:
+    /// what the timed policy's ratios are fitted on ([`crate::cost::timed::TimedRatios::fit`]) and what it blends
+    /// in. Records of animations get none.
     pub timed: bool,
     /// Whole frames of every static record's workload at its resolution, through every structure this build has
     /// ([`crate::cost::measured::measure_frames`], [`crate::cost::measured::MEASURED_REPEATS`] times each after
@@ -627,18 +617,8 @@ pub struct SampleProbes {
     pub measured: bool,
 }
 
-/// [`load_samples`] with the probes of `probes` taken.
-pub fn load_samples_probed(
-    files: &[PathBuf],
-    params: &Params,
-    probes: SampleProbes,
-    progress: &dyn Fn(&str),
-) -> Result<Vec<Sample>, RecordError> {
-    load_samples_admitted(files, params, probes, &|_, _| Ok(()), progress)
-}
-
-/// [`load_samples_probed`], with every scene passed to `admit` (its recorded path and its first frame's triangle
-/// count) as soon as it is loaded and before any work on it: an `Err(reason)` fails the load with
+/// [`load_samples`] with the probes of `probes` taken, and every scene passed to `admit` (its recorded path and its
+/// first frame's triangle count) as soon as it is loaded and before any work on it: an `Err(reason)` fails the load with
 /// [`RecordError::Scene`] naming the file, the record's mesh and the reason. A tool uses it to refuse a record
 /// whose scene would need more memory than the process may have ([`Sample`]s keep every scene loaded until the
 /// last record), as it refuses a scene given on its command line.
