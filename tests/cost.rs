@@ -7,9 +7,10 @@ use meshchar::accel::{AccelStructure, StructureName};
 use meshchar::characterize::features::{exponent, SIZE_BINS};
 use meshchar::characterize::{cpu, features_cpu, Features, Params};
 use meshchar::cost::{
-    phi, price_row, CostModel, Prediction, StructureModel, Workload, COST_MODEL_VERSION, FEATURE_NAMES, PRICE_NAMES,
+    phi, price_outside_ln_n, price_row, CostModel, Prediction, StructureModel, Workload, COST_MODEL_VERSION,
+    FEATURE_NAMES, PRICE_NAMES,
 };
-use meshchar::cost::{Measured, Sample};
+use meshchar::cost::{Measured, Sample, ViewFeatures};
 use meshchar::eval::compare::compare;
 use meshchar::eval::OracleRecord;
 use meshchar::geom::WorkloadKind;
@@ -131,9 +132,20 @@ fn known_samples(count: u64) -> (Vec<Sample>, Vec<Truth>) {
 
 /// [`known_samples`] with `rays(i)` rays per frame in sample `i`.
 fn known_samples_with_rays(count: u64, rays: impl Fn(u64) -> u64) -> (Vec<Sample>, Vec<Truth>) {
+    known_samples_viewed(count, rays, |_| None, [0.0, 0.0])
+}
+
+/// [`known_samples_with_rays`] seen from `view(i)` in sample `i`, the BVH's and the grid's
+/// `test_outside_log_n` prices `outside`.
+fn known_samples_viewed(
+    count: u64,
+    rays: impl Fn(u64) -> u64,
+    view: impl Fn(u64) -> Option<ViewFeatures>,
+    outside: [f64; 2],
+) -> (Vec<Sample>, Vec<Truth>) {
     let truth: Vec<Truth> = vec![
-        (StructureName::Bvh, -7.0, 1.05, vec![2.0, 1.0, 0.5, 0.0, 6.0, 0.0, 3.0, 0.0]),
-        (StructureName::Grid, -8.0, 0.9, vec![1.0, 20.0, 4.0, 9.0, 12.0, 1.0, 5.0, 0.7]),
+        (StructureName::Bvh, -7.0, 1.05, vec![2.0, 1.0, 0.5, 0.0, 6.0, 0.0, 3.0, 0.0, 0.8, outside[0]]),
+        (StructureName::Grid, -8.0, 0.9, vec![1.0, 20.0, 4.0, 9.0, 12.0, 1.0, 5.0, 0.7, 0.3, outside[1]]),
     ];
     let kinds = [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse];
     let mut samples = Vec::new();
@@ -142,7 +154,7 @@ fn known_samples_with_rays(count: u64, rays: impl Fn(u64) -> u64) -> (Vec<Sample
         let kind = kinds[(i % 3) as usize];
         let x = phi(&f.derived(), kind);
         let n = f.triangles as f64;
-        let workload = Workload { kind, rays_per_frame: rays(i), frames: 1, builds: 1, view: None };
+        let workload = Workload { kind, rays_per_frame: rays(i), frames: 1, builds: 1, view: view(i) };
         let measured = truth
             .iter()
             .enumerate()
@@ -150,7 +162,8 @@ fn known_samples_with_rays(count: u64, rays: impl Fn(u64) -> u64) -> (Vec<Sample
                 let bx = (1.0 + 0.2 * si as f64 + 0.1 * x[3] - 0.05 * x[4]).exp();
                 let pr = (0.5 - 0.3 * si as f64 + 0.2 * x[7] * 0.1).exp();
                 let build = (a + b * n.ln()).exp();
-                let ns: f64 = price.iter().zip(price_row(kind, bx, pr)).map(|(p, r)| p * r).sum();
+                let row = price_row(kind, bx, pr, price_outside_ln_n(&workload, f.triangles));
+                let ns: f64 = price.iter().zip(row).map(|(p, r)| p * r).sum();
                 let trace = ns * 1e-6 * workload.rays_per_frame as f64;
                 Measured {
                     structure: *s,
@@ -226,6 +239,37 @@ fn the_fitter_recovers_known_constants() {
         assert!(sm.fit.box_tests < 0.05 && sm.fit.prim_tests < 0.05, "{s}: {:?}", sm.fit);
         assert!(sm.fit.total < 0.05, "{s}: {:?}", sm.fit);
     }
+}
+
+/// The view's price (`test_outside_log_n`) is fitted where the samples hold eyes both inside and outside the
+/// bounds, and held at 0 where every eye is outside: there it could only stand for `ln n`, and would vanish from
+/// every prediction for an eye inside.
+#[test]
+fn an_eye_outside_is_priced_only_where_the_samples_hold_both() {
+    let inside = ViewFeatures { eye_inside: true, coverage: 1.0, distance: 0.5 };
+    let outside = ViewFeatures { eye_inside: false, coverage: 0.4, distance: 3.0 };
+    let view = |i: u64| Some(if (i / 3) % 2 == 0 { outside } else { inside });
+    let (samples, truth) = known_samples_viewed(60, |i| 10_000 + 1000 * i, view, [0.05, 0.3]);
+    let m = CostModel::fit(&samples, "test", "synthetic").unwrap();
+    for (s, _, _, price) in &truth {
+        let got = &m.get(*s).unwrap().trace_price;
+        for (g, want) in got.iter().zip(price) {
+            assert!((g - want).abs() < 1e-6 * want.max(1.0), "{s}: {got:?} vs {price:?}");
+        }
+        assert!(got[PRICE_NAMES.len() - 1] > 0.0, "{s}: {got:?}");
+    }
+    // The same records with every eye outside: the price is held at 0, and the trace time per ray it stood for
+    // falls to the others.
+    let (samples, _) = known_samples_viewed(60, |i| 10_000 + 1000 * i, |_| Some(outside), [0.05, 0.3]);
+    let m = CostModel::fit(&samples, "test", "synthetic").unwrap();
+    for sm in &m.structures {
+        assert_eq!(sm.trace_price[PRICE_NAMES.len() - 1], 0.0, "{}: {:?}", sm.structure, sm.trace_price);
+    }
+    // An eye inside is not priced by it; no view is priced as the framing camera's, whose eye is outside.
+    let w = Workload { kind: WorkloadKind::Primary, rays_per_frame: 1, frames: 1, builds: 1, view: Some(inside) };
+    assert_eq!(price_outside_ln_n(&w, 1000), 0.0);
+    assert_eq!(price_outside_ln_n(&Workload { view: None, ..w }, 1000), 1000f64.ln());
+    assert_eq!(price_outside_ln_n(&Workload { view: Some(outside), ..w }, 1000), 1000f64.ln());
 }
 
 /// [`known_samples`] whose builds follow the work law `exp(a) n^b (work / n)^c` for each structure's `c` (the

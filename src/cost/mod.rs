@@ -41,7 +41,12 @@
 //! incoherent ray's tests higher the more of them it makes: its neighbours share the top of a tree but not the
 //! deep, scattered nodes and triangles a long traversal reaches (a BVH's diffuse rays in the sliver-filled
 //! engineering models pay 5.2 ns per test at 1,080 tests per ray, 3.1 ns at 430, against 2.2 to 2.5 ns for primary
-//! rays).
+//! rays). Two more prices per test follow the rays and the view (seventeenth session): `test_diffuse`, the extra of
+//! a diffuse ray's test over a shadow ray's (a closest hit among scattered rays against a first hit), and
+//! `test_outside_log_n`, an extra per unit of `ln n` when the eye is outside the bounds ([`price_outside_ln_n`]:
+//! seen from outside, neighbouring rays land far apart and share less of the structure: on the first family set's
+//! 200K-triangle scenes a BVH's primary rays took a median 2.3 ns per test from the inside and close-up views and
+//! 4.9 ns from the framing and grazing ones). The latter is fitted only on records that hold both kinds of eye.
 //!
 //! # Fit
 //!
@@ -82,8 +87,9 @@
 //! * `feature_names` equals [`FEATURE_NAMES`] and `price_names` equals [`PRICE_NAMES`], name for name and in
 //!   order: the coefficients are read by position, so a reordered or renamed column would silently multiply the
 //!   wrong feature or count. The error names the first position that differs. A file that names the first
-//!   [`LEGACY_PRICES`] (written before `test_incoherent_log`), with that many prices per structure, is read with the
-//!   missing price at 0, which predicts as it did.
+//!   [`LEGACY_PRICES`] (written before `test_incoherent_log`) or the first [`PRICES_BEFORE_VIEW`] (before
+//!   `test_diffuse` and `test_outside_log_n`), with that many prices per structure, is read with the missing prices
+//!   at 0, which predicts as it did.
 //! * `structures` is not empty; each names one of [`StructureName::ALL`] (brute force is the reference, never
 //!   calibrated) and none appears twice.
 //! * Every number is finite (a NaN or an infinity is written as `null` in JSON, and read back as not finite).
@@ -221,11 +227,15 @@ pub const FEATURE_NAMES: [&str; 10] = [
 pub const SIZE_FEATURES: usize = 4;
 
 /// Names of the trace price columns: a per-ray overhead for each workload kind, ns per box test and per triangle
-/// test for coherent (primary) rays, the extra ns per test for incoherent (shadow, diffuse) rays, and the extra ns
+/// test for coherent (primary) rays, the extra ns per test for incoherent (shadow, diffuse) rays, the extra ns
 /// per incoherent test per unit of `ln(1 + tests per ray)`, box and triangle tests together
 /// (`test_incoherent_log`: an incoherent ray that makes many tests reaches deep, scattered nodes and triangles
-/// that its neighbours do not share, and pays more per test; see the module docs).
-pub const PRICE_NAMES: [&str; 8] = [
+/// that its neighbours do not share, and pays more per test; see the module docs), the extra ns per test of a
+/// diffuse ray (`test_diffuse`: a closest hit among scattered rays, where a shadow ray stops at its first hit), and
+/// the extra ns per test per unit of `ln n` when the eye is outside the scene's bounds (`test_outside_log_n`:
+/// seen from outside, neighbouring rays land far apart on the scene and their traversals share less of a
+/// structure that grows with `n`; [`price_outside_ln_n`]).
+pub const PRICE_NAMES: [&str; 10] = [
     "ray_primary",
     "ray_shadow",
     "ray_diffuse",
@@ -234,25 +244,45 @@ pub const PRICE_NAMES: [&str; 8] = [
     "box_incoherent",
     "prim_incoherent",
     "test_incoherent_log",
+    "test_diffuse",
+    "test_outside_log_n",
 ];
 
-/// How many of [`PRICE_NAMES`] the files written before `test_incoherent_log` name: such a file is read with that
-/// price at 0 (its predictions unchanged).
+/// How many of [`PRICE_NAMES`] the files written before `test_incoherent_log` name: such a file is read with the
+/// later prices at 0 (its predictions unchanged).
 pub const LEGACY_PRICES: usize = 7;
 
-/// The price row of [`PRICE_NAMES`] for a kind and test counts.
-pub fn price_row(kind: WorkloadKind, box_tests: f64, prim_tests: f64) -> Vec<f64> {
+/// How many of [`PRICE_NAMES`] the files written before `test_diffuse` and `test_outside_log_n` name (the
+/// seventeenth session): such a file is read with those prices at 0 (its predictions unchanged).
+pub const PRICES_BEFORE_VIEW: usize = 8;
+
+/// The view's term of the price row ([`PRICE_NAMES`]' `test_outside_log_n` per test): `ln n` for `n` triangles
+/// when the eye lies outside the scene's bounds, 0 when inside. A workload without a view is priced as the framing
+/// camera's, whose eye is outside (what [`CostModel::predict`] assumes without one).
+pub fn price_outside_ln_n(w: &Workload, n: u64) -> f64 {
+    if w.view.is_some_and(|v| v.eye_inside) {
+        0.0
+    } else {
+        (n.max(1) as f64).ln()
+    }
+}
+
+/// The price row of [`PRICE_NAMES`] for a kind, test counts and the view's term ([`price_outside_ln_n`]).
+pub fn price_row(kind: WorkloadKind, box_tests: f64, prim_tests: f64, outside_ln_n: f64) -> Vec<f64> {
     let inc = (kind != WorkloadKind::Primary) as u8 as f64;
+    let diffuse = (kind == WorkloadKind::Diffuse) as u8 as f64;
     let tests = box_tests + prim_tests;
     vec![
         (kind == WorkloadKind::Primary) as u8 as f64,
         (kind == WorkloadKind::Shadow) as u8 as f64,
-        (kind == WorkloadKind::Diffuse) as u8 as f64,
+        diffuse,
         box_tests,
         prim_tests,
         inc * box_tests,
         inc * prim_tests,
         inc * tests * tests.max(0.0).ln_1p(),
+        diffuse * tests,
+        tests * outside_ln_n.max(0.0),
     ]
 }
 
@@ -717,7 +747,7 @@ impl StructureModel {
         }
         let per_build = self.build_ms(n, floor.build_work);
         let build_ms = per_build * w.builds as f64;
-        self.with_counts(build_ms, per_build, w, bx, pr)
+        self.with_counts(build_ms, per_build, w, n, bx, pr)
     }
 
     /// Predicted ms of one build over `n` triangles: by the work law ([`StructureModel::build_work_coef`]) where
@@ -745,9 +775,9 @@ impl StructureModel {
     }
 
     /// The prediction of a build of `build_ms` (`per_build` ms each) and `bx` box and `pr` triangle tests per ray
-    /// for workload `w`: the trace time from the counts at this structure's prices.
-    fn with_counts(&self, build_ms: f64, per_build: f64, w: &Workload, bx: f64, pr: f64) -> Prediction {
-        let ns = dot(&self.trace_price, &price_row(w.kind, bx, pr));
+    /// for workload `w` over `n` triangles: the trace time from the counts at this structure's prices.
+    fn with_counts(&self, build_ms: f64, per_build: f64, w: &Workload, n: u64, bx: f64, pr: f64) -> Prediction {
+        let ns = dot(&self.trace_price, &price_row(w.kind, bx, pr, price_outside_ln_n(w, n)));
         let trace_ms = ns * 1e-6 * w.rays_per_frame as f64 * w.frames as f64;
         Prediction {
             structure: self.structure,
@@ -859,10 +889,12 @@ impl CostModel {
         obj.insert("structures".into(), Value::Array(Vec::new()));
         let mut m: CostModel = serde_json::from_value(v).map_err(|e| invalid(None, "top level", e.to_string()))?;
         m.structures = structures;
-        // A file written before the last price names its first LEGACY_PRICES: read it with that price at 0.
-        if m.price_names.len() == LEGACY_PRICES
+        // A file written before the last prices names its first LEGACY_PRICES or PRICES_BEFORE_VIEW: read it with
+        // the later prices at 0.
+        let k = m.price_names.len();
+        if (k == LEGACY_PRICES || k == PRICES_BEFORE_VIEW)
             && m.price_names.iter().zip(PRICE_NAMES).all(|(a, b)| a == b)
-            && m.structures.iter().all(|s| s.trace_price.len() == LEGACY_PRICES)
+            && m.structures.iter().all(|s| s.trace_price.len() == k)
         {
             m.price_names = PRICE_NAMES.iter().map(|s| s.to_string()).collect();
             for s in &mut m.structures {
@@ -1639,8 +1671,21 @@ fn fit_structure(
         Vec::new()
     };
     // Prices.
-    let tx: Vec<Vec<f64>> =
-        rows.iter().map(|(smp, m)| price_row(smp.workload.kind, m.box_tests_per_ray, m.prim_tests_per_ray)).collect();
+    // The view's price is fitted only where the rows hold eyes both inside and outside the bounds: over outside
+    // eyes alone it is one more price per test and `ln n`, which says nothing of an eye inside and would drop
+    // from every prediction there (fitted on the shared meshes' framing cameras, it priced the families' inside
+    // views far too cheaply).
+    let inside = |smp: &Sample| resolve_view(&smp.features, &smp.workload).view.is_some_and(|v| v.eye_inside);
+    let views_differ = rows.iter().any(|(smp, _)| inside(smp)) && rows.iter().any(|(smp, _)| !inside(smp));
+    let tx: Vec<Vec<f64>> = rows
+        .iter()
+        .map(|(smp, m)| {
+            let w = resolve_view(&smp.features, &smp.workload);
+            let n = smp.features.total_triangles.max(smp.features.triangles);
+            let outside = if views_differ { price_outside_ln_n(&w, n) } else { 0.0 };
+            price_row(w.kind, m.box_tests_per_ray, m.prim_tests_per_ray, outside)
+        })
+        .collect();
     let ty: Vec<f64> = rows.iter().map(|(_, m)| m.trace_ns_per_ray).collect();
     let tw: Vec<f64> = ty.iter().map(|t| 1.0 / (t * t)).collect();
     let cpu = rows.iter().all(|(smp, _)| smp.trace_backend == TraceBackend::Cpu);
@@ -1688,7 +1733,11 @@ fn fit_structure(
         eb.push(lr(pr.build_ms_per_build, meas.build_ms_per_build));
         ebox.push(count_error(pr.box_tests_per_ray, meas.box_tests_per_ray));
         eprim.push(count_error(pr.prim_tests_per_ray, meas.prim_tests_per_ray));
-        let given = dot(&m.trace_price, &price_row(smp.workload.kind, meas.box_tests_per_ray, meas.prim_tests_per_ray));
+        let n = smp.features.total_triangles.max(smp.features.triangles);
+        let given = dot(
+            &m.trace_price,
+            &price_row(w.kind, meas.box_tests_per_ray, meas.prim_tests_per_ray, price_outside_ln_n(&w, n)),
+        );
         etc.push(lr(given, meas.trace_ns_per_ray));
         et.push(lr(pr.trace_ns_per_ray, meas.trace_ns_per_ray));
         etot.push(lr(pr.total_ms, meas.total_ms));
@@ -1799,7 +1848,7 @@ mod price_fit_tests {
         let mut y = Vec::new();
         for (k, &(b, p)) in pairs.iter().enumerate() {
             let kind = if k % 2 == 0 { WorkloadKind::Primary } else { WorkloadKind::Shadow };
-            x.push(price_row(kind, b, p));
+            x.push(price_row(kind, b, p, 0.0));
             y.push(10.0 + box_ns * b + prim_ns * p);
         }
         (x, y)
@@ -1821,7 +1870,7 @@ mod price_fit_tests {
         }
         // On a scene with 20 times more triangle tests than boxes, the constrained prices say at least the cost of
         // its tests at the box price.
-        let heavy = price_row(WorkloadKind::Primary, 100.0, 2000.0);
+        let heavy = price_row(WorkloadKind::Primary, 100.0, 2000.0, 0.0);
         assert!(dot(&cpu, &heavy) >= cpu[3] * 2100.0, "{cpu:?}");
         // Where the data separate the prices, the constraint is idle: the same fit either way.
         let pairs: Vec<(f64, f64)> = (1..40).map(|i| (i as f64 * 7.0, ((i * i) % 17) as f64 * 3.0)).collect();
