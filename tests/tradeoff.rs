@@ -317,7 +317,11 @@ fn paper_model() -> meshchar::cost::CostModel {
         build_exponent: 1.0,
         box_coef: vec![0.0; FEATURE_NAMES.len()],
         prim_coef: vec![0.0; FEATURE_NAMES.len()],
-        trace_price: vec![ns_per_ray, ns_per_ray, ns_per_ray, 0.0, 0.0, 0.0, 0.0, 0.0],
+        trace_price: {
+            let mut p = vec![0.0; PRICE_NAMES.len()];
+            p[..3].fill(ns_per_ray);
+            p
+        },
         view_box_coef: Vec::new(),
         view_prim_coef: Vec::new(),
         crossing_coef: Vec::new(),
