@@ -1675,14 +1675,16 @@ fn fit_structure(
     // eyes alone it is one more price per test and `ln n`, which says nothing of an eye inside and would drop
     // from every prediction there (fitted on the shared meshes' framing cameras, it priced the families' inside
     // views far too cheaply).
-    let inside = |smp: &Sample| resolve_view(&smp.features, &smp.workload).view.is_some_and(|v| v.eye_inside);
-    let views_differ = rows.iter().any(|(smp, _)| inside(smp)) && rows.iter().any(|(smp, _)| !inside(smp));
+    // Each row's workload with its view resolved (the framing camera's where the record has none), once.
+    let workloads: Vec<Workload> = rows.iter().map(|(smp, _)| resolve_view(&smp.features, &smp.workload)).collect();
+    let inside = |w: &Workload| w.view.is_some_and(|v| v.eye_inside);
+    let views_differ = workloads.iter().any(inside) && !workloads.iter().all(inside);
     let tx: Vec<Vec<f64>> = rows
         .iter()
-        .map(|(smp, m)| {
-            let w = resolve_view(&smp.features, &smp.workload);
+        .zip(&workloads)
+        .map(|((smp, m), w)| {
             let n = smp.features.total_triangles.max(smp.features.triangles);
-            let outside = if views_differ { price_outside_ln_n(&w, n) } else { 0.0 };
+            let outside = if views_differ { price_outside_ln_n(w, n) } else { 0.0 };
             price_row(w.kind, m.box_tests_per_ray, m.prim_tests_per_ray, outside)
         })
         .collect();
@@ -1716,27 +1718,21 @@ fn fit_structure(
             (m.build_ms(n, meas.build_work).max(1e-12) / meas.build_ms_per_build.max(1e-12)).ln()
         })
         .collect();
-    for (smp, meas) in &rows {
-        let w = resolve_view(&smp.features, &smp.workload);
+    for ((smp, meas), w) in rows.iter().zip(&workloads) {
         let floor = TestFloor {
             crossings: overlap::crossings_feature(smp.workload.kind, smp.crossings),
             leave_share: share(smp),
             ..TestFloor::default()
         };
-        let pr = m.predict_floored(
-            &smp.features.derived(),
-            smp.features.total_triangles.max(smp.features.triangles),
-            &w,
-            floor,
-        );
+        let n = smp.features.total_triangles.max(smp.features.triangles);
+        let pr = m.predict_floored(&smp.features.derived(), n, w, floor);
         let lr = |a: f64, b: f64| (a.max(1e-12) / b.max(1e-12)).ln();
         eb.push(lr(pr.build_ms_per_build, meas.build_ms_per_build));
         ebox.push(count_error(pr.box_tests_per_ray, meas.box_tests_per_ray));
         eprim.push(count_error(pr.prim_tests_per_ray, meas.prim_tests_per_ray));
-        let n = smp.features.total_triangles.max(smp.features.triangles);
         let given = dot(
             &m.trace_price,
-            &price_row(w.kind, meas.box_tests_per_ray, meas.prim_tests_per_ray, price_outside_ln_n(&w, n)),
+            &price_row(w.kind, meas.box_tests_per_ray, meas.prim_tests_per_ray, price_outside_ln_n(w, n)),
         );
         etc.push(lr(given, meas.trace_ns_per_ray));
         et.push(lr(pr.trace_ns_per_ray, meas.trace_ns_per_ray));
