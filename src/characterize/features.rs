@@ -87,6 +87,12 @@ pub struct Derived {
 }
 
 impl Features {
+    /// The scene's triangle count, `n` in every law of the cost model and the selection: the larger of the mesh's
+    /// ([`Features::total_triangles`]) and the count characterized ([`Features::triangles`]).
+    pub fn scene_triangles(&self) -> u64 {
+        self.total_triangles.max(self.triangles)
+    }
+
     /// Occupied cells at depth `d` (1-based), 0 outside `1 ..= OCCUPANCY_DEPTHS`.
     pub fn occupied(&self, d: usize) -> u64 {
         if d == 0 {
@@ -135,7 +141,7 @@ impl Features {
         };
         // The scene's size is the mesh's (a sample is a smaller set of the same scene); the occupancy ratios above
         // compare the sample with itself.
-        let n_scene = self.total_triangles.max(self.triangles).max(1) as f64;
+        let n_scene = self.scene_triangles().max(1) as f64;
         Derived { ln_n: n_scene.ln(), fill_at_n, ln_tris_per_cell, empty_d3, size_mean: m, size_spread, aspect_log2 }
     }
 }

@@ -256,7 +256,7 @@ pub fn fit_driver(samples: &[Sample], flags: DriverFlags) -> Result<Option<Drive
         return Ok(None);
     }
     let err = |what: &str| CostError::Fit(format!("{}: {what} system is singular", flags.name()));
-    let n_of = |s: &Sample| s.features.total_triangles.max(s.features.triangles).max(1);
+    let n_of = |s: &Sample| s.features.scene_triangles().max(1);
     let builds: Vec<(u64, f64)> = rows.iter().map(|(s, m)| (n_of(s), m.build_ms_per_build)).collect();
     let (build_ln_a, build_exponent, _) = fit_law(&builds).ok_or_else(|| err("build"))?;
     let x: Vec<Vec<f64>> = rows.iter().map(|(s, _)| phi(&s.features.derived(), s.workload.kind)).collect();
@@ -290,7 +290,7 @@ fn fit_update(samples: &[Sample]) -> Option<DriverUpdateModel> {
     let (mut updates, mut xs, mut ys) = (Vec::new(), Vec::new(), Vec::new());
     for s in samples {
         let Some(u) = s.driver_result(DriverFlags::Update).filter(|m| m.valid) else { continue };
-        let n = s.features.total_triangles.max(s.features.triangles).max(1);
+        let n = s.features.scene_triangles().max(1);
         for &ms in u.frame_build_ms.iter().skip(1).filter(|&&ms| ms > 0.0 && ms.is_finite()) {
             updates.push((n, ms));
         }

@@ -1049,7 +1049,7 @@ impl CostModel {
         } else {
             *w
         };
-        let n = f.total_triangles.max(f.triangles);
+        let n = f.scene_triangles();
         let band = self.own_probe_band();
         let mut preds: Vec<Prediction> = self
             .structures
@@ -1121,7 +1121,7 @@ impl CostModel {
     /// Predicted costs of every calibrated driver structure ([`driver`]) for a scene and a workload.
     pub fn predict_driver(&self, f: &Features, w: &Workload) -> Vec<DriverPrediction> {
         let d = f.derived();
-        self.driver.iter().filter_map(|m| m.predict(&d, f.total_triangles.max(f.triangles), w)).collect()
+        self.driver.iter().filter_map(|m| m.predict(&d, f.scene_triangles(), w)).collect()
     }
 
     /// The model of one driver structure.
@@ -1570,10 +1570,7 @@ fn fit_structure(
     }
     let err = |what: &str| CostError::Fit(format!("{}: {what} system is singular", s.as_str()));
     // Build law.
-    let ln_ns: Vec<f64> = rows
-        .iter()
-        .map(|(smp, _)| (smp.features.total_triangles.max(smp.features.triangles).max(1) as f64).ln())
-        .collect();
+    let ln_ns: Vec<f64> = rows.iter().map(|(smp, _)| (smp.features.scene_triangles().max(1) as f64).ln()).collect();
     // A curvature only where the sizes span enough to show one; the term reads 0 otherwise (and fits to 0).
     let range = curvature_range(&ln_ns);
     let q = |ln_n: f64| range.map_or(0.0, |[lo, hi]| curvature_term(ln_n, lo, hi));
@@ -1683,7 +1680,7 @@ fn fit_structure(
         .iter()
         .zip(&workloads)
         .map(|((smp, m), w)| {
-            let n = smp.features.total_triangles.max(smp.features.triangles);
+            let n = smp.features.scene_triangles();
             let outside = if views_differ { price_outside_ln_n(w, n) } else { 0.0 };
             price_row(w.kind, m.box_tests_per_ray, m.prim_tests_per_ray, outside)
         })
@@ -1714,7 +1711,7 @@ fn fit_structure(
         .iter()
         .filter(|(_, meas)| meas.build_work > 0.0 && !m.build_work_coef.is_empty())
         .map(|(smp, meas)| {
-            let n = smp.features.total_triangles.max(smp.features.triangles);
+            let n = smp.features.scene_triangles();
             (m.build_ms(n, meas.build_work).max(1e-12) / meas.build_ms_per_build.max(1e-12)).ln()
         })
         .collect();
@@ -1724,7 +1721,7 @@ fn fit_structure(
             leave_share: share(smp),
             ..TestFloor::default()
         };
-        let n = smp.features.total_triangles.max(smp.features.triangles);
+        let n = smp.features.scene_triangles();
         let pr = m.predict_floored(&smp.features.derived(), n, w, floor);
         let lr = |a: f64, b: f64| (a.max(1e-12) / b.max(1e-12)).ln();
         eb.push(lr(pr.build_ms_per_build, meas.build_ms_per_build));
@@ -1761,7 +1758,7 @@ fn fit_work_law(rows: &[(&Sample, &Measured)], range: Option<[f64; 2]>) -> Vec<f
     let counted: Vec<(f64, &Measured)> = rows
         .iter()
         .filter(|(_, m)| m.build_work > 0.0 && m.build_work.is_finite())
-        .map(|(smp, m)| ((smp.features.total_triangles.max(smp.features.triangles).max(1) as f64).ln(), *m))
+        .map(|(smp, m)| ((smp.features.scene_triangles().max(1) as f64).ln(), *m))
         .collect();
     if counted.len() < 3 {
         return Vec::new();

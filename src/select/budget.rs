@@ -399,7 +399,7 @@ impl BuildBounds {
 
     /// [`BuildBounds::of_features`] under a given grid rule.
     pub fn of_features_with(f: &Features, rule: &GridRule) -> BuildBounds {
-        let n = f.total_triangles.max(f.triangles);
+        let n = f.scene_triangles();
         let scene = Aabb::new(Vec3::from_array(f.lo), Vec3::from_array(f.hi));
         if n == 0 || f.triangles == 0 || scene.is_empty() || !(scene.max - scene.min).is_finite() {
             return BuildBounds::empty(n, "features");

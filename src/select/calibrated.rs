@@ -170,7 +170,7 @@ impl FrameRule<'_> {
                     frame,
                     action: FrameAction::Refit,
                     structure: s,
-                    update_ms: r.refit_ns_per_triangle * now.total_triangles.max(now.triangles) as f64 * 1e-6,
+                    update_ms: r.refit_ns_per_triangle * now.scene_triangles() as f64 * 1e-6,
                     trace_ms: p.trace_ms * (1.0 + r.sah_growth_per_drift.max(0.0) * d),
                     drift: d,
                 }
@@ -321,7 +321,7 @@ impl Policy for CalibratedPolicy {
             self.kind.as_str(),
             w.frames,
             w.builds,
-            scene.features[0].total_triangles.max(scene.features[0].triangles),
+            scene.features[0].scene_triangles(),
             if preds.iter().any(|p| p.structure == choice && p.total_ms > best) {
                 format!(" within {:.0}% and the cheapest build", 100.0 * self.tie_margin)
             } else {
@@ -401,7 +401,7 @@ impl Policy for CalibratedPolicy {
                 ));
             }
             // The probes' builds price the structures' builds where the calibration has a work law.
-            let n_tris = scene.features[0].total_triangles.max(scene.features[0].triangles);
+            let n_tris = scene.features[0].scene_triangles();
             let by_work: Vec<String> = crate::cost::PROBED
                 .iter()
                 .filter(|&&s| c.build_work(s) > 0.0)

@@ -67,7 +67,7 @@ impl DriverFrameRule<'_> {
     /// has no `rt_update` model.
     pub fn decide(&self, frame: usize, now: &Features, built: Option<&Features>) -> Option<DriverFrameDecision> {
         let m = self.model.get_driver(DriverFlags::Update)?;
-        let n = now.total_triangles.max(now.triangles);
+        let n = now.scene_triangles();
         let trace = m.trace_ns(&now.derived(), self.kind) * 1e-6 * self.rays_per_frame as f64;
         let rebuild = DriverFrameDecision {
             frame,
