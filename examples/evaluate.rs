@@ -700,7 +700,7 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
                 .collect();
             // With --timed-probes and a file that has their ratios: its predictions with the probes blended in;
             // with --measure-close-calls, then the close call settled by the frames measured.
-            let probed = |s: &meshchar::cost::Sample| {
+            let probed = |s: &meshchar::eval::fit::Sample| {
                 let mut p = s.predict(&model);
                 if let Some(r) = model.timed.as_ref().filter(|_| args.timed_probes) {
                     meshchar::cost::timed::blend_contenders(&mut p, &s.timed, r, &s.workload);
@@ -1109,12 +1109,12 @@ impl FixedScores {
     /// The scores of `picks`, `timed` and `measured` (one choice per sample each) over `samples`.
     fn of(
         file: String,
-        samples: &[meshchar::cost::Sample],
+        samples: &[meshchar::eval::fit::Sample],
         picks: &Picks,
         timed: Option<Picks>,
         measured: Option<Picks>,
     ) -> Self {
-        let scored = |keep: &dyn Fn(&meshchar::cost::Sample) -> bool, c: &Picks| {
+        let scored = |keep: &dyn Fn(&meshchar::eval::fit::Sample) -> bool, c: &Picks| {
             score(samples.iter().zip(c).filter(|(s, _)| keep(s)).map(|(s, c)| (s, *c)))
         };
         let mut workloads: Vec<String> = Vec::new();
@@ -1124,11 +1124,11 @@ impl FixedScores {
                 workloads.push(w);
             }
         }
-        let all = |_: &meshchar::cost::Sample| true;
+        let all = |_: &meshchar::eval::fit::Sample| true;
         let by_workload = workloads
             .into_iter()
             .map(|w| {
-                let keep = |s: &meshchar::cost::Sample| meshchar::eval::compare::workload_of(s) == w;
+                let keep = |s: &meshchar::eval::fit::Sample| meshchar::eval::compare::workload_of(s) == w;
                 WorkloadScores {
                     score: scored(&keep, picks),
                     timed_score: timed.as_ref().map(|c| scored(&keep, c)),

@@ -6,12 +6,13 @@ use meshchar::accel::lbvh::Lbvh;
 use meshchar::accel::{AccelStructure, StructureName};
 use meshchar::characterize::features::{exponent, SIZE_BINS};
 use meshchar::characterize::{cpu, features_cpu, Features, Params};
+use meshchar::cost::ViewFeatures;
 use meshchar::cost::{
     phi, price_outside_ln_n, price_row, CostModel, Prediction, StructureModel, Workload, COST_MODEL_VERSION,
     FEATURE_NAMES, PRICE_NAMES,
 };
-use meshchar::cost::{Measured, Sample, ViewFeatures};
 use meshchar::eval::compare::compare;
+use meshchar::eval::fit::{Measured, Sample};
 use meshchar::eval::OracleRecord;
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::{generate, Mesh};
@@ -1051,7 +1052,7 @@ fn families_of(samples: &[Sample]) -> Vec<String> {
 }
 
 /// The known samples, each with crossings (0 to 4,900) and box tests grown by `(1 + crossings)^0.7`.
-fn samples_with_crossings() -> Vec<meshchar::cost::Sample> {
+fn samples_with_crossings() -> Vec<meshchar::eval::fit::Sample> {
     let (mut samples, _) = known_samples(60);
     for (i, s) in samples.iter_mut().enumerate() {
         let x = [0.0, 3.0, 40.0, 700.0, 9.0][i % 5] * (1.0 + (i % 7) as f64);
@@ -1150,7 +1151,7 @@ fn the_regret_beyond_noise_is_the_gap_between_the_intervals() {
     assert!(raw > 0.0);
     // Without intervals: the raw regret.
     assert_eq!(smp.regret_beyond_noise(other), Some(raw));
-    let set = |smp: &mut meshchar::cost::Sample, s, ci| {
+    let set = |smp: &mut meshchar::eval::fit::Sample, s, ci| {
         smp.measured.iter_mut().find(|m| m.structure == s).unwrap().total_ms_ci95 = ci
     };
     // Overlapping intervals: the measurement cannot tell them apart.
@@ -1423,7 +1424,8 @@ fn close_calls_measured_at_the_truth_never_choose_worse_than_the_predictions() {
         assert!(changed > 0 && m.overall.mean_regret < cv.overall.mean_regret, "{holdout}: {changed} changed");
         assert!(m.overall.worst_regret <= cv.overall.worst_regret);
     }
-    let none: Vec<_> = samples.into_iter().map(|s| meshchar::cost::Sample { frame_timings: Vec::new(), ..s }).collect();
+    let none: Vec<_> =
+        samples.into_iter().map(|s| meshchar::eval::fit::Sample { frame_timings: Vec::new(), ..s }).collect();
     let b = meshchar::eval::compare::compare_baselines(&none, 0.05, "test");
     assert!(b.get("calibrated_measured", "family_out").is_none());
 }

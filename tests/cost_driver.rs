@@ -8,7 +8,8 @@ use meshchar::accel::device::{DeviceRecord, TraceBackend};
 use meshchar::accel::driver::DriverFlags;
 use meshchar::accel::StructureName;
 use meshchar::characterize::{features_cpu, Characterization, Features, Params};
-use meshchar::cost::{drift, phi, CostModel, DriverMeasured, Measured, Sample, Workload, FEATURE_NAMES};
+use meshchar::cost::{drift, phi, CostModel, Workload, FEATURE_NAMES};
+use meshchar::eval::fit::{DriverMeasured, Measured, Sample};
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::generate;
 use meshchar::select::{

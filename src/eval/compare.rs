@@ -6,7 +6,8 @@
 //! is then read from the held-out scene's measurements. The in-sample ("calibration") figures fit on everything.
 
 use crate::accel::StructureName;
-use crate::cost::{CostError, CostModel, Sample};
+use crate::cost::{CostError, CostModel};
+use crate::eval::fit::Sample;
 use crate::geom::WorkloadKind;
 use crate::select::choose;
 

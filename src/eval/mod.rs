@@ -6,6 +6,7 @@
 pub mod chart;
 pub mod compare;
 pub mod failure_study;
+pub mod fit;
 pub mod oracle;
 pub mod proxy;
 pub mod record;

@@ -10,7 +10,7 @@
 //! in the first-level cache.
 
 use super::Measurement;
-use crate::cost::Sample;
+use crate::eval::fit::Sample;
 use crate::geom::{closer_hit, Ray, RayInv, Triangle};
 use crate::rng::SplitMix64;
 use glam::Vec3;

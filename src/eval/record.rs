@@ -9,7 +9,8 @@
 use super::oracle::{Measurement, Rebuild};
 use crate::accel::{AccelStats, StructureName};
 use crate::characterize::{features_cpu, Features, Params};
-use crate::cost::{DriverMeasured, Measured, Prediction, Sample, Workload};
+use crate::cost::{Prediction, Workload};
+use crate::eval::fit::{DriverMeasured, Measured, Sample};
 use crate::geom::WorkloadKind;
 use crate::trace::Camera;
 use serde::{Deserialize, Deserializer, Serialize};

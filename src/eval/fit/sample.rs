@@ -1,11 +1,10 @@
 //! Oracle results as calibration samples: a [`Sample`] is one scene under one workload, its [`Features`] and what
 //! the oracle measured for every structure ([`crate::eval::record::OracleRecord::sample`] makes one from a record).
 
-use super::Workload;
 use crate::accel::driver::DriverFlags;
 use crate::accel::StructureName;
-use crate::characterize::features::FeatureChange;
 use crate::characterize::Features;
+use crate::cost::Workload;
 
 /// What the oracle measured for one structure, normalized per build and per ray.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
@@ -33,7 +32,7 @@ pub struct Measured {
     /// The 95% confidence interval of the median total (ms), when the precise oracle measured it.
     pub total_ms_ci95: Option<[f64; 2]>,
     /// The build's work ([`crate::accel::AccelStats::build_work`]), which the build law of a probed structure
-    /// reads ([`super::StructureModel::build_work_coef`]); 0 when unknown.
+    /// reads ([`crate::cost::StructureModel::build_work_coef`]); 0 when unknown.
     pub build_work: f64,
 }
 
@@ -80,21 +79,21 @@ pub struct Sample {
     /// Features of every measured frame of an animation (empty for one frame, or when not computed): the drift of
     /// an updated driver structure is measured against them.
     pub frame_features: Vec<Features>,
-    /// The triangle boxes the record's rays cross on average (the first frame's [`super::Crossings`] for its
-    /// workload and camera, [`super::Crossings::for_workload`]; `None` when not computed): the policies' overlap floor ([`super::overlap_floor`]) reads them.
-    pub crossings: Option<super::RayCrossings>,
-    /// The timed probes of the record's scene and camera ([`super::timed::time_probes`]), when taken (empty
-    /// otherwise): what [`super::timed::TimedRatios::fit`] reads and the timed policy blends in.
-    pub timed: Vec<super::timed::TimedProbe>,
-    /// Whole frames of the record's workload measured anew per structure ([`super::measured::measure_frames`]),
-    /// when taken (empty otherwise): what a measured close call ([`super::measured::settle`]) reads.
-    pub frame_timings: Vec<super::measured::FrameTiming>,
+    /// The triangle boxes the record's rays cross on average (the first frame's [`crate::cost::Crossings`] for its
+    /// workload and camera, [`crate::cost::Crossings::for_workload`]; `None` when not computed): the policies' overlap floor ([`crate::cost::overlap_floor`]) reads them.
+    pub crossings: Option<crate::cost::RayCrossings>,
+    /// The timed probes of the record's scene and camera ([`crate::cost::timed::time_probes`]), when taken (empty
+    /// otherwise): what [`crate::cost::timed::TimedRatios::fit`] reads and the timed policy blends in.
+    pub timed: Vec<crate::cost::timed::TimedProbe>,
+    /// Whole frames of the record's workload measured anew per structure ([`crate::cost::measured::measure_frames`]),
+    /// when taken (empty otherwise): what a measured close call ([`crate::cost::measured::settle`]) reads.
+    pub frame_timings: Vec<crate::cost::measured::FrameTiming>,
     /// The grid's references counted exactly from the record's static scene where the selection's bound pass counts
     /// them (`select::BuildBounds::grid_build_work`: past `select::budget::grid_count_threshold`), which prices the
     /// grid's build as the policy does; 0 otherwise (not computed, an animation, or within the threshold).
     pub grid_build_work: f64,
     /// Where the record's rays were traced: the CPU tracer's samples fit their trace prices with each triangle-test
-    /// price at least its box-test price ([`super::StructureModel::trace_price`]; `fit_prices` in `cost`), devices'
+    /// price at least its box-test price ([`crate::cost::StructureModel::trace_price`]; `fit_prices` in `cost`), devices'
     /// without.
     pub trace_backend: crate::accel::device::TraceBackend,
 }
@@ -103,18 +102,24 @@ impl Sample {
     /// The model's predictions for this sample's scene and workload, with the overlap floor of
     /// [`Sample::crossings`] and the grid's build priced by [`Sample::grid_build_work`] where known (what the
     /// calibrated policy predicts with the mesh at hand).
-    pub fn predict(&self, model: &super::CostModel) -> Vec<super::Prediction> {
+    pub fn predict(&self, model: &crate::cost::CostModel) -> Vec<crate::cost::Prediction> {
         model.predict_floored(&self.features, &self.workload, &|s| {
-            super::priced_floor(s, self.workload.kind, self.crossings, self.grid_build_work)
+            crate::cost::priced_floor(s, self.workload.kind, self.crossings, self.grid_build_work)
         })
     }
 
     /// The choice a measured close call of `preds` (this sample's predictions) makes from the sample's
     /// [`Sample::frame_timings`], over its workload's builds and frames, within the default measuring budget
-    /// ([`super::measured::settle`], [`super::measured::DEFAULT_MAX_MS`]); `None` where nothing is settled.
-    pub fn settle_close_call(&self, preds: &[super::Prediction]) -> Option<StructureName> {
+    /// ([`crate::cost::measured::settle`], [`crate::cost::measured::DEFAULT_MAX_MS`]); `None` where nothing is settled.
+    pub fn settle_close_call(&self, preds: &[crate::cost::Prediction]) -> Option<StructureName> {
         let w = &self.workload;
-        super::measured::settle(preds, &self.frame_timings, w.builds, w.frames, super::measured::DEFAULT_MAX_MS)
+        crate::cost::measured::settle(
+            preds,
+            &self.frame_timings,
+            w.builds,
+            w.frames,
+            crate::cost::measured::DEFAULT_MAX_MS,
+        )
     }
 
     /// The measurement of one structure.
@@ -151,11 +156,4 @@ impl Sample {
             _ => raw,
         })
     }
-}
-
-/// Drift of an animation frame from the frame a structure was built for: the largest of the feature changes
-/// ([`FeatureChange`]: occupancy in log units, relative bounds change, size exponent change / 4).
-pub fn drift(built: &Features, now: &Features) -> f64 {
-    let c = FeatureChange::between(built, now);
-    c.occupancy.max(c.bounds).max(c.size / 4.0)
 }
