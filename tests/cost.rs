@@ -195,6 +195,7 @@ fn known_samples_viewed(
             frame_timings: Vec::new(),
             grid_build_work: 0.0,
             trace_backend: Default::default(),
+            stage_ms: Default::default(),
         });
     }
     (samples, truth)

@@ -113,6 +113,7 @@ fn known_samples() -> Vec<Sample> {
             frame_timings: Vec::new(),
             grid_build_work: 0.0,
             trace_backend: Default::default(),
+            stage_ms: Default::default(),
         });
     }
     for (k, n) in [500usize, 2_000, 6_000].into_iter().enumerate() {
@@ -165,6 +166,7 @@ fn known_samples() -> Vec<Sample> {
             frame_timings: Vec::new(),
             grid_build_work: 0.0,
             trace_backend: Default::default(),
+            stage_ms: Default::default(),
         });
     }
     out

@@ -24,9 +24,12 @@
 use super::{CharError, Params};
 use crate::keys::{self, Quantizer};
 use crate::mesh::Mesh;
+use rayon::prelude::*;
 
 /// Deepest Morton-prefix depth counted (`3 * 7 = 21` bits, a `2^21`-bit mask).
 pub const OCCUPANCY_DEPTHS: usize = 7;
+/// Triangles per task of the CPU pass.
+const CHUNK: usize = 16 * 1024;
 /// Bins of the triangle size histogram (the last one is open-ended).
 pub const SIZE_BINS: usize = 24;
 
@@ -180,8 +183,8 @@ impl FeatureChange {
 }
 
 /// CPU reference of the features of `mesh` for `params` (`morton_bits` and `sample_stride` apply as in the
-/// characterization). Exact integer arithmetic (the key bounds of [`Quantizer::of_keys`] in parallel, the rest
-/// sequential); O(n) time plus a `2^21`-bit mask.
+/// characterization). Exact integer arithmetic in parallel chunks (every merge is an OR, a sum, or a min or max in the
+/// IEEE total order, so the result does not depend on the split); O(n) time plus a `2^21`-bit mask per chunk.
 ///
 /// # Errors
 ///
@@ -209,18 +212,34 @@ pub fn features_cpu(mesh: &Mesh, params: &Params) -> Result<Features, CharError>
     };
     let q =
         Quantizer::of_keys(ids.len(), |j| key(ids[j]), bits).map_err(|e| CharError::of_keys(&mesh.name, stride, e))?;
-    let mut vlo = [f32::INFINITY; 3];
-    let mut vhi = [f32::NEG_INFINITY; 3];
-    for &i in &ids {
-        for v in tri(i) {
-            for a in 0..3 {
-                vlo[a] = keys::min_total(vlo[a], v[a]);
-                vhi[a] = keys::max_total(vhi[a], v[a]);
-            }
-        }
-    }
+    // Vertex bounds in the IEEE total order (min/max of the total order are associative and commutative: any
+    // split of the work gives the same bits).
+    let (vlo, vhi) = crate::in_pool(|| {
+        ids.par_chunks(CHUNK)
+            .map(|chunk| {
+                let mut lo = [f32::INFINITY; 3];
+                let mut hi = [f32::NEG_INFINITY; 3];
+                for &i in chunk {
+                    for v in tri(i) {
+                        for a in 0..3 {
+                            lo[a] = keys::min_total(lo[a], v[a]);
+                            hi[a] = keys::max_total(hi[a], v[a]);
+                        }
+                    }
+                }
+                (lo, hi)
+            })
+            .reduce(
+                || ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]),
+                |(l0, h0), (l1, h1)| {
+                    (
+                        std::array::from_fn(|a| keys::min_total(l0[a], l1[a])),
+                        std::array::from_fn(|a| keys::max_total(h0[a], h1[a])),
+                    )
+                },
+            )
+    });
     let shift = bits.total() - 3 * OCCUPANCY_DEPTHS as u32;
-    let mut mask = vec![0u64; (1usize << (3 * OCCUPANCY_DEPTHS)) / 64];
     let extent = |lo: &[f32; 3], hi: &[f32; 3]| -> f32 {
         let mut m = 0.0f32;
         for a in 0..3 {
@@ -229,26 +248,44 @@ pub fn features_cpu(mesh: &Mesh, params: &Params) -> Result<Features, CharError>
         m
     };
     let scene_exp = exponent(extent(&vlo, &vhi));
-    let mut size_histogram = vec![0u64; SIZE_BINS];
-    let mut zero_extent = 0u64;
-    for &i in &ids {
-        let [v0, v1, v2] = tri(i);
-        let code = q.code(keys::centroid_key(v0, v1, v2));
-        let prefix = (code >> shift) as usize;
-        mask[prefix / 64] |= 1u64 << (prefix % 64);
-        let mut tlo = v0;
-        let mut thi = v0;
-        for v in [v1, v2] {
-            for a in 0..3 {
-                tlo[a] = tlo[a].min(v[a]);
-                thi[a] = thi[a].max(v[a]);
-            }
-        }
-        match (exponent(extent(&tlo, &thi)), scene_exp) {
-            (Some(t), Some(s)) => size_histogram[((s - t).max(0) as usize).min(SIZE_BINS - 1)] += 1,
-            _ => zero_extent += 1,
-        }
-    }
+    // Per chunk: the occupied deepest cells and the size histogram; ORs and sums of integers merge exactly in any
+    // order.
+    let words = (1usize << (3 * OCCUPANCY_DEPTHS)) / 64;
+    let (mask, size_histogram, zero_extent) = crate::in_pool(|| {
+        ids.par_chunks(CHUNK.max(ids.len().div_ceil(rayon::current_num_threads().max(1))))
+            .map(|chunk| {
+                let mut mask = vec![0u64; words];
+                let mut hist = vec![0u64; SIZE_BINS];
+                let mut zero = 0u64;
+                for &i in chunk {
+                    let [v0, v1, v2] = tri(i);
+                    let code = q.code(keys::centroid_key(v0, v1, v2));
+                    let prefix = (code >> shift) as usize;
+                    mask[prefix / 64] |= 1u64 << (prefix % 64);
+                    let mut tlo = v0;
+                    let mut thi = v0;
+                    for v in [v1, v2] {
+                        for a in 0..3 {
+                            tlo[a] = tlo[a].min(v[a]);
+                            thi[a] = thi[a].max(v[a]);
+                        }
+                    }
+                    match (exponent(extent(&tlo, &thi)), scene_exp) {
+                        (Some(t), Some(s)) => hist[((s - t).max(0) as usize).min(SIZE_BINS - 1)] += 1,
+                        _ => zero += 1,
+                    }
+                }
+                (mask, hist, zero)
+            })
+            .reduce(
+                || (vec![0u64; words], vec![0u64; SIZE_BINS], 0),
+                |(mut m, mut h, z), (m1, h1, z1)| {
+                    m.iter_mut().zip(&m1).for_each(|(a, b)| *a |= b);
+                    h.iter_mut().zip(&h1).for_each(|(a, b)| *a += b);
+                    (m, h, z + z1)
+                },
+            )
+    });
     Ok(Features {
         triangles: ids.len() as u64,
         total_triangles: total as u64,
@@ -267,10 +304,20 @@ pub fn features_cpu(mesh: &Mesh, params: &Params) -> Result<Features, CharError>
 /// down to depth 1. Shared by the CPU reference and the GPU pass, which produce the same mask.
 pub fn occupancy_from_mask(mask: &[u64]) -> Vec<u64> {
     let mut occupied_cells = vec![0u64; OCCUPANCY_DEPTHS];
-    let mut level: Vec<bool> = (0..mask.len() * 64).map(|b| mask[b / 64] >> (b % 64) & 1 == 1).collect();
+    // `level` holds `8^d` bits, 64 to a word (the last word partly used below depth 2).
+    let mut level: Vec<u64> = mask.to_vec();
     for d in (1..=OCCUPANCY_DEPTHS).rev() {
-        occupied_cells[d - 1] = level.iter().filter(|&&x| x).count() as u64;
-        level = level.chunks(8).map(|c| c.iter().any(|&x| x)).collect();
+        occupied_cells[d - 1] = level.iter().map(|w| u64::from(w.count_ones())).sum();
+        // One bit per group of 8: bit `b` of the next level is set when byte `b` of this one is not zero.
+        let mut next = vec![0u64; level.len().div_ceil(8)];
+        for (k, w) in level.iter().enumerate() {
+            let mut bits = 0u64;
+            for byte in 0..8 {
+                bits |= u64::from((w >> (8 * byte)) & 0xff != 0) << byte;
+            }
+            next[k / 8] |= bits << (8 * (k % 8));
+        }
+        level = next;
     }
     occupied_cells
 }

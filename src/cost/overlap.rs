@@ -249,6 +249,18 @@ impl Crossings {
     /// frame) without the boxes entered before the hits ([`ViewCrossings::near`]), which bound that frame's rays only
     /// (the pass is skipped, not run and dropped).
     pub fn of_first_frame_viewed(mesh: &Mesh, camera: Option<&Camera>, frames: usize) -> Crossings {
+        Crossings::of_first_frame_timed(mesh, camera, frames).0
+    }
+
+    /// [`Crossings::of_first_frame_viewed`], and what its parts took on this machine (wall time, ms): the
+    /// crossings (the boxes, their sums, the view's count on its image and the boxes entered before the hits) and
+    /// each probe of [`super::PROBED`] (0 for a structure not probed).
+    pub fn of_first_frame_timed(
+        mesh: &Mesh,
+        camera: Option<&Camera>,
+        frames: usize,
+    ) -> (Crossings, f64, [f64; super::probe::PROBES]) {
+        let t = std::time::Instant::now();
         let (boxes, tris): (Vec<Aabb>, Vec<crate::geom::Triangle>) = (0..mesh.triangle_count())
             .map(|i| {
                 let v = mesh.triangle(i);
@@ -257,11 +269,22 @@ impl Crossings {
             .unzip();
         let scene = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
         let c = Crossings::of(mesh, boxes.iter().zip(&tris).map(|(b, t)| (*b, t.is_degenerate())), &scene);
+        let mut probe_ms = [0.0; super::probe::PROBES];
         if frames > 1 {
-            c.viewed_from(&boxes, &[], &scene, camera)
-        } else {
-            c.viewed_from(&boxes, &tris, &scene, camera).with_probes(mesh, &scene)
+            let c = c.viewed_from(&boxes, &[], &scene, camera);
+            return (c, t.elapsed().as_secs_f64() * 1e3, probe_ms);
         }
+        let mut c = c.viewed_from(&boxes, &tris, &scene, camera);
+        let crossings_ms = t.elapsed().as_secs_f64() * 1e3;
+        if let Some(v) = c.view.as_mut() {
+            let side = near_sample_side(v.all);
+            for (i, s) in super::PROBED.into_iter().enumerate() {
+                let t = std::time::Instant::now();
+                v.probes[i] = super::probe(s, mesh, &scene, &v.camera, side, true);
+                probe_ms[i] = t.elapsed().as_secs_f64() * 1e3;
+            }
+        }
+        (c, crossings_ms, probe_ms)
     }
 
     /// [`Crossings::of_mesh_viewed`] from the framing camera.

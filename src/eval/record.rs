@@ -10,7 +10,7 @@ use super::oracle::{Measurement, Rebuild};
 use crate::accel::{AccelStats, StructureName};
 use crate::characterize::{features_cpu, Features, Params};
 use crate::cost::{Prediction, Workload};
-use crate::eval::fit::{DriverMeasured, Measured, Sample};
+use crate::eval::fit::{DriverMeasured, Measured, Sample, StageCosts};
 use crate::geom::WorkloadKind;
 use crate::trace::Camera;
 use serde::{Deserialize, Deserializer, Serialize};
@@ -508,6 +508,7 @@ impl OracleRecord {
             frame_timings: Vec::new(),
             grid_build_work: 0.0,
             trace_backend: self.trace_backend,
+            stage_ms: Default::default(),
         }
     }
 }
@@ -634,9 +635,11 @@ pub fn load_samples_admitted(
     let probes_measured = probes.measured;
     // Per scene: the features of its frames, as far as computed, and the first frame's crossings per camera met
     // (the three workloads of a view share one), with its timed probes when taken.
-    type Views = Vec<(Option<crate::geom::Camera>, crate::cost::Crossings, Vec<crate::cost::timed::TimedProbe>)>;
-    // And the grid's references where the selection's bound pass counts them exactly (static scenes).
-    type Loaded = (crate::mesh::Animation, Vec<Features>, Views, f64);
+    type Views =
+        Vec<(Option<crate::geom::Camera>, crate::cost::Crossings, Vec<crate::cost::timed::TimedProbe>, StageCosts)>;
+    // And the grid's references where the selection's bound pass counts them exactly (static scenes), and what the
+    // scene's own stages cost (characterization, features, bounds).
+    type Loaded = (crate::mesh::Animation, Vec<Features>, Views, f64, StageCosts);
     let mut cache: std::collections::HashMap<String, Loaded> = std::collections::HashMap::new();
     let mut out = Vec::new();
     for file in files {
@@ -648,17 +651,20 @@ pub fn load_samples_admitted(
                 let scene = crate::mesh::load_path(Path::new(&rec.mesh)).map_err(|e| scene_err(e.to_string()))?;
                 let first = scene.frames.first().ok_or_else(|| scene_err("the scene has no frames".into()))?;
                 admit(&rec.mesh, first.triangle_count()).map_err(scene_err)?;
-                let f = features_cpu(first, params).map_err(|e| scene_err(format!("features: {e}")))?;
+                let (f, mut costs) = time_scene_stages(first, params).map_err(scene_err)?;
                 let grid_work = match &scene.frames[..] {
-                    [only] => crate::select::BuildBounds::of_mesh_with(only, &Default::default())
-                        .map_err(|e| scene_err(format!("build bounds: {e}")))?
-                        .grid_build_work()
-                        .unwrap_or(0.0),
+                    [only] => {
+                        let t = std::time::Instant::now();
+                        let b = crate::select::BuildBounds::of_mesh_with(only, &Default::default())
+                            .map_err(|e| scene_err(format!("build bounds: {e}")))?;
+                        costs.bounds_ms = t.elapsed().as_secs_f64() * 1e3;
+                        b.grid_build_work().unwrap_or(0.0)
+                    }
                     _ => 0.0,
                 };
-                cache.insert(rec.mesh.clone(), (scene, vec![f], Vec::new(), grid_work));
+                cache.insert(rec.mesh.clone(), (scene, vec![f], Vec::new(), grid_work, costs));
             }
-            let (scene, feats, views, grid_work) =
+            let (scene, feats, views, grid_work, scene_costs) =
                 cache.get_mut(&rec.mesh).ok_or_else(|| scene_err("not loaded".into()))?;
             let wanted = if rec.frames_measured > 1 && !rec.driver_structures.is_empty() {
                 rec.frames_measured.min(scene.frames.len())
@@ -674,14 +680,15 @@ pub fn load_samples_admitted(
             let camera = rec.camera.as_ref().map(|c| c.camera());
             // The record's camera counted on its image, what the policy computes from the mesh for the camera it
             // is given.
-            let (viewed, probes) = match views.iter().find(|v| v.0 == camera) {
-                Some(v) => (v.1, v.2.clone()),
+            let (viewed, probes, costs) = match views.iter().find(|v| v.0 == camera) {
+                Some(v) => (v.1, v.2.clone(), v.3),
                 None => {
-                    let c = crate::cost::Crossings::of_first_frame_viewed(
+                    let (c, crossings_ms, probe_ms) = crate::cost::Crossings::of_first_frame_timed(
                         &scene.frames[0],
                         camera.as_ref(),
                         scene.frames.len(),
                     );
+                    let costs = StageCosts { crossings_ms, probe_ms, ..*scene_costs };
                     let probes = if timed && scene.frames.len() == 1 {
                         progress(&format!("{} (timed probes)", rec.mesh));
                         let cam = record_camera(camera, &scene.frames[0]);
@@ -694,10 +701,11 @@ pub fn load_samples_admitted(
                     } else {
                         Vec::new()
                     };
-                    views.push((camera, c, probes.clone()));
-                    (c, probes)
+                    views.push((camera, c, probes.clone(), costs));
+                    (c, probes, costs)
                 }
             };
+            sample.stage_ms = costs;
             if rec.rebuild == Rebuild::Once && rec.frames_measured <= 1 {
                 sample.timed = probes;
                 if probes_measured && scene.frames.len() == 1 {
@@ -722,4 +730,35 @@ pub fn load_samples_admitted(
         }
     }
     Ok(out)
+}
+
+/// The features of `mesh` and what its characterization and features take on this machine, warm (the median of
+/// three timed runs after an untimed one; the characterization on the CPU path with its scratch kept, as an engine
+/// keeps it across frames).
+fn time_scene_stages(mesh: &crate::mesh::Mesh, params: &Params) -> Result<(Features, StageCosts), String> {
+    use std::time::Instant;
+    const RUNS: usize = 3;
+    let mut scratch = crate::characterize::cpu::Scratch::default();
+    let mut char_ms = Vec::with_capacity(RUNS);
+    let mut feat_ms = Vec::with_capacity(RUNS);
+    let mut features = None;
+    for run in 0..=RUNS {
+        let t = Instant::now();
+        crate::characterize::cpu::fast_with(mesh, params, &mut scratch).map_err(|e| format!("characterize: {e}"))?;
+        let c = t.elapsed().as_secs_f64() * 1e3;
+        let t = Instant::now();
+        let f = features_cpu(mesh, params).map_err(|e| format!("features: {e}"))?;
+        let fm = t.elapsed().as_secs_f64() * 1e3;
+        if run > 0 {
+            char_ms.push(c);
+            feat_ms.push(fm);
+        }
+        features = Some(f);
+    }
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let f = features.ok_or("no features")?;
+    Ok((f, StageCosts { characterize_ms: median(char_ms), features_ms: median(feat_ms), ..Default::default() }))
 }

@@ -16,7 +16,7 @@ mod timed;
 
 pub use crate::cost::drift;
 pub use driver::fit_driver;
-pub use sample::{DriverMeasured, Measured, Sample};
+pub use sample::{DriverMeasured, Measured, Sample, StageCosts};
 
 use crate::accel::device::TraceBackend;
 use crate::accel::StructureName;

@@ -96,6 +96,33 @@ pub struct Sample {
     /// price at least its box-test price ([`crate::cost::StructureModel::trace_price`]; `fit_prices` in `cost`), devices'
     /// without.
     pub trace_backend: crate::accel::device::TraceBackend,
+    /// What each stage of a decision took on this scene and camera, measured warm on this machine when the sample
+    /// was loaded ([`StageCosts`]); all 0 when not measured.
+    pub stage_ms: StageCosts,
+}
+
+/// The wall time of each stage a decision may run on one scene and camera, ms, measured warm in this process on
+/// the CPU path (each the median of a few runs after one untimed): what a policy that reads a stage pays for it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct StageCosts {
+    /// The characterization of the first frame (the CPU path, its scratch kept across runs as an engine keeps it).
+    pub characterize_ms: f64,
+    /// The scene features of the first frame.
+    pub features_ms: f64,
+    /// The build bounds of the grid and the kd-tree from the mesh (the pass that counts the grid's references).
+    pub bounds_ms: f64,
+    /// The crossings of the record's camera: the triangle boxes, their sums, the count on the image and the boxes
+    /// entered before the hits.
+    pub crossings_ms: f64,
+    /// Each count probe, in the order of [`crate::cost::PROBED`] (its build and the traced sample).
+    pub probe_ms: [f64; crate::cost::probe::PROBES],
+}
+
+impl StageCosts {
+    /// The probe of `structure`, ms; `None` for a structure that is not probed.
+    pub fn probe(&self, structure: StructureName) -> Option<f64> {
+        crate::cost::PROBED.iter().position(|s| *s == structure).map(|i| self.probe_ms[i])
+    }
 }
 
 impl Sample {

@@ -190,6 +190,7 @@ mod tests {
             frame_timings: Vec::new(),
             grid_build_work: 0.0,
             trace_backend: Default::default(),
+            stage_ms: Default::default(),
         }
     }
 
