@@ -271,6 +271,17 @@ fn run(args: Args) -> anyhow::Result<()> {
     };
     model.trace_backend = backend;
     model.trace_device = record;
+    // What the selection's ladder weighs: the model's own held-out errors at each level (each family, or each
+    // scene, predicted by the same fit on the others) and the laws of what each decision stage took here.
+    let (ridge, crossings) = if args.ridge_cv {
+        (model_ridge(&model), model.structures.iter().any(|s| !s.crossing_coef.is_empty()))
+    } else {
+        (args.ridge, false)
+    };
+    model.uncertainty = meshchar::eval::fit::fit_uncertainty(&samples, &|t| {
+        CostModel::fit_with(t, &device, "held out", ridge, crossings)
+    });
+    model.inquiry_costs = meshchar::eval::fit::fit_inquiry_costs(&samples);
     if backend == TraceBackend::Vulkan && samples.iter().any(|s| !s.driver.is_empty()) {
         model.fit_driver(&samples)?;
     }
@@ -387,6 +398,36 @@ fn run(args: Args) -> anyhow::Result<()> {
             );
         }
     }
+    if let Some(u) = &model.uncertainty {
+        println!(
+            "held-out errors of the totals (RMS log, by {}): prior | crossings | probed | timed | measured",
+            u.holdout
+        );
+        let f = |x: Option<f64>| x.map_or_else(|| "-".into(), |x| format!("{x:.3}"));
+        for x in &u.structures {
+            println!(
+                "  {:<7} {:.3} | {:.3} | {:.3} | {} | {}  ({} samples)",
+                x.structure.as_str(),
+                x.prior,
+                x.crossings,
+                x.probed,
+                f(x.timed),
+                f(x.measured),
+                x.samples
+            );
+        }
+    }
+    for c in &model.inquiry_costs {
+        println!(
+            "inquiry {:<14} ms = exp({:.3}) n^{:.3} (RMS log {:.3}, {} samples): {:.3} ms at 100K triangles",
+            c.stage,
+            c.ln_a,
+            c.exponent,
+            c.rms,
+            c.samples,
+            c.ms(100_000)
+        );
+    }
     if let Some(r) = &model.refit {
         println!(
             "refit: SAH(refit)/SAH(fresh) = 1 + {:.3} * drift (RMS {:.3}, {} frame pairs); refit {:.1} ns/triangle",
@@ -399,6 +440,17 @@ fn run(args: Args) -> anyhow::Result<()> {
     }
     eprintln!("calibrate: {:.1} s", t.elapsed().as_secs_f64());
     Ok(())
+}
+
+/// The ridge a cross-validated fit chose, as its source names it (`..., ridge R ...`), else the default.
+fn model_ridge(model: &CostModel) -> f64 {
+    model
+        .source
+        .split(", ridge ")
+        .nth(1)
+        .and_then(|r| r.split([' ', ',']).next())
+        .and_then(|r| r.parse().ok())
+        .unwrap_or(meshchar::cost::RIDGE)
 }
 
 fn main() -> ExitCode {

@@ -519,6 +519,35 @@ fn pct(x: Option<f64>) -> String {
 /// `--compare-policies`: thesis (recorded) against calibrated (in sample and leave-one-scene-out) on cached
 /// oracle results.
 /// The policies against the baselines: overall, then mean / worst regret per workload and per family.
+/// The end-to-end table: per policy and frames, plain and end-to-end mean regret (worst), the median decision cost.
+fn print_e2e(e: &[meshchar::eval::e2e::E2ePolicy]) {
+    let Some(first) = e.first() else { return };
+    println!("\nwith the decision's cost (held out; e2e = (decision + chosen build + F trace) / best - 1):");
+    print!("{:<24}", "policy");
+    for s in &first.overall {
+        print!(" | {:>33}", format!("F = {}: regret / e2e (worst), ms", s.frames));
+    }
+    println!();
+    for p in e {
+        print!("{:<24}", format!("{} ({})", p.policy, p.holdout));
+        for s in &p.overall {
+            print!(
+                " | {:>6.1}% {:>6.1}% ({:>6.1}%) {:>8.3}",
+                100.0 * s.mean_regret,
+                100.0 * s.mean_e2e,
+                100.0 * s.worst_e2e,
+                s.median_decision_ms
+            );
+        }
+        println!();
+    }
+    let ladder = e.iter().find(|p| p.policy == "ladder");
+    if let Some(l) = ladder {
+        let levels: Vec<String> = l.overall.iter().map(|s| format!("F = {}: {:?}", s.frames, s.levels)).collect();
+        println!("ladder: samples decided at levels 0/1/2/3: {}", levels.join("; "));
+    }
+}
+
 fn print_baselines(b: &meshchar::eval::compare::Baselines) {
     println!("\nbaselines ({} samples; families: {}):", b.families.len(), {
         let mut f = b.families.clone();
@@ -760,6 +789,7 @@ fn compare_policies(args: &Args) -> anyhow::Result<()> {
                 pct(r.calibrated_held_out_regret)
             );
         }
+        print_e2e(&c.e2e);
         println!(
             "\n{:<34} {:>6} {:>9} {:>12} {:>12} {:>12}  worst at",
             "policy", "scored", "accuracy", "within noise", "mean regret", "worst regret"

@@ -330,6 +330,7 @@ fn paper_model() -> meshchar::cost::CostModel {
         build_work_coef: Vec::new(),
         build_curvature: 0.0,
         build_ln_n_range: Vec::new(),
+        prior: None,
         fit: FitError::default(),
     };
     let m = CostModel {
@@ -350,6 +351,8 @@ fn paper_model() -> meshchar::cost::CostModel {
         trace_device: None,
         driver: Vec::new(),
         timed: None,
+        uncertainty: None,
+        inquiry_costs: Vec::new(),
         chosen_as: None,
     };
     m.validate().unwrap();

@@ -590,8 +590,33 @@ pub struct StructureModel {
     /// follow their tangent ([`curvature_term`]); required with a curvature, else absent.
     #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
     pub build_ln_n_range: Vec<f64>,
+    /// The prior's own count laws ([`CountLaw`]), read where the caller knows nothing of the scene beyond its
+    /// features (no crossings, no probe); absent in files written before them (the laws above serve then).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub prior: Option<CountLaw>,
     /// Fit errors on the calibration samples.
     pub fit: FitError,
+}
+
+/// The count laws the prior reads (level 0: nothing known of the scene but its features), fitted apart from the
+/// laws that the crossings and probes correct, with a shrinkage chosen by how well the prior alone chooses on held-out
+/// records (`calibrate`): geometric laws that follow the calibration's scenes closely extrapolate poorly to a scene
+/// unlike them when nothing measured bounds them.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CountLaw {
+    /// Coefficients of `ln` box tests per ray, one per [`FEATURE_NAMES`].
+    #[serde(deserialize_with = "vec_f64_or_null")]
+    pub box_coef: Vec<f64>,
+    /// Coefficients of `ln` triangle tests per ray, one per [`FEATURE_NAMES`].
+    #[serde(deserialize_with = "vec_f64_or_null")]
+    pub prim_coef: Vec<f64>,
+    /// The view's coefficients of the box-test law (none: the view ignored).
+    #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
+    pub view_box_coef: Vec<f64>,
+    /// The view's coefficients of the triangle-test law.
+    #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
+    pub view_prim_coef: Vec<f64>,
 }
 
 /// A structure's predicted costs for a scene and workload.
@@ -656,8 +681,15 @@ impl StructureModel {
             }
         }
         let v = w.view.map_or([0.0; 3], |v| v.row());
-        let (cb, cp) = match self.crossing_coef[..] {
-            [b, p] => {
+        // Nothing known beyond the features: the prior's own laws, where the calibration has them.
+        let unknown = floor.crossings.is_nan() && floor.sampled.is_none();
+        let (box_coef, prim_coef, view_box, view_prim) = match (&self.prior, unknown) {
+            (Some(p), true) => (&p.box_coef, &p.prim_coef, &p.view_box_coef, &p.view_prim_coef),
+            _ => (&self.box_coef, &self.prim_coef, &self.view_box_coef, &self.view_prim_coef),
+        };
+        let (cb, cp) = match (self.crossing_coef.as_slice(), unknown && self.prior.is_some()) {
+            (_, true) => (0.0, 0.0),
+            (&[b, p], false) => {
                 // An unknown count (NaN) reads the calibration's mean for the kind (0 in files without one).
                 let xc = if floor.crossings.is_nan() {
                     self.crossing_mean.get(kind_index(w.kind)).copied().unwrap_or(0.0)
@@ -668,9 +700,8 @@ impl StructureModel {
             }
             _ => (0.0, 0.0),
         };
-        let bx = (dot(&self.box_coef, &x) + dot(&self.view_box_coef, &v) + cb).clamp(-30.0, 30.0).exp() * correction[0];
-        let pr =
-            (dot(&self.prim_coef, &x) + dot(&self.view_prim_coef, &v) + cp).clamp(-30.0, 30.0).exp() * correction[1];
+        let bx = (dot(box_coef, &x) + dot(view_box, &v) + cb).clamp(-30.0, 30.0).exp() * correction[0];
+        let pr = (dot(prim_coef, &x) + dot(view_prim, &v) + cp).clamp(-30.0, 30.0).exp() * correction[1];
         // A NaN bound (never given) must not poison the counts: f64::max and f64::min ignore it.
         let bx = bx.max(floor.box_tests).min(floor.box_tests_most);
         let pr = pr.max(floor.prim_tests).min(floor.prim_tests_most);
@@ -758,6 +789,82 @@ pub struct RefitModel {
     pub samples: usize,
 }
 
+/// One structure's held-out errors of its predicted total (RMS of `ln(predicted / measured)`), by what is known.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StructureUncertainty {
+    /// The structure.
+    pub structure: StructureName,
+    /// From the features alone (level 0).
+    #[serde(deserialize_with = "f64_or_null")]
+    pub prior: f64,
+    /// With the mesh's crossings, the structure itself not probed (level 1, another structure's probe).
+    #[serde(deserialize_with = "f64_or_null")]
+    pub crossings: f64,
+    /// With the crossings and its own count probe (level 1).
+    #[serde(deserialize_with = "f64_or_null")]
+    pub probed: f64,
+    /// With its timed probe blended in as well (level 2), when the records had timed probes.
+    #[serde(default)]
+    pub timed: Option<f64>,
+    /// Measured over whole frames (level 3) against the oracle, when the records had measured frames.
+    #[serde(default)]
+    pub measured: Option<f64>,
+    /// Samples behind the figures.
+    pub samples: usize,
+}
+
+/// The calibration's held-out errors ([`StructureUncertainty`] per structure): each group of the records
+/// (`holdout`: its family, or its scene where the records hold fewer than three families) predicted by a fit on
+/// the others.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Uncertainty {
+    /// `family` or `scene`.
+    pub holdout: String,
+    /// One per structure fitted.
+    pub structures: Vec<StructureUncertainty>,
+}
+
+impl Uncertainty {
+    /// The figures of `structure`.
+    pub fn of(&self, structure: StructureName) -> Option<&StructureUncertainty> {
+        self.structures.iter().find(|u| u.structure == structure)
+    }
+}
+
+/// What one stage of a decision costs, `ms = exp(ln_a) * n^exponent` for `n` triangles, fitted on the wall times
+/// measured warm when the calibration's records were loaded.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InquiryCost {
+    /// `characterize`, `features`, `crossings`, or `probe:<structure>` ([`PROBED`]).
+    pub stage: String,
+    /// `ln` of the ms of one triangle.
+    #[serde(deserialize_with = "f64_or_null")]
+    pub ln_a: f64,
+    /// The exponent of `n`.
+    #[serde(deserialize_with = "f64_or_null")]
+    pub exponent: f64,
+    /// RMS of `ln(law / measured)` over the samples.
+    #[serde(deserialize_with = "f64_or_null")]
+    pub rms: f64,
+    /// Samples fitted.
+    pub samples: usize,
+}
+
+impl InquiryCost {
+    /// The stage's name for a probe of `structure`.
+    pub fn probe_stage(structure: StructureName) -> String {
+        format!("probe:{structure}")
+    }
+
+    /// The law's ms for `n` triangles.
+    pub fn ms(&self, n: u64) -> f64 {
+        (self.ln_a + self.exponent * (n.max(1) as f64).ln()).exp()
+    }
+}
+
 /// A calibrated cost model: per structure constants, fit errors and provenance.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -797,6 +904,15 @@ pub struct CostModel {
     /// with them (`calibrate --timed-probes`); absent otherwise, and then the policy cannot blend timed probes in.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub timed: Option<timed::TimedRatios>,
+    /// The calibration's own held-out errors of each structure's total, by what the selection knows
+    /// ([`Uncertainty`]): what the selection's ladder weighs against the cost of knowing more. Absent in files
+    /// written before it: then the selection decides on the prior alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uncertainty: Option<Uncertainty>,
+    /// What each stage of a decision costs on the calibration's machine ([`InquiryCost`]), as laws in the triangle
+    /// count; absent in files written before it.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub inquiry_costs: Vec<InquiryCost>,
     /// Which file this model was read from and why it was chosen (`assets/cost-model-lavapipe.json: device name
     /// ...`), set by [`CostModel::for_trace_target`]; not part of the file, `None` for a model made otherwise.
     #[serde(skip)]
@@ -927,6 +1043,25 @@ impl CostModel {
             }
             d.validate(i)?;
         }
+        if let Some(u) = &self.uncertainty {
+            for (i, x) in u.structures.iter().enumerate() {
+                let at = |f: &str| format!("uncertainty.structures[{i}] ({}).{f}", x.structure.as_str());
+                let st = Some(x.structure);
+                let figures = [("prior", Some(x.prior)), ("crossings", Some(x.crossings)), ("probed", Some(x.probed))];
+                let more = [("timed", x.timed), ("measured", x.measured)];
+                for (name, v) in figures.into_iter().chain(more) {
+                    if let Some(v) = v {
+                        check_number(st, at(name), v, 0.0..=10.0, "an RMS error of ln(predicted / measured)")?;
+                    }
+                }
+            }
+        }
+        for (i, c) in self.inquiry_costs.iter().enumerate() {
+            let at = |f: &str| format!("inquiry_costs[{i}] ({}).{f}", c.stage);
+            check_number(None, at("ln_a"), c.ln_a, BUILD_LN_A_RANGE, "ln of the ms of one triangle")?;
+            check_number(None, at("exponent"), c.exponent, BUILD_EXPONENT_RANGE, "the exponent of n")?;
+            check_number(None, at("rms"), c.rms, 0.0..=f64::MAX, "a root-mean-square error")?;
+        }
         if !self.driver.is_empty() && self.trace_backend != TraceBackend::Vulkan {
             return Err(invalid(
                 None,
@@ -965,6 +1100,11 @@ impl CostModel {
             .map_err(|source| CostError::Io { path: path.display().to_string(), source })?;
         CostModel::from_json(&text)
             .map_err(|e| CostError::File { path: path.display().to_string(), source: Box::new(e) })
+    }
+
+    /// The predicted ms of decision stage `stage` ([`InquiryCost`]) for `n` triangles; `None` without its law.
+    pub fn inquiry_ms(&self, stage: &str, n: u64) -> Option<f64> {
+        self.inquiry_costs.iter().find(|c| c.stage == stage).map(|c| c.ms(n))
     }
 
     /// The model of one structure.

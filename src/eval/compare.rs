@@ -86,6 +86,9 @@ pub struct Comparison {
     pub candidates: Option<CandidateComparison>,
     /// The calibrated policy against the four baselines ([`compare_baselines`]).
     pub baselines: Baselines,
+    /// Every policy and level with the decision's cost counted ([`super::e2e::compare_e2e`]), at the frames of
+    /// [`super::e2e::E2E_FRAMES`].
+    pub e2e: Vec<super::e2e::E2ePolicy>,
 }
 
 /// One sample's choice among every candidate, the project's structures and the driver's (`rt_*`).
@@ -348,6 +351,7 @@ pub fn compare(samples: &[Sample], tie_margin: f64, device: &str) -> Result<Comp
         tie_margin,
         candidates: compare_candidates(samples, tie_margin, device)?,
         baselines: compare_baselines(samples, tie_margin, device),
+        e2e: super::e2e::compare_e2e(samples, tie_margin, crate::select::DEFAULT_DECISION_BUDGET, device)?,
     })
 }
 

@@ -5,6 +5,7 @@
 
 pub mod chart;
 pub mod compare;
+pub mod e2e;
 pub mod failure_study;
 pub mod fit;
 pub mod oracle;

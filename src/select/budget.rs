@@ -274,7 +274,8 @@ impl BuildBounds {
     /// without one), from the same triangle boxes ([`crate::cost::screen_crossings`]: 4.9 ms of this pass's 24
     /// ms for 200,000 triangles on the 2-core VM, `cargo bench --bench accel -- screen_crossings`).
     pub fn of_mesh_viewed(mesh: &Mesh, camera: Option<&crate::geom::Camera>) -> Result<BuildBounds, MeshError> {
-        BuildBounds::of_mesh_counted(mesh, &GridRule::default(), Some((camera, true)), &Budget::default())
+        let view = Some((camera, true, &crate::cost::PROBED[..]));
+        BuildBounds::of_mesh_counted(mesh, &GridRule::default(), view, &Budget::default())
     }
 
     /// The largest bounds over the frames of a scene ([`BuildBounds::of_mesh`] of each, [`BuildBounds::max`]);
@@ -302,12 +303,23 @@ impl BuildBounds {
         camera: Option<&crate::geom::Camera>,
         budget: &Budget,
     ) -> Result<Option<BuildBounds>, MeshError> {
+        BuildBounds::of_frames_probed(frames, camera, budget, &crate::cost::PROBED)
+    }
+
+    /// [`BuildBounds::of_frames_viewed_within`] with count probes of `probes` only (of those [`crate::cost::PROBED`]
+    /// holds; none for an animation): what the selection's first level of inquiry learns.
+    pub fn of_frames_probed(
+        frames: &[Mesh],
+        camera: Option<&crate::geom::Camera>,
+        budget: &Budget,
+        probes: &[Structure],
+    ) -> Result<Option<BuildBounds>, MeshError> {
         let mut out: Option<BuildBounds> = None;
         let rule = GridRule::default();
         for (i, f) in frames.iter().enumerate() {
             // An animation's first frame without the boxes entered before the hits: they bound that frame's rays
             // only (`Crossings::over_frames` would drop them; the pass is skipped instead).
-            let view = (i == 0).then_some((camera, frames.len() == 1));
+            let view = (i == 0).then_some((camera, frames.len() == 1, probes));
             let b = BuildBounds::of_mesh_counted(f, &rule, view, budget)?;
             out = Some(match out {
                 Some(o) => o.max(&b),
@@ -328,7 +340,7 @@ impl BuildBounds {
     fn of_mesh_counted(
         mesh: &Mesh,
         rule: &GridRule,
-        view: Option<(Option<&crate::geom::Camera>, bool)>,
+        view: Option<(Option<&crate::geom::Camera>, bool, &[Structure])>,
         budget: &Budget,
     ) -> Result<BuildBounds, MeshError> {
         crate::in_pool(|| BuildBounds::of_mesh_counted_here(mesh, rule, view, budget))
@@ -337,7 +349,7 @@ impl BuildBounds {
     fn of_mesh_counted_here(
         mesh: &Mesh,
         rule: &GridRule,
-        view: Option<(Option<&crate::geom::Camera>, bool)>,
+        view: Option<(Option<&crate::geom::Camera>, bool, &[Structure])>,
         budget: &Budget,
     ) -> Result<BuildBounds, MeshError> {
         use rayon::prelude::*;
@@ -380,13 +392,16 @@ impl BuildBounds {
             (g, Bound::Upper)
         };
         let mut crossings = Crossings::of(mesh, boxes.iter().zip(&tris).map(|(b, t)| (*b, t.is_degenerate())), &scene);
-        if let Some((camera, near)) = view {
+        if let Some((camera, near, probes)) = view {
             crossings = crossings.viewed_from(&boxes, if near { &tris } else { &[] }, &scene, camera);
             if near {
                 // A grid past the count threshold (the probe's own budget, `cost::probe::PROBE_GRID_BUDGET`) or the
                 // caller's grid budget is priced by its count or excluded: none is built for a probe.
-                let skip: &[Structure] = if over(g) { &[Structure::Grid] } else { &[] };
-                crossings = crossings.with_probes_but(mesh, &scene, skip);
+                let skip: Vec<Structure> = crate::cost::PROBED
+                    .into_iter()
+                    .filter(|s| !probes.contains(s) || (*s == Structure::Grid && over(g)))
+                    .collect();
+                crossings = crossings.with_probes_but(mesh, &scene, &skip);
             }
         }
         Ok(BuildBounds { box_crossings: Some(crossings), ..BuildBounds::finish(n as u64, "mesh", &grid, g, kind, k) })

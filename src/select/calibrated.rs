@@ -208,6 +208,8 @@ pub struct CalibratedPolicy {
     /// the scene's bounds, the oracle's default. The per-frame rule of an animation ([`FrameRule`]) reads it only
     /// through the overlap floor's crossings ([`CalibratedPolicy::crossings`]).
     pub camera: Option<crate::geom::Camera>,
+    /// The structures the caller can build (empty, the default: every calibrated one).
+    pub structures: Vec<StructureName>,
 }
 
 impl CalibratedPolicy {
@@ -224,6 +226,7 @@ impl CalibratedPolicy {
             tie_margin: Self::DEFAULT_TIE_MARGIN,
             driver: false,
             camera: None,
+            structures: Vec::new(),
         }
     }
 
@@ -303,8 +306,12 @@ impl Policy for CalibratedPolicy {
         let w = self.workload(scene.features.len());
         let excluded = scene.exclusions();
         let all = preds;
-        let preds: Vec<Prediction> =
-            all.iter().filter(|p| !excluded.iter().any(|e| e.structure == p.structure)).copied().collect();
+        let preds: Vec<Prediction> = all
+            .iter()
+            .filter(|p| !excluded.iter().any(|e| e.structure == p.structure))
+            .filter(|p| self.structures.is_empty() || self.structures.contains(&p.structure))
+            .copied()
+            .collect();
         let Some(choice) = choose(&preds, self.tie_margin) else {
             let mut s = ThesisPolicy::default().select(scene);
             s.reasons.insert(0, "calibrated policy: the model predicts nothing, the thesis policy decides".into());

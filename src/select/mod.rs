@@ -15,7 +15,9 @@
 pub mod budget;
 mod calibrated;
 pub mod driver;
+pub(crate) mod ladder;
 mod report;
+mod selector;
 mod thesis;
 
 pub use crate::cost::Crossings;
@@ -25,6 +27,8 @@ pub(crate) use calibrated::planned_total;
 pub use calibrated::{choose, margin_reason, plan_frames, CalibratedPolicy, FrameAction, FrameDecision, FrameRule};
 pub use driver::{plan_driver_frames, DriverAction, DriverFrameDecision, DriverFrameRule, DriverSelection};
 pub use report::{Bounds, Report, SelectionCost, Timings};
+pub(crate) use selector::{climb, Knowledge};
+pub use selector::{Decision, Inquiry, Level, Policy as PolicyKind, Scene, Selector, Step, DEFAULT_DECISION_BUDGET};
 pub use thesis::ThesisPolicy;
 
 use crate::characterize::{Characterization, Features};

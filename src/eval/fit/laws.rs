@@ -224,6 +224,7 @@ pub(super) fn fit_structure(
         crossing_mean,
         feature_range,
         build_work_coef,
+        prior: None,
         fit: FitError::default(),
     };
     let (mut eb, mut ebox, mut eprim, mut etc, mut et, mut etot) = (vec![], vec![], vec![], vec![], vec![], vec![]);

@@ -9,13 +9,18 @@
 //! root-mean-square natural-log ratios of prediction to measurement ([`crate::cost::FitError`]).
 
 mod driver;
+mod ladder;
 mod laws;
 pub(crate) mod linalg;
+mod prior;
 mod sample;
 mod timed;
 
 pub use crate::cost::drift;
 pub use driver::fit_driver;
+pub(crate) use ladder::without_probes;
+pub use ladder::{fit_inquiry_costs, fit_uncertainty};
+pub use prior::{choose_prior_ridge, PRIOR_RIDGES};
 pub use sample::{DriverMeasured, Measured, Sample, StageCosts};
 
 use crate::accel::device::TraceBackend;
@@ -149,6 +154,8 @@ impl CostModel {
             trace_device,
             driver: Vec::new(),
             timed: TimedRatios::fit(samples),
+            uncertainty: None,
+            inquiry_costs: Vec::new(),
             chosen_as: None,
         };
         let mut se = Vec::new();
