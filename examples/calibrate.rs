@@ -96,7 +96,8 @@ struct Args {
     /// prints each candidate's held-out regret
     #[arg(long, conflicts_with = "ridge")]
     ridge_cv: bool,
-    /// With --ridge-cv: the calibrated policy's tie margin used to score the held-out selections (not used otherwise)
+    /// The calibrated policy's tie margin used to score held-out selections (choosing the prior's shrinkage, and with
+    /// --ridge-cv the ridge)
     #[command(flatten)]
     tie: args::TieMarginArg,
     /// With --from-oracle the records' own tracer is used (vulkan here refuses CPU records)
@@ -278,8 +279,15 @@ fn run(args: Args) -> anyhow::Result<()> {
     } else {
         (args.ridge, false)
     };
+    // The prior's own count laws, with the shrinkage under which the prior alone chooses best held out.
+    let (prior_ridge, prior_scores) = meshchar::eval::fit::choose_prior_ridge(&samples, &device, args.tie.tie_margin);
+    for (r, regret) in &prior_scores {
+        let name = r.map_or_else(|| "size only".to_string(), |r| format!("ridge {r}"));
+        eprintln!("prior, {name}: mean regret held out {:.1}%", 100.0 * regret);
+    }
+    model = model.with_prior(&samples, prior_ridge)?;
     model.uncertainty = meshchar::eval::fit::fit_uncertainty(&samples, &|t| {
-        CostModel::fit_with(t, &device, "held out", ridge, crossings)
+        CostModel::fit_with(t, &device, "held out", ridge, crossings)?.with_prior(t, prior_ridge)
     });
     model.inquiry_costs = meshchar::eval::fit::fit_inquiry_costs(&samples);
     if backend == TraceBackend::Vulkan && samples.iter().any(|s| !s.driver.is_empty()) {

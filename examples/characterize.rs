@@ -16,7 +16,8 @@
 use anyhow::Context as _;
 use clap::Parser;
 use cli::args::{
-    self, BackendArg, BudgetArgs, JsonArg, MortonBitsArg, Policy, PolicyArgs, TraceBackendArg, WorkloadArgs,
+    self, BackendArg, BudgetArgs, DecisionArgs, JsonArg, MortonBitsArg, Policy, PolicyArgs, TraceBackendArg,
+    WorkloadArgs,
 };
 use cli::Progress;
 use meshchar::characterize::Features;
@@ -24,8 +25,7 @@ use meshchar::characterize::{cpu, Characterization, Characterizer, ClassRule, Pa
 use meshchar::cost::CostModel;
 use meshchar::mesh::Animation;
 use meshchar::select::{
-    select_for_scene_measured, select_for_scene_timed, select_for_scene_within, BuildBounds, CalibratedPolicy,
-    MeasureBudget, PolicyChoice, Report, SelectionCost, TargetWorkload,
+    Inquiry, Level, MeasureBudget, PolicyKind, Report, Scene, SelectionCost, Selector, TargetWorkload,
 };
 use meshchar::trace::workload::mesh_bounds;
 use std::path::PathBuf;
@@ -71,6 +71,8 @@ struct Args {
     policy: PolicyArgs,
     #[command(flatten)]
     budget: BudgetArgs,
+    #[command(flatten)]
+    decision: DecisionArgs,
     #[command(flatten)]
     trace_backend: TraceBackendArg,
     #[command(flatten)]
@@ -144,10 +146,6 @@ fn process(
         engine.characterize_animation_with_features(scene, &params)?;
     let characterize_ms = t0.elapsed().as_secs_f64() * 1e3;
     let t1 = std::time::Instant::now();
-    let policy = match args.policy.policy {
-        Policy::Thesis => PolicyChoice::Thesis,
-        Policy::Calibrated => PolicyChoice::Calibrated { model, tie_margin: CalibratedPolicy::DEFAULT_TIE_MARGIN },
-    };
     let resolution = u64::from(args.workload.resolution);
     let bounds_all = || scene.frames.iter().fold(meshchar::geom::Aabb::EMPTY, |a, m| a.union(&mesh_bounds(m)));
     let camera = args.camera.or_else(|| args.view.map(|v| v.camera(&bounds_all())));
@@ -164,34 +162,33 @@ fn process(
         driver: !model.driver.is_empty(),
         camera,
     };
-    // The build bounds from the meshes themselves (tighter than the features'): no structure whose grid or kd-tree
-    // references would exceed the budget (--budget-*) is a candidate.
-    // The crossings of the overlap floor are counted on the image of the camera the policy is given.
-    let budget = args.budget.budget();
-    let bounds = BuildBounds::of_frames_viewed_within(&scene.frames, workload.camera.as_ref(), &budget)?;
-    // With --timed-probes, a static scene's contenders are built and timed on a sample of the view (part of the
-    // selection's cost below).
-    // (An animation gets none, and a reason says so.)
-    let mut chosen = match scene.frames.first() {
-        Some(mesh) if args.measure_close_calls => {
-            let measure = MeasureBudget { resolution: args.workload.resolution, max_ms: args.measure_max_ms };
-            select_for_scene_measured(
-                &scene.name,
-                &results,
-                &features,
-                policy,
-                &workload,
-                bounds,
-                budget,
-                mesh,
-                measure,
-            )
-        }
-        Some(mesh) if args.timed_probes => {
-            select_for_scene_timed(&scene.name, &results, &features, policy, &workload, bounds, budget, mesh)
-        }
-        _ => select_for_scene_within(&scene.name, &results, &features, policy, &workload, bounds, budget),
+    let mut selector = Selector::new(model, workload);
+    selector.policy = match args.policy.policy {
+        Policy::Thesis => PolicyKind::Thesis,
+        Policy::Calibrated => PolicyKind::Calibrated,
     };
+    // --budget-*: no structure whose grid or kd-tree references would exceed the budget is a candidate.
+    selector.budget = args.budget.budget();
+    selector.inquiry = if args.measure_close_calls {
+        Inquiry::Fixed(Level::Measured)
+    } else if args.timed_probes {
+        Inquiry::Fixed(Level::Timed)
+    } else {
+        args.decision.level
+    };
+    selector.decision_budget = args.decision.decision_budget;
+    selector.resolution = args.workload.resolution;
+    if args.measure_close_calls {
+        selector.max_inquiry_ms = args.measure_max_ms;
+    }
+    let decision = selector.select(&Scene {
+        name: &scene.name,
+        characterizations: &results,
+        features: &features,
+        meshes: &scene.frames,
+    });
+    let (level, steps) = (decision.level, decision.steps.clone());
+    let mut chosen = decision.into_scene_selection();
     // Last, so that the policy's own reasons keep their places (docs/spec.md: the first, the margin second).
     if let Some(r) = rays_reason {
         chosen.selection.reasons.push(r);
@@ -213,6 +210,9 @@ fn process(
             .features(features[i].clone())
             .selection_cost(cost)
             .measured(chosen.measured.clone());
+        if chosen.policy == "calibrated" {
+            report = report.inquiry(level, steps.clone());
+        }
         if let Some(p) = &chosen.predicted {
             report = report.predicted(p.clone());
         }

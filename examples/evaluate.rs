@@ -39,7 +39,7 @@ use meshchar::eval::record::{load_samples_admitted, tracer_of, SampleProbes};
 use meshchar::eval::{OracleConfig, Rebuild, SceneEvaluation};
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::Animation;
-use meshchar::select::{select_for_scene_within, Budget, BuildBounds, PolicyChoice, TargetWorkload};
+use meshchar::select::{Budget, Decision, PolicyKind, Scene, Selector, TargetWorkload};
 use meshchar::trace::views::View;
 use meshchar::trace::workload::{build_workload, mesh_bounds};
 use meshchar::trace::Camera;
@@ -119,6 +119,12 @@ struct Args {
     policy: PolicyArgs,
     #[command(flatten)]
     budget: BudgetArgs,
+    #[command(flatten)]
+    decision: cli::args::DecisionArgs,
+    /// The characterization backend of the decision (timed warm: decision_ms) [default: vulkan when a device is
+    /// found, else cpu]
+    #[command(flatten)]
+    backend: cli::args::BackendArg,
     #[command(flatten)]
     tie_margin: TieMarginArg,
     /// Append every scene's JSON line to FILE (to compare policies later without measuring)
@@ -266,11 +272,22 @@ fn load_scene(path: &Path) -> anyhow::Result<Animation> {
 
 /// A selection (the project's structure and the overall candidate, a driver structure's name when the policy chose
 /// one), its reasons, and the calibrated policy's predictions.
-type Selected = (StructureName, &'static str, Vec<String>, Option<Vec<Prediction>>);
+/// The policy's selection and what deciding cost.
+struct Selected {
+    structure: StructureName,
+    candidate: &'static str,
+    reasons: Vec<String>,
+    predicted: Option<Vec<Prediction>>,
+    level: Option<meshchar::select::Level>,
+    /// The decision as an engine calls it (characterization, features, selection), warm, this process, ms.
+    decision_ms: f64,
+}
 
 /// The policy's selection for a scene: every frame characterized (Vulkan when a device is found, else the CPU
 /// path) and its features computed; then the thesis policy over the frames, or the calibrated policy for the
-/// workload of `config` (rays per frame counted by generating the workload's rays as the oracle will).
+/// workload of `config` (rays per frame counted by generating the workload's rays as the oracle will). The whole
+/// decision runs twice and the second is timed: what an engine that decides again pays, warm.
+#[allow(clippy::too_many_arguments)]
 fn select(
     engine: &mut Characterizer,
     scene: &Animation,
@@ -279,12 +296,8 @@ fn select(
     model: &CostModel,
     tie_margin: f64,
     budget: Budget,
+    decision: &cli::args::DecisionArgs,
 ) -> anyhow::Result<Selected> {
-    let (chars, features) = engine.characterize_animation_with_features(scene, &Params::default())?;
-    let choice = match policy {
-        Policy::Thesis => PolicyChoice::Thesis,
-        Policy::Calibrated => PolicyChoice::Calibrated { model, tie_margin },
-    };
     let workload = TargetWorkload {
         kind: config.workload,
         rays_per_frame: if policy == Policy::Thesis { 0 } else { rays_per_frame(scene, config)? },
@@ -296,13 +309,39 @@ fn select(
         // assumes without a camera).
         camera: config.camera,
     };
-    // The build bounds from the meshes (tighter than the features'): over-budget structures are no candidates.
-    // The crossings of the overlap floor are counted on the image of the camera the policy is given.
-    let bounds = BuildBounds::of_frames_viewed_within(&scene.frames, workload.camera.as_ref(), &budget)?;
-    let chosen = select_for_scene_within(&scene.name, &chars, &features, choice, &workload, bounds, budget);
-    let (sel, preds) = (chosen.selection, chosen.predicted);
-    let name = sel.structure;
-    Ok((name, sel.candidate(), sel.reasons, preds))
+    let mut selector = Selector::new(model, workload);
+    selector.policy = match policy {
+        Policy::Thesis => PolicyKind::Thesis,
+        Policy::Calibrated => PolicyKind::Calibrated,
+    };
+    selector.budget = budget;
+    selector.tie_margin = tie_margin;
+    selector.inquiry = decision.level;
+    selector.decision_budget = decision.decision_budget;
+    selector.resolution = config.resolution;
+    let mut run = || -> anyhow::Result<(Decision, f64)> {
+        let t = std::time::Instant::now();
+        let (chars, features) = engine.characterize_animation_with_features(scene, &Params::default())?;
+        let d = selector.select(&Scene {
+            name: &scene.name,
+            characterizations: &chars,
+            features: &features,
+            meshes: &scene.frames,
+        });
+        Ok((d, t.elapsed().as_secs_f64() * 1e3))
+    };
+    run()?;
+    let (d, decision_ms) = run()?;
+    let level = (d.policy == PolicyKind::Calibrated).then_some(d.level);
+    let sel = d.selection;
+    Ok(Selected {
+        structure: sel.structure,
+        candidate: sel.candidate(),
+        reasons: sel.reasons,
+        predicted: d.predicted,
+        level,
+        decision_ms,
+    })
 }
 
 /// Rays per frame of the oracle's workload on the first frame: `resolution^2` primary rays, or the secondary rays
@@ -971,24 +1010,40 @@ fn scene(
     );
     bar.step(&format!("{}: characterization and selection", scene.name));
     let policy = args.policy.policy;
-    let selection = select(engine, &scene, &config, policy, model, args.tie_margin.tie_margin, args.budget.budget());
-    let (selected, candidate, predictions) = match selection {
-        Ok((s, candidate, reasons, preds)) => {
+    let selection = select(
+        engine,
+        &scene,
+        &config,
+        policy,
+        model,
+        args.tie_margin.tie_margin,
+        args.budget.budget(),
+        &args.decision,
+    );
+    let chosen = match selection {
+        Ok(s) => {
             if !args.json.json {
                 bar.suspend(|| {
-                    println!("\n{}: the {} policy selects {candidate}", scene.name, policy.as_str());
-                    for r in &reasons {
+                    println!(
+                        "\n{}: the {} policy selects {} (decision {:.3} ms, warm)",
+                        scene.name,
+                        policy.as_str(),
+                        s.candidate,
+                        s.decision_ms
+                    );
+                    for r in &s.reasons {
                         println!("  - {r}");
                     }
                 });
             }
-            (s, candidate, preds)
+            s
         }
         Err(e) => {
             fail(format!("{}: characterization failed: {}", scene.name, cli::message(&e)));
             return None;
         }
     };
+    let (selected, candidate, predictions) = (chosen.structure, chosen.candidate, chosen.predicted.clone());
     let e = match evaluate_scene_on(&scene, &config, Some(selected), &|m| bar.step(m), device) {
         Ok(e) => e,
         Err(e) => {
@@ -1007,6 +1062,20 @@ fn scene(
     if let Some(p) = &predictions {
         json["predicted"] = serde_json::json!(p);
     }
+    // The decision counted: once per build of a static scene, once per frame of an animation.
+    let decisions = if scene.is_dynamic() { e.frames_measured.max(1) as f64 } else { 1.0 };
+    let total = |s: Option<StructureName>| {
+        e.structures.iter().find(|r| r.name == s && s.is_some()).map(|r| r.total_ms.median).filter(|t| *t > 0.0)
+    };
+    let e2e = match (total(Some(selected)), total(e.oracle_best)) {
+        (Some(c), Some(b)) => Some((decisions * chosen.decision_ms + c) / b - 1.0),
+        _ => None,
+    };
+    json["decision_ms"] = serde_json::json!(chosen.decision_ms);
+    json["e2e_regret"] = serde_json::json!(e2e);
+    if let Some(l) = chosen.level {
+        json["decision_level"] = serde_json::json!(l);
+    }
     if !e.driver_structures.is_empty() {
         // The overall choice among the project's and the driver's structures, and its regret against the best of
         // them all.
@@ -1018,6 +1087,12 @@ fn scene(
             println!("{json}");
         } else {
             print_table(&e);
+            println!(
+                "  decision: {:.3} ms warm ({}){}",
+                chosen.decision_ms,
+                if scene.is_dynamic() { "every frame" } else { "once per build" },
+                e2e.map(|x| format!("; end-to-end regret over {} frame(s): {x:.3}", e.frames)).unwrap_or_default()
+            );
             if let Some(p) = &predictions {
                 print_predictions(&e, p);
             }
@@ -1035,7 +1110,7 @@ fn run(args: Args) -> anyhow::Result<()> {
     if !args.compare_policies.is_empty() {
         return compare_policies(&args);
     }
-    let mut engine = Characterizer::new(None)?;
+    let mut engine = Characterizer::new(args.backend.backend)?;
     let ctx = match args.trace_backend {
         TraceBackend::Cpu => None,
         TraceBackend::Vulkan => Some(

@@ -361,13 +361,18 @@ fn the_decision_cost_is_weighed_against_the_chosen_frame() {
         trace_ms: 990.0,
         total_ms: 1000.0,
     };
-    // A static scene over 10 frames: 100 ms a frame; a decision of 0.5 + 0.4 ms is 0.9% of it.
+    // A static scene over 10 frames: 100 ms a frame; a decision of 0.5 + 0.4 ms, once per build, is 0.09 ms per
+    // frame, 0.09% of it; over one frame of the same total it would be 0.09%, over 100 frames a tenth of that.
     let c = SelectionCost::new(0.5, 0.4, 1, Some(&p), 10);
-    assert_eq!(c.predicted_frame_ms, Some(100.0));
-    assert!((c.share.unwrap() - 0.009).abs() < 1e-12 && c.within_goal == Some(true), "{c:?}");
+    assert_eq!((c.predicted_frame_ms, c.counted), (Some(100.0), "once per build"));
+    assert!((c.per_frame_ms - 0.09).abs() < 1e-12, "{c:?}");
+    assert!((c.share.unwrap() - 0.0009).abs() < 1e-12 && c.within_goal == Some(true), "{c:?}");
+    let p100 = meshchar::cost::Prediction { trace_ms: 9990.0, total_ms: 10000.0, ..p };
+    let c100 = SelectionCost::new(0.5, 0.4, 1, Some(&p100), 100);
+    assert!(c100.share.unwrap() < c.share.unwrap(), "{c100:?} {c:?}");
     // An animation of 4 frames, each characterized: the decision per frame is a quarter of the whole.
     let c = SelectionCost::new(8.0, 4.0, 4, Some(&p), 4);
-    assert_eq!((c.per_frame_ms, c.predicted_frame_ms), (3.0, Some(250.0)));
+    assert_eq!((c.per_frame_ms, c.predicted_frame_ms, c.counted), (3.0, Some(250.0), "per frame"));
     assert_eq!(c.within_goal, Some(false));
     // Without predictions (the thesis policy) there is nothing to weigh against.
     let c = SelectionCost::new(1.0, 1.0, 1, None, 1);

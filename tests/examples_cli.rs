@@ -239,7 +239,9 @@ fn bad_values_exit_2() {
 
 /// `characterize --json` on 2,000 large overlapping triangles at 16 x 16 rays with `extra` flags: its first report.
 fn overlapping_report(extra: &[&str]) -> serde_json::Value {
-    let mut a = vec!["degenerate:overlapping:2000:1", "--backend", "cpu", "--json", "--resolution", "16"];
+    // Level 1: the mesh's bounds pass counts the grid's references exactly.
+    let mut a =
+        vec!["degenerate:overlapping:2000:1", "--backend", "cpu", "--json", "--resolution", "16", "--level", "1"];
     a.extend_from_slice(extra);
     let out = run("characterize", &a);
     let (stdout, stderr) = text(&out);
@@ -276,7 +278,8 @@ fn a_grid_counted_exactly_is_priced_by_its_references_and_the_grid_flags_reach_t
     // exactly. The default budget keeps it (within its builder's limit) and prices its build by that count: the
     // shipped work law at 487 references per triangle, not the law in n alone (fitted on a few per triangle).
     let report = |extra: &[&str]| {
-        let mut a = vec!["degenerate:overlapping:20000:1", "--backend", "cpu", "--json", "--resolution", "16"];
+        let mut a =
+            vec!["degenerate:overlapping:20000:1", "--backend", "cpu", "--json", "--resolution", "16", "--level", "1"];
         a.extend_from_slice(extra);
         let out = run("characterize", &a);
         let (stdout, stderr) = text(&out);

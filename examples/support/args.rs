@@ -68,6 +68,35 @@ impl PolicyArgs {
     }
 }
 
+/// `--level` and `--decision-budget` (characterize, evaluate): how far the calibrated policy inquires beyond the
+/// prior ([`meshchar::select::Inquiry`]).
+#[derive(clap::Args, Clone, Copy, Debug)]
+pub struct DecisionArgs {
+    /// Calibrated policy: auto (climb the ladder of inquiry only where the expected gain exceeds the predicted cost,
+    /// within --decision-budget), or a level to climb to whatever it costs: 0 (the prior: the fitted laws on the
+    /// features, nothing built), 1 (the mesh's crossings and count probes), 2 (timed probes), 3 (the close call
+    /// measured over whole frames)
+    #[arg(long, value_name = "auto|0|1|2|3", default_value = "auto", value_parser = inquiry)]
+    pub level: meshchar::select::Inquiry,
+    /// Calibrated policy, --level auto: the most the inquiry beyond the prior may cost, as a share of the chosen
+    /// structure's predicted total over the workload's frames
+    #[arg(long, value_name = "SHARE", default_value_t = meshchar::select::DEFAULT_DECISION_BUDGET, value_parser = nonnegative_number)]
+    pub decision_budget: f64,
+}
+
+/// `auto` or a level 0 to 3.
+pub fn inquiry(s: &str) -> Result<meshchar::select::Inquiry, String> {
+    use meshchar::select::{Inquiry, Level};
+    if s == "auto" {
+        return Ok(Inquiry::Auto);
+    }
+    s.parse::<u8>()
+        .ok()
+        .and_then(Level::from_number)
+        .map(Inquiry::Fixed)
+        .ok_or_else(|| format!("{s:?}: expected auto, 0, 1, 2 or 3"))
+}
+
 /// `--budget-*` (characterize, evaluate): how many cell references and bytes the grid and the kd-tree may need
 /// before a policy drops them ([`Budget`]; the bounds are computed from the mesh before anything is built).
 #[derive(clap::Args, Clone, Copy, Debug)]

@@ -125,35 +125,44 @@ pub struct Report {
     /// absent when nothing was measured.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub measured: Vec<crate::cost::measured::MeasuredTotal>,
+    /// The level of inquiry that decided (`prior`, `counted`, `timed`, `measured`; absent for the thesis policy).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub level: Option<super::Level>,
+    /// Each level the calibrated policy weighed beyond the prior ([`super::Step`]); absent when none.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub steps: Vec<super::Step>,
 }
 
-/// The price of the decision: the characterization (with the features) and the selection, wall time, against the
-/// chosen structure's predicted frame time. The goal is at most 1% ([`SelectionCost::GOAL`]); `within_goal` says
-/// whether it was met.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+/// The price of the decision against what it decides: the characterization (with the features) and the selection,
+/// wall time, this process. A static scene decides once per build, and its decision is spread over the frames that
+/// build serves (`--frames`); an animation decides on every frame. The goal is at most 1% ([`SelectionCost::GOAL`]).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct SelectionCost {
     /// Characterizing every frame and computing the features, ms (wall time, this process).
     pub characterize_ms: f64,
-    /// The selection (the view, the predictions, the budget bounds, the choice), ms.
+    /// The selection (the predictions, any inquiry beyond the prior, the choice), ms.
     pub select_ms: f64,
-    /// The decision's cost per frame: both of the above, divided by the frames characterized (an animation is
-    /// characterized every frame; a static scene once, and counted whole against one frame).
+    /// The decision's cost per frame rendered: both of the above over the frames they serve (an animation's
+    /// decisions over its frames; a static scene's one decision over the frames of its one build).
     pub per_frame_ms: f64,
-    /// The chosen structure's predicted frame time: its predicted total over the frames it covers, ms; `None`
-    /// without predictions (the thesis policy).
+    /// The chosen structure's predicted time per frame: its predicted total (build and traces) over the frames,
+    /// ms; `None` without predictions (the thesis policy).
     pub predicted_frame_ms: Option<f64>,
-    /// `per_frame_ms / predicted_frame_ms`.
+    /// `per_frame_ms / predicted_frame_ms`: the decision's share of what it decides.
     pub share: Option<f64>,
     /// `share <= GOAL`.
     pub within_goal: Option<bool>,
+    /// `once per build` (a static scene) or `per frame` (an animation).
+    pub counted: &'static str,
 }
 
 impl SelectionCost {
-    /// The goal: the decision costs at most this share of a frame.
+    /// The goal: the decision costs at most this share of what it decides.
     pub const GOAL: f64 = 0.01;
 
-    /// The cost of a decision that took `characterize_ms` and `select_ms` over `frames_characterized` frames,
-    /// against the chosen prediction (`predicted`, its total over `frames` frames).
+    /// The cost of a decision that took `characterize_ms` and `select_ms`, for a scene of `frames_characterized`
+    /// frames (more than one: an animation, deciding per frame) whose chosen prediction (`predicted`) totals
+    /// `frames` frames.
     pub fn new(
         characterize_ms: f64,
         select_ms: f64,
@@ -161,8 +170,11 @@ impl SelectionCost {
         predicted: Option<&crate::cost::Prediction>,
         frames: u64,
     ) -> Self {
-        let per_frame_ms = (characterize_ms + select_ms) / frames_characterized.max(1) as f64;
-        let predicted_frame_ms = predicted.map(|p| p.total_ms / frames.max(1) as f64);
+        let frames = frames.max(1);
+        let animation = frames_characterized > 1;
+        let served = if animation { frames_characterized as u64 } else { frames };
+        let per_frame_ms = (characterize_ms + select_ms) / served as f64;
+        let predicted_frame_ms = predicted.map(|p| p.total_ms / frames as f64);
         let share = predicted_frame_ms.filter(|&f| f > 0.0).map(|f| per_frame_ms / f);
         SelectionCost {
             characterize_ms,
@@ -171,6 +183,7 @@ impl SelectionCost {
             predicted_frame_ms,
             share,
             within_goal: share.map(|s| s <= Self::GOAL),
+            counted: if animation { "per frame" } else { "once per build" },
         }
     }
 }
@@ -227,6 +240,8 @@ impl Report {
             timings_ms: Timings(timings),
             selection_cost: None,
             measured: Vec::new(),
+            level: None,
+            steps: Vec::new(),
         }
     }
 
@@ -257,6 +272,13 @@ impl Report {
     /// Sets the close call measured ([`Report::measured`]).
     pub fn measured(mut self, m: Vec<crate::cost::measured::MeasuredTotal>) -> Report {
         self.measured = m;
+        self
+    }
+
+    /// Sets the level that decided and the steps weighed ([`super::Decision`]).
+    pub fn inquiry(mut self, level: super::Level, steps: Vec<super::Step>) -> Report {
+        self.level = Some(level);
+        self.steps = steps;
         self
     }
 
@@ -376,13 +398,15 @@ impl Report {
         if let Some(c) = &self.selection_cost {
             writeln!(
                 o,
-                "  decision cost  {:.3} ms per frame (characterize {:.3} ms, select {:.3} ms){}",
-                c.per_frame_ms,
+                "  decision cost  {:.3} ms, {} (characterize {:.3} ms, select {:.3} ms; {:.3} ms per frame){}",
+                c.characterize_ms + c.select_ms,
+                c.counted,
                 c.characterize_ms,
                 c.select_ms,
+                c.per_frame_ms,
                 match (c.predicted_frame_ms, c.share) {
                     (Some(f), Some(s)) => format!(
-                        "; {:.2}% of the chosen structure's predicted {f:.3} ms frame{}",
+                        "; {:.2}% of the chosen structure's predicted {f:.3} ms per frame{}",
                         100.0 * s,
                         if s <= SelectionCost::GOAL { "" } else { ": over the 1% goal" }
                     ),

@@ -115,6 +115,9 @@ pub struct Selector<'m> {
     pub tie_margin: f64,
     /// The side of the square image a measured close call traces (the workload's resolution).
     pub resolution: u32,
+    /// The most a level climbed under [`Inquiry::Fixed`] may cost by its prediction, ms (a measured close call
+    /// predicted to take longer is not measured); infinite by default.
+    pub max_inquiry_ms: f64,
 }
 
 /// The default [`Selector::decision_budget`].
@@ -135,6 +138,7 @@ impl<'m> Selector<'m> {
             structures: Vec::new(),
             tie_margin: CalibratedPolicy::DEFAULT_TIE_MARGIN,
             resolution: 1024,
+            max_inquiry_ms: f64::INFINITY,
         }
     }
 
@@ -172,9 +176,9 @@ impl<'m> Selector<'m> {
         if let Some(best) = climb.measured.iter().min_by(|a, b| a.total_ms.total_cmp(&b.total_ms)) {
             selection.structure = best.structure;
         }
-        let mut reasons: Vec<String> = climb.reasons(self, selection.structure);
-        reasons.append(&mut selection.reasons);
-        selection.reasons = reasons;
+        // The policy's own reasons first (docs/spec.md: the choice, then the margin), then the ladder's.
+        let ladder = climb.reasons(self, selection.structure);
+        selection.reasons.extend(ladder);
         Decision {
             policy: Policy::Calibrated,
             kind,
@@ -357,7 +361,25 @@ impl Climb {
             },
             self.note.as_ref().map(|n| format!("; {n}")).unwrap_or_default()
         )];
-        out.extend(self.steps.iter().map(|st| st.to_string()));
+        for st in &self.steps {
+            out.push(st.to_string());
+            // A close call that was asked for and not measured says why, as the close call's own line.
+            if st.level == Level::Measured && !st.taken && matches!(s.inquiry, Inquiry::Fixed(Level::Measured)) {
+                let why = st.why_not.as_deref().unwrap_or("");
+                out.push(if st.structures.len() < 2 {
+                    format!(
+                        "measured close call: none: no close call (no other structure predicted within {:.0}% of \
+                         the least)",
+                        100.0 * crate::cost::measured::CLOSE_CALL_MARGIN
+                    )
+                } else {
+                    format!("measured close call: none: {why}")
+                });
+            }
+        }
+        if let (Inquiry::Fixed(Level::Measured), Some(note)) = (s.inquiry, &self.note) {
+            out.push(format!("measured close call: none: {note}"));
+        }
         if !self.measured.is_empty() {
             let list: Vec<String> = self
                 .measured
@@ -541,7 +563,12 @@ pub(crate) fn climb(s: &Selector<'_>, k: &mut dyn Knowledge) -> Climb {
         let why_not = if level != Level::Counted && structures.len() < 2 {
             Some(format!("fewer than two structures to {}", if level == Level::Timed { "time" } else { "measure" }))
         } else if !auto {
-            None
+            match cost {
+                Some(c) if c > s.max_inquiry_ms => {
+                    Some(format!("predicted to take {c:.0} ms, over the {:.0} ms allowed", s.max_inquiry_ms))
+                }
+                _ => None,
+            }
         } else {
             match (gain, cost) {
                 (None, _) => Some("the calibration has no held-out error for this level".to_string()),
@@ -558,7 +585,11 @@ pub(crate) fn climb(s: &Selector<'_>, k: &mut dyn Knowledge) -> Climb {
         if let Some(w) = why_not {
             step.why_not = Some(w);
             out.steps.push(step);
-            break;
+            // A climb stops at the first level that does not pay; a fixed level goes on to the next.
+            if auto {
+                break;
+            }
+            continue;
         }
         let spent = match level {
             Level::Counted => Some(k.count(&structures)),
