@@ -24,9 +24,7 @@ use meshchar::characterize::Features;
 use meshchar::characterize::{cpu, Characterization, Characterizer, ClassRule, Params};
 use meshchar::cost::CostModel;
 use meshchar::mesh::Animation;
-use meshchar::select::{
-    Inquiry, Level, MeasureBudget, PolicyKind, Report, Scene, SelectionCost, Selector, TargetWorkload,
-};
+use meshchar::select::{Inquiry, Level, PolicyKind, Report, Scene, SelectionCost, Selector, TargetWorkload};
 use meshchar::trace::workload::mesh_bounds;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -110,7 +108,7 @@ struct Args {
     measure_close_calls: bool,
     /// With --measure-close-calls: measure only when the predictions put the measurement at no more than MS
     /// milliseconds
-    #[arg(long, value_name = "MS", default_value_t = MeasureBudget::DEFAULT_MAX_MS, requires = "measure_close_calls", value_parser = args::positive_number)]
+    #[arg(long, value_name = "MS", default_value_t = meshchar::cost::measured::DEFAULT_MAX_MS, requires = "measure_close_calls", value_parser = args::positive_number)]
     measure_max_ms: f64,
 }
 
@@ -188,7 +186,7 @@ fn process(
         meshes: &scene.frames,
     });
     let (level, steps) = (decision.level, decision.steps.clone());
-    let mut chosen = decision.into_scene_selection();
+    let mut chosen = decision;
     // Last, so that the policy's own reasons keep their places (docs/spec.md: the first, the margin second).
     if let Some(r) = rays_reason {
         chosen.selection.reasons.push(r);
@@ -205,12 +203,12 @@ fn process(
     let dynamic = scene.frames.len() > 1;
     for (i, (frame, c)) in scene.frames.iter().zip(&results).enumerate() {
         let mut report = Report::new(if dynamic { scene.name.clone() } else { frame.name.clone() }, c)
-            .selection(chosen.kind, chosen.policy, &chosen.selection)
+            .selection(chosen.kind, chosen.policy.name(), &chosen.selection)
             .zero_area(cpu::zero_area_triangles(frame, params.sample_stride))
             .features(features[i].clone())
             .selection_cost(cost)
             .measured(chosen.measured.clone());
-        if chosen.policy == "calibrated" {
+        if chosen.policy == PolicyKind::Calibrated {
             report = report.inquiry(level, steps.clone());
         }
         if let Some(p) = &chosen.predicted {

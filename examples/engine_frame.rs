@@ -1028,6 +1028,9 @@ struct MeshState {
     driver_features: Option<Features>,
     /// The latest report read back: its frame (`None`: the rest pose, before the loop), report, features.
     latest: (Option<usize>, Characterization, Features),
+    /// The features of the last decision and whether it chose the driver's structure: kept while the features
+    /// stay within the rule's drift of them ([`FrameRule::redecide`]).
+    decided: Option<(Features, bool)>,
 }
 
 /// A frame submitted and not yet read back.
@@ -1050,6 +1053,12 @@ struct InFlight {
 /// One mesh in one frame.
 struct MeshFrame {
     decision: FrameAction,
+    /// Whether the rule decided this frame (else the last decision was kept: the features stayed within its drift).
+    decided: bool,
+    /// The drift from the features of the last decision.
+    drift_since_decision: f64,
+    /// The host's time deciding (or checking that the last decision holds), µs.
+    decision_us: f64,
     /// `lbvh`, or `rt_update` (the driver structure; its update counts as a refit).
     structure: &'static str,
     drift: f64,
@@ -1073,6 +1082,12 @@ struct FrameLine {
     reference_equal: Option<bool>,
     /// Meshes of this frame traced with the driver's structure (rt_update) rather than the LBVH.
     driver_meshes: usize,
+    /// The host's time deciding for every mesh, µs.
+    decision_us: f64,
+    /// The meshes the rule decided for again (their features drifted past the rule's bound).
+    redecided: Vec<String>,
+    /// The frame's GPU time: animation, characterization and the builds and refits (timestamps), ms.
+    gpu_ms: f64,
 }
 
 /// The report without what differs between a device run and the CPU reference by construction.
@@ -1261,6 +1276,9 @@ impl Run<'_> {
             };
             frames.push(MeshFrame {
                 decision: FrameAction::Rebuild,
+                decided: false,
+                drift_since_decision: 0.0,
+                decision_us: 0.0,
                 structure: "lbvh",
                 drift: 0.0,
                 plan_from,
@@ -1284,8 +1302,25 @@ impl Run<'_> {
                 None => (st.latest.1.clone(), st.latest.2.clone()),
             };
             let driver_rule = self.driver.as_ref().map(|(_, r)| r);
-            let (action, drift, use_driver) =
-                decide(&self.rule, driver_rule, self.args.structure, st, t, &now_features)?;
+            // The last decision holds while the features stay within the rule's drift of the ones it was made on;
+            // past it, or without a structure, the rule decides again.
+            let clock = Instant::now();
+            let (redecide, since) = match (&st.decided, st.tree.is_some() || st.driver.is_some()) {
+                (Some((f, _)), true) => self.rule.redecide(f, &now_features),
+                _ => (true, 0.0),
+            };
+            let (action, drift, use_driver) = if redecide {
+                let c = decide(&self.rule, driver_rule, self.args.structure, st, t, &now_features)?;
+                st.decided = Some((now_features.clone(), c.2));
+                c
+            } else {
+                let on_driver = st.decided.as_ref().is_some_and(|d| d.1);
+                let built = if on_driver { st.driver_features.as_ref() } else { st.built_features.as_ref() };
+                let drift = built.map_or(0.0, |b| meshchar::cost::drift(b, &now_features));
+                (FrameAction::Refit, drift, on_driver)
+            };
+            mf.decision_us = clock.elapsed().as_secs_f64() * 1e6;
+            (mf.decided, mf.drift_since_decision) = (redecide, since);
             (mf.decision, mf.drift) = (action, drift);
             if let (true, Some((builder, _))) = (use_driver, &self.driver) {
                 mf.structure = DriverFlags::Update.name();
@@ -1393,6 +1428,9 @@ impl Run<'_> {
             messages: 0,
             reference_equal: None,
             driver_meshes: 0,
+            decision_us: 0.0,
+            redecided: Vec::new(),
+            gpu_ms: 0.0,
         };
         let mut last = Vec::new();
         for (i, (mf, st)) in f.meshes.into_iter().zip(self.states.iter_mut()).enumerate() {
@@ -1427,6 +1465,10 @@ impl Run<'_> {
                 last.push((read_back_mesh(b, m, f.frame)?, mf.plan.clone()));
             }
             line.characterize_ms += char_ms;
+            line.decision_us += mf.decision_us;
+            if mf.decided {
+                line.redecided.push(m.name.clone());
+            }
             let op = match mf.decision {
                 FrameAction::Rebuild => {
                     line.rebuilds += 1;
@@ -1446,7 +1488,8 @@ impl Run<'_> {
             let mut mj = json!({
                 "mesh": m.name, "triangles": m.rest.triangle_count(), "index_type": index_name(m.index_type),
                 "motion": m.motion.as_str(), "decision": mf.decision.as_str(), "structure": mf.structure,
-                "drift": mf.drift,
+                "drift": mf.drift, "decided": mf.decided, "drift_since_decision": mf.drift_since_decision,
+                "decision_us": mf.decision_us,
                 "plan_from_frame": mf.plan_from, "classes": report.classes, "cramers_v": report.stats.cramers_v,
                 "characterize_ms": char_ms,
             });
@@ -1476,12 +1519,14 @@ impl Run<'_> {
         line.messages = total - self.messages_seen;
         self.messages_seen = total;
         let triangles: usize = scene.iter().map(|m| m.rest.triangle_count()).sum();
+        line.gpu_ms = ms[0] + line.characterize_ms + line.build_ms + line.refit_ms;
         let mut j = json!({
             "frame": f.frame, "mode": self.args.mode.as_str(), "triangles": triangles,
             "characterize_ms": line.characterize_ms,
             "decision": if line.rebuilds > 0 { "rebuild" } else { "refit" },
             "host_waits": line.host_waits, "engine_waits": line.engine_waits,
             "validation_messages": line.messages, "animate_ms": ms[0], "record_ms": f.record_ms,
+            "decision_us": line.decision_us, "redecided": line.redecided, "gpu_ms": line.gpu_ms,
         });
         if line.rebuilds > 0 {
             j["build_ms"] = json!(line.build_ms);
@@ -1550,6 +1595,8 @@ struct Outcome {
     last: Option<Vec<(Mesh, Plan)>>,
     /// With ray queries: the last frame's ray-query hits of the picture's rays (per mesh) and their camera.
     picture: Option<(Vec<Vec<TraceHit>>, meshchar::trace::Camera)>,
+    /// The drift past which the rule decides again ([`FrameRule::redecide_drift`]).
+    redecide_drift: f64,
 }
 
 /// The rays of one frame the per-frame rule weighs: `--resolution` squared primary rays, or for shadow and diffuse
@@ -1638,6 +1685,7 @@ fn frames(
             driver: None,
             driver_features: None,
             latest: (None, report, features),
+            decided: None,
         });
     }
     let structures = [StructureName::Lbvh];
@@ -1653,6 +1701,7 @@ fn frames(
         // change which structure a rebuild takes).
         crossings: None,
     };
+    let redecide_drift = rule.redecide_drift();
     let driver = match (engine.ray_query, model.get_driver(DriverFlags::Update)) {
         (true, Some(_)) => Some((
             DriverBuilder::new(&ctx)?,
@@ -1752,7 +1801,7 @@ fn frames(
     let _ = unsafe { engine.device.device_wait_idle() };
     result?;
     let Run { lines, last, picture, .. } = run;
-    Ok(Outcome { lines, wall_ms: wall, last, picture: picture.zip(picture_camera) })
+    Ok(Outcome { lines, wall_ms: wall, last, picture: picture.zip(picture_camera), redecide_drift })
 }
 
 fn run(args: Args) -> Result<()> {
@@ -1771,7 +1820,7 @@ fn run(args: Args) -> Result<()> {
         frames(&args, &engine, &mut res, &scene, &sink).map(|o| (o, name))
         // The engine drops here: its objects, allocator, device, messenger and instance, in that order.
     };
-    let (Outcome { lines, wall_ms: wall, last, picture }, (device, ray_query)) = outcome?;
+    let (Outcome { lines, wall_ms: wall, last, picture, redecide_drift }, (device, ray_query)) = outcome?;
     let total_messages = sink.count.load(Ordering::Relaxed);
     let n = lines.len().max(1) as f64;
     let sum = |f: &dyn Fn(&FrameLine) -> f64| lines.iter().map(f).sum::<f64>();
@@ -1781,6 +1830,14 @@ fn run(args: Args) -> Result<()> {
     let host_waits: u64 = lines.iter().map(|l| l.host_waits).sum();
     let engine_waits: u64 = lines.iter().map(|l| l.engine_waits).sum();
     let all_equal = args.check.then(|| lines.iter().all(|l| l.reference_equal == Some(true)));
+    // The host's decision against the frame's GPU time, per frame (the median of each over the frames).
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(0.0)
+    };
+    let decision_us = median(lines.iter().map(|l| l.decision_us).collect());
+    let gpu_ms = median(lines.iter().map(|l| l.gpu_ms).collect());
+    let redecisions: usize = lines.iter().map(|l| l.redecided.len()).sum();
     let mean_or_null = |total: f64, count: usize| if count > 0 { json!(total / count as f64) } else { json!(null) };
     // The picture first, so that the summary can say how it was traced.
     let mut picture_line = None;
@@ -1802,6 +1859,9 @@ fn run(args: Args) -> Result<()> {
         "mean_record_ms": sum(&|l| l.json["record_ms"].as_f64().unwrap_or(0.0)) / n,
         "wall_ms_per_frame": wall / n,
         "host_waits": host_waits, "engine_waits": engine_waits, "validation_messages": total_messages,
+        "median_decision_us": decision_us, "median_gpu_ms": gpu_ms,
+        "decision_share": if gpu_ms > 0.0 { json!(decision_us * 1e-3 / gpu_ms) } else { json!(null) },
+        "redecisions": redecisions, "redecide_drift": redecide_drift,
     });
     if let Some(e) = all_equal {
         summary["reference_equal"] = json!(e);

@@ -11,8 +11,41 @@ use meshchar::geom::{Aabb, Camera, WorkloadKind};
 use meshchar::mesh::{generate, Mesh};
 use meshchar::select::budget::{grid_count_threshold, Bound, GridRule};
 use meshchar::select::{
-    select_for_scene, select_for_scene_within, Budget, BuildBounds, PolicyChoice, Selection, Structure, TargetWorkload,
+    Budget, BuildBounds, Decision, Inquiry, Level, PolicyKind, Scene, Selection, Selector, Structure, TargetWorkload,
 };
+
+/// The selector's decision for the one-frame scene `m` under `policy`, `w`, `budget` and `inquiry`, the mesh handed
+/// over with `with_mesh` (its bounds and probes then computed from it; without, the features' bounds alone), for
+/// frames of `resolution` squared rays where a close call is measured; `max_ms` caps a fixed level's predicted cost.
+#[allow(clippy::too_many_arguments)]
+fn decide(
+    m: &Mesh,
+    frames: &[meshchar::characterize::Characterization],
+    features: &[meshchar::characterize::Features],
+    model: &CostModel,
+    policy: PolicyKind,
+    w: TargetWorkload,
+    inquiry: Inquiry,
+    budget: Budget,
+    with_mesh: bool,
+) -> Decision {
+    let mut s = Selector::new(model, w);
+    s.policy = policy;
+    s.budget = budget;
+    s.inquiry = inquiry;
+    s.resolution = 64;
+    let meshes = std::slice::from_ref(m);
+    s.select(&Scene {
+        name: &m.name,
+        characterizations: frames,
+        features,
+        meshes: if with_mesh { meshes } else { &[] },
+    })
+}
+
+/// The prior's decision (features alone) and the count probes' (the mesh's bounds and probes).
+const PRIOR: Inquiry = Inquiry::Fixed(Level::Prior);
+const COUNTED: Inquiry = Inquiry::Fixed(Level::Counted);
 
 /// The degenerate generators of the failure study, at sizes a test builds in well under a second (a grid over
 /// 3000 copies of one triangle takes 44 s to fail at 2^22 references).
@@ -185,15 +218,8 @@ fn the_grids_own_budget_holds_only_where_its_build_is_priced() {
     let c = cpu::fast(&m, &Params::default()).expect("characterization");
     let f = features_cpu(&m, &Params::default()).expect("features");
     let (frames, features) = (std::slice::from_ref(&c), std::slice::from_ref(&f));
-    let sel = select_for_scene_within(
-        &m.name,
-        frames,
-        features,
-        PolicyChoice::Thesis,
-        &workload(),
-        Some(exact.clone()),
-        Budget::default(),
-    );
+    let model = CostModel::shipped().expect("shipped model");
+    let sel = decide(&m, frames, features, &model, PolicyKind::Thesis, workload(), COUNTED, Budget::default(), true);
     let out = &sel.selection.excluded;
     assert!(out.iter().any(|e| e.structure == StructureName::Grid), "{out:?}");
     // Bounds from the features alone are never priced: held to the kd-tree's limits too (the threshold, by default).
@@ -244,32 +270,17 @@ fn workload() -> TargetWorkload {
 fn no_selection_fails_its_build_over_budget() {
     let (budget, grid_o, kd_o) = tight();
     let model = CostModel::shipped().expect("shipped model");
-    let policies = [PolicyChoice::Thesis, PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 }];
+    let policies = [PolicyKind::Thesis, PolicyKind::Calibrated];
     let mut excluded = 0;
     for m in degenerate() {
         let params = Params::default();
         let c = cpu::fast(&m, &params).expect("characterization");
         let f = features_cpu(&m, &params).expect("features");
         let (frames, features) = (std::slice::from_ref(&c), std::slice::from_ref(&f));
-        let bounds = BuildBounds::of_mesh(&m).expect("bounds");
         for policy in policies {
             for (how, sel) in [
-                (
-                    "mesh bounds",
-                    select_for_scene_within(
-                        &m.name,
-                        frames,
-                        features,
-                        policy,
-                        &workload(),
-                        Some(bounds.clone()),
-                        budget,
-                    ),
-                ),
-                (
-                    "feature bounds",
-                    select_for_scene_within(&m.name, frames, features, policy, &workload(), None, budget),
-                ),
+                ("mesh bounds", decide(&m, frames, features, &model, policy, workload(), COUNTED, budget, true)),
+                ("feature bounds", decide(&m, frames, features, &model, policy, workload(), PRIOR, budget, false)),
             ] {
                 let s = sel.selection.structure;
                 excluded += sel.selection.excluded.len();
@@ -302,7 +313,7 @@ fn no_selection_fails_its_build_over_budget() {
         }
         // With the default budget and builders as well.
         for policy in policies {
-            let sel = select_for_scene(&m.name, frames, features, policy, &workload());
+            let sel = decide(&m, frames, features, &model, policy, workload(), Inquiry::Auto, Budget::default(), true);
             let s = sel.selection.structure;
             let built = meshchar::accel::build_structure(s, &m);
             assert!(!matches!(built, Err(AccelError::OverBudget { .. })), "{}: default {s} fails", m.name);
@@ -317,15 +328,11 @@ fn the_report_lists_the_exclusions() {
     let params = Params::default();
     let c = cpu::fast(&m, &params).expect("characterization");
     let f = features_cpu(&m, &params).expect("features");
-    let sel = select_for_scene(
-        &m.name,
-        std::slice::from_ref(&c),
-        std::slice::from_ref(&f),
-        PolicyChoice::Thesis,
-        &workload(),
-    );
+    let model = CostModel::shipped().expect("shipped model");
+    let (frames, features) = (std::slice::from_ref(&c), std::slice::from_ref(&f));
+    let sel = decide(&m, frames, features, &model, PolicyKind::Thesis, workload(), PRIOR, Budget::default(), false);
     assert!(sel.selection.excluded.iter().any(|e| e.structure == Structure::Grid), "{:?}", sel.selection);
-    let r = meshchar::select::Report::new(&m.name, &c).selection(sel.kind, sel.policy, &sel.selection);
+    let r = meshchar::select::Report::new(&m.name, &c).selection(sel.kind, sel.policy.name(), &sel.selection);
     let v: serde_json::Value = serde_json::from_str(&r.to_json()).expect("json");
     let ex = v["excluded"].as_array().expect("excluded array");
     assert_eq!(ex[0]["structure"], "grid");
@@ -696,14 +703,12 @@ fn choice_within_4x_of_fewest_tests(
     camera: Option<&Camera>,
 ) -> (StructureName, bool, Vec<(StructureName, f64)>) {
     let model = CostModel::shipped().expect("shipped model");
-    let policy = PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 };
     let params = Params::default();
     let c = cpu::fast(m, &params).expect("characterization");
     let f = features_cpu(m, &params).expect("features");
-    let bounds = BuildBounds::of_mesh_viewed(m, camera).expect("bounds");
     let (frames, features) = (std::slice::from_ref(&c), std::slice::from_ref(&f));
     let w = TargetWorkload { kind, camera: camera.copied(), ..workload() };
-    let sel = select_for_scene_within(&m.name, frames, features, policy, &w, Some(bounds), Budget::default());
+    let sel = decide(m, frames, features, &model, PolicyKind::Calibrated, w, COUNTED, Budget::default(), true);
     let chosen = sel.selection.structure;
     let kept: Vec<StructureName> =
         StructureName::ALL.into_iter().filter(|s| !sel.selection.excluded.iter().any(|e| e.structure == *s)).collect();
@@ -1440,10 +1445,8 @@ fn probed_against_counted(m: &Mesh, runaway: &[StructureName]) -> (Vec<(Structur
         })
         .collect();
     let ch = cpu::fast(m, &Params::default()).expect("characterization");
-    let policy = PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 };
-    let bounds = BuildBounds::of_mesh(m).expect("bounds");
     let (frames, features) = (std::slice::from_ref(&ch), std::slice::from_ref(&f));
-    let sel = select_for_scene_within(&m.name, frames, features, policy, &workload(), Some(bounds), Budget::default());
+    let sel = decide(m, frames, features, &model, PolicyKind::Calibrated, workload(), COUNTED, Budget::default(), true);
     (counts, sel.selection)
 }
 
@@ -1530,77 +1533,74 @@ fn timed_probes_are_blended_into_a_static_scenes_predictions_when_the_model_has_
     let timed = bounds.clone().with_timed_probes(&m, None, WorkloadKind::Primary, &StructureName::ALL, &budget);
     assert_eq!(timed.timed.len(), StructureName::ALL.len(), "every structure within the default budget: {timed:?}");
     assert!(timed.timed.iter().all(|p| p.build().is_some() && p.ns_per_ray(WorkloadKind::Primary).is_some()));
-    let select = |model: &CostModel, b: &BuildBounds| {
-        let policy = PolicyChoice::Calibrated { model, tie_margin: 0.05 };
-        select_for_scene_within(&m.name, frames, features, policy, &workload(), Some(b.clone()), budget)
-    };
-    let plain = select(&model, &bounds);
-    let blended = select(&model, &timed);
-    let unblended = select(&without_ratios, &timed);
-    let reason =
-        |s: &meshchar::select::SceneSelection, what: &str| s.selection.reasons.iter().any(|r| r.contains(what));
-    assert!(!reason(&plain, "timed probes"), "{:?}", plain.selection.reasons);
-    assert!(reason(&blended, "timed probes (one build each"), "{:?}", blended.selection.reasons);
-    assert!(reason(&unblended, "not blended in"), "{:?}", unblended.selection.reasons);
-    let (p, b, u) = (plain.predicted.unwrap(), blended.predicted.unwrap(), unblended.predicted.unwrap());
-    assert_eq!(p, u, "no ratios: the predictions are the model's");
-    for (x, y) in p.iter().zip(&b) {
-        assert_eq!(x.structure, y.structure);
-        assert!(y.total_ms.is_finite() && y.total_ms > 0.0, "{y:?}");
-        assert_ne!(x.total_ms, y.total_ms, "{} blended", x.structure);
-        assert_eq!(x.box_tests_per_ray, y.box_tests_per_ray, "the counts are the model's");
-    }
     // An animation's frames get none.
     let two = [m.clone(), m.clone()];
     let b = BuildBounds::of_frames_viewed_within(&two, None, &budget).expect("bounds").expect("some");
     assert!(b.timed.is_empty());
-    // The whole flow probes the first selection's contenders only, and says which.
-    let policy = PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 };
-    let s = meshchar::select::select_for_scene_timed(
-        &m.name,
-        frames,
-        features,
-        policy,
-        &workload(),
-        Some(bounds.clone()),
-        budget,
-        &m,
-    );
+    let run = |model: &CostModel, policy: PolicyKind, level: Level, with_mesh: bool| {
+        let w = workload();
+        decide(&m, frames, features, model, policy, w, Inquiry::Fixed(level), budget, with_mesh)
+    };
+    let reason = |s: &Decision, what: &str| s.selection.reasons.iter().any(|r| r.contains(what));
+    let plain = run(&model, PolicyKind::Calibrated, Level::Counted, true);
+    let blended = run(&model, PolicyKind::Calibrated, Level::Timed, true);
+    let unblended = run(&without_ratios, PolicyKind::Calibrated, Level::Timed, true);
+    assert!(!reason(&plain, "timed probes"), "{:?}", plain.selection.reasons);
+    assert!(reason(&blended, "timed probes (one build each"), "{:?}", blended.selection.reasons);
+    assert_eq!(blended.level, Level::Timed);
+    let (p, b, u) = (plain.predicted.unwrap(), blended.predicted.unwrap(), unblended.predicted.clone().unwrap());
+    assert_eq!(p, u, "no ratios: the predictions are the model's");
+    // The flow probes the contenders of the count probes' predictions only, and says which; those are blended.
     let only = meshchar::cost::timed::contenders(&p);
     assert!(!only.is_empty() && only.len() <= p.len());
-    let line = s.selection.reasons.iter().find(|r| r.starts_with("timed probes (")).expect("timed probes");
+    let line = blended.selection.reasons.iter().find(|r| r.starts_with("timed probes (")).expect("timed probes");
     for st in StructureName::ALL {
         assert_eq!(line.contains(&format!(" {st} ")), only.contains(&st), "{st}: {line}");
     }
-    // With no bounds (nothing to probe with), the thesis policy or a calibration without ratios: the plain
-    // selection, and a reason saying why no probe was taken.
-    let plain_again = select(&model, &bounds);
-    assert_eq!(plain_again.selection.structure, plain.selection.structure, "the model alone is deterministic");
-    let timed = |policy, b: Option<BuildBounds>| {
-        meshchar::select::select_for_scene_timed(&m.name, frames, features, policy, &workload(), b, budget, &m)
-    };
-    let none_taken = |s: &meshchar::select::SceneSelection, why: &str| {
-        let r: Vec<&String> = s.selection.reasons.iter().filter(|r| r.contains("timed probes")).collect();
+    for (x, y) in p.iter().zip(&b) {
+        assert_eq!(x.structure, y.structure);
+        assert!(y.total_ms.is_finite() && y.total_ms > 0.0, "{y:?}");
+        assert_eq!(only.contains(&x.structure), x.total_ms != y.total_ms, "{} blended: {x:?} {y:?}", x.structure);
+        assert_eq!(x.box_tests_per_ray, y.box_tests_per_ray, "the counts are the model's");
+    }
+    // The model alone is deterministic.
+    let again = run(&model, PolicyKind::Calibrated, Level::Counted, true);
+    assert_eq!(again.selection.structure, plain.selection.structure);
+    // With no mesh (nothing to probe with), the thesis policy, a calibration without ratios or an animation: no
+    // timed probe, and a reason saying why.
+    let none_taken = |s: &Decision, why: &str| {
+        let r: Vec<&String> = s.selection.reasons.iter().filter(|r| r.starts_with("timed probes")).collect();
         assert!(r.len() == 1 && r[0].starts_with("timed probes: none taken: ") && r[0].contains(why), "{r:?}");
     };
-    none_taken(&timed(policy, None), "no mesh bounds");
-    none_taken(&timed(PolicyChoice::Thesis, Some(bounds.clone())), "thesis");
-    let no_ratios = PolicyChoice::Calibrated { model: &without_ratios, tie_margin: 0.05 };
-    let s = timed(no_ratios, Some(bounds.clone()));
-    none_taken(&s, "no timed-probe ratios");
-    assert_eq!(s.predicted, Some(p.clone()), "nothing blended");
+    none_taken(&run(&model, PolicyKind::Calibrated, Level::Timed, false), "no mesh");
+    none_taken(&run(&model, PolicyKind::Thesis, Level::Timed, true), "thesis");
+    none_taken(&unblended, "no timed-probe ratios");
     let (two_c, two_f) = ([c.clone(), c.clone()], [f.clone(), f.clone()]);
-    let s = meshchar::select::select_for_scene_timed(
-        &m.name,
-        &two_c,
-        &two_f,
-        policy,
-        &workload(),
-        Some(bounds.clone()),
-        budget,
-        &m,
-    );
-    none_taken(&s, "animation");
+    let mut sel = Selector::new(&model, workload());
+    sel.inquiry = Inquiry::Fixed(Level::Timed);
+    let anim = sel.select(&Scene { name: &m.name, characterizations: &two_c, features: &two_f, meshes: &two });
+    none_taken(&anim, "animation");
+}
+
+/// The selector for a one-frame scene asked to measure its close call over frames of `resolution` squared rays,
+/// within `max_ms` by the predictions.
+#[allow(clippy::too_many_arguments)]
+fn measured(
+    m: &Mesh,
+    frames: &[meshchar::characterize::Characterization],
+    features: &[meshchar::characterize::Features],
+    model: &CostModel,
+    policy: PolicyKind,
+    w: TargetWorkload,
+    resolution: u32,
+    max_ms: f64,
+) -> Decision {
+    let mut s = Selector::new(model, w);
+    s.policy = policy;
+    s.inquiry = Inquiry::Fixed(Level::Measured);
+    s.resolution = resolution;
+    s.max_inquiry_ms = max_ms;
+    s.select(&Scene { name: &m.name, characterizations: frames, features, meshes: std::slice::from_ref(m) })
 }
 
 /// A measured close call builds and traces the structures predicted within the margin of the least, and selects the
@@ -1609,34 +1609,20 @@ fn timed_probes_are_blended_into_a_static_scenes_predictions_when_the_model_has_
 #[test]
 fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
     use meshchar::cost::measured::{close_calls, MEASURED_REPEATS};
-    use meshchar::select::{select_for_scene_measured, MeasureBudget};
     let shipped = CostModel::shipped().expect("shipped model");
     // No ratios: no timed probe is blended, the predictions (and the close calls) are the model's.
     let model = CostModel { timed: None, ..shipped };
     let params = Params::default();
-    let budget = Budget::default();
     let mut settled = 0;
     for family in meshchar::mesh::families::Family::ALL {
         let m = meshchar::mesh::families::generate(family, 2000, 1).expect("family scene");
         let c = cpu::fast(&m, &params).expect("characterization");
         let f = features_cpu(&m, &params).expect("features");
         let (frames, features) = (std::slice::from_ref(&c), std::slice::from_ref(&f));
-        let bounds = BuildBounds::of_mesh(&m).expect("bounds");
-        let policy = PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 };
-        let run = |b: MeasureBudget| {
-            select_for_scene_measured(
-                &m.name,
-                frames,
-                features,
-                policy,
-                &workload(),
-                Some(bounds.clone()),
-                budget,
-                &m,
-                b,
-            )
+        let run = |res: u32, max_ms: f64| {
+            measured(&m, frames, features, &model, PolicyKind::Calibrated, workload(), res, max_ms)
         };
-        let s = run(MeasureBudget::new(64));
+        let s = run(64, meshchar::cost::measured::DEFAULT_MAX_MS);
         let preds = s.predicted.clone().expect("predictions");
         let allowed: Vec<_> = preds
             .iter()
@@ -1652,7 +1638,11 @@ fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
             continue;
         }
         settled += 1;
-        assert_eq!(s.measured.iter().map(|t| t.structure).collect::<Vec<_>>(), close, "{line}");
+        let mut got: Vec<_> = s.measured.iter().map(|t| t.structure).collect();
+        let mut want = close.clone();
+        got.sort();
+        want.sort();
+        assert_eq!(got, want, "{line}");
         // The workload's frames hold 256x256 rays, the measured ones 64x64: the traces are scaled by 16.
         assert!(line.contains("traces scaled by 16.000"), "{line}");
         for t in &s.measured {
@@ -1662,45 +1652,30 @@ fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
         }
         let least = s.measured.iter().min_by(|a, b| a.total_ms.total_cmp(&b.total_ms)).expect("measured");
         assert_eq!(s.selection.structure, least.structure, "the least measured is selected: {line}");
+        assert_eq!(s.level, Level::Measured);
         // Over the measuring budget: nothing measured, the predictions' choice stands, and the reason says so.
-        let capped = run(MeasureBudget { resolution: 64, max_ms: 1e-6 });
+        let capped = run(64, 1e-6);
         assert!(capped.measured.is_empty());
         let why = capped.selection.reasons.iter().find(|r| r.starts_with("measured close call")).expect("reason");
         assert!(why.starts_with("measured close call: none: measuring ") && why.contains("allowed"), "{why}");
         assert_eq!(Some(capped.selection.structure), meshchar::select::choose(&preds, 0.05));
         // No rays, or more than a measured frame may hold: nothing measured.
         for (res, why) in [(0, "no rays (resolution 0)"), (4097, "4097x4097 rays per frame, over the")] {
-            let s = run(MeasureBudget { resolution: res, max_ms: 1e9 });
+            let s = run(res, 1e9);
             assert!(s.measured.is_empty());
             let r = s.selection.reasons.iter().find(|r| r.starts_with("measured close call")).expect("reason");
             assert!(r.starts_with(&format!("measured close call: none: {why}")), "{r}");
         }
         // The thesis policy and an animation measure nothing.
-        let thesis = select_for_scene_measured(
-            &m.name,
-            frames,
-            features,
-            PolicyChoice::Thesis,
-            &workload(),
-            Some(bounds.clone()),
-            budget,
-            &m,
-            MeasureBudget::new(64),
-        );
+        let thesis = measured(&m, frames, features, &model, PolicyKind::Thesis, workload(), 64, 1e9);
         assert!(thesis.measured.is_empty());
         assert!(thesis.selection.reasons.iter().any(|r| r.starts_with("measured close call: none: the thesis")));
         let (two_c, two_f) = ([c.clone(), c.clone()], [f.clone(), f.clone()]);
-        let anim = select_for_scene_measured(
-            &m.name,
-            &two_c,
-            &two_f,
-            policy,
-            &workload(),
-            Some(bounds.clone()),
-            budget,
-            &m,
-            MeasureBudget::new(64),
-        );
+        let mut sel = Selector::new(&model, workload());
+        sel.inquiry = Inquiry::Fixed(Level::Measured);
+        sel.resolution = 64;
+        let two = [m.clone(), m.clone()];
+        let anim = sel.select(&Scene { name: &m.name, characterizations: &two_c, features: &two_f, meshes: &two });
         assert!(anim.measured.is_empty());
         assert!(anim.selection.reasons.iter().any(|r| r == "measured close call: none: the scene is an animation"));
     }
@@ -1713,7 +1688,6 @@ fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
 /// twice as many, every trace is scaled by 2.
 #[test]
 fn a_measured_close_call_of_secondary_rays_scales_its_traces_by_the_rays_it_traced() {
-    use meshchar::select::{select_for_scene_measured, MeasureBudget};
     use meshchar::trace::workload::estimate_secondary_rays;
     let model = CostModel { timed: None, ..CostModel::shipped().expect("shipped model") };
     let params = Params::default();
@@ -1731,17 +1705,8 @@ fn a_measured_close_call_of_secondary_rays_scales_its_traces_by_the_rays_it_trac
             let made = estimate_secondary_rays(kind, &m, &camera, 64, 64).expect("estimate").rays;
             let run = |rays_per_frame: u64| {
                 let w = TargetWorkload { kind, rays_per_frame, camera: Some(camera), ..workload() };
-                select_for_scene_measured(
-                    &m.name,
-                    std::slice::from_ref(&c),
-                    std::slice::from_ref(&f),
-                    PolicyChoice::Calibrated { model: &model, tie_margin: 0.05 },
-                    &w,
-                    Some(BuildBounds::of_mesh(&m).expect("bounds")),
-                    Budget::default(),
-                    &m,
-                    MeasureBudget::new(64),
-                )
+                let (frames, features) = (std::slice::from_ref(&c), std::slice::from_ref(&f));
+                measured(&m, frames, features, &model, PolicyKind::Calibrated, w, 64, 1e9)
             };
             let s = run(made);
             if s.measured.is_empty() || made == 0 {

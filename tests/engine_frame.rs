@@ -99,7 +99,20 @@ fn pipelined_frames_never_wait_stay_silent_and_equal_the_reference() {
         assert_eq!(meshes[1]["index_type"], "u32");
         assert_eq!(u(l, "triangles"), meshes.iter().map(|m| u(m, "triangles")).sum::<u64>());
         let mut frame_rebuilds = 0u64;
+        let bound = summary["redecide_drift"].as_f64().expect("redecide_drift");
+        let redecided: Vec<&str> =
+            l["redecided"].as_array().expect("redecided").iter().filter_map(|x| x.as_str()).collect();
         for m in meshes {
+            // The rule decides again exactly where the features drifted past its bound since the last decision
+            // (every mesh on the first frame); otherwise the last decision holds and the tree is refitted.
+            let since = m["drift_since_decision"].as_f64().expect("drift_since_decision");
+            let decided = m["decided"].as_bool().expect("decided");
+            assert_eq!(decided, t == 0 || since > bound, "frame {t}: {m} (bound {bound})");
+            assert_eq!(redecided.contains(&m["mesh"].as_str().unwrap_or_default()), decided, "frame {t}: {l}");
+            if !decided {
+                assert_eq!(m["decision"], "refit", "a decision kept refits: frame {t}: {m}");
+            }
+            assert!(m["decision_us"].as_f64().is_some_and(|us| us >= 0.0), "{m}");
             assert_eq!(m["reference_equal"], Value::Bool(true), "frame {t}: {m}");
             match m["decision"].as_str() {
                 Some("rebuild") => {
@@ -130,6 +143,10 @@ fn pipelined_frames_never_wait_stay_silent_and_equal_the_reference() {
     assert_eq!(u(&summary, "host_waits"), 0);
     assert_eq!(u(&summary, "validation_messages"), 0, "{summary}");
     assert_eq!(summary["reference_equal"], Value::Bool(true));
+    let redecisions: usize = lines.iter().map(|l| l["redecided"].as_array().map_or(0, Vec::len)).sum();
+    assert_eq!(u(&summary, "redecisions"), redecisions as u64);
+    assert!((2..120).contains(&redecisions), "decided again only where the geometry drifted: {redecisions}");
+    assert!(summary["decision_share"].as_f64().is_some() && summary["median_gpu_ms"].as_f64().is_some_and(|g| g > 0.0));
     let mean: f64 = lines.iter().map(|l| l["characterize_ms"].as_f64().unwrap_or(0.0)).sum::<f64>() / 60.0;
     let reported = summary["mean_characterize_ms"].as_f64().expect("mean_characterize_ms");
     assert!((reported - mean).abs() <= 1e-9 * mean.max(1.0), "mean {reported} vs {mean}");

@@ -16,7 +16,7 @@
 //! measured (on the scene families, 2.3 structures where there is a close call, each about 1.2x the best one's
 //! frame: some 11 frames of the best structure; `docs/cost-model.md`, "Eleventh session"). It pays where the
 //! structure is kept for many frames, or built once for a long run; it is off by default and bounded by a budget
-//! the caller gives ([`crate::select::select_for_scene_measured`]).
+//! the caller gives ([`crate::select::Selector`], level 3).
 
 use crate::accel::{AccelStructure, StructureName};
 use crate::geom::{Camera, Ray, TraceCounters, WorkloadKind};

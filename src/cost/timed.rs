@@ -17,7 +17,7 @@
 //! two, for the build and for the time per ray apart ([`blend`]). The weight (one half each) was not fitted.
 //!
 //! Timed probes are not deterministic: two runs may choose differently where two structures are close. They are
-//! off by default: a caller asks for them with [`crate::select::select_for_scene_timed`] (or
+//! off by default: a caller asks for them with [`crate::select::Selector`], level 2 (or
 //! [`crate::select::BuildBounds::with_timed_probes`], which [`crate::select::CalibratedPolicy::timed_probes`]
 //! reads); `evaluate --compare-policies --timed-probes` scores them against the deterministic policy on the same
 //! records (`docs/cost-model.md`, "Tenth session").
@@ -61,7 +61,7 @@ pub fn contenders(preds: &[super::Prediction]) -> Vec<StructureName> {
 }
 
 /// [`blend`] with only the probes of `preds`'s [`contenders`] (what the policy probes,
-/// [`crate::select::select_for_scene_timed`]): the one blend of the evaluations, which are given every structure's
+/// [`crate::select::Selector`], level 2): the one blend of the evaluations, which are given every structure's
 /// probe.
 pub fn blend_contenders(
     preds: &mut [super::Prediction],

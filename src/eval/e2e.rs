@@ -145,7 +145,7 @@ impl Knowledge for RecordKnowledge<'_> {
         Some(ms)
     }
 
-    fn measure(&mut self, structures: &[StructureName]) -> Option<(Vec<MeasuredTotal>, f64)> {
+    fn measure(&mut self, structures: &[StructureName]) -> Option<(Vec<MeasuredTotal>, f64, f64)> {
         let w = &self.sample.workload;
         let timings: Vec<_> = self.sample.frame_timings.iter().filter(|t| structures.contains(&t.structure)).collect();
         let totals: Vec<MeasuredTotal> =
@@ -163,7 +163,7 @@ impl Knowledge for RecordKnowledge<'_> {
             })
             .sum();
         self.spent_ms += ms;
-        Some((totals, ms))
+        Some((totals, ms, 1.0))
     }
 }
 

@@ -232,7 +232,7 @@ impl BuildBounds {
     /// These bounds with the timed probes ([`crate::cost::timed::time_probes`]) of `mesh` (a static scene) seen
     /// from `camera` (`None`: the framing camera of its box) for rays of `kind`: each of `structures` that `budget`
     /// does not exclude ([`Budget::check`]) built once and traced on a sample of the view
-    /// ([`super::select_for_scene_timed`] probes the contenders of a first selection only).
+    /// ([`super::Selector`] at level 2 probes the contenders of a first selection only).
     pub fn with_timed_probes(
         mut self,
         mesh: &Mesh,

@@ -134,6 +134,27 @@ pub struct FrameRule<'a> {
 }
 
 impl FrameRule<'_> {
+    /// The drift ([`crate::cost::drift`]) from the frame a decision was made on past which it is made again: the
+    /// drift at which a refitted tree's predicted trace time grows by the tie margin (`tie_margin / g`, `g` the
+    /// calibration's growth per unit of drift, [`crate::cost::RefitModel::sah_growth_per_drift`]), below which no
+    /// prediction moves by more than the margin the choice already ignores; 0 (decide every frame) without a refit
+    /// model.
+    pub fn redecide_drift(&self) -> f64 {
+        match self.model.refit {
+            Some(r) if r.sah_growth_per_drift > 0.0 => self.tie_margin.max(0.0) / r.sah_growth_per_drift,
+            Some(_) => f64::INFINITY,
+            None => 0.0,
+        }
+    }
+
+    /// Whether a decision made on the features `decided` is made again at `now`: the drift between them exceeds
+    /// [`FrameRule::redecide_drift`] (the thesis's per-frame statistics as the trigger, so that an animation
+    /// decides again only where its geometry changed), and the drift.
+    pub fn redecide(&self, decided: &Features, now: &Features) -> (bool, f64) {
+        let d = crate::cost::drift(decided, now);
+        (d > self.redecide_drift(), d)
+    }
+
     /// Frame `frame`'s decision for a scene with features `now`, given the tree in use (`built`: the features of
     /// the frame it was built for and its structure, `None` before the first build): rebuild with the calibrated
     /// choice among [`FrameRule::structures`] for a one-frame workload, or refit the tree in use (BVH family only,

@@ -120,7 +120,7 @@ pub struct Report {
     /// What deciding cost against what the decision is about ([`SelectionCost`]), when measured.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub selection_cost: Option<SelectionCost>,
-    /// The close call the policy measured ([`super::select_for_scene_measured`]): per structure measured,
+    /// The close call the policy measured (level 3 of [`super::Selector`]): per structure measured,
     /// `structure`, `total_ms` (median over the repeats), `build_ms`, `trace_ms` (one frame), `repeats`, `rays`;
     /// absent when nothing was measured.
     #[serde(skip_serializing_if = "Vec::is_empty")]

@@ -12,7 +12,7 @@
 
 use super::budget::{Budget, BuildBounds};
 use super::ladder::{chance_best, expected_gain, Candidate};
-use super::{CalibratedPolicy, Policy as _, SceneKind, SceneSelection, SceneSummary, Structure, TargetWorkload};
+use super::{CalibratedPolicy, Policy as _, SceneKind, SceneSummary, Structure, TargetWorkload};
 use crate::characterize::{Characterization, Features};
 use crate::cost::measured::{MeasuredTotal, MEASURED_REPEATS, MEASURED_WARMUP};
 use crate::cost::{CostModel, InquiryCost, Prediction, PROBED};
@@ -156,11 +156,20 @@ impl<'m> Selector<'m> {
                     .flatten()
             };
             let summary = self.summary(scene, bounds);
+            let mut selection = super::ThesisPolicy::default().select(&summary);
+            if let Inquiry::Fixed(asked) = self.inquiry {
+                if asked >= Level::Timed {
+                    selection.reasons.push("timed probes: none taken: the thesis policy predicts no times".into());
+                }
+                if asked >= Level::Measured {
+                    selection.reasons.push("measured close call: none: the thesis policy predicts no times".into());
+                }
+            }
             return Decision {
                 policy: Policy::Thesis,
                 kind,
                 level: Level::Prior,
-                selection: super::ThesisPolicy::default().select(&summary),
+                selection,
                 predicted: None,
                 measured: Vec::new(),
                 steps: Vec::new(),
@@ -265,17 +274,6 @@ impl Decision {
     pub fn structure(&self) -> Structure {
         self.selection.structure
     }
-
-    /// As the earlier [`SceneSelection`].
-    pub fn into_scene_selection(self) -> SceneSelection {
-        SceneSelection {
-            policy: self.policy.name(),
-            kind: self.kind,
-            selection: self.selection,
-            predicted: self.predicted,
-            measured: self.measured,
-        }
-    }
 }
 
 /// One level weighed by the ladder.
@@ -333,8 +331,9 @@ pub(crate) trait Knowledge {
     fn count(&mut self, probes: &[Structure]) -> f64;
     /// Level 2: timed probes of `structures`. Returns the ms it took; `None` when nothing could be timed.
     fn time(&mut self, structures: &[Structure]) -> Option<f64>;
-    /// Level 3: `structures` measured over whole frames, and the ms it took; `None` when nothing was measured.
-    fn measure(&mut self, structures: &[Structure]) -> Option<(Vec<MeasuredTotal>, f64)>;
+    /// Level 3: `structures` measured over whole frames, the ms it took and the scale of the traces (the workload's
+    /// rays over the rays measured); `None` when nothing was measured.
+    fn measure(&mut self, structures: &[Structure]) -> Option<(Vec<MeasuredTotal>, f64, f64)>;
 }
 
 /// The outcome of [`climb`].
@@ -344,6 +343,10 @@ pub(crate) struct Climb {
     pub measured: Vec<MeasuredTotal>,
     pub spent_ms: f64,
     pub note: Option<String>,
+    /// The scale of a measured close call's traces (the workload's rays over the rays measured).
+    pub scale: f64,
+    /// The predictions' choice before the close call was measured.
+    pub predicted_choice: Option<Structure>,
 }
 
 impl Climb {
@@ -363,22 +366,17 @@ impl Climb {
         )];
         for st in &self.steps {
             out.push(st.to_string());
-            // A close call that was asked for and not measured says why, as the close call's own line.
-            if st.level == Level::Measured && !st.taken && matches!(s.inquiry, Inquiry::Fixed(Level::Measured)) {
-                let why = st.why_not.as_deref().unwrap_or("");
-                out.push(if st.structures.len() < 2 {
-                    format!(
-                        "measured close call: none: no close call (no other structure predicted within {:.0}% of \
-                         the least)",
-                        100.0 * crate::cost::measured::CLOSE_CALL_MARGIN
-                    )
-                } else {
-                    format!("measured close call: none: {why}")
-                });
-            }
         }
-        if let (Inquiry::Fixed(Level::Measured), Some(note)) = (s.inquiry, &self.note) {
-            out.push(format!("measured close call: none: {note}"));
+        // A level asked for and not climbed says why, as the level's own line.
+        if let Inquiry::Fixed(asked) = s.inquiry {
+            for st in self.steps.iter().filter(|st| !st.taken && st.level <= asked) {
+                let why = st.why_not.as_deref().unwrap_or("");
+                match st.level {
+                    Level::Timed => out.push(format!("timed probes: none taken: {why}")),
+                    Level::Measured => out.push(format!("measured close call: none: {why}")),
+                    _ => {}
+                }
+            }
         }
         if !self.measured.is_empty() {
             let list: Vec<String> = self
@@ -391,10 +389,25 @@ impl Climb {
                     )
                 })
                 .collect();
+            let w = &s.workload;
+            let measured: Vec<Structure> = self.measured.iter().map(|t| t.structure).collect();
             out.push(format!(
-                "measured close call (the median of {MEASURED_REPEATS} repeats after {MEASURED_WARMUP} untimed; not \
-                 deterministic): {}: {chosen} taken",
-                list.join(", ")
+                "measured close call ({}: each built and traced over whole frames of {}x{} {} rays, the median of \
+                 {MEASURED_REPEATS} repeats after {MEASURED_WARMUP} untimed, totals over {} frame(s) of {} rays{}; \
+                 not deterministic): {}: {chosen} {}",
+                names(&measured),
+                s.resolution,
+                s.resolution,
+                w.kind.as_str(),
+                w.frames.max(1),
+                w.rays_per_frame,
+                if self.scale == 1.0 { String::new() } else { format!(", traces scaled by {:.3}", self.scale) },
+                list.join(", "),
+                if Some(chosen) == self.predicted_choice {
+                    "confirmed"
+                } else {
+                    "taken instead of the predictions' choice"
+                }
             ));
         }
         out
@@ -412,7 +425,15 @@ fn allowed<'a>(s: &Selector<'_>, preds: &'a [Prediction]) -> Vec<&'a Prediction>
 
 /// The ladder: from the prior, each level in turn, climbed while it pays (or to the fixed level).
 pub(crate) fn climb(s: &Selector<'_>, k: &mut dyn Knowledge) -> Climb {
-    let mut out = Climb { level: Level::Prior, steps: Vec::new(), measured: Vec::new(), spent_ms: 0.0, note: None };
+    let mut out = Climb {
+        level: Level::Prior,
+        steps: Vec::new(),
+        measured: Vec::new(),
+        spent_ms: 0.0,
+        note: None,
+        scale: 1.0,
+        predicted_choice: None,
+    };
     let (auto, target) = match s.inquiry {
         Inquiry::Auto => (true, s.max_level),
         Inquiry::Fixed(l) => (false, l),
@@ -443,8 +464,21 @@ pub(crate) fn climb(s: &Selector<'_>, k: &mut dyn Knowledge) -> Climb {
             break;
         }
         if let Err(why) = k.climbable(level) {
-            out.note = Some(why);
-            break;
+            if auto {
+                out.note = Some(why);
+                break;
+            }
+            out.steps.push(Step {
+                level,
+                structures: Vec::new(),
+                gain_ms: None,
+                cost_ms: None,
+                allowed_ms: None,
+                taken: false,
+                spent_ms: 0.0,
+                why_not: Some(why),
+            });
+            continue;
         }
         let preds = k.predictions();
         let cands = allowed(s, &preds);
@@ -548,7 +582,12 @@ pub(crate) fn climb(s: &Selector<'_>, k: &mut dyn Knowledge) -> Climb {
             }
             best.map(|b| b.0).unwrap_or_default()
         };
-        let structures: Vec<Structure> = set.iter().map(|&i| cands[i].structure).collect();
+        let mut structures: Vec<Structure> = set.iter().map(|&i| cands[i].structure).collect();
+        if !auto && level == Level::Counted {
+            // Every probed structure the caller can build: the bounds pass leaves out what the mesh's own bounds
+            // exclude (the features' looser bounds may have excluded more).
+            structures = PROBED.into_iter().filter(|p| s.structures.is_empty() || s.structures.contains(p)).collect();
+        }
         let (gain, cost) = (gain_of(&set), cost_of(&set));
         let mut step = Step {
             level,
@@ -560,13 +599,22 @@ pub(crate) fn climb(s: &Selector<'_>, k: &mut dyn Knowledge) -> Climb {
             spent_ms: 0.0,
             why_not: None,
         };
-        let why_not = if level != Level::Counted && structures.len() < 2 {
-            Some(format!("fewer than two structures to {}", if level == Level::Timed { "time" } else { "measure" }))
+        let why_not = if level == Level::Timed && s.model.timed.is_none() {
+            Some("this calibration has no timed-probe ratios (calibrate --from-oracle ... --timed-probes)".to_string())
+        } else if level == Level::Measured && structures.len() < 2 {
+            Some(format!(
+                "no close call (no other structure predicted within {:.0}% of the least)",
+                100.0 * crate::cost::measured::CLOSE_CALL_MARGIN
+            ))
+        } else if level != Level::Counted && structures.len() < 2 {
+            Some("fewer than two structures to time".to_string())
         } else if !auto {
             match cost {
-                Some(c) if c > s.max_inquiry_ms => {
-                    Some(format!("predicted to take {c:.0} ms, over the {:.0} ms allowed", s.max_inquiry_ms))
-                }
+                Some(c) if c.is_nan() || c > s.max_inquiry_ms => Some(format!(
+                    "measuring {} would take about {c:.0} ms by the predictions, over the {:.0} ms allowed",
+                    names(&structures),
+                    s.max_inquiry_ms
+                )),
                 _ => None,
             }
         } else {
@@ -594,10 +642,15 @@ pub(crate) fn climb(s: &Selector<'_>, k: &mut dyn Knowledge) -> Climb {
         let spent = match level {
             Level::Counted => Some(k.count(&structures)),
             Level::Timed => k.time(&structures),
-            _ => k.measure(&structures).map(|(m, ms)| {
-                out.measured = m;
-                ms
-            }),
+            _ => {
+                let list: Vec<Prediction> = cands.iter().map(|p| **p).collect();
+                out.predicted_choice = super::choose(&list, s.tie_margin);
+                k.measure(&structures).map(|(m, ms, scale)| {
+                    out.measured = m;
+                    out.scale = scale;
+                    ms
+                })
+            }
         };
         let Some(spent) = spent else {
             step.why_not = Some("nothing could be built".into());
@@ -656,11 +709,18 @@ impl Knowledge for MeshKnowledge<'_, '_> {
     }
 
     fn climbable(&self, level: Level) -> Result<(), String> {
+        let r = self.selector.resolution;
+        let most = crate::cost::measured::MAX_MEASURED_RAYS;
         match self.scene.meshes {
             [] => Err("no mesh at hand: the prior decides".into()),
-            [_] => Ok(()),
-            _ if level == Level::Counted => Ok(()),
-            _ => Err(format!("an animation is not climbed to {level}")),
+            _ if self.scene.characterizations.len() > 1 && level > Level::Counted => {
+                Err("the scene is an animation".into())
+            }
+            _ if level == Level::Measured && r == 0 => Err("no rays (resolution 0)".into()),
+            _ if level == Level::Measured && u64::from(r).pow(2) > most => {
+                Err(format!("{r}x{r} rays per frame, over the {most} a measured frame may hold"))
+            }
+            _ => Ok(()),
         }
     }
 
@@ -687,13 +747,10 @@ impl Knowledge for MeshKnowledge<'_, '_> {
         timed.then_some(ms)
     }
 
-    fn measure(&mut self, structures: &[Structure]) -> Option<(Vec<MeasuredTotal>, f64)> {
+    fn measure(&mut self, structures: &[Structure]) -> Option<(Vec<MeasuredTotal>, f64, f64)> {
         let [mesh] = self.scene.meshes else { return None };
         let s = self.selector;
         let w = &s.workload;
-        if s.resolution == 0 || u64::from(s.resolution).pow(2) > crate::cost::measured::MAX_MEASURED_RAYS {
-            return None;
-        }
         let t = std::time::Instant::now();
         let b = crate::cost::timed::mesh_box(mesh);
         let camera = w.camera.unwrap_or_else(|| crate::cost::view::framing_camera(b.min.to_array(), b.max.to_array()));
@@ -705,6 +762,16 @@ impl Knowledge for MeshKnowledge<'_, '_> {
             timings.iter().filter_map(|t| MeasuredTotal::of(&t.scaled(scale), 1, w.frames.max(1))).collect();
         let ms = t.elapsed().as_secs_f64() * 1e3;
         self.spent_ms += ms;
-        (!totals.is_empty()).then_some((totals, ms))
+        (!totals.is_empty()).then_some((totals, ms, scale))
+    }
+}
+
+/// `a, b and c`.
+fn names(s: &[Structure]) -> String {
+    let v: Vec<&str> = s.iter().map(|s| s.as_str()).collect();
+    match v.split_last() {
+        None => String::new(),
+        Some((last, [])) => last.to_string(),
+        Some((last, rest)) => format!("{} and {last}", rest.join(", ")),
     }
 }

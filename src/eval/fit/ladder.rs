@@ -45,7 +45,7 @@ pub(crate) fn without_probes(mut c: crate::cost::RayCrossings) -> crate::cost::R
 
 /// The held-out errors of each structure's total: the samples' groups (families where they span at least three,
 /// else scenes; [`super::super::compare::family_of`]) each predicted by `fit` on the others, at every level of
-/// [`levels`], and the measured frames (where the samples have them) against the oracle. `None` with fewer than
+/// levels (features alone, crossings, probes, timed probes), and the measured frames (where the samples have them) against the oracle. `None` with fewer than
 /// two groups, or where no fit succeeds.
 pub fn fit_uncertainty(
     samples: &[Sample],

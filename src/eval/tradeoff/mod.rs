@@ -37,7 +37,7 @@ use crate::eval::chart::{ScatterChart, ScatterPoint};
 use crate::eval::record::OracleRecord;
 use crate::eval::{EvalError, Measurement};
 use crate::mesh::Animation;
-use crate::select::{select_for_scene, Policy, PolicyChoice, SceneSummary, TargetWorkload};
+use crate::select::{Policy, SceneSummary, TargetWorkload};
 use std::path::Path;
 use std::time::Instant;
 

@@ -145,8 +145,13 @@ pub fn select_per_workload(
             let mut per = Vec::new();
             for w in workloads {
                 let selected = oracle_workload(&scene.name, w, oracle)?.map(|target| {
-                    let policy = PolicyChoice::Calibrated { model, tie_margin: *tie_margin };
-                    select_for_scene(&scene.name, frames, features, policy, &target).selection.structure
+                    // The prior: the features of the study's characterization settings are what it compares.
+                    let mut s = crate::select::Selector::new(model, target);
+                    s.tie_margin = *tie_margin;
+                    s.inquiry = crate::select::Inquiry::Fixed(crate::select::Level::Prior);
+                    let scene =
+                        crate::select::Scene { name: &scene.name, characterizations: frames, features, meshes: &[] };
+                    s.select(&scene).selection.structure
                 });
                 per.push(WorkloadSelection { workload: w.clone(), selected });
             }
