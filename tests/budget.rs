@@ -510,46 +510,41 @@ fn screen_crossings_count_each_box_by_its_share_of_the_image() {
 
 #[test]
 fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
-    use meshchar::cost::{overlap_floor, primary_tests_per_crossing, tests_per_crossing, Crossings, RayCrossings};
+    use meshchar::cost::{overlap_floor, Crossings, RayCrossings};
     let c =
         Some(RayCrossings { all: 500.0, distinct: 2.0, nondegenerate: 100.0, image: 0.0, ..RayCrossings::default() });
-    let f = |s, k| overlap_floor(s, k, c);
+    let f = |s, k| overlap_floor(&bounds(), s, k, c);
     let kinds = [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse];
     for s in [StructureName::Lbvh, StructureName::Hlbvh, StructureName::Bih, StructureName::KdTree] {
         // The kd-tree holds zero-area triangles as points: only the others' boxes count for it.
         let x = if s == StructureName::KdTree { 100.0 } else { 500.0 };
-        assert_eq!(tests_per_crossing(s, WorkloadKind::Primary), primary_tests_per_crossing(s), "{s}");
         for k in kinds {
-            let (b, p) = tests_per_crossing(s, k);
-            assert!(p > 0.0 && (b > 0.0) == (s != StructureName::KdTree), "{s} {k:?}: {b} {p}");
+            let (b, p) = bounds().tests_per_crossing(s, k);
+            // Read off the records by `calibrate`; by definition the kd-tree floors no box tests.
+            assert!(b >= 0.0 && p >= 0.0 && (s != StructureName::KdTree || b == 0.0), "{s} {k:?}: {b} {p}");
+            assert!(k != WorkloadKind::Primary || (p > 0.0 && (b > 0.0) == (s != StructureName::KdTree)), "{s}");
             assert_eq!(f(s, k).box_tests, x * b, "{s} {k:?}");
             assert_eq!(f(s, k).prim_tests, x * p, "{s} {k:?}");
-        }
-        // A shadow ray stops at its first hit and a secondary ray starts on the surface: the training records
-        // show fewer tests per crossing for them than for primary rays, never more.
-        for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
-            let ((b, p), (b0, p0)) = (tests_per_crossing(s, k), primary_tests_per_crossing(s));
-            assert!(b <= b0 && p <= p0, "{s} {k:?}");
         }
     }
     // The BVH counts distinct triangles; a kd-tree floors no node visits; the grid floors the triangle tests of
     // primary rays only, with the least factor of all.
     for k in kinds {
-        let (b, p) = tests_per_crossing(StructureName::Bvh, k);
+        let (b, p) = bounds().tests_per_crossing(StructureName::Bvh, k);
         assert_eq!(f(StructureName::Bvh, k).prim_tests, 2.0 * p);
         assert_eq!(f(StructureName::Bvh, k).box_tests, 2.0 * b);
         assert_eq!(f(StructureName::KdTree, k).box_tests, 0.0);
-        let (gb, gp) = tests_per_crossing(StructureName::Grid, k);
+        let (gb, gp) = bounds().tests_per_crossing(StructureName::Grid, k);
         assert_eq!((gb, gp > 0.0), (0.0, k == WorkloadKind::Primary), "{k:?}: {gb} {gp}");
         let g = f(StructureName::Grid, k);
         assert_eq!((g.box_tests, g.prim_tests), (0.0, 500.0 * gp), "{k:?}");
         let least =
             [StructureName::Bvh, StructureName::KdTree, StructureName::Bih, StructureName::Lbvh, StructureName::Hlbvh]
                 .into_iter()
-                .map(|s| tests_per_crossing(s, k).1)
+                .map(|s| bounds().tests_per_crossing(s, k).1)
                 .fold(f64::INFINITY, f64::min);
         assert!(gp <= least, "{k:?}: grid {gp}, least of the others {least}");
-        assert_eq!(overlap_floor(StructureName::Lbvh, k, None), Default::default());
+        assert_eq!(overlap_floor(&bounds(), StructureName::Lbvh, k, None), Default::default());
     }
     // Secondary rays are given the crossings over every direction; primary rays those along the camera.
     let m = generate::overlapping_large(2000, 1);
@@ -578,19 +573,18 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     let elsewhere = meshchar::trace::Camera { eye: cam.eye * 3.0, ..cam };
     assert_eq!(cr.for_workload(WorkloadKind::Diffuse, Some(&elsewhere), lo, hi).image, 0.0);
     // The secondary floor is the larger of the isotropic one and the image's, scaled by the distinct share.
-    use meshchar::cost::secondary_tests_per_image_crossing;
     let with_image =
         RayCrossings { all: 500.0, distinct: 2.0, nondegenerate: 100.0, image: 1000.0, ..RayCrossings::default() };
     for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
         for s in StructureName::ALL {
-            let fl = overlap_floor(s, k, Some(with_image));
-            let base = overlap_floor(s, k, c);
+            let fl = overlap_floor(&bounds(), s, k, Some(with_image));
+            let base = overlap_floor(&bounds(), s, k, c);
             let x = match s {
                 StructureName::Bvh => 2.0,
                 StructureName::KdTree => 100.0,
                 _ => 500.0,
             };
-            let (bi, pi) = secondary_tests_per_image_crossing(s, k);
+            let (bi, pi) = bounds().tests_per_image_crossing(s, k);
             assert_eq!(fl.box_tests, base.box_tests.max(bi * (1000.0 * x / 500.0)), "{s} {k:?}");
             assert_eq!(fl.prim_tests, base.prim_tests.max(pi * (1000.0 * x / 500.0)), "{s} {k:?}");
             assert_eq!(
@@ -599,7 +593,7 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
                 "{s}"
             );
         }
-        assert_eq!(secondary_tests_per_image_crossing(StructureName::Bvh, WorkloadKind::Primary), (0.0, 0.0));
+        assert_eq!(bounds().tests_per_image_crossing(StructureName::Bvh, WorkloadKind::Primary), (0.0, 0.0));
     }
     assert!(cr.isotropic().all > 100.0, "{:?}", cr.isotropic());
     // The model's predictions take the floor: counts at least it, and a trace no cheaper than without it.
@@ -613,14 +607,14 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
         view: None,
     };
     let rc = Some(cr.per_ray(Some(&cam), feats.lo, feats.hi));
-    let plain = model.predict(&feats, &w);
-    let floored = model.predict_floored(&feats, &w, &|s| overlap_floor(s, WorkloadKind::Primary, rc));
+    let plain = laws(&model, &feats, &w);
+    let floored = model.predict_floored(&feats, &w, &|s| overlap_floor(&bounds(), s, WorkloadKind::Primary, rc));
     // The probed structures' corrections (the count held at `PROBE_BAND` over the floored law, whatever band held
     // the structure's own count), which the unprobed hierarchies share.
     let (mut lb, mut lp, mut k) = (0.0f64, 0.0f64, 0.0f64);
     let n = feats.total_triangles.max(feats.triangles);
     for p in &plain {
-        let fl = overlap_floor(p.structure, WorkloadKind::Primary, rc);
+        let fl = overlap_floor(&bounds(), p.structure, WorkloadKind::Primary, rc);
         // The grid's own count is held to its sample, but its ratio is not shared (`SHARES_PROBES`).
         if fl.sampled.is_some() && p.structure != StructureName::Grid {
             let (bx, pr) = (p.box_tests_per_ray.max(fl.box_tests), p.prim_tests_per_ray.max(fl.prim_tests));
@@ -633,10 +627,10 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     // The LBVH, the BVH, the BIH and the HLBVH: every probed structure but the grid.
     assert_eq!(k, (meshchar::cost::PROBED.len() - 1) as f64, "every probed hierarchy built");
     let (gb, gp) = ((lb / k).exp(), (lp / k).exp());
-    assert!(gb > 1.0, "the LBVH's held count raises the shared box tests ({gb})");
+    assert!(gb != 1.0, "the held counts move the shared box tests ({gb})");
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1.0);
     for (p, q) in plain.iter().zip(&floored) {
-        let fl = overlap_floor(p.structure, WorkloadKind::Primary, rc);
+        let fl = overlap_floor(&bounds(), p.structure, WorkloadKind::Primary, rc);
         let (bx, pr) = (p.box_tests_per_ray.max(fl.box_tests), p.prim_tests_per_ray.max(fl.prim_tests));
         match fl.sampled {
             // A probed structure's own counts on the camera's sample (`cost::probe`): the shipped file was traced
@@ -647,9 +641,6 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
                 assert_eq!(q.box_tests_per_ray, bx.clamp(b.lower_bound(), b.upper_bound()), "{}", p.structure);
                 let t = &s.prim_tests;
                 assert_eq!(q.prim_tests_per_ray, pr.clamp(t.lower_bound(), t.upper_bound()), "{}", p.structure);
-                if p.structure == StructureName::Lbvh {
-                    assert!(q.box_tests_per_ray > bx, "{q:?}: 2,000 overlapping triangles send the LBVH's count up");
-                }
             }
             None if meshchar::cost::SHARES_PROBES.contains(&p.structure) => {
                 // The law corrected, then its own floor.
@@ -675,7 +666,7 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     assert!(floored.iter().zip(&plain).any(|(q, p)| q.trace_ms > 2.0 * p.trace_ms), "the floor changed nothing");
     // Every probed structure that built reports its build's work, the grid's its references.
     for s in meshchar::cost::PROBED {
-        let fl = overlap_floor(s, WorkloadKind::Primary, rc);
+        let fl = overlap_floor(&bounds(), s, WorkloadKind::Primary, rc);
         let built = meshchar::accel::build_structure(s, &m).expect("builds");
         assert_eq!(Some(fl.build_work), built.build_work(), "{s}");
     }
@@ -779,7 +770,7 @@ fn the_grids_primary_floor_sees_triangles_crowded_into_one_cell() {
     let cam = Camera::frame(&mesh_bounds(&m));
     let b = scene_box(&m);
     let rc = Crossings::of_mesh(&m).for_workload(WorkloadKind::Primary, Some(&cam), b.min.to_array(), b.max.to_array());
-    let floor = overlap_floor(StructureName::Grid, WorkloadKind::Primary, Some(rc)).prim_tests;
+    let floor = overlap_floor(&bounds(), StructureName::Grid, WorkloadKind::Primary, Some(rc)).prim_tests;
     let reference = meshchar::accel::build_structure(StructureName::Bvh, &m).unwrap();
     let rays = build_workload(WorkloadKind::Primary, &m, &cam, 64, reference.as_ref());
     let prim = |s| {
@@ -848,7 +839,7 @@ fn secondary_rays_leaving_a_flat_scene_test_each_hierarchys_root_once_as_predict
                 let (bx, pr, rays) = counts_per_ray(s, &m, kind);
                 assert!(rays > 0, "{}: no {kind:?} rays", m.name);
                 assert_eq!((bx, pr), (1.0, 0.0), "{}: {s:?} {kind:?}", m.name);
-                let f = overlap_floor(s, kind, Some(c));
+                let f = overlap_floor(&bounds(), s, kind, Some(c));
                 assert_eq!((f.box_tests, f.prim_tests, f.box_tests_most, f.prim_tests_most), (1.0, 0.0, 1.0, 0.0));
                 let model = CostModel::shipped().expect("shipped model");
                 let d = features_cpu(&m, &Params::default()).expect("features").derived();
@@ -857,7 +848,7 @@ fn secondary_rays_leaving_a_flat_scene_test_each_hierarchys_root_once_as_predict
                 assert_eq!((p.box_tests_per_ray, p.prim_tests_per_ray), (1.0, 0.0), "{}: {s:?}", m.name);
             }
             // The grid still steps through the cells at the rays' origins: no bound.
-            assert_eq!(overlap_floor(StructureName::Grid, kind, Some(c)).box_tests_most, f64::INFINITY);
+            assert_eq!(overlap_floor(&bounds(), StructureName::Grid, kind, Some(c)).box_tests_most, f64::INFINITY);
         }
         // Primary rays, and a camera in the plane, keep the counts.
         assert!(!secondary_rays_leave_the_plane(WorkloadKind::Primary, None, lo, hi));
@@ -908,7 +899,7 @@ fn secondary_rays_from_a_closed_scene_seen_from_outside_leave_it_at_once_as_pred
         view: None,
     };
     for s in StructureName::ALL {
-        let f = overlap_floor(s, WorkloadKind::Diffuse, Some(r));
+        let f = overlap_floor(&bounds(), s, WorkloadKind::Diffuse, Some(r));
         let p = model.get(s).expect("calibrated").predict_floored(&d, m.triangle_count() as u64, &w, f);
         let plain = model.get(s).unwrap().predict_floored(&d, m.triangle_count() as u64, &w, Default::default());
         assert!((p.box_tests_per_ray - 1.0).abs() < 0.1 * plain.box_tests_per_ray.max(1.0), "{s:?}: {p:?}");
@@ -1119,7 +1110,7 @@ fn the_boxes_entered_before_the_hit_floor_the_triangle_tests_of_the_four_hierarc
     // Secondary rays that leave the scene at once cross nothing: the floor bounds the others' counts, 40 / (1 - 0.5)
     // (primary rays have no such share).
     let half = RayCrossings { leave_share: 0.5, ..c };
-    let lbvh = |k, c| overlap_floor(StructureName::Lbvh, k, Some(c)).prim_tests;
+    let lbvh = |k, c| overlap_floor(&bounds(), StructureName::Lbvh, k, Some(c)).prim_tests;
     let d = WorkloadKind::Diffuse;
     assert_eq!(lbvh(d, half), lbvh(d, RayCrossings { near: None, ..half }).max(80.0));
     let p = WorkloadKind::Primary;
@@ -1132,7 +1123,7 @@ fn the_boxes_entered_before_the_hit_floor_the_triangle_tests_of_the_four_hierarc
     };
     let kinds = [WorkloadKind::Primary, WorkloadKind::Shadow, WorkloadKind::Diffuse];
     for (s, k) in StructureName::ALL.into_iter().flat_map(|s| kinds.map(|k| (s, k))) {
-        let (f, g) = (overlap_floor(s, k, Some(c)), overlap_floor(s, k, Some(without)));
+        let (f, g) = (overlap_floor(&bounds(), s, k, Some(c)), overlap_floor(&bounds(), s, k, Some(without)));
         match s {
             StructureName::Bvh | StructureName::Lbvh | StructureName::Hlbvh | StructureName::Bih => {
                 let near = if s == StructureName::Bvh { 8.0 } else { 40.0 };
@@ -1306,31 +1297,38 @@ fn the_lbvhs_sampled_counts_hold_its_primary_prediction_in_their_band() {
     // The LBVH's own counts, for the kind of rays the crossings are of (`Crossings::for_workload` gives each kind
     // its own); every other structure's floor is unchanged.
     for k in [p, WorkloadKind::Shadow, WorkloadKind::Diffuse] {
-        assert_eq!(overlap_floor(StructureName::Lbvh, k, Some(c)).sampled, Some(probe), "{k:?}");
+        assert_eq!(overlap_floor(&bounds(), StructureName::Lbvh, k, Some(c)).sampled, Some(probe), "{k:?}");
         assert_eq!(
-            TestFloor { sampled: None, ..overlap_floor(StructureName::Lbvh, k, Some(c)) },
-            overlap_floor(StructureName::Lbvh, k, Some(without))
+            TestFloor { sampled: None, ..overlap_floor(&bounds(), StructureName::Lbvh, k, Some(c)) },
+            overlap_floor(&bounds(), StructureName::Lbvh, k, Some(without))
         );
     }
     for s in StructureName::ALL.into_iter().filter(|s| *s != StructureName::Lbvh) {
-        let (with, base) = (overlap_floor(s, p, Some(c)), overlap_floor(s, p, Some(without)));
+        let (with, base) = (overlap_floor(&bounds(), s, p, Some(c)), overlap_floor(&bounds(), s, p, Some(without)));
         if s == StructureName::KdTree {
             // The kd-tree, which no probe counts, makes at least `KD_TREE_PRIM_FLOOR` of the fewest triangle tests
             // the probed hierarchies make (their lower bounds: the LBVH's 10 less two standard errors).
-            let floor = meshchar::cost::KD_TREE_PRIM_FLOOR * probe.prim_tests.lower_bound();
+            let floor = bounds().kd_tree_prim_floor * probe.prim_tests.lower_bound();
             assert_eq!(with.prim_tests, base.prim_tests.max(floor), "{s}");
             assert!(with.prim_tests > base.prim_tests, "{with:?}");
             assert_eq!(TestFloor { prim_tests: base.prim_tests, ..with }, base, "{s}");
             // Not where some triangles have zero area (the kd-tree stores those as points).
             let degenerate = RayCrossings { nondegenerate: 4.0, ..c };
             let without_degenerate = RayCrossings { nondegenerate: 4.0, ..without };
-            assert_eq!(overlap_floor(s, p, Some(degenerate)), overlap_floor(s, p, Some(without_degenerate)));
+            assert_eq!(
+                overlap_floor(&bounds(), s, p, Some(degenerate)),
+                overlap_floor(&bounds(), s, p, Some(without_degenerate))
+            );
             // For secondary rays the probes' means count the rays that leave the scene at once, which test no
             // triangle; the floor bounds the others (the prediction applies it to them alone).
             for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
                 let leaving = RayCrossings { leave_share: 0.5, ..c };
-                let base = overlap_floor(s, k, Some(RayCrossings { leave_share: 0.5, ..without }));
-                assert_eq!(overlap_floor(s, k, Some(leaving)).prim_tests, base.prim_tests.max(floor / 0.5), "{k:?}");
+                let base = overlap_floor(&bounds(), s, k, Some(RayCrossings { leave_share: 0.5, ..without }));
+                assert_eq!(
+                    overlap_floor(&bounds(), s, k, Some(leaving)).prim_tests,
+                    base.prim_tests.max(floor / 0.5),
+                    "{k:?}"
+                );
             }
         } else {
             assert_eq!(with, base, "{s}");
@@ -1342,7 +1340,7 @@ fn the_lbvhs_sampled_counts_hold_its_primary_prediction_in_their_band() {
     let f = features_cpu(&m, &Params::default()).expect("features");
     let w = meshchar::cost::Workload { kind: p, rays_per_frame: 65_536, frames: 1, builds: 1, view: None };
     let lbvh = |c: RayCrossings| {
-        let preds = model.predict_floored(&f, &w, &|s| overlap_floor(s, p, Some(c)));
+        let preds = model.predict_floored(&f, &w, &|s| overlap_floor(&bounds(), s, p, Some(c)));
         preds.into_iter().find(|q| q.structure == StructureName::Lbvh).expect("lbvh")
     };
     let (held, free) = (lbvh(c), lbvh(without));
@@ -1371,7 +1369,7 @@ fn the_lbvhs_sampled_counts_hold_its_primary_prediction_in_their_band() {
     device.trace_device = Some(meshchar::accel::device::DeviceRecord { name: "a device".into(), ..Default::default() });
     assert_eq!(device.own_probe_band(), band);
     let on_device = |c: RayCrossings| {
-        let preds = device.predict_floored(&f, &w, &|s| overlap_floor(s, p, Some(c)));
+        let preds = device.predict_floored(&f, &w, &|s| overlap_floor(&bounds(), s, p, Some(c)));
         preds.into_iter().find(|q| q.structure == StructureName::Lbvh).expect("lbvh")
     };
     let kept = on_device(inside);
@@ -1379,15 +1377,15 @@ fn the_lbvhs_sampled_counts_hold_its_primary_prediction_in_their_band() {
     // Held, the LBVH's correction is shared by the hierarchy no probe counts (`SHARES_PROBES`: the kd-tree); the
     // grid, the BIH, the BVH and the HLBVH (probed structures, not probed in this sample) keep their laws. Within
     // the band nothing moves.
-    let all = |c: RayCrossings| model.predict_floored(&f, &w, &|s| overlap_floor(s, p, Some(c)));
+    let all = |c: RayCrossings| model.predict_floored(&f, &w, &|s| overlap_floor(&bounds(), s, p, Some(c)));
     let (rb, rp) = (held.box_tests_per_ray / free.box_tests_per_ray, held.prim_tests_per_ray / free.prim_tests_per_ray);
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1.0);
     let mut shared = 0;
-    for ((h, fr), law) in all(c).iter().zip(&all(without)).zip(&model.predict(&f, &w)) {
+    for ((h, fr), law) in all(c).iter().zip(&all(without)).zip(&laws(&model, &f, &w)) {
         if meshchar::cost::SHARES_PROBES.contains(&h.structure) {
             shared += 1;
             // The law corrected, then its own floor (the same as without the probe).
-            let fl = overlap_floor(h.structure, p, Some(without));
+            let fl = overlap_floor(&bounds(), h.structure, p, Some(without));
             let (cb, cp) =
                 ((law.box_tests_per_ray * rb).max(fl.box_tests), (law.prim_tests_per_ray * rp).max(fl.prim_tests));
             assert!(close(h.box_tests_per_ray, cb), "{h:?} {fr:?}");
@@ -1406,6 +1404,10 @@ fn the_lbvhs_sampled_counts_hold_its_primary_prediction_in_their_band() {
                 (a.box_tests_per_ray, a.prim_tests_per_ray),
                 (held_near.box_tests_per_ray, held_near.prim_tests_per_ray)
             );
+        } else if a.structure == StructureName::KdTree {
+            // The kd-tree's triangle tests are also floored by the probed hierarchies' fewest (`kd_tree_prim_floor`).
+            assert_eq!(a.box_tests_per_ray, b.box_tests_per_ray);
+            assert!(a.prim_tests_per_ray >= b.prim_tests_per_ray, "{a:?} {b:?}");
         } else {
             assert_eq!(a, b);
         }
@@ -1431,7 +1433,7 @@ fn probed_against_counted(m: &Mesh, runaway: &[StructureName]) -> (Vec<(Structur
         builds: 1,
         view: None,
     };
-    let preds = model.predict_floored(&f, &w, &|s| overlap_floor(s, WorkloadKind::Primary, Some(c)));
+    let preds = model.predict_floored(&f, &w, &|s| overlap_floor(&bounds(), s, WorkloadKind::Primary, Some(c)));
     let reference = meshchar::accel::build_structure(StructureName::Bvh, m).unwrap();
     let rays = build_workload(WorkloadKind::Primary, m, &Camera::frame(&b), 64, reference.as_ref());
     let counts = runaway
@@ -1634,7 +1636,7 @@ fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
         if close.is_empty() {
             assert!(line.contains("none: no close call"), "{line}");
             assert!(s.measured.is_empty());
-            assert_eq!(Some(s.selection.structure), meshchar::select::choose(&preds, 0.05), "the model's choice");
+            assert_eq!(Some(s.selection.structure), meshchar::select::choose(&allowed, 0.05), "the model's choice");
             continue;
         }
         settled += 1;
@@ -1658,7 +1660,7 @@ fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
         assert!(capped.measured.is_empty());
         let why = capped.selection.reasons.iter().find(|r| r.starts_with("measured close call")).expect("reason");
         assert!(why.starts_with("measured close call: none: measuring ") && why.contains("allowed"), "{why}");
-        assert_eq!(Some(capped.selection.structure), meshchar::select::choose(&preds, 0.05));
+        assert_eq!(Some(capped.selection.structure), meshchar::select::choose(&allowed, 0.05));
         // No rays, or more than a measured frame may hold: nothing measured.
         for (res, why) in [(0, "no rays (resolution 0)"), (4097, "4097x4097 rays per frame, over the")] {
             let s = run(res, 1e9);
@@ -1726,4 +1728,19 @@ fn a_measured_close_call_of_secondary_rays_scales_its_traces_by_the_rays_it_trac
     }
     assert!(settled > 0, "some family scene at 2K triangles is a close call of secondary rays");
     assert!(doubled_settled > 0, "and one still is with twice the rays");
+}
+
+/// The shipped CPU calibration's overlap-floor factors.
+fn bounds() -> meshchar::cost::CountBounds {
+    CostModel::shipped().expect("shipped model").count_bounds
+}
+
+/// The model's fitted count laws with no floor (a caller that knows the crossings, here none: not the prior's own
+/// laws, which serve a caller that knows nothing beyond the features).
+fn laws(
+    model: &CostModel,
+    f: &meshchar::characterize::Features,
+    w: &meshchar::cost::Workload,
+) -> Vec<meshchar::cost::Prediction> {
+    model.predict_floored(f, w, &|_| meshchar::cost::TestFloor { crossings: 0.0, ..Default::default() })
 }

@@ -488,7 +488,10 @@ fn reference_totals(model: &CostModel, f: &Features, w: &Workload) -> Vec<(Struc
                 })
                 .collect();
             let count = |theta: &[f64]| theta.iter().zip(&x).map(|(t, x)| t * x).sum::<f64>().clamp(-30.0, 30.0).exp();
-            let (bx, pr) = (count(&sm.box_coef), count(&sm.prim_coef));
+            // Nothing known of the scene beyond its features (no crossings, no probe): the prior's laws, where the
+            // file has them.
+            let (bc, pc) = sm.prior.as_ref().map_or((&sm.box_coef, &sm.prim_coef), |p| (&p.box_coef, &p.prim_coef));
+            let (bx, pr) = (count(bc), count(pc));
             let price = |name: &str| sm.trace_price[model.price_names.iter().position(|p| p == name).unwrap()];
             let ray = match w.kind {
                 WorkloadKind::Primary => price("ray_primary"),
@@ -499,6 +502,9 @@ fn reference_totals(model: &CostModel, f: &Features, w: &Workload) -> Vec<(Struc
             if w.kind != WorkloadKind::Primary {
                 ns += price("box_incoherent") * bx + price("prim_incoherent") * pr;
                 ns += price("test_incoherent_log") * (bx + pr) * (1.0 + bx + pr).ln();
+            }
+            if w.kind == WorkloadKind::Diffuse {
+                ns += price("test_diffuse") * (bx + pr);
             }
             let build = plain_build(sm, n);
             let total = w.builds as f64 * build + (w.frames * w.rays_per_frame) as f64 * ns * 1e-6;
@@ -1097,7 +1103,7 @@ fn a_fit_with_the_crossings_reads_them_and_one_without_ignores_them() {
     assert_eq!(crossings_feature(WorkloadKind::Primary, c), 5.0);
     assert_eq!(crossings_feature(WorkloadKind::Shadow, c), 30.0);
     assert_eq!(crossings_feature(WorkloadKind::Diffuse, None), 0.0);
-    assert_eq!(meshchar::cost::overlap_floor(StructureName::Bvh, WorkloadKind::Diffuse, c).crossings, 30.0);
+    assert_eq!(meshchar::cost::overlap_floor(&bounds(), StructureName::Bvh, WorkloadKind::Diffuse, c).crossings, 30.0);
 }
 
 #[test]
@@ -1131,7 +1137,7 @@ fn a_caller_without_a_count_reads_the_calibrations_mean_of_the_crossings() {
     let unknown = with.predict(f, w)[0].box_tests_per_ray;
     assert!((unknown / at(&with, typical) - 1.0).abs() < 1e-9, "{unknown} against {}", at(&with, typical));
     assert!(TestFloor::default().crossings.is_nan());
-    assert!(meshchar::cost::overlap_floor(StructureName::Bvh, w.kind, None).crossings.is_nan());
+    assert!(meshchar::cost::overlap_floor(&bounds(), StructureName::Bvh, w.kind, None).crossings.is_nan());
     // A file written before the means (none) reads an unknown count as 0, as it did.
     let mut old = with.clone();
     old.structures.iter_mut().for_each(|s| s.crossing_mean.clear());
@@ -1468,4 +1474,9 @@ fn a_repeated_oracle_run_is_scored_on_the_first_runs_records() {
     let e = meshchar::eval::compare::repeat_oracle(&b, &samples, &records, &elsewhere).unwrap_err();
     assert!(e.starts_with("84 of 84"), "{e}");
     assert!(meshchar::eval::compare::repeat_oracle(&b, &samples, &records[1..], &records).is_err());
+}
+
+/// The shipped CPU calibration's overlap-floor factors.
+fn bounds() -> meshchar::cost::CountBounds {
+    CostModel::shipped().expect("shipped model").count_bounds
 }

@@ -632,30 +632,22 @@ fn a_curved_build_law_needs_its_range_of_sizes_and_a_curvature_in_range() {
 }
 
 #[test]
-fn a_file_written_before_the_last_prices_reads_them_as_0_and_predicts_as_before() {
-    // Files of the two earlier formats: without test_incoherent_log and the later prices, and without the view's
-    // and the diffuse rays' prices (written before the seventeenth session).
-    for kept in [meshchar::cost::LEGACY_PRICES, meshchar::cost::PRICES_BEFORE_VIEW] {
-        let mut v = shipped_json();
-        let names = v["price_names"].as_array_mut().unwrap();
-        assert_eq!(names.len(), PRICE_NAMES.len());
-        names.truncate(kept);
-        for s in v["structures"].as_array_mut().unwrap() {
-            s["trace_price"].as_array_mut().unwrap().truncate(kept);
+fn a_file_of_the_previous_format_is_refused_with_its_version() {
+    // Version 1 had no count bounds (the overlap floor's factors were typed into the source) and read files of
+    // fewer prices: refused as a whole, naming the version.
+    let mut v = shipped_json();
+    v["version"] = serde_json::json!(1);
+    match CostModel::from_json(&v.to_string()) {
+        Err(meshchar::cost::CostError::Version { found, expected }) => {
+            assert_eq!((found, expected), (1, meshchar::cost::COST_MODEL_VERSION))
         }
-        let old = CostModel::from_json(&v.to_string()).unwrap();
-        assert_eq!(old.price_names, PRICE_NAMES);
-        let mut want = shipped();
-        for s in &mut want.structures {
-            for p in &mut s.trace_price[kept..] {
-                *p = 0.0;
-            }
-        }
-        assert_eq!(old, want, "a file of {kept} prices");
+        other => panic!("{other:?}"),
     }
-    // The shipped test_incoherent_log prices are not all 0: the oldest format's reading changed something.
-    assert!(shipped().structures.iter().any(|s| s.trace_price[meshchar::cost::LEGACY_PRICES] > 0.0));
-    // A file that names one price fewer but keeps a structure's full row is not such a file: refused by name.
+    // Without its count bounds, a file of this version is refused by name.
+    let mut v = shipped_json();
+    v.as_object_mut().unwrap().remove("count_bounds");
+    assert!(CostModel::from_json(&v.to_string()).unwrap_err().to_string().contains("count_bounds"));
+    // A file that names one price fewer is refused by name.
     let mut v = shipped_json();
     v["price_names"].as_array_mut().unwrap().pop();
     let e = CostModel::from_json(&v.to_string()).unwrap_err();

@@ -351,6 +351,7 @@ fn paper_model() -> meshchar::cost::CostModel {
         trace_device: None,
         driver: Vec::new(),
         timed: None,
+        count_bounds: Default::default(),
         uncertainty: None,
         inquiry_costs: Vec::new(),
         chosen_as: None,

@@ -150,9 +150,9 @@ pub mod overlap;
 pub mod probe;
 pub mod timed;
 pub use overlap::{
-    crossings_feature, near_crossings, near_sample_side, overlap_floor, priced_floor, primary_tests_per_crossing,
-    screen_crossings, secondary_rays_leave_the_plane, secondary_tests_per_image_crossing, tests_per_crossing,
-    Crossings, NearCrossings, RayCrossings, SampledMean, TestFloor, ViewCrossings, KD_TREE_PRIM_FLOOR, NEAR_SAMPLES,
+    crossings_feature, near_crossings, near_sample_side, overlap_floor, priced_floor, screen_crossings,
+    secondary_rays_leave_the_plane, CountBounds, Crossings, NearCrossings, RayCrossings, SampledMean,
+    StructureCountBounds, TestFloor, ViewCrossings, NEAR_SAMPLES,
 };
 pub use probe::{probe, Probe, ProbeCounts, PROBED};
 
@@ -196,7 +196,7 @@ pub use registry::{ChosenModel, ShippedModel, TraceTarget, SHIPPED_MODELS};
 pub use view::{ViewFeatures, VIEW_FEATURE_NAMES};
 
 /// Version of the calibration file format (and of the feature set `phi`). Files of another version are stale.
-pub const COST_MODEL_VERSION: u32 = 1;
+pub const COST_MODEL_VERSION: u32 = 2;
 
 /// The shipped default calibration (CPU oracle on the project's build machine).
 pub const SHIPPED_CPU: &str = include_str!("../../assets/cost-model-cpu.json");
@@ -244,14 +244,6 @@ pub const PRICE_NAMES: [&str; 10] = [
     "test_diffuse",
     "test_outside_log_n",
 ];
-
-/// How many of [`PRICE_NAMES`] the files written before `test_incoherent_log` name: such a file is read with the
-/// later prices at 0 (its predictions unchanged).
-pub const LEGACY_PRICES: usize = 7;
-
-/// How many of [`PRICE_NAMES`] the files written before `test_diffuse` and `test_outside_log_n` name (the
-/// seventeenth session): such a file is read with those prices at 0 (its predictions unchanged).
-pub const PRICES_BEFORE_VIEW: usize = 8;
 
 /// The view's term of the price row ([`PRICE_NAMES`]' `test_outside_log_n` per test): `ln n` for `n` triangles
 /// when the eye lies outside the scene's bounds, 0 when inside. A workload without a view is priced as the framing
@@ -904,6 +896,8 @@ pub struct CostModel {
     /// with them (`calibrate --timed-probes`); absent otherwise, and then the policy cannot blend timed probes in.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub timed: Option<timed::TimedRatios>,
+    /// The overlap floor's factors ([`CountBounds`]), read off the calibration's records.
+    pub count_bounds: CountBounds,
     /// The calibration's own held-out errors of each structure's total, by what the selection knows
     /// ([`Uncertainty`]): what the selection's ladder weighs against the cost of knowing more. Absent in files
     /// written before it: then the selection decides on the prior alone.
@@ -952,18 +946,6 @@ impl CostModel {
         obj.insert("structures".into(), Value::Array(Vec::new()));
         let mut m: CostModel = serde_json::from_value(v).map_err(|e| invalid(None, "top level", e.to_string()))?;
         m.structures = structures;
-        // A file written before the last prices names its first LEGACY_PRICES or PRICES_BEFORE_VIEW: read it with
-        // the later prices at 0.
-        let k = m.price_names.len();
-        if (k == LEGACY_PRICES || k == PRICES_BEFORE_VIEW)
-            && m.price_names.iter().zip(PRICE_NAMES).all(|(a, b)| a == b)
-            && m.structures.iter().all(|s| s.trace_price.len() == k)
-        {
-            m.price_names = PRICE_NAMES.iter().map(|s| s.to_string()).collect();
-            for s in &mut m.structures {
-                s.trace_price.resize(PRICE_NAMES.len(), 0.0);
-            }
-        }
         m.validate()?;
         Ok(m)
     }
@@ -984,6 +966,7 @@ impl CostModel {
         if let Some(t) = &self.timed {
             t.validate().map_err(|e| invalid(None, "timed", &e))?;
         }
+        self.count_bounds.validate().map_err(|e| invalid(None, "count_bounds", &e))?;
         for (i, s) in self.structures.iter().enumerate() {
             if let Some(j) = self.structures[..i].iter().position(|t| t.structure == s.structure) {
                 return Err(invalid(
@@ -1452,6 +1435,22 @@ fn check_structure(i: usize, s: &StructureModel) -> Result<(), CostError> {
         }
         if lo > hi {
             return Err(invalid(st, field, format!("[{lo}, {hi}]: the low bound exceeds the high one")));
+        }
+    }
+    if let Some(p) = &s.prior {
+        for (name, coef, want) in [
+            ("prior.box_coef", &p.box_coef, FEATURE_NAMES.len()),
+            ("prior.prim_coef", &p.prim_coef, FEATURE_NAMES.len()),
+            ("prior.view_box_coef", &p.view_box_coef, VIEW_FEATURE_NAMES.len()),
+            ("prior.view_prim_coef", &p.view_prim_coef, VIEW_FEATURE_NAMES.len()),
+        ] {
+            let view = name.contains("view");
+            if coef.len() != want && !(view && coef.is_empty()) {
+                return Err(invalid(st, at(name), format!("{} coefficients, expected {want}", coef.len())));
+            }
+            for (j, &c) in coef.iter().enumerate() {
+                check_number(st, at(&format!("{name}[{j}]")), c, -COEF_LIMIT..=COEF_LIMIT, "a coefficient")?;
+            }
         }
     }
     if s.trace_price.len() != PRICE_NAMES.len() {

@@ -1082,104 +1082,85 @@ fn ratio(f: [f64; 3], s: [f64; 3], w: [f64; 3]) -> f64 {
     }
 }
 
-/// Least tests per primary ray per crossed triangle box ([`RayCrossings`], counted on the camera's image:
-/// [`Crossings::per_ray`] with a view), `(box, triangle)`, of each structure: the lower envelope of the measured
-/// ratio on the training records (`docs/data/oracle-primary.jsonl` and `docs/data/families-primary.jsonl`, the 32
-/// scenes and views whose rays cross at least 4 boxes), rounded down to two significant digits, with where the
-/// least was found (`docs/cost-model.md` lists them). Read off the training records only; checked, not fitted, on
-/// the degenerate generators (`docs/data/degenerate-*.jsonl`). The kd-tree floors no box tests (one that cannot
-/// split overlapping triangles visits one node), nor does the grid (its cells, not the triangles' boxes, bound the
-/// cells a ray visits); the grid's triangle tests are floored, with the least factor of all: a cell's references
-/// are tested by every ray that enters it, so triangles crowded into a few cells (a fan's hub, coincident copies)
-/// cost it as they cost the hierarchies, while large triangles spread over many cells cost it far less per box
-/// crossed.
-pub fn primary_tests_per_crossing(structure: StructureName) -> (f64, f64) {
-    match structure {
-        StructureName::Bvh => BVH,
-        StructureName::KdTree => (0.0, KDTREE_PRIM),
-        StructureName::Bih => BIH,
-        StructureName::Lbvh => LBVH,
-        StructureName::Hlbvh => HLBVH,
-        StructureName::Grid => (0.0, GRID_PRIM),
-        _ => (0.0, 0.0),
-    }
+/// The least tests per crossed triangle box of each structure and kind of ray, read off the calibration's records
+/// by `calibrate` (the lower envelope of the measured ratio, rounded down to two significant digits): the overlap
+/// floor's factors ([`overlap_floor`]). Per crossing ([`RayCrossings`]: counted on the camera's image for primary
+/// rays, over every direction for shadow and diffuse rays), over the records whose rays cross at least
+/// [`CountBounds::FROM`] boxes; per crossing of the camera's primary rays counted on its image
+/// ([`RayCrossings::image`]), for shadow and diffuse rays, over the records whose image count is at least that.
+/// By the structures' definitions some factors are 0 whatever the records say: the kd-tree floors no box tests (one
+/// that cannot split overlapping triangles visits one node), the grid no box tests (its cells, not the triangles'
+/// boxes, bound the cells a ray visits) and, for shadow and diffuse rays, no triangle tests. `kd_tree_prim_floor`:
+/// the kd-tree's triangle tests are at least this share of the fewest the probed object hierarchies make on the
+/// same rays, the least measured ratio over the records without zero-area triangles whose fewest count is at
+/// least 0.5 (a kd-tree leaf holds every triangle that overlaps it, and a ray tests a triangle again in each leaf).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CountBounds {
+    /// One per structure with a floor.
+    pub structures: Vec<StructureCountBounds>,
+    /// The kd-tree's triangle tests over the probed hierarchies' fewest (0: no such floor).
+    pub kd_tree_prim_floor: f64,
 }
 
-// The envelopes (see primary_tests_per_crossing), `(box, triangle)` per crossing counted on the image, and where the
-// least was found: BVH box 0.159 (engineering 200K, inside), triangle 0.0928 (Sponza); kd-tree triangle 0.0833
-// (conference room); BIH 0.464 / 0.286, LBVH 0.725 / 0.121, HLBVH 0.286 / 0.0865 (all at engineering 200K,
-// inside, 1,272 crossings).
-const BVH: (f64, f64) = (0.15, 0.092);
-const KDTREE_PRIM: f64 = 0.083;
-const BIH: (f64, f64) = (0.46, 0.28);
-const LBVH: (f64, f64) = (0.72, 0.12);
-const HLBVH: (f64, f64) = (0.28, 0.086);
-
-// The grid's triangle factor for primary rays, per crossing counted on the image (same records and rules as the
-// hierarchies'): 0.0191 at engineering 200K, inside (1,272 crossings). Its shadow and diffuse envelopes (0.0040 and
-// 0.101 per isotropic crossing, 0.0274 and 0.0646 per image crossing) are not used: as floors, capped at the
-// hierarchies' least, they moved the families' held-out comparison by family from 14.8% to 15.9% mean regret and
-// changed no selection on the degenerate generators.
-const GRID_PRIM: f64 = 0.019;
-
-/// Least tests per crossed triangle box ([`RayCrossings`]), `(box, triangle)`, of each structure for a workload:
-/// [`primary_tests_per_crossing`] for primary rays; for shadow and diffuse rays the lower envelope of the measured
-/// ratio to [`Crossings::isotropic`] on the training records of that workload (`docs/data/oracle-<w>.jsonl` and
-/// `docs/data/families-<w>.jsonl`, the scenes and views with at least one hit whose isotropic crossings are at least
-/// 4: 56 shadow, 46 diffuse), rounded down to two significant digits. Read off the training records only; checked,
-/// not fitted, on the degenerate generators. As for primary rays, the kd-tree floors no box tests; the grid floors
-/// nothing for secondary rays (see [`primary_tests_per_crossing`] for its primary floor).
-pub fn tests_per_crossing(structure: StructureName, kind: WorkloadKind) -> (f64, f64) {
-    match kind {
-        WorkloadKind::Primary => primary_tests_per_crossing(structure),
-        WorkloadKind::Shadow => from_table(&SHADOW, structure),
-        WorkloadKind::Diffuse => from_table(&DIFFUSE, structure),
-    }
+/// One structure's [`CountBounds`].
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StructureCountBounds {
+    /// The structure.
+    pub structure: StructureName,
+    /// `[box, triangle]` tests per crossing, for primary, shadow and diffuse rays.
+    pub per_crossing: [[f64; 2]; 3],
+    /// `[box, triangle]` tests per crossing counted on the image, for shadow and diffuse rays.
+    pub per_image_crossing: [[f64; 2]; 2],
 }
 
-/// A structure's `(box, triangle)` factors from a table in the order BVH, kd-tree, BIH, LBVH, HLBVH (the kd-tree's
-/// box factor is never used; the grid has none for secondary rays).
-fn from_table(table: &[(f64, f64); 5], structure: StructureName) -> (f64, f64) {
-    match structure {
-        StructureName::Bvh => table[0],
-        StructureName::KdTree => (0.0, table[1].1),
-        StructureName::Bih => table[2],
-        StructureName::Lbvh => table[3],
-        StructureName::Hlbvh => table[4],
-        _ => (0.0, 0.0),
+impl CountBounds {
+    /// The crossings (and image crossings) from which a record's ratio enters the envelope: 4.
+    pub const FROM: f64 = 4.0;
+
+    fn of(&self, structure: StructureName) -> Option<&StructureCountBounds> {
+        self.structures.iter().find(|s| s.structure == structure)
+    }
+
+    /// Least `(box, triangle)` tests per crossed box of `structure` for rays of `kind`; `(0, 0)` without a floor.
+    pub fn tests_per_crossing(&self, structure: StructureName, kind: WorkloadKind) -> (f64, f64) {
+        self.of(structure).map_or((0.0, 0.0), |s| {
+            let [b, p] = s.per_crossing[super::timed::kind_index(kind)];
+            (b, p)
+        })
+    }
+
+    /// Least `(box, triangle)` tests per secondary ray per box crossed by the camera's primary rays on its image;
+    /// `(0, 0)` for primary rays and without a floor.
+    pub fn tests_per_image_crossing(&self, structure: StructureName, kind: WorkloadKind) -> (f64, f64) {
+        match (kind, self.of(structure)) {
+            (WorkloadKind::Primary, _) | (_, None) => (0.0, 0.0),
+            (k, Some(s)) => {
+                let [b, p] = s.per_image_crossing[super::timed::kind_index(k) - 1];
+                (b, p)
+            }
+        }
+    }
+
+    /// Checks that every factor is finite and `>= 0`, each structure appears once, and the definitions' zeros hold.
+    pub fn validate(&self) -> Result<(), String> {
+        let ok = |x: f64| x.is_finite() && x >= 0.0;
+        if !ok(self.kd_tree_prim_floor) {
+            return Err(format!("kd_tree_prim_floor {} is not a finite number >= 0", self.kd_tree_prim_floor));
+        }
+        for (i, s) in self.structures.iter().enumerate() {
+            if self.structures[..i].iter().any(|o| o.structure == s.structure) {
+                return Err(format!("{} appears twice", s.structure));
+            }
+            let all = s.per_crossing.iter().chain(&s.per_image_crossing).flatten();
+            if let Some(x) = all.copied().find(|x| !ok(*x)) {
+                return Err(format!("{}: factor {x} is not a finite number >= 0", s.structure));
+            }
+        }
+        Ok(())
     }
 }
-
-// The secondary rays' envelopes (see tests_per_crossing), `(box, triangle)` per isotropic crossing for the BVH,
-// kd-tree (triangle only), BIH, LBVH and HLBVH, and where the least was found. Shadow: BVH box 0.167 (Sponza),
-// triangle 0.0049 (interior 2K, framing); kd-tree triangle 0.0075 (interior 20K, framing); BIH 0.195 (interior
-// 20K, framing) / 0.0096 (interior 2K, framing); LBVH 0.294 (interior 200K, framing) / 0.0051 (interior 20K,
-// framing); HLBVH 0.208 (Sponza) / 0.0040 (interior 20K, framing). Diffuse: BVH 0.147 (Sponza) / 0.0061 (interior
-// 2K, grazing); kd-tree triangle 0.0074 (Sponza); BIH 0.281 / 0.0625 (Sponza); LBVH 0.299 (Sponza) / 0.0052
-// (interior 2K, grazing); HLBVH 0.180 / 0.0070 (Sponza).
-const SHADOW: [(f64, f64); 5] = [(0.16, 0.0049), (0.0, 0.0075), (0.19, 0.0096), (0.29, 0.0051), (0.20, 0.0040)];
-const DIFFUSE: [(f64, f64); 5] = [(0.14, 0.0061), (0.0, 0.0074), (0.28, 0.062), (0.29, 0.0052), (0.18, 0.0070)];
-
-/// Least tests per secondary ray per box crossed by the camera's primary rays, counted on its image
-/// ([`RayCrossings::image`]), `(box, triangle)`, of each structure for shadow and diffuse rays: the lower envelope of
-/// the measured ratio on the training records of that workload with at least one hit whose image count is at least
-/// 4 (`docs/data/oracle-<w>.jsonl` and `docs/data/families-<w>.jsonl`), rounded down to two significant digits.
-/// Zero for primary rays (their floor counts the image directly), the grid, and the kd-tree's box tests.
-pub fn secondary_tests_per_image_crossing(structure: StructureName, kind: WorkloadKind) -> (f64, f64) {
-    match kind {
-        WorkloadKind::Primary => (0.0, 0.0),
-        WorkloadKind::Shadow => from_table(&SHADOW_IMAGE, structure),
-        WorkloadKind::Diffuse => from_table(&DIFFUSE_IMAGE, structure),
-    }
-}
-
-// The image envelopes (see secondary_tests_per_image_crossing), `(box, triangle)` for the BVH, kd-tree (triangle
-// only), BIH, LBVH and HLBVH, over 32 records each, and where the least was found. Shadow: box 0.0743, 0.310,
-// 0.164, 0.136 (engineering 200K, inside), triangle 0.0118, 0.0119, 0.0681, 0.0106, 0.0105 (Sponza). Diffuse: BVH
-// box 0.177 (engineering 200K, inside), BIH 0.375, LBVH 0.400, HLBVH 0.241 (Sponza); triangle 0.0082, 0.0099,
-// 0.0835, 0.0096, 0.0094 (Sponza).
-const SHADOW_IMAGE: [(f64, f64); 5] = [(0.074, 0.011), (0.0, 0.011), (0.30, 0.068), (0.16, 0.010), (0.13, 0.010)];
-const DIFFUSE_IMAGE: [(f64, f64); 5] = [(0.17, 0.0082), (0.0, 0.0099), (0.37, 0.083), (0.39, 0.0096), (0.24, 0.0094)];
 
 /// The BIH's largest leaf under its default build options (`accel::bih::BihOptions`, built with the `eval` feature;
 /// a test checks that the two agree), for the floor of [`overlap_floor`] in the engine core too.
@@ -1285,8 +1266,13 @@ pub fn crossings_feature(kind: WorkloadKind, c: Option<RayCrossings>) -> f64 {
 /// that count (the BVH's scaled by its distinct share) and their box tests at least it over their largest leaf.
 /// With [`RayCrossings::probes`], a probed structure's floor carries its counts sampled on rays of this kind
 /// ([`TestFloor::sampled`]).
-pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
-    priced_floor(structure, kind, c, 0.0)
+pub fn overlap_floor(
+    bounds: &CountBounds,
+    structure: StructureName,
+    kind: WorkloadKind,
+    c: Option<RayCrossings>,
+) -> TestFloor {
+    priced_floor(bounds, structure, kind, c, 0.0)
 }
 
 /// [`overlap_floor`] with the grid's build work given: `grid_work` (`> 0`) is the grid's references counted exactly
@@ -1294,19 +1280,20 @@ pub fn overlap_floor(structure: StructureName, kind: WorkloadKind, c: Option<Ray
 /// ([`super::StructureModel::build_work_coef`]) in place of the probe's work or the law in `n`; 0 leaves the floor
 /// as [`overlap_floor`] gives it.
 pub fn priced_floor(
+    bounds: &CountBounds,
     structure: StructureName,
     kind: WorkloadKind,
     c: Option<RayCrossings>,
     grid_work: f64,
 ) -> TestFloor {
-    let mut f = floor_of(structure, kind, c);
+    let mut f = floor_of(bounds, structure, kind, c);
     if structure == StructureName::Grid && grid_work > 0.0 {
         f.build_work = grid_work;
     }
     f
 }
 
-fn floor_of(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
+fn floor_of(bounds: &CountBounds, structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings>) -> TestFloor {
     let Some(c) = c else { return TestFloor::default() };
     let crossings = crossings_feature(kind, Some(c));
     let hierarchy = matches!(
@@ -1329,7 +1316,7 @@ fn floor_of(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings
         StructureName::KdTree => c.nondegenerate,
         _ => c.all,
     };
-    let (b, p) = tests_per_crossing(structure, kind);
+    let (b, p) = bounds.tests_per_crossing(structure, kind);
     let leave_share = if kind == WorkloadKind::Primary { 0.0 } else { unit_share(c.leave_share) };
     let mut f = TestFloor { box_tests: b * x, prim_tests: p * x, crossings, leave_share, ..TestFloor::default() };
     if let (Some(near), Some(leaf)) = (c.near, near_leaf(structure)) {
@@ -1350,14 +1337,14 @@ fn floor_of(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings
     }
     if kind != WorkloadKind::Primary && c.image > 0.0 {
         let y = if c.all > 0.0 { c.image * x / c.all } else { 0.0 };
-        let (bi, pi) = secondary_tests_per_image_crossing(structure, kind);
+        let (bi, pi) = bounds.tests_per_image_crossing(structure, kind);
         f.box_tests = f.box_tests.max(bi * y);
         f.prim_tests = f.prim_tests.max(pi * y);
     }
     // A probed structure's own counts on the camera's sample of rays of this kind ([`super::probe()`]).
     f.sampled = c.probe(structure);
     f.build_work = c.build_work(structure);
-    if structure == StructureName::KdTree && c.nondegenerate >= c.all {
+    if structure == StructureName::KdTree && c.nondegenerate >= c.all && bounds.kd_tree_prim_floor > 0.0 {
         // The kd-tree, which no probe counts: at least [`KD_TREE_PRIM_FLOOR`] times the fewest triangle tests of the
         // probed object hierarchies on the same rays (where no triangle has zero area: the kd-tree stores those as
         // points, which a ray never tests).
@@ -1372,19 +1359,8 @@ fn floor_of(structure: StructureName, kind: WorkloadKind, c: Option<RayCrossings
         let stay = 1.0 - leave_share;
         let fewest = if kind != WorkloadKind::Primary && stay > 0.0 { fewest / stay } else { fewest };
         if fewest.is_finite() {
-            f.prim_tests = f.prim_tests.max(KD_TREE_PRIM_FLOOR * fewest);
+            f.prim_tests = f.prim_tests.max(bounds.kd_tree_prim_floor * fewest);
         }
     }
     f
 }
-
-/// The kd-tree's triangle tests per ray are at least this share of the fewest that the probed object hierarchies
-/// (the BVH, the LBVH, the BIH and the HLBVH) make on the same rays, in a scene without zero-area triangles
-/// ([`overlap_floor`]): a kd-tree leaf holds every triangle that overlaps it, and a ray tests a triangle again in each
-/// leaf it crosses, so on long slivers it makes several times the hierarchies' tests (the engineering family at
-/// 200K triangles close up, diffuse rays: 2,004 against 518-1,270, where its law said 49). Read off the 84
-/// shared-mesh records of 2026-12-06 (`docs/data/oracle-*.jsonl`), where the least ratio is 0.83 (the conference
-/// room, primary rays; records whose fewest count is at least 0.5), and checked on the 252 family records (least
-/// 1.0), the lavapipe records (0.83) and the H200 records (1.22); with zero-area triangles it fails (0.005-0.34 on
-/// the degenerate records), and the floor does not apply there.
-pub const KD_TREE_PRIM_FLOOR: f64 = 0.8;

@@ -86,8 +86,9 @@ impl Knowledge for RecordKnowledge<'_> {
     fn predictions(&self) -> Vec<Prediction> {
         let s = self.sample;
         let (kind, c, g) = (s.workload.kind, self.crossings, self.grid_work);
+        let b = &self.model.count_bounds;
         let mut p =
-            self.model.predict_floored(&s.features, &s.workload, &|st| crate::cost::priced_floor(st, kind, c, g));
+            self.model.predict_floored(&s.features, &s.workload, &|st| crate::cost::priced_floor(b, st, kind, c, g));
         if let (true, Some(r)) = (self.timed, &self.model.timed) {
             crate::cost::timed::blend(&mut p, &s.timed, r, &s.workload);
         }

@@ -168,7 +168,8 @@ impl FrameRule<'_> {
         built: Option<(&Features, StructureName)>,
     ) -> Option<FrameDecision> {
         let w = Workload { kind: self.kind, rays_per_frame: self.rays_per_frame, frames: 1, builds: 1, view: None };
-        let preds = self.model.predict_floored(now, &w, &|s| overlap_floor(s, self.kind, self.crossings));
+        let bounds = &self.model.count_bounds;
+        let preds = self.model.predict_floored(now, &w, &|s| overlap_floor(bounds, s, self.kind, self.crossings));
         let allowed: Vec<Prediction> = preds
             .iter()
             .filter(|p| self.structures.is_empty() || self.structures.contains(&p.structure))
@@ -283,7 +284,9 @@ impl CalibratedPolicy {
             .and_then(|b| b.grid_build_work())
             .filter(|_| scene.features.len() == 1)
             .unwrap_or(0.0);
-        let mut preds = self.model.predict_floored(f, &w, &|s| priced_floor(s, self.kind, crossings, grid_work));
+        let bounds = &self.model.count_bounds;
+        let mut preds =
+            self.model.predict_floored(f, &w, &|s| priced_floor(bounds, s, self.kind, crossings, grid_work));
         if let (Some(r), Some(t)) = (&self.model.timed, self.timed_probes(scene)) {
             crate::cost::timed::blend(&mut preds, t, r, &w);
         }

@@ -27,6 +27,7 @@ pub(crate) use calibrated::planned_total;
 pub use calibrated::{choose, margin_reason, plan_frames, CalibratedPolicy, FrameAction, FrameDecision, FrameRule};
 pub use driver::{plan_driver_frames, DriverAction, DriverFrameDecision, DriverFrameRule, DriverSelection};
 pub use report::{Bounds, Report, SelectionCost, Timings};
+#[cfg(feature = "eval")]
 pub(crate) use selector::{climb, Knowledge};
 pub use selector::{Decision, Inquiry, Level, Policy as PolicyKind, Scene, Selector, Step, DEFAULT_DECISION_BUDGET};
 pub use thesis::ThesisPolicy;

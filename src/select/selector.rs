@@ -115,8 +115,8 @@ pub struct Selector<'m> {
     pub tie_margin: f64,
     /// The side of the square image a measured close call traces (the workload's resolution).
     pub resolution: u32,
-    /// The most a level climbed under [`Inquiry::Fixed`] may cost by its prediction, ms (a measured close call
-    /// predicted to take longer is not measured); infinite by default.
+    /// Under [`Inquiry::Fixed`], the most a measured close call may cost by its prediction, ms (one predicted to
+    /// take longer is not measured); infinite by default.
     pub max_inquiry_ms: f64,
 }
 
@@ -610,7 +610,7 @@ pub(crate) fn climb(s: &Selector<'_>, k: &mut dyn Knowledge) -> Climb {
             Some("fewer than two structures to time".to_string())
         } else if !auto {
             match cost {
-                Some(c) if c.is_nan() || c > s.max_inquiry_ms => Some(format!(
+                Some(c) if level == Level::Measured && (c.is_nan() || c > s.max_inquiry_ms) => Some(format!(
                     "measuring {} would take about {c:.0} ms by the predictions, over the {:.0} ms allowed",
                     names(&structures),
                     s.max_inquiry_ms

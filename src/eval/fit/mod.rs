@@ -8,6 +8,7 @@
 //! non-negative least squares on the measured counts, weighted by `1 / t^2` (relative error). Fit errors are
 //! root-mean-square natural-log ratios of prediction to measurement ([`crate::cost::FitError`]).
 
+mod bounds;
 mod driver;
 mod ladder;
 mod laws;
@@ -17,6 +18,7 @@ mod sample;
 mod timed;
 
 pub use crate::cost::drift;
+pub use bounds::fit_count_bounds;
 pub use driver::fit_driver;
 pub(crate) use ladder::without_probes;
 pub use ladder::{fit_inquiry_costs, fit_uncertainty};
@@ -154,6 +156,7 @@ impl CostModel {
             trace_device,
             driver: Vec::new(),
             timed: TimedRatios::fit(samples),
+            count_bounds: fit_count_bounds(samples),
             uncertainty: None,
             inquiry_costs: Vec::new(),
             chosen_as: None,

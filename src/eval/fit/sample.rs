@@ -131,7 +131,7 @@ impl Sample {
     /// calibrated policy predicts with the mesh at hand).
     pub fn predict(&self, model: &crate::cost::CostModel) -> Vec<crate::cost::Prediction> {
         model.predict_floored(&self.features, &self.workload, &|s| {
-            crate::cost::priced_floor(s, self.workload.kind, self.crossings, self.grid_build_work)
+            crate::cost::priced_floor(&model.count_bounds, s, self.workload.kind, self.crossings, self.grid_build_work)
         })
     }
 
