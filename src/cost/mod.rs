@@ -86,10 +86,7 @@
 //!   calibration is chosen by its device, and a CPU calibration has none.
 //! * `feature_names` equals [`FEATURE_NAMES`] and `price_names` equals [`PRICE_NAMES`], name for name and in
 //!   order: the coefficients are read by position, so a reordered or renamed column would silently multiply the
-//!   wrong feature or count. The error names the first position that differs. A file that names the first
-//!   [`LEGACY_PRICES`] (written before `test_incoherent_log`) or the first [`PRICES_BEFORE_VIEW`] (before
-//!   `test_diffuse` and `test_outside_log_n`), with that many prices per structure, is read with the missing prices
-//!   at 0, which predicts as it did.
+//!   wrong feature or count. The error names the first position that differs.
 //! * `structures` is not empty; each names one of [`StructureName::ALL`] (brute force is the reference, never
 //!   calibrated) and none appears twice.
 //! * Every number is finite (a NaN or an infinity is written as `null` in JSON, and read back as not finite).

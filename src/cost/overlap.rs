@@ -8,7 +8,7 @@
 //! and [`overlap_floor`] bounds the hierarchies' box and triangle tests per ray, and the grid's triangle tests per
 //! primary ray, from below with it. Where the view was probed ([`Crossings::with_probes`]), [`overlap_floor`] also
 //! carries each probed structure's sampled counts and build work, and bounds the one unprobed hierarchy, the
-//! kd-tree, from below by the probed hierarchies' fewest triangle tests ([`KD_TREE_PRIM_FLOOR`]).
+//! kd-tree, from below by the probed hierarchies' fewest triangle tests ([`CountBounds::kd_tree_prim_floor`]).
 //!
 //! # Crossings of a view
 //!
@@ -32,8 +32,8 @@
 //! fix (toward the light; about the surface normal): they are given the mean over every direction
 //! ([`Crossings::isotropic`]), with no coverage factor, and the camera's count on its image
 //! ([`RayCrossings::image`]): they start where the camera's rays stop, so a camera looking into dense geometry sends
-//! them into it. The factors per crossing ([`tests_per_crossing`], [`secondary_tests_per_image_crossing`]) are read
-//! off the training records of each workload separately, and the floor is the larger of the two.
+//! them into it. The factors per crossing ([`StructureCountBounds`]) are fitted
+//! on the training records of each workload separately (`calibrate`), and the floor is the larger of the two.
 //!
 //! # Rays that leave the scene at once
 //!
@@ -1253,10 +1253,10 @@ pub fn crossings_feature(kind: WorkloadKind, c: Option<RayCrossings>) -> f64 {
 }
 
 /// The overlap floor of `structure`'s tests per ray of the workload `kind` whose [`RayCrossings`] are at hand
-/// ([`Crossings::for_workload`]): its factors of [`tests_per_crossing`] times the crossings (the distinct
+/// ([`Crossings::for_workload`]): its factors of [`StructureCountBounds::per_crossing`] times the crossings (the distinct
 /// triangles' for the binned-SAH BVH, which keeps one of coincident copies; those of non-zero area for the kd-tree,
 /// which stores zero-area triangles as points; all of them for the others); for secondary rays with
-/// [`RayCrossings::image`], the larger of that and the factors of [`secondary_tests_per_image_crossing`] times the
+/// [`RayCrossings::image`], the larger of that and the factors of [`StructureCountBounds::per_image_crossing`] times the
 /// image's count (scaled by the same share of distinct or non-degenerate triangles). Without crossings, no floor and
 /// no count ([`TestFloor::default`]). Secondary rays that leave a flat scene ([`RayCrossings::leave_flat_scene`])
 /// cross 0 boxes, and every hierarchy (BVH, kd-tree, BIH, LBVH, HLBVH) makes exactly one box test and no triangle
