@@ -4,9 +4,9 @@
 //! takes keys, bounds and codes from [`crate::keys`] (the definitions the LBVH and the feature pass use too); [`fast`]
 //! computes the same values in vectorizable forms whose equality with those definitions its tests check. Both finish
 //! with [`super::finalize`] and produce the same [`Characterization`] bit for bit (timings, backend and device
-//! aside). [`fast_previous`], the rayon path that [`fast`] replaced, is kept for the benchmark's speed-up figure.
+//! aside).
 
-use super::finalize::{self, class_from_thresholds, class_thresholds};
+use super::finalize::{self, class_thresholds};
 use super::{Backend, CharError, Characterization, CodeStats, Exact, Params, PassTime, PerTriangle};
 use crate::keys::{self, KeyBounds, KeyError, MortonBits, Quantizer};
 use crate::mesh::Mesh;
@@ -14,9 +14,6 @@ use num_bigint::BigUint;
 use num_traits::Zero;
 use rayon::prelude::*;
 use std::time::Instant;
-
-/// Triangles per rayon task in [`fast_previous`].
-const CHUNK: usize = 1 << 15;
 
 /// The CPU model (from `/proc/cpuinfo` where there is one) and the number of threads used.
 pub fn cpu_device_name(threads: usize) -> String {
@@ -125,7 +122,7 @@ pub fn naive(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError
     Ok(Characterization::from_exact(mesh, params, exact, timings, Backend::Naive, cpu_device_name(1)))
 }
 
-/// A 256-bit unsigned accumulator (`hi * 2^128 + lo`).
+/// A 256-bit unsigned value (`hi * 2^128 + lo`).
 #[derive(Clone, Copy, Default)]
 struct U256 {
     lo: u128,
@@ -133,181 +130,9 @@ struct U256 {
 }
 
 impl U256 {
-    #[inline]
-    fn add(&mut self, lo: u128, hi: u128) {
-        let (l, carry) = self.lo.overflowing_add(lo);
-        self.lo = l;
-        self.hi = self.hi.wrapping_add(hi).wrapping_add(u128::from(carry));
-    }
     fn to_big(self) -> BigUint {
         (BigUint::from(self.hi) << 128u32) + BigUint::from(self.lo)
     }
-}
-
-/// Power sums and extremes of one chunk of codes.
-#[derive(Clone)]
-struct ChunkSums {
-    min: u64,
-    max: u64,
-    s1: u128,
-    s2: U256,
-    s3: U256,
-}
-
-impl ChunkSums {
-    /// 30-bit codes: `m^3 < 2^90`, so every sum of a chunk of at most 2^32 codes fits `u128`.
-    fn of_30(codes: &[u64]) -> ChunkSums {
-        let (mut min, mut max) = (u64::MAX, 0u64);
-        let (mut s1, mut s2, mut s3) = (0u64, 0u128, 0u128);
-        for &m in codes {
-            min = min.min(m);
-            max = max.max(m);
-            let m2 = m * m;
-            s1 += m;
-            s2 += u128::from(m2);
-            s3 += u128::from(m2) * u128::from(m);
-        }
-        ChunkSums { min, max, s1: s1.into(), s2: U256 { lo: s2, hi: 0 }, s3: U256 { lo: s3, hi: 0 } }
-    }
-
-    /// 63-bit codes: `m^2 < 2^126` in `u128`, `m^3 < 2^189` as a 192-bit product, sums in 256 bits.
-    fn of_63(codes: &[u64]) -> ChunkSums {
-        let (mut min, mut max) = (u64::MAX, 0u64);
-        let mut s1 = 0u128;
-        let mut s2 = U256::default();
-        let mut s3 = U256::default();
-        for &m in codes {
-            min = min.min(m);
-            max = max.max(m);
-            let mw = u128::from(m);
-            let m2 = mw * mw;
-            s1 += mw;
-            s2.add(m2, 0);
-            // m^3 = m2_lo * m + (m2_hi * m) << 64.
-            let p0 = (m2 as u64 as u128) * mw;
-            let p1 = ((m2 >> 64) as u64 as u128) * mw;
-            let (lo, carry) = p0.overflowing_add(p1 << 64);
-            s3.add(lo, (p1 >> 64) + u128::from(carry));
-        }
-        ChunkSums { min, max, s1, s2, s3 }
-    }
-}
-
-/// The rayon path as it was before [`fast`] fused its passes, kept as the reference that the benchmark measures its
-/// speed-up against and that the tests compare [`fast`] with; no backend calls it. Four passes over the data (the
-/// validation, the bounds, the codes with their power sums, the classes), bounds in the total order of
-/// [`keys::ordered_bits`] and codes by [`Quantizer`], power sums in fixed-width integers (`u128`, 256 bits for 63-bit
-/// codes) combined exactly, classes by `u64` division where `(m_max - m_min) k < 2^64` and by [`class_thresholds`]
-/// otherwise, per-chunk histograms merged. The same result as [`fast`] and [`naive`], bit for bit.
-///
-/// Same errors as [`naive`]; the same triangle is named when several keys overflow (the first one).
-pub fn fast_previous(mesh: &Mesh, params: &Params) -> Result<Characterization, CharError> {
-    let start = Instant::now();
-    let n = check_input(mesh, params)?;
-    let stride = params.sample_stride;
-    let bits = params.morton_bits;
-    let mut timings = Vec::new();
-    let tri = |j: usize| j * stride as usize;
-
-    // Steps 1 and 2: bounds in parallel, in ordered-bits form; the first overflowing key, if any; step 3, host
-    // part: the scale.
-    let t = Instant::now();
-    let q = Quantizer::of_keys(n, |j| key_of(mesh, tri(j)), bits)
-        .map_err(|e| CharError::of_keys(&mesh.name, stride as usize, e))?;
-    let (lo, hi) = (q.lo(), q.hi());
-    timings.push(pass("keys_bounds", t));
-
-    // Steps 3 to 5.
-    let t = Instant::now();
-    let mut codes = vec![0u64; n];
-    let sums: Vec<ChunkSums> = codes
-        .par_chunks_mut(CHUNK)
-        .enumerate()
-        .map(|(c, out)| {
-            let base = c * CHUNK;
-            for (o, j) in out.iter_mut().zip(base..) {
-                *o = q.code(key_of(mesh, tri(j)));
-            }
-            match bits {
-                MortonBits::Bits30 => ChunkSums::of_30(out),
-                MortonBits::Bits63 => ChunkSums::of_63(out),
-            }
-        })
-        .collect();
-    let mut stats = CodeStats {
-        n: n as u64,
-        code_min: u64::MAX,
-        code_max: 0,
-        s1: BigUint::zero(),
-        s2: BigUint::zero(),
-        s3: BigUint::zero(),
-    };
-    for s in sums {
-        stats.code_min = stats.code_min.min(s.min);
-        stats.code_max = stats.code_max.max(s.max);
-        stats.s1 += BigUint::from(s.s1);
-        stats.s2 += s.s2.to_big();
-        stats.s3 += s.s3.to_big();
-    }
-    let k = finalize::class_count_of(params.class_rule, &stats);
-    timings.push(pass("morton_moments", t));
-
-    // Steps 7 and 8.
-    let t = Instant::now();
-    let (cmin, d) = (stats.code_min, stats.code_max - stats.code_min);
-    let thresholds = class_thresholds(stats.code_min, stats.code_max, k);
-    let use_div = k > 1 && d > 0 && (d as u128) * (k as u128) <= u64::MAX as u128;
-    let k64 = u64::from(k);
-    let class = |m: u64| -> u32 {
-        if k <= 1 || d == 0 {
-            0
-        } else if use_div {
-            // (m - m_min) k <= D k < 2^64: the u128 formula of step 7 in u64.
-            (((m - cmin) * k64) / d).min(k64 - 1) as u32
-        } else {
-            class_from_thresholds(m - cmin, &thresholds)
-        }
-    };
-    let kk = k as usize;
-    let mut classes_out = if params.keep_per_triangle { vec![0u32; n] } else { Vec::new() };
-    let histogram: Vec<u64> = if params.keep_per_triangle {
-        codes
-            .par_chunks(CHUNK)
-            .zip(classes_out.par_chunks_mut(CHUNK))
-            .map(|(cs, out)| {
-                let mut h = vec![0u64; kk];
-                for (o, &m) in out.iter_mut().zip(cs) {
-                    let c = class(m);
-                    *o = c;
-                    h[c as usize] += 1;
-                }
-                h
-            })
-            .reduce(|| vec![0u64; kk], merge_hist)
-    } else {
-        codes
-            .par_chunks(CHUNK)
-            .map(|cs| {
-                let mut h = vec![0u64; kk];
-                for &m in cs {
-                    h[class(m) as usize] += 1;
-                }
-                h
-            })
-            .reduce(|| vec![0u64; kk], merge_hist)
-    };
-    timings.push(pass("classes_histogram", t));
-
-    // Steps 9 and 10.
-    let t = Instant::now();
-    let hstats = finalize::histogram_stats(&histogram, stats.n, params.alpha);
-    timings.push(pass("chi_square", t));
-    timings.push(pass(PassTime::TOTAL, start));
-
-    let per_triangle = params.keep_per_triangle.then_some(PerTriangle { codes, classes: classes_out });
-    let exact = Exact { lo, hi, code_stats: stats, classes: k, histogram, stats: hstats, per_triangle };
-    let device = cpu_device_name(rayon::current_num_threads());
-    Ok(Characterization::from_exact(mesh, params, exact, timings, Backend::Cpu, device))
 }
 
 // ---------------------------------------------------------------------------------------------------------------
@@ -1416,8 +1241,8 @@ mod tests {
         }
     }
 
-    /// `fast`, `fast_with` (in `scratch`, which earlier calls on other meshes have used), `fast_previous` and
-    /// `naive` give the same result (timings aside), with and without per-triangle data.
+    /// `fast`, `fast_with` (in `scratch`, which earlier calls on other meshes have used) and `naive` give the same
+    /// result (timings aside), with and without per-triangle data.
     fn assert_same(mesh: &Mesh, p: &Params, scratch: &mut Scratch) {
         let strip = |mut c: Characterization| {
             c.timings.clear();
@@ -1426,19 +1251,15 @@ mod tests {
             c
         };
         let a = strip(fast(mesh, p).unwrap_or_else(|e| panic!("{}: {e}", mesh.name)));
-        let b = strip(fast_previous(mesh, p).unwrap());
-        assert_eq!(a, b, "{} {p:?}", mesh.name);
+        assert_eq!(a, strip(naive(mesh, p).unwrap()), "{} {p:?}", mesh.name);
         assert_eq!(a, strip(fast_with(mesh, p, scratch).unwrap()), "{} {p:?}: with a scratch", mesh.name);
         let kept = Params { keep_per_triangle: !p.keep_per_triangle, ..p.clone() };
         let c = strip(fast(mesh, &kept).unwrap());
         assert_eq!((&a.code_stats, &a.histogram, a.classes), (&c.code_stats, &c.histogram, c.classes));
-        if mesh.triangle_count() <= 5000 {
-            assert_eq!(a, strip(naive(mesh, p).unwrap()), "{} {p:?}", mesh.name);
-        }
     }
 
     #[test]
-    fn fast_equals_the_previous_path_and_naive() {
+    fn fast_equals_naive() {
         let big = generate::random_soup(2 * TASK + 77, 6);
         let meshes = [
             generate::random_soup(3000, 7),
