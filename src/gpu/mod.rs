@@ -12,23 +12,27 @@
 //! buffer limits, and kernels are specialized for them at pipeline creation. Large arrays are addressed through
 //! buffer device addresses, so no work is limited by `maxStorageBufferRange`.
 
+mod adapter;
 mod bounds;
 mod buffer;
 mod context;
 mod geometry;
+mod instance;
 mod kernel;
 mod mesh;
 mod pipeline_cache;
 mod record;
 pub mod shaders;
 pub mod sort;
+mod submit;
 
+pub use adapter::{
+    enumerate_devices, ray_tracing_device_extensions, ray_tracing_device_features, required_device_extensions,
+    required_device_features, DeviceCaps, DeviceSummary, DeviceType,
+};
 pub use bounds::{BoundsPush, PointBounds};
 pub use buffer::{Buffer, MemoryKind};
-pub use context::{
-    enumerate_devices, ray_tracing_device_extensions, ray_tracing_device_features, required_device_extensions,
-    required_device_features, Context, ContextDesc, DeviceCaps, DeviceSummary, DeviceType, RawDevice,
-};
+pub use context::{Context, ContextDesc, RawDevice};
 pub(crate) use geometry::geometry_push;
 pub use geometry::{GeometryView, IndexType, Indices, Vertices};
 pub use kernel::{Kernel, KernelDesc};
