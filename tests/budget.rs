@@ -765,7 +765,7 @@ fn the_grids_primary_floor_sees_triangles_crowded_into_one_cell() {
     // there without a floor under its triangle tests, and picked it at 145x the best total.
     use meshchar::cost::{overlap_floor, Crossings};
     use meshchar::trace::workload::{build_workload, mesh_bounds};
-    let m = meshchar::mesh::load_path(std::path::Path::new("degenerate:fan:2000:1")).unwrap().frames.remove(0);
+    let m = meshchar::eval::load_scene(std::path::Path::new("degenerate:fan:2000:1")).unwrap().frames.remove(0);
     let cam = Camera::frame(&mesh_bounds(&m));
     let b = scene_box(&m);
     let rc = Crossings::of_mesh(&m).for_workload(WorkloadKind::Primary, Some(&cam), b.min.to_array(), b.max.to_array());
@@ -788,7 +788,7 @@ fn the_mesh_bounds_are_the_same_on_any_number_of_threads() {
     // with the distinct copies counted (the overlapping soup crosses many boxes) and without.
     for mesh in [
         generate::overlapping_large(3000, 2),
-        meshchar::mesh::load_path(std::path::Path::new("family:city:2k:1")).unwrap().frames.remove(0),
+        meshchar::eval::load_scene(std::path::Path::new("family:city:2k:1")).unwrap().frames.remove(0),
     ] {
         let on = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();

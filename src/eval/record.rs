@@ -644,7 +644,7 @@ pub fn load_samples_admitted(
             let scene_err = |reason: String| RecordError::Scene { file: name.clone(), mesh: rec.mesh.clone(), reason };
             if !cache.contains_key(&rec.mesh) {
                 progress(&rec.mesh);
-                let scene = crate::mesh::load_path(Path::new(&rec.mesh)).map_err(|e| scene_err(e.to_string()))?;
+                let scene = super::scene::load_scene(Path::new(&rec.mesh)).map_err(|e| scene_err(e.to_string()))?;
                 let first = scene.frames.first().ok_or_else(|| scene_err("the scene has no frames".into()))?;
                 admit(&rec.mesh, first.triangle_count()).map_err(scene_err)?;
                 let f = features_cpu(first, params).map_err(|e| scene_err(format!("features: {e}")))?;

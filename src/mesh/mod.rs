@@ -15,7 +15,7 @@ pub mod load;
 
 pub use embedded::{default_scene, default_teapot};
 pub use error::MeshError;
-pub use load::{generated_scene, load_animation, load_mesh, load_path, parse_mesh, MeshFormat};
+pub use load::{load_animation, load_mesh, load_path, parse_mesh, MeshFormat};
 
 use glam::Vec3;
 
