@@ -39,7 +39,7 @@ use cli::args::{JsonArg, TieMarginArg, WorkloadArgs};
 use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme, Allocator, AllocatorCreateDesc};
 use gpu_allocator::MemoryLocation;
 use meshchar::accel::bvh::Bvh;
-use meshchar::accel::device::{TraceHit, TraceRay};
+use meshchar::accel::device_trace::{TraceHit, TraceRay};
 use meshchar::accel::driver::{DriverBuilder, DriverFlags, DriverStructure};
 use meshchar::accel::gpu::{BvhBuilder, GpuBvh};
 use meshchar::accel::lbvh::LbvhOptions;
@@ -1549,7 +1549,7 @@ struct Outcome {
     /// The last frame's read-back meshes and plans (for --png).
     last: Option<Vec<(Mesh, Plan)>>,
     /// With ray queries: the last frame's ray-query hits of the picture's rays (per mesh) and their camera.
-    picture: Option<(Vec<Vec<TraceHit>>, meshchar::trace::Camera)>,
+    picture: Option<(Vec<Vec<TraceHit>>, meshchar::geom::Camera)>,
 }
 
 /// The rays of one frame the per-frame rule weighs: `--resolution` squared primary rays, or for shadow and diffuse
@@ -1567,7 +1567,7 @@ fn frame_rays(args: &Args, scene: &[SceneMesh]) -> Result<u64> {
     let tris: Vec<[glam::Vec3; 3]> =
         scene.iter().flat_map(|m| (0..m.rest.triangle_count()).map(|i| m.rest.triangle(i))).collect();
     let all = Mesh::from_triangles("rest poses", &tris).context("the rest poses")?;
-    let camera = meshchar::trace::Camera::frame(&mesh_bounds(&all));
+    let camera = meshchar::geom::Camera::frame(&mesh_bounds(&all));
     let e = estimate_secondary_rays(kind, &all, &camera, res, SECONDARY_SAMPLE_SIDE).context("secondary rays")?;
     eprintln!(
         "engine_frame: {} rays per frame: {} estimated from {}x{} of the {res}x{res} primary rays of a camera framing \
@@ -1687,7 +1687,7 @@ fn frames(
                 b = b.union(&meshchar::trace::workload::mesh_bounds(&m.rest));
             }
             let (c, e) = (b.center(), b.extent());
-            let camera = meshchar::trace::Camera::frame(&meshchar::geom::Aabb::new(c - e, c + e));
+            let camera = meshchar::geom::Camera::frame(&meshchar::geom::Aabb::new(c - e, c + e));
             let rays: Vec<TraceRay> = (0..PNG_RESOLUTION * PNG_RESOLUTION)
                 .map(|p| {
                     TraceRay::from(&camera.ray(p % PNG_RESOLUTION, p / PNG_RESOLUTION, PNG_RESOLUTION, PNG_RESOLUTION))
@@ -1850,7 +1850,7 @@ fn write_png(
     path: &std::path::Path,
     last: &[(Mesh, Plan)],
     params: &Params,
-    picture: Option<&(Vec<Vec<TraceHit>>, meshchar::trace::Camera)>,
+    picture: Option<&(Vec<Vec<TraceHit>>, meshchar::geom::Camera)>,
 ) -> Result<Option<(usize, usize)>> {
     let mut positions = Vec::new();
     let mut indices = Vec::new();

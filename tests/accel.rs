@@ -17,11 +17,12 @@ use meshchar::accel::{
     bih::Bih, brute::BruteForce, bvh::Bvh, grid::Grid, hlbvh::Hlbvh, kdtree::KdTree, lbvh::Lbvh, AccelStructure,
     StructureName,
 };
+use meshchar::geom::Camera;
 use meshchar::geom::WorkloadKind;
 use meshchar::geom::{hits_agree, Ray, TraceCounters};
 use meshchar::mesh::Mesh;
 use meshchar::trace::workload::{build_workload, mesh_bounds, SplitMix64};
-use meshchar::trace::{trace, Camera, RaySet};
+use meshchar::trace::{trace, RaySet};
 
 // ---------------------------------------------------------------------------------------------------------------
 // Deterministic scene generators.

@@ -24,7 +24,7 @@ fn check(family: Family, n: usize, seed: u64) -> Mesh {
             assert!(c.eye.cmpge(b.min).all() && c.eye.cmple(b.max).all(), "{family} {n}: eye {} outside {b:?}", c.eye);
         }
         if v == View::Framing {
-            assert_eq!(c, meshchar::trace::Camera::frame(&b), "{family}: framing is Camera::frame");
+            assert_eq!(c, meshchar::geom::Camera::frame(&b), "{family}: framing is Camera::frame");
         }
     }
     m

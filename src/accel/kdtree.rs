@@ -613,9 +613,9 @@ impl KdTree {
         &self.ids
     }
 
-    /// The arrays the device traversal reads (see [`crate::accel::device`]).
-    pub fn device_layout(&self) -> crate::accel::device::DeviceLayout<'_> {
-        crate::accel::device::DeviceLayout::KdTree {
+    /// The arrays the device traversal reads (see [`crate::accel::device_trace`]).
+    pub fn device_layout(&self) -> crate::accel::device_trace::DeviceLayout<'_> {
+        crate::accel::device_trace::DeviceLayout::KdTree {
             nodes: &self.nodes,
             refs: &self.refs,
             tris: &self.tris,

@@ -10,8 +10,8 @@ use super::oracle::{Measurement, Rebuild};
 use crate::accel::{AccelStats, StructureName};
 use crate::characterize::{features_cpu, Features, Params};
 use crate::cost::{DriverMeasured, Measured, Prediction, Sample, Workload};
+use crate::geom::Camera;
 use crate::geom::WorkloadKind;
-use crate::trace::Camera;
 use serde::{Deserialize, Deserializer, Serialize};
 use std::path::{Path, PathBuf};
 

@@ -58,7 +58,7 @@ pub struct RawDevice {
     /// driver's allocator. Device memory is allocated by gpu-allocator, which takes no callbacks.
     pub allocation_callbacks: Option<vk::AllocationCallbacks<'static>>,
     /// Whether `device` was created with `shaderFloat64` enabled (default `false`): the device traversal
-    /// ([`crate::accel::device::DeviceTracer`]) needs it; nothing else does. [`DeviceCaps::float64`] of the context
+    /// ([`crate::accel::device_trace::DeviceTracer`]) needs it; nothing else does. [`DeviceCaps::float64`] of the context
     /// is true only when this is.
     pub float64_enabled: bool,
     /// Whether `device` was created with the extensions of [`ray_tracing_device_extensions`] and the features of

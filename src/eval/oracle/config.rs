@@ -2,8 +2,8 @@
 
 use super::RefitCandidate;
 use crate::accel::StructureName;
+use crate::geom::Camera;
 use crate::geom::WorkloadKind;
-use crate::trace::Camera;
 
 /// When structures are (re)built.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]

@@ -5,19 +5,20 @@
 use super::measure::Frame;
 use super::DriverResult;
 use super::Measurement;
-use crate::accel::device::{DeviceStructure, DeviceTraceError, DeviceTracer, TraceRay};
+use crate::accel::device_trace::{DeviceStructure, DeviceTraceError, DeviceTracer, TraceRay};
 use crate::accel::{build_structure, AccelStructure, StructureName};
+use crate::geom::Camera;
 use crate::geom::WorkloadKind;
 use crate::mesh::Mesh;
 use crate::trace::workload::mesh_bounds;
-use crate::trace::{Camera, RaySet, TraceOutcome};
+use crate::trace::{RaySet, TraceOutcome};
 
 /// The device side of the oracle: a context and the traversal kernel, its four pipelines already run once (some
 /// drivers compile a pipeline at its first dispatch, inside the timestamps: lavapipe does, with LLVM).
 ///
 /// The LBVH and the HLBVH are built on the device ([`crate::accel::gpu::BvhBuilder`], default options, the trees
 /// of the CPU builders node for node) and traced without a read-back; so is the grid
-/// ([`crate::accel::gpu_grid::GridBuilder`], default options), whose cell lists are compared with the host grid's
+/// ([`crate::accel::gpu::grid::GridBuilder`], default options), whose cell lists are compared with the host grid's
 /// on every build (a difference is an error); where the driver cuts the device grid builder's loops (lavapipe, on
 /// triangles over very many cells) the grid is built on the host and uploaded instead, and its `build_backend`
 /// says `host`. The other structures are built on the host and uploaded.
@@ -25,7 +26,7 @@ pub struct DeviceOracle<'a> {
     pub(super) ctx: &'a crate::gpu::Context,
     tracer: DeviceTracer,
     builder: std::cell::RefCell<crate::accel::gpu::BvhBuilder>,
-    grids: crate::accel::gpu_grid::GridBuilder,
+    grids: crate::accel::gpu::grid::GridBuilder,
     driver: Option<crate::accel::driver::DriverBuilder>,
 }
 
@@ -46,7 +47,7 @@ impl<'a> DeviceOracle<'a> {
             tracer.trace(ctx, &mut d, &ray, false)?;
         }
         let builder = std::cell::RefCell::new(crate::accel::gpu::BvhBuilder::new(ctx)?);
-        let grids = crate::accel::gpu_grid::GridBuilder::new(ctx)?;
+        let grids = crate::accel::gpu::grid::GridBuilder::new(ctx)?;
         let driver = match ctx.caps().ray_query {
             true => Some(crate::accel::driver::DriverBuilder::new(ctx)?),
             false => None,
@@ -80,7 +81,7 @@ impl<'a> DeviceOracle<'a> {
         res: u32,
         want: &[crate::geom::Ray],
     ) -> Result<crate::gpu::Buffer, String> {
-        let pin = crate::accel::device::Pinhole::from(camera);
+        let pin = crate::accel::device_trace::Pinhole::from(camera);
         let buf = self.tracer.primary_rays(self.ctx, &pin, res, res).map_err(|e| e.to_string())?;
         let got: Vec<TraceRay> = self.ctx.read_buffer(&buf, 0, want.len()).map_err(|e| e.to_string())?;
         if let Some(i) =
@@ -101,7 +102,7 @@ impl<'a> DeviceOracle<'a> {
         mesh: &Mesh,
         want: &[crate::geom::Ray],
     ) -> Result<crate::gpu::Buffer, String> {
-        use crate::accel::device::{SecondaryInputs, TraceBuffers, TraceHit};
+        use crate::accel::device_trace::{SecondaryInputs, TraceBuffers, TraceHit};
         use crate::gpu::MemoryKind;
         let e = |x: &dyn std::fmt::Display| x.to_string();
         let ctx = self.ctx;
@@ -119,7 +120,7 @@ impl<'a> DeviceOracle<'a> {
         let stack = mk("stacks", stack_bytes)?;
         let out = mk("shadow rays", n * std::mem::size_of::<TraceRay>() as u64)?;
         let counts = mk("shadow counts", DeviceTracer::secondary_counts_bytes(n))?;
-        let pin = crate::accel::device::Pinhole::from(camera);
+        let pin = crate::accel::device_trace::Pinhole::from(camera);
         let inputs = SecondaryInputs {
             kind,
             seed: crate::trace::workload::WORKLOAD_SEED,
@@ -173,11 +174,11 @@ impl<'a> DeviceOracle<'a> {
     ) -> Result<Option<(f64, TraceOutcome)>, DeviceTraceError> {
         let view = mesh.view();
         if name == StructureName::Grid {
-            use crate::accel::gpu_grid::GridBuildError;
+            use crate::accel::gpu::grid::GridBuildError;
             let bad = |reason: String| {
                 DeviceTraceError::Layout(crate::accel::AccelError::Invalid { structure: "grid", reason })
             };
-            let scene = crate::accel::gpu_grid::triangle_bounds(host.1);
+            let scene = crate::accel::gpu::grid::triangle_bounds(host.1);
             let g = match self.grids.build(&view, &scene, &Default::default()) {
                 Ok(g) => g,
                 Err(GridBuildError::LoopLimit { .. }) => return Ok(None),
@@ -186,7 +187,7 @@ impl<'a> DeviceOracle<'a> {
             };
             let (starts, refs) = g.read_back(self.ctx).map_err(|e| bad(e.to_string()))?;
             match host.0.device_layout() {
-                Some(crate::accel::device::DeviceLayout::Grid { cell_start, refs: want, .. })
+                Some(crate::accel::device_trace::DeviceLayout::Grid { cell_start, refs: want, .. })
                     if cell_start == starts.as_slice() && want == refs.as_slice() => {}
                 _ => return Err(bad("the device-built grid's cell lists differ from the host grid's".into())),
             }

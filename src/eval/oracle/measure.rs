@@ -8,10 +8,11 @@ use super::{
     TraceBackend, MAX_PRECISION_REPEATS,
 };
 use crate::accel::{build_structure, AccelStats, AccelStructure, StructureName};
+use crate::geom::Camera;
 use crate::geom::WorkloadKind;
 use crate::mesh::{Animation, Mesh};
 use crate::trace::workload::{build_workload, mesh_bounds};
-use crate::trace::{count_disagreements, trace, Camera, RaySet, TraceOutcome};
+use crate::trace::{count_disagreements, trace, RaySet, TraceOutcome};
 use std::time::Instant;
 
 pub(super) fn ms(t: Instant) -> f64 {

@@ -5,8 +5,8 @@
 use super::{DeviceRecord, Rebuild, RefitResult, TraceBackend, ROUNDS_EVERY_STRUCTURE};
 use crate::accel::{AccelStats, StructureName};
 use crate::eval::record::{OracleRecord, StructureRecord};
+use crate::geom::Camera;
 use crate::geom::WorkloadKind;
-use crate::trace::Camera;
 
 /// Errors of the oracle.
 #[derive(Debug, thiserror::Error)]
