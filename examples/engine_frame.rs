@@ -9,7 +9,7 @@
 //! two meshes at offsets: the embedded Utah teapot as a triangle soup with 16-bit indices, exploding (its triangles
 //! fly apart along their normals, as `meshchar::mesh::generate::explode`), and a larger mesh with 32-bit indices and
 //! a base vertex (the embedded bunny, subdivided; or `--mesh`), turning rigidly about a tilted axis. The engine's
-//! own compute kernel (`glsl/engine_animate.comp`, its pipeline made here with ash) animates both from a rest copy.
+//! own compute kernel (`examples/shaders/engine_animate.comp`, its pipeline made here with ash) animates both from a rest copy.
 //!
 //! Each frame is ONE command buffer (two frames in flight, a fence each): the animation, a barrier, the planned
 //! characterization and scene features of each mesh (a `VulkanBackend` per mesh with one slot per frame in
@@ -48,7 +48,6 @@ use meshchar::characterize::plan::{reference, Plan};
 use meshchar::characterize::vulkan::VulkanBackend;
 use meshchar::characterize::{Characterization, Features, Params, PassTime};
 use meshchar::cost::CostModel;
-use meshchar::gpu::shaders::engine_animate;
 use meshchar::gpu::{Context, GeometryView, IndexType, RawDevice, Recorder};
 use meshchar::keys::{KeyBounds, Quantizer};
 use meshchar::mesh::{generate, Mesh};
@@ -688,7 +687,7 @@ impl Engine {
 /// How a mesh moves.
 #[derive(Clone, Copy, Debug)]
 enum Motion {
-    /// Triangles fly apart along their rest normals (`glsl/engine_animate.comp`, mode 1).
+    /// Triangles fly apart along their rest normals (`examples/shaders/engine_animate.comp`, mode 1).
     Explode { speed: f32, seed: u32 },
     /// Rigid rotation about `axis` through `center`, `angle` radians a frame (mode 0).
     Rotate { axis: [f32; 3], center: [f32; 3], angle: f32 },
@@ -925,13 +924,20 @@ impl Resources {
     }
 }
 
-/// The engine's animation pipeline over `glsl/engine_animate.comp` (meshchar ships its SPIR-V; the pipeline, its
-/// layout and workgroup size are the engine's), and its workgroup size.
+/// The engine's own animation kernel, `examples/shaders/engine_animate.comp`: its SPIR-V and push-constant struct,
+/// compiled by meshchar's build with the feature `compile-glsl` into `examples/shaders/generated/` (the library's
+/// shader table does not hold it).
+mod engine_animate {
+    include!("shaders/generated/engine_animate.rs");
+}
+
+/// The engine's animation pipeline over `examples/shaders/engine_animate.comp` (the pipeline, its layout and
+/// workgroup size are the engine's), and its workgroup size.
 fn animation_pipeline(engine: &mut Engine) -> Result<(vk::Pipeline, vk::PipelineLayout, u32)> {
-    let info = &engine_animate::INFO;
-    // SAFETY: valid device; the words are a SPIR-V module compiled by the crate's build.
+    let words = engine_animate::spirv();
+    // SAFETY: valid device; the words are a SPIR-V module compiled by meshchar's build (feature compile-glsl).
     let module =
-        unsafe { engine.device.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(info.spirv), None) }
+        unsafe { engine.device.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }
             .context("vkCreateShaderModule")?;
     engine.owned.push(Owned::ShaderModule(module));
     let range = [vk::PushConstantRange::default()
@@ -949,7 +955,7 @@ fn animation_pipeline(engine: &mut Engine) -> Result<(vk::Pipeline, vk::Pipeline
     // SAFETY: valid physical device.
     let limits = unsafe { engine.instance.instance.get_physical_device_properties(engine.physical) }.limits;
     let workgroup = 64u32.min(limits.max_compute_work_group_size[0]).min(limits.max_compute_work_group_invocations);
-    let entries = [vk::SpecializationMapEntry { constant_id: 0, offset: 0, size: 4 }];
+    let entries = [vk::SpecializationMapEntry { constant_id: engine_animate::LOCAL_SIZE_X_ID, offset: 0, size: 4 }];
     let data = workgroup.to_le_bytes();
     let spec = vk::SpecializationInfo::default().map_entries(&entries).data(&data);
     let stage = vk::PipelineShaderStageCreateInfo::default()
