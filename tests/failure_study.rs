@@ -4,6 +4,7 @@
 //! references), never through timings.
 
 mod common;
+#[path = "../src/characterize/tests/exact.rs"]
 mod exact;
 mod gpu_support;
 

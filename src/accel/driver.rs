@@ -40,7 +40,7 @@ use crate::gpu::{shaders, Buffer, Context, GeometryView, GpuError, IndexType, Ke
 use crate::gpu::{Recorder, Timer};
 use ash::vk;
 
-pub use crate::gpu::shaders::trace_rq::Push as TraceRqPush;
+pub(crate) use crate::gpu::shaders::trace_rq::Push as TraceRqPush;
 
 /// One of the driver structures' build-flag choices (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

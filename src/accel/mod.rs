@@ -62,7 +62,7 @@ macro_rules! traversal_methods {
 
 #[cfg(feature = "eval")]
 pub mod bih;
-pub mod bounce;
+pub(crate) mod bounce;
 #[cfg(feature = "eval")]
 pub mod brute;
 pub mod bvh;
@@ -72,7 +72,7 @@ pub mod driver;
 pub mod gpu;
 #[cfg(feature = "eval")]
 pub mod grid;
-pub mod grid_rule;
+pub(crate) mod grid_rule;
 pub mod hlbvh;
 #[cfg(feature = "eval")]
 pub mod kdtree;
@@ -152,7 +152,8 @@ pub enum AccelError {
         /// How the budget follows from the options (`64 per triangle for 300000 triangles, at least 33554432`).
         rule: String,
     },
-    /// `validate()` found a broken invariant.
+    /// `validate()` found a broken invariant, or the input breaks one the builder needs (a quantizer of another code
+    /// width).
     #[error("{structure}: invalid: {reason}")]
     Invalid {
         /// Which structure.

@@ -12,6 +12,8 @@ mod error;
 pub mod families;
 pub mod generate;
 pub mod load;
+#[cfg(test)]
+pub(crate) mod testing;
 
 pub use embedded::{default_scene, default_teapot};
 pub use error::MeshError;

@@ -43,10 +43,10 @@ use glam::Vec3;
 pub use kernel::{DeviceTrace, DeviceTracer, SecondaryInputs, TraceBuffers, DEVICE_BUILT_STACK_ENTRIES};
 pub use layout::{DeviceLayout, TraceStatus, TraversalKind};
 
-pub use crate::gpu::shaders::trace::Push as TracePush;
-pub use crate::gpu::shaders::trace_rays::Push as TraceRaysPush;
-pub use crate::gpu::shaders::trace_records::Push as TraceRecordsPush;
-pub use crate::gpu::shaders::trace_secondary::Push as TraceSecondaryPush;
+pub(crate) use crate::gpu::shaders::trace::Push as TracePush;
+pub(crate) use crate::gpu::shaders::trace_rays::Push as TraceRaysPush;
+pub(crate) use crate::gpu::shaders::trace_records::Push as TraceRecordsPush;
+pub(crate) use crate::gpu::shaders::trace_secondary::Push as TraceSecondaryPush;
 pub use crate::gpu::shaders::{BihNode, BvhNode, KdNode, TraceHit, TraceRay, TraceScene, TriRecord};
 
 /// The most bytes of traversal stacks one dispatch uses (all invocations together): 64 MiB, or less where the

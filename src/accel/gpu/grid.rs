@@ -54,7 +54,7 @@
 //! kernel without a read-back.
 
 use crate::accel::device_trace::{DeviceStructure, TraceScene, TriRecord};
-use crate::accel::grid_rule::{GridFrame, GridOptions};
+pub use crate::accel::grid_rule::{GridFrame, GridOptions};
 use crate::accel::{AccelError, MAX_TRIANGLES};
 use crate::geom::{Aabb, Triangle};
 use crate::gpu::sort::{KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
@@ -63,9 +63,9 @@ use crate::gpu::{
     MemoryKind, Pass, Recorder, Timer,
 };
 
-pub use crate::gpu::shaders::grid_cells::Push as GridCellsPush;
-pub use crate::gpu::shaders::grid_starts::Push as GridStartsPush;
-pub use crate::gpu::shaders::GridHeader;
+pub(crate) use crate::gpu::shaders::grid_cells::Push as GridCellsPush;
+pub(crate) use crate::gpu::shaders::grid_starts::Push as GridStartsPush;
+pub(crate) use crate::gpu::shaders::GridHeader;
 
 /// Largest resolution along one axis the device builder takes (the host grid's default `max_resolution` is 1,024).
 pub const MAX_DEVICE_RESOLUTION: u32 = 65_535;

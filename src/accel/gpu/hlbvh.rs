@@ -193,7 +193,8 @@ impl BvhBuilder {
     /// their host values: a check of the kernel's arithmetic against the host's `/`. Every `a` is positive and
     /// finite, every `b` positive (finite, subnormal or infinite); other pairs, or more than 2^28 of them, give
     /// [`GpuError::Buffer`].
-    pub fn device_divide(&self, pairs: &[(f32, f32)]) -> Result<Vec<f32>> {
+    #[cfg(test)]
+    pub(crate) fn device_divide(&self, pairs: &[(f32, f32)]) -> Result<Vec<f32>> {
         if pairs.is_empty() {
             return Ok(Vec::new());
         }

@@ -112,6 +112,8 @@ pub mod grid;
 mod hlbvh;
 mod lbvh;
 mod refit;
+#[cfg(test)]
+mod tests;
 
 use hlbvh::{read_top_status, top_work_words};
 
@@ -120,17 +122,17 @@ const ITEMS: u32 = 8;
 /// Largest cluster width the GPU HLBVH accepts: its cluster table has `2^cluster_bits` entries (64 MiB at 24).
 pub const MAX_GPU_CLUSTER_BITS: u32 = 24;
 
-pub use crate::gpu::shaders::bvh_collapse_cost::Push as CollapseCostPush;
-pub use crate::gpu::shaders::bvh_compact::Push as CompactPush;
-pub use crate::gpu::shaders::bvh_fit::Push as FitPush;
-pub use crate::gpu::shaders::bvh_leaves::Push as LeavesPush;
-pub use crate::gpu::shaders::bvh_parents::Push as ParentsPush;
-pub use crate::gpu::shaders::hlbvh_heads::Push as HeadsPush;
-pub use crate::gpu::shaders::hlbvh_roots::Push as RootsPush;
-pub use crate::gpu::shaders::hlbvh_scan::Push as ScanPush;
-pub use crate::gpu::shaders::hlbvh_top::Push as TopPush;
-pub use crate::gpu::shaders::lbvh_codes::Push as CodesPush;
-pub use crate::gpu::shaders::lbvh_karras::Push as KarrasPush;
+pub(crate) use crate::gpu::shaders::bvh_collapse_cost::Push as CollapseCostPush;
+pub(crate) use crate::gpu::shaders::bvh_compact::Push as CompactPush;
+pub(crate) use crate::gpu::shaders::bvh_fit::Push as FitPush;
+pub(crate) use crate::gpu::shaders::bvh_leaves::Push as LeavesPush;
+pub(crate) use crate::gpu::shaders::bvh_parents::Push as ParentsPush;
+pub(crate) use crate::gpu::shaders::hlbvh_heads::Push as HeadsPush;
+pub(crate) use crate::gpu::shaders::hlbvh_roots::Push as RootsPush;
+pub(crate) use crate::gpu::shaders::hlbvh_scan::Push as ScanPush;
+pub(crate) use crate::gpu::shaders::hlbvh_top::Push as TopPush;
+pub(crate) use crate::gpu::shaders::lbvh_codes::Push as CodesPush;
+pub(crate) use crate::gpu::shaders::lbvh_karras::Push as KarrasPush;
 
 /// Which tree a [`GpuBvh`] holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -1,9 +1,9 @@
 //! The CPU paths of `docs/spec.md`: [`naive`], a single-threaded transcription of the steps (the reference, and the
 //! thesis's "naive implementation" of Table 5.3), and [`fast`], over rayon in three passes (the bounds; the codes
 //! with their exact power sums; the histogram over the stored codes) with fixed-width integer accumulators. [`naive`]
-//! takes keys, bounds and codes from [`crate::keys`] (the definitions the LBVH and the feature pass use too); [`fast`]
+//! takes keys, bounds and codes from `crate::keys` (the definitions the LBVH and the feature pass use too); [`fast`]
 //! computes the same values in vectorizable forms whose equality with those definitions its tests check. Both finish
-//! with [`super::finalize`] and produce the same [`Characterization`] bit for bit (timings, backend and device
+//! with `super::finalize` and produce the same [`Characterization`] bit for bit (timings, backend and device
 //! aside).
 
 use super::finalize::{self, class_thresholds};
@@ -58,7 +58,7 @@ fn pass(name: &str, t: Instant) -> PassTime {
 }
 
 /// The single-threaded reference: docs/spec.md steps 1 to 10 written out one element at a time on the calling thread
-/// (keys, bounds and codes by the scalar definitions of [`crate::keys`], [`Quantizer::of_slice`]), power sums in
+/// (keys, bounds and codes by the scalar definitions of `crate::keys`, [`Quantizer::of_slice`]), power sums in
 /// `BigUint`.
 ///
 /// Errors: invalid parameters, an invalid mesh (the error names the vertex), no (sampled) triangles, a centroid key
