@@ -10,6 +10,10 @@
 //! files above and compares them with the shipped ones: the build fails when they differ, unless
 //! `MESHCHAR_WRITE_SHADERS=1`, which rewrites the shipped files instead. A GLSL error fails the build with the file
 //! and line that shaderc reports.
+//!
+//! The examples' own kernels (`examples/shaders/*.comp`: an engine's shaders, not the library's) are compiled the
+//! same way into `examples/shaders/generated/` (`<name>.spv` and `<name>.rs`, the push-constant struct and the
+//! words), which the examples include; the library's shader table does not hold them.
 
 use std::path::{Path, PathBuf};
 
@@ -19,12 +23,16 @@ const GENERATED: &str = "src/gpu/generated";
 const WRITE_VAR: &str = "MESHCHAR_WRITE_SHADERS";
 /// The header line that records the hash of the GLSL sources.
 const HASH_PREFIX: &str = "// glsl sources: fnv1a64 ";
+/// The examples' own shaders, relative to the package root, and where their compiled files live.
+const EXAMPLE_SHADERS: &str = "examples/shaders";
+const EXAMPLE_GENERATED: &str = "examples/shaders/generated";
 
 fn main() {
     let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").expect("CARGO_MANIFEST_DIR"));
     println!("cargo:rerun-if-changed=build.rs");
     println!("cargo:rerun-if-changed=glsl");
     println!("cargo:rerun-if-changed={GENERATED}");
+    println!("cargo:rerun-if-changed={EXAMPLE_SHADERS}");
     println!("cargo:rerun-if-env-changed={WRITE_VAR}");
     #[cfg(feature = "compile-glsl")]
     compile::run(&root);
@@ -54,6 +62,30 @@ fn glsl_sources(root: &Path) -> Vec<(String, String)> {
     out
 }
 
+/// The examples' shaders (`examples/shaders/*.comp`), as (path relative to the root, text), sorted by path.
+fn example_sources(root: &Path) -> Vec<(String, String)> {
+    let mut out = Vec::new();
+    let Ok(entries) = std::fs::read_dir(root.join(EXAMPLE_SHADERS)) else { return out };
+    for e in entries.flatten() {
+        let p = e.path();
+        let Some(name) = p.file_name().and_then(|n| n.to_str()) else { continue };
+        if p.is_file() && name.ends_with(".comp") {
+            let text = std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+            out.push((format!("{EXAMPLE_SHADERS}/{name}"), text.replace("\r\n", "\n")));
+        }
+    }
+    out.sort();
+    out
+}
+
+/// The hash recorded in an example shader's generated file: its own source and the library's includes.
+fn example_hash(source: &(String, String), sources: &[(String, String)]) -> u64 {
+    let mut all: Vec<(String, String)> =
+        sources.iter().filter(|(p, _)| p.starts_with("glsl/include/")).cloned().collect();
+    all.push(source.clone());
+    source_hash(&all)
+}
+
 /// FNV-1a (64 bits) of the sources' paths and texts (line ends normalized).
 fn source_hash(sources: &[(String, String)]) -> u64 {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
@@ -81,11 +113,28 @@ fn warn_if_stale(root: &Path) {
              SPIR-V. Regenerate with: MESHCHAR_WRITE_SHADERS=1 cargo build --features compile-glsl"
         );
     }
+    for source in example_sources(root) {
+        let name = source.0.trim_start_matches(&format!("{EXAMPLE_SHADERS}/")).trim_end_matches(".comp").to_string();
+        let shipped =
+            std::fs::read_to_string(root.join(EXAMPLE_GENERATED).join(format!("{name}.rs"))).unwrap_or_default();
+        let recorded = shipped.lines().find_map(|l| l.strip_prefix(HASH_PREFIX)).map(str::trim);
+        let actual = format!("0x{:016x}", example_hash(&source, &sources));
+        if recorded != Some(actual.as_str()) {
+            println!(
+                "cargo:warning={} has changed since {EXAMPLE_GENERATED}/{name}.rs was generated; regenerate with: \
+                 MESHCHAR_WRITE_SHADERS=1 cargo build --features compile-glsl",
+                source.0
+            );
+        }
+    }
 }
 
 #[cfg(feature = "compile-glsl")]
 mod compile {
-    use super::{glsl_sources, source_hash, GENERATED, HASH_PREFIX, WRITE_VAR};
+    use super::{
+        example_hash, example_sources, glsl_sources, source_hash, EXAMPLE_GENERATED, EXAMPLE_SHADERS, GENERATED,
+        HASH_PREFIX, WRITE_VAR,
+    };
     use rspirv::dr::{Instruction, Module, Operand};
     use rspirv::spirv::{BuiltIn, Decoration, ExecutionMode, Op, StorageClass};
     use std::collections::{BTreeMap, HashMap};
@@ -137,6 +186,104 @@ mod compile {
             files.push((format!("spv/{name}.spv"), words.iter().flat_map(|w| w.to_le_bytes()).collect()));
         }
         sync(&root.join(GENERATED), &files);
+
+        // The examples' kernels: the same compile, a file of their own each.
+        let examples = example_sources(root);
+        let all: Vec<(String, String)> = sources.iter().chain(&examples).cloned().collect();
+        let docs = GlslDocs::parse(&all);
+        let mut files: Vec<(String, Vec<u8>)> = Vec::new();
+        for source in &examples {
+            let (file_name, text) = source;
+            let name = file_name.trim_start_matches(&format!("{EXAMPLE_SHADERS}/")).trim_end_matches(".comp");
+            let words = compile(&compiler, text, file_name, &include, true).unwrap_or_else(|e| panic!("{e}"));
+            let plain = compile(&compiler, text, file_name, &include, false).unwrap_or_else(|e| panic!("{e}"));
+            let module = rspirv::dr::load_words(&plain).unwrap_or_else(|e| panic!("{file_name}: {e}"));
+            let info = reflect(&module, file_name);
+            let rust = generate_example(name, file_name, &words, &info, &docs, example_hash(source, &sources));
+            files.push((format!("{name}.rs"), rust.into_bytes()));
+            files.push((format!("{name}.spv"), words.iter().flat_map(|w| w.to_le_bytes()).collect()));
+        }
+        sync_examples(&root.join(EXAMPLE_GENERATED), &files);
+    }
+
+    /// [`sync`] for the examples' kernels in `examples/shaders/generated/`.
+    fn sync_examples(dir: &Path, files: &[(String, Vec<u8>)]) {
+        let differ: Vec<&String> = files
+            .iter()
+            .filter(|(rel, bytes)| std::fs::read(dir.join(rel)).ok().as_deref() != Some(bytes.as_slice()))
+            .map(|(rel, _)| rel)
+            .collect();
+        let stale: Vec<String> = std::fs::read_dir(dir)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| !files.iter().any(|(f, _)| f == n))
+            .collect();
+        if differ.is_empty() && stale.is_empty() {
+            return;
+        }
+        let write = std::env::var(WRITE_VAR).is_ok_and(|v| !v.is_empty() && v != "0");
+        if !write {
+            let mut what: Vec<String> = differ.iter().map(|f| format!("{EXAMPLE_GENERATED}/{f} differs")).collect();
+            what.extend(stale.iter().map(|f| format!("{EXAMPLE_GENERATED}/{f} has no shader")));
+            panic!(
+                "the examples' shipped shaders do not match a fresh compile of examples/shaders/:\n  {}\nRegenerate \
+                 them with `{WRITE_VAR}=1 cargo build --features compile-glsl` and commit {EXAMPLE_GENERATED}/.",
+                what.join("\n  ")
+            );
+        }
+        std::fs::create_dir_all(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+        for (rel, bytes) in files {
+            if differ.contains(&rel) {
+                std::fs::write(dir.join(rel), bytes).unwrap_or_else(|e| panic!("{EXAMPLE_GENERATED}/{rel}: {e}"));
+                println!("cargo:warning={WRITE_VAR}: wrote {EXAMPLE_GENERATED}/{rel}");
+            }
+        }
+        for rel in &stale {
+            std::fs::remove_file(dir.join(rel)).unwrap_or_else(|e| panic!("{EXAMPLE_GENERATED}/{rel}: {e}"));
+            println!("cargo:warning={WRITE_VAR}: removed {EXAMPLE_GENERATED}/{rel}");
+        }
+    }
+
+    /// The Rust file of an example's kernel: its push-constant struct (as the library's, without the library's
+    /// layout trait), its local size's specialization id and its words.
+    fn generate_example(name: &str, file: &str, words: &[u32], r: &Reflected, docs: &GlslDocs, hash: u64) -> String {
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "// @generated by meshchar's build.rs (feature `compile-glsl`) from {file}: do not edit.\n\
+             // A build with the feature fails when this file or {name}.spv differs from a fresh compile;\n\
+             // `MESHCHAR_WRITE_SHADERS=1 cargo build --features compile-glsl` rewrites them."
+        );
+        let _ = writeln!(out, "{HASH_PREFIX}0x{hash:016x}\n");
+        if let Some(push) = &r.push {
+            let mut layout =
+                rust_layout(&push.members, &format!("{file}: push constants")).unwrap_or_else(|e| panic!("{e}"));
+            let key = format!("{file}:{}", push.name);
+            for f in layout.fields.iter_mut().filter(|f| !f.padding) {
+                f.doc = field_doc(f, docs, &key);
+            }
+            let doc = format!("Push constants of `{file}` (`layout(push_constant) uniform {}`).", push.name);
+            let mut s = String::new();
+            emit_struct(&mut s, "", "Push", &doc, &layout);
+            for line in s.lines().filter(|l| !l.contains("crate::push_layout!")) {
+                let _ = writeln!(out, "{line}");
+            }
+        }
+        if let Some(id) = r.local_size_ids[0] {
+            let _ = writeln!(out, "/// The specialization id of the local size in x (`local_size_x_id`).");
+            let _ = writeln!(out, "pub const LOCAL_SIZE_X_ID: u32 = {id};");
+        }
+        let _ = writeln!(
+            out,
+            "/// Words of the optimized SPIR-V ({} of them), shipped in `{name}.spv` beside this file.",
+            words.len()
+        );
+        let _ = writeln!(out, "pub fn spirv() -> Vec<u32> {{");
+        let _ = writeln!(out, "    include_bytes!(\"{name}.spv\").chunks_exact(4).map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]])).collect()");
+        let _ = writeln!(out, "}}");
+        out
     }
 
     /// Compares the generated files with the shipped ones; rewrites them under `MESHCHAR_WRITE_SHADERS=1`, fails

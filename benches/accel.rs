@@ -27,11 +27,12 @@ mod common;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use meshchar::accel::{build_structure, StructureName};
+use meshchar::geom::Camera;
 use meshchar::geom::Ray;
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::Mesh;
 use meshchar::trace::workload::{mesh_bounds, primary_rays};
-use meshchar::trace::{trace, Camera, RaySet};
+use meshchar::trace::{trace, RaySet};
 use rayon::prelude::*;
 use std::time::{Duration, Instant};
 
@@ -244,7 +245,7 @@ fn bench_screen_crossings(c: &mut Criterion) {
         let camera = if scene == "engineering-200k" {
             meshchar::trace::views::View::CloseUp.camera(&b)
         } else {
-            meshchar::trace::Camera::frame(&b)
+            meshchar::geom::Camera::frame(&b)
         };
         let mut g = c.benchmark_group(format!("screen_crossings/{scene}"));
         g.sample_size(10).warm_up_time(Duration::from_millis(500)).measurement_time(Duration::from_secs(2));

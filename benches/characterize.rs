@@ -7,9 +7,8 @@
 //! one run, a single-threaded copy of the mesh's input bytes (positions and index triples, into buffers allocated
 //! and touched beforehand), the same copy on every rayon thread, [`cpu::fast`] (its working memory allocated afresh,
 //! page faults included), [`cpu::fast_with`] with a [`cpu::Scratch`] kept across the rounds (as `Characterizer`
-//! keeps it: what a caller that characterizes every frame pays) and the implementation it replaced
-//! ([`cpu::fast_previous`]); it prints the medians, the bytes per second each achieves, the ratio of the reused
-//! path's time to the copy's, and the speed-up of `fast` over the previous implementation.
+//! keeps it: what a caller that characterizes every frame pays); it prints the medians, the bytes per second each
+//! achieves and the ratio of the reused path's time to the copy's.
 //!
 //! `cargo bench --bench characterize` (all), `-- whole` (only the meshes), `-- scaling` (only the scaling run),
 //! `-- speed` (only the bandwidth comparison). Set `MESHCHAR_BENCH_NAIVE=0` to skip the slow naive path and
@@ -270,10 +269,10 @@ fn speed(crit: &mut Criterion) {
             if name != "dragon" && *setting != "30-bit" {
                 continue;
             }
-            let (mut copy1, mut copy_n, mut fast, mut prev) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+            let (mut copy1, mut copy_n, mut fast) = (Vec::new(), Vec::new(), Vec::new());
             // The working memory kept from one call to the next, as `Characterizer` keeps it.
             let (mut reused, mut scratch) = (Vec::new(), cpu::Scratch::default());
-            // Interleaved rounds: a change of load moves all four figures alike.
+            // Interleaved rounds: a change of load moves all figures alike.
             for _ in 0..rounds {
                 let t = Instant::now();
                 pos.copy_from_slice(&mesh.positions);
@@ -292,15 +291,11 @@ fn speed(crit: &mut Criterion) {
                 let r = cpu::fast_with(&mesh, params, &mut scratch).expect("cpu reused");
                 reused.push(ms(t));
                 assert_eq!((&a.code_stats, &a.histogram), (&r.code_stats, &r.histogram), "{name}: scratch differs");
-                let t = Instant::now();
-                let b = cpu::fast_previous(&mesh, params).expect("cpu previous");
-                prev.push(ms(t));
-                assert_eq!((a.code_stats, a.histogram), (b.code_stats, b.histogram), "{name}: the two paths differ");
             }
             if rounds > 0 {
-                let (c1, cn, f, p) = (median(&mut copy1), median(&mut copy_n), median(&mut fast), median(&mut prev));
+                let (c1, cn, f) = (median(&mut copy1), median(&mut copy_n), median(&mut fast));
                 let fr = median(&mut reused);
-                rows.push((name, *setting, mesh.triangle_count(), bytes, c1, cn, f, fr, p));
+                rows.push((name, *setting, mesh.triangle_count(), bytes, c1, cn, f, fr));
             }
         }
         let mut group = crit.benchmark_group(format!("speed/{name}"));
@@ -319,7 +314,6 @@ fn speed(crit: &mut Criterion) {
         group.bench_function("cpu_reused", |b| {
             b.iter(|| cpu::fast_with(&mesh, &params, &mut scratch).expect("cpu reused"))
         });
-        group.bench_function("cpu_previous", |b| b.iter(|| cpu::fast_previous(&mesh, &params).expect("cpu")));
         group.finish();
     }
     if rows.is_empty() {
@@ -333,21 +327,20 @@ fn speed(crit: &mut Criterion) {
     );
     println!(
         "| mesh | setting | triangles | input MB | copy 1 thread ms (GB/s) | copy {} threads ms (GB/s) | cpu ms (GB/s) | \
-         cpu, scratch reused, ms (GB/s) | reused / copy 1 thread | previous ms | speed-up |",
+         cpu, scratch reused, ms (GB/s) | reused / copy 1 thread |",
         rayon::current_num_threads()
     );
-    println!("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
-    for (name, setting, n, bytes, c1, cn, f, fr, p) in rows {
+    println!("|---|---|---:|---:|---:|---:|---:|---:|---:|");
+    for (name, setting, n, bytes, c1, cn, f, fr) in rows {
         println!(
             "| {name} | {setting} | {n} | {:.1} | {c1:.3} ({:.1}) | {cn:.3} ({:.1}) | {f:.3} ({:.2}) | {fr:.3} ({:.2}) | \
-             {:.1}x | {p:.3} | {:.2}x |",
+             {:.1}x |",
             bytes as f64 / 1e6,
             gbs(c1, bytes),
             gbs(cn, bytes),
             gbs(f, bytes),
             gbs(fr, bytes),
-            fr / c1,
-            p / f
+            fr / c1
         );
     }
 }

@@ -14,13 +14,14 @@
 mod common;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use meshchar::accel::device::{DeviceStructure, DeviceTracer, TraceRay};
+use meshchar::accel::device_trace::{DeviceStructure, DeviceTracer, TraceRay};
 use meshchar::accel::{build_structure, AccelStructure, StructureName};
+use meshchar::geom::Camera;
 use meshchar::geom::WorkloadKind;
 use meshchar::gpu::{Context, ContextDesc};
 use meshchar::mesh::Mesh;
 use meshchar::trace::workload::{mesh_bounds, primary_rays};
-use meshchar::trace::{trace, Camera, RaySet};
+use meshchar::trace::{trace, RaySet};
 use std::time::Duration;
 
 const SCENES: [(&str, &str); 4] = [

@@ -87,7 +87,7 @@ struct Args {
     /// Calibrated policy: the camera the engine will trace from, eye, target (and vertical field of view in
     /// degrees, default 45), +y up [default: a camera framing the scene]
     #[arg(long, value_name = "EX,EY,EZ,TX,TY,TZ[,FOV]", allow_hyphen_values = true, value_parser = args::camera)]
-    camera: Option<meshchar::trace::Camera>,
+    camera: Option<meshchar::geom::Camera>,
     /// Calibrated policy: a camera preset from the scene's bounds instead of --camera: framing, inside, close-up or
     /// grazing
     #[arg(long, value_name = "PRESET", conflicts_with = "camera", value_parser = args::view)]
@@ -235,7 +235,7 @@ fn process(
 fn secondary_rays(
     args: &Args,
     scene: &Animation,
-    camera: Option<meshchar::trace::Camera>,
+    camera: Option<meshchar::geom::Camera>,
     bounds: &dyn Fn() -> meshchar::geom::Aabb,
     pixels: u64,
 ) -> (u64, Option<String>) {
@@ -248,7 +248,7 @@ fn secondary_rays(
         return (n, Some(format!("{} rays per frame: {n} (--secondary-rays)", kind.as_str())));
     }
     let Some(first) = scene.frames.first() else { return (pixels, None) };
-    let camera = camera.unwrap_or_else(|| meshchar::trace::Camera::frame(&bounds()));
+    let camera = camera.unwrap_or_else(|| meshchar::geom::Camera::frame(&bounds()));
     match estimate_secondary_rays(kind, first, &camera, args.workload.resolution, SECONDARY_SAMPLE_SIDE) {
         Ok(e) => (
             e.rays,

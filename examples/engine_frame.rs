@@ -9,7 +9,7 @@
 //! two meshes at offsets: the embedded Utah teapot as a triangle soup with 16-bit indices, exploding (its triangles
 //! fly apart along their normals, as `meshchar::mesh::generate::explode`), and a larger mesh with 32-bit indices and
 //! a base vertex (the embedded bunny, subdivided; or `--mesh`), turning rigidly about a tilted axis. The engine's
-//! own compute kernel (`glsl/engine_animate.comp`, its pipeline made here with ash) animates both from a rest copy.
+//! own compute kernel (`examples/shaders/engine_animate.comp`, its pipeline made here with ash) animates both from a rest copy.
 //!
 //! Each frame is ONE command buffer (two frames in flight, a fence each): the animation, a barrier, the planned
 //! characterization and scene features of each mesh (a `VulkanBackend` per mesh with one slot per frame in
@@ -39,7 +39,7 @@ use cli::args::{JsonArg, TieMarginArg, WorkloadArgs};
 use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme, Allocator, AllocatorCreateDesc};
 use gpu_allocator::MemoryLocation;
 use meshchar::accel::bvh::Bvh;
-use meshchar::accel::device::{TraceHit, TraceRay};
+use meshchar::accel::device_trace::{TraceHit, TraceRay};
 use meshchar::accel::driver::{DriverBuilder, DriverFlags, DriverStructure};
 use meshchar::accel::gpu::{BvhBuilder, GpuBvh};
 use meshchar::accel::lbvh::LbvhOptions;
@@ -47,10 +47,9 @@ use meshchar::accel::{AccelStructure, StructureName};
 use meshchar::characterize::plan::{reference, Plan};
 use meshchar::characterize::vulkan::VulkanBackend;
 use meshchar::characterize::{Characterization, Features, Params, PassTime};
+use meshchar::characterize::{KeyBounds, Quantizer};
 use meshchar::cost::CostModel;
-use meshchar::gpu::shaders::engine_animate;
 use meshchar::gpu::{Context, GeometryView, IndexType, RawDevice, Recorder};
-use meshchar::keys::{KeyBounds, Quantizer};
 use meshchar::mesh::{generate, Mesh};
 use meshchar::select::{DriverAction, DriverFrameRule, FrameAction, FrameRule};
 use serde_json::json;
@@ -688,7 +687,7 @@ impl Engine {
 /// How a mesh moves.
 #[derive(Clone, Copy, Debug)]
 enum Motion {
-    /// Triangles fly apart along their rest normals (`glsl/engine_animate.comp`, mode 1).
+    /// Triangles fly apart along their rest normals (`examples/shaders/engine_animate.comp`, mode 1).
     Explode { speed: f32, seed: u32 },
     /// Rigid rotation about `axis` through `center`, `angle` radians a frame (mode 0).
     Rotate { axis: [f32; 3], center: [f32; 3], angle: f32 },
@@ -925,13 +924,20 @@ impl Resources {
     }
 }
 
-/// The engine's animation pipeline over `glsl/engine_animate.comp` (meshchar ships its SPIR-V; the pipeline, its
-/// layout and workgroup size are the engine's), and its workgroup size.
+/// The engine's own animation kernel, `examples/shaders/engine_animate.comp`: its SPIR-V and push-constant struct,
+/// compiled by meshchar's build with the feature `compile-glsl` into `examples/shaders/generated/` (the library's
+/// shader table does not hold it).
+mod engine_animate {
+    include!("shaders/generated/engine_animate.rs");
+}
+
+/// The engine's animation pipeline over `examples/shaders/engine_animate.comp` (the pipeline, its layout and
+/// workgroup size are the engine's), and its workgroup size.
 fn animation_pipeline(engine: &mut Engine) -> Result<(vk::Pipeline, vk::PipelineLayout, u32)> {
-    let info = &engine_animate::INFO;
-    // SAFETY: valid device; the words are a SPIR-V module compiled by the crate's build.
+    let words = engine_animate::spirv();
+    // SAFETY: valid device; the words are a SPIR-V module compiled by meshchar's build (feature compile-glsl).
     let module =
-        unsafe { engine.device.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(info.spirv), None) }
+        unsafe { engine.device.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }
             .context("vkCreateShaderModule")?;
     engine.owned.push(Owned::ShaderModule(module));
     let range = [vk::PushConstantRange::default()
@@ -949,7 +955,7 @@ fn animation_pipeline(engine: &mut Engine) -> Result<(vk::Pipeline, vk::Pipeline
     // SAFETY: valid physical device.
     let limits = unsafe { engine.instance.instance.get_physical_device_properties(engine.physical) }.limits;
     let workgroup = 64u32.min(limits.max_compute_work_group_size[0]).min(limits.max_compute_work_group_invocations);
-    let entries = [vk::SpecializationMapEntry { constant_id: 0, offset: 0, size: 4 }];
+    let entries = [vk::SpecializationMapEntry { constant_id: engine_animate::LOCAL_SIZE_X_ID, offset: 0, size: 4 }];
     let data = workgroup.to_le_bytes();
     let spec = vk::SpecializationInfo::default().map_entries(&entries).data(&data);
     let stage = vk::PipelineShaderStageCreateInfo::default()
@@ -1594,7 +1600,7 @@ struct Outcome {
     /// The last frame's read-back meshes and plans (for --png).
     last: Option<Vec<(Mesh, Plan)>>,
     /// With ray queries: the last frame's ray-query hits of the picture's rays (per mesh) and their camera.
-    picture: Option<(Vec<Vec<TraceHit>>, meshchar::trace::Camera)>,
+    picture: Option<(Vec<Vec<TraceHit>>, meshchar::geom::Camera)>,
     /// The drift past which the rule decides again ([`FrameRule::redecide_drift`]).
     redecide_drift: f64,
 }
@@ -1614,7 +1620,7 @@ fn frame_rays(args: &Args, scene: &[SceneMesh]) -> Result<u64> {
     let tris: Vec<[glam::Vec3; 3]> =
         scene.iter().flat_map(|m| (0..m.rest.triangle_count()).map(|i| m.rest.triangle(i))).collect();
     let all = Mesh::from_triangles("rest poses", &tris).context("the rest poses")?;
-    let camera = meshchar::trace::Camera::frame(&mesh_bounds(&all));
+    let camera = meshchar::geom::Camera::frame(&mesh_bounds(&all));
     let e = estimate_secondary_rays(kind, &all, &camera, res, SECONDARY_SAMPLE_SIDE).context("secondary rays")?;
     eprintln!(
         "engine_frame: {} rays per frame: {} estimated from {}x{} of the {res}x{res} primary rays of a camera framing \
@@ -1736,7 +1742,7 @@ fn frames(
                 b = b.union(&meshchar::trace::workload::mesh_bounds(&m.rest));
             }
             let (c, e) = (b.center(), b.extent());
-            let camera = meshchar::trace::Camera::frame(&meshchar::geom::Aabb::new(c - e, c + e));
+            let camera = meshchar::geom::Camera::frame(&meshchar::geom::Aabb::new(c - e, c + e));
             let rays: Vec<TraceRay> = (0..PNG_RESOLUTION * PNG_RESOLUTION)
                 .map(|p| {
                     TraceRay::from(&camera.ray(p % PNG_RESOLUTION, p / PNG_RESOLUTION, PNG_RESOLUTION, PNG_RESOLUTION))
@@ -1910,7 +1916,7 @@ fn write_png(
     path: &std::path::Path,
     last: &[(Mesh, Plan)],
     params: &Params,
-    picture: Option<&(Vec<Vec<TraceHit>>, meshchar::trace::Camera)>,
+    picture: Option<&(Vec<Vec<TraceHit>>, meshchar::geom::Camera)>,
 ) -> Result<Option<(usize, usize)>> {
     let mut positions = Vec::new();
     let mut indices = Vec::new();

@@ -37,12 +37,12 @@ use meshchar::eval::oracle::{evaluate_scene_on, DeviceOracle, RefitCandidate, Tr
 use meshchar::eval::proxy::{agreement, proxied, Agreement, TestPrices};
 use meshchar::eval::record::{load_samples_admitted, tracer_of, SampleProbes};
 use meshchar::eval::{OracleConfig, Rebuild, SceneEvaluation};
+use meshchar::geom::Camera;
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::Animation;
 use meshchar::select::{Budget, Decision, PolicyKind, Scene, Selector, TargetWorkload};
 use meshchar::trace::views::View;
 use meshchar::trace::workload::{build_workload, mesh_bounds};
-use meshchar::trace::Camera;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;

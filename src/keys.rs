@@ -95,7 +95,8 @@ pub fn max_total(a: f32, b: f32) -> f32 {
 /// Returns `None` when `hi - lo` overflows f32 (coordinates too far apart for f32 keys, or a bound that is not
 /// finite) or the scale does (a non-zero extent below about `2^b / f32::MAX`, 1e-35 for 63-bit codes): such bounds
 /// cannot be quantized in f32. [`Quantizer::new`] says which.
-pub fn quantization_scale(lo: [f32; 3], hi: [f32; 3], bits: MortonBits) -> Option<[f32; 3]> {
+#[cfg(test)]
+pub(crate) fn quantization_scale(lo: [f32; 3], hi: [f32; 3], bits: MortonBits) -> Option<[f32; 3]> {
     checked_scale(lo, hi, bits).ok()
 }
 
@@ -160,7 +161,7 @@ pub enum KeyError {
     },
 }
 
-/// Step 2: per-axis bounds of keys, reduced in the total order of [`ordered_bits`] (the representation every
+/// Step 2: per-axis bounds of keys, reduced in the total order of `ordered_bits` (the representation every
 /// backend reduces in, so that the minimum of `{-0.0, +0.0}` is the same bit pattern everywhere).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct KeyBounds {
@@ -178,7 +179,7 @@ impl KeyBounds {
     /// No key yet.
     pub const EMPTY: KeyBounds = KeyBounds { lo: [u32::MAX; 3], hi: [0; 3] };
 
-    /// Bounds as the device reduces them: `[lo_x, lo_y, lo_z, hi_x, hi_y, hi_z]` in [`ordered_bits`] form.
+    /// Bounds as the device reduces them: `[lo_x, lo_y, lo_z, hi_x, hi_y, hi_z]` in `ordered_bits` form.
     pub fn from_ordered_bits(u: [u32; 6]) -> KeyBounds {
         KeyBounds { lo: [u[0], u[1], u[2]], hi: [u[3], u[4], u[5]] }
     }
@@ -228,7 +229,7 @@ pub struct Quantizer {
 }
 
 impl Quantizer {
-    /// The quantizer of keys with these bounds ([`quantization_scale`]).
+    /// The quantizer of keys with these bounds (`quantization_scale`).
     ///
     /// Errors: [`KeyError::Empty`] for empty bounds, [`KeyError::Extent`] when the bounds cannot be quantized in
     /// f32 (which includes bounds that are not finite: a caller that can name the overflowing key reports
@@ -269,6 +270,12 @@ impl Quantizer {
         Quantizer::finish(&bounds, bits, || {
             keys.iter().copied().enumerate().find(|(_, k)| !k.iter().all(|c| c.is_finite()))
         })
+    }
+
+    /// A quantizer from its parts, as a plan records them (no check: `scale` is what [`Quantizer::new`] computed for
+    /// bounds `lo`, `hi`).
+    pub(crate) fn from_parts(lo: [f32; 3], hi: [f32; 3], scale: [f32; 3], bits: MortonBits) -> Quantizer {
+        Quantizer { lo, hi, scale, bits }
     }
 
     /// The quantizer of `bounds`, or the first overflowing key (found by `first_overflow`) when a bound is not

@@ -14,11 +14,11 @@ pub mod cost;
 pub mod eval;
 pub mod geom;
 pub mod gpu;
-pub mod keys;
+pub(crate) mod keys;
 pub mod mesh;
 pub mod rng;
 pub mod select;
-pub mod stats;
+pub(crate) mod stats;
 #[cfg(feature = "eval")]
 pub mod trace;
 
@@ -30,3 +30,6 @@ pub mod trace;
 pub(crate) fn in_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
     rayon::scope(|_| f())
 }
+
+/// `crate::push_layout!` for the generated shader mirrors (`gpu/generated/shaders.rs`).
+pub(crate) use gpu::shaders::push_layout;

@@ -17,11 +17,12 @@ use meshchar::accel::{
     bih::Bih, brute::BruteForce, bvh::Bvh, grid::Grid, hlbvh::Hlbvh, kdtree::KdTree, lbvh::Lbvh, AccelStructure,
     StructureName,
 };
+use meshchar::geom::Camera;
 use meshchar::geom::WorkloadKind;
 use meshchar::geom::{hits_agree, Ray, TraceCounters};
 use meshchar::mesh::Mesh;
 use meshchar::trace::workload::{build_workload, mesh_bounds, SplitMix64};
-use meshchar::trace::{trace, Camera, RaySet};
+use meshchar::trace::{trace, RaySet};
 
 // ---------------------------------------------------------------------------------------------------------------
 // Deterministic scene generators.
@@ -425,7 +426,7 @@ fn reinsertion_lowers_the_sah_cost_of_architecture_and_changes_no_hit() {
 fn morton_63_bit_lbvh_and_hlbvh_agree_with_brute_force() {
     use meshchar::accel::hlbvh::HlbvhOptions;
     use meshchar::accel::lbvh::LbvhOptions;
-    use meshchar::keys::MortonBits;
+    use meshchar::characterize::MortonBits;
     for mesh in [clustered(1500, 11), one_point(50), flat_grid(10)] {
         let l = Lbvh::build_with(&mesh, &LbvhOptions { bits: MortonBits::Bits63, ..Default::default() }).unwrap();
         let h = Hlbvh::build_with(&mesh, &HlbvhOptions { bits: MortonBits::Bits63, ..Default::default() }).unwrap();

@@ -7,10 +7,11 @@ mod common;
 
 use meshchar::accel::{build_structure, AccelStructure, StructureName};
 use meshchar::eval::failure_study::generated_cases;
+use meshchar::geom::Camera;
 use meshchar::geom::{hits_agree, WorkloadKind};
 use meshchar::mesh::Mesh;
+use meshchar::trace::trace;
 use meshchar::trace::workload::{build_workload, mesh_bounds};
-use meshchar::trace::{trace, Camera};
 
 /// Traces the three workloads (`resolution`^2 primary rays, and the shadow and diffuse rays from their hits) through
 /// every structure and `reference`, and returns one line per disagreement (at most 3 per structure and workload)

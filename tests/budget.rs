@@ -413,7 +413,7 @@ fn box_crossings_are_projected_areas_and_count_coincident_copies_once_for_the_bv
     // Per ray of a camera: the crossings along its forward direction times the share of its rays on the box.
     let b = scene_box(&one);
     let (lo, hi) = (b.min.to_array(), b.max.to_array());
-    let cam = meshchar::trace::Camera::frame(&b);
+    let cam = meshchar::geom::Camera::frame(&b);
     // Without a view counted on the image (the parallel estimate):
     let parallel = Crossings { view: None, ..Crossings::of_mesh(&one) };
     let r = parallel.per_ray(Some(&cam), lo, hi);
@@ -429,7 +429,7 @@ fn box_crossings_are_projected_areas_and_count_coincident_copies_once_for_the_bv
     assert_eq!(v.all, meshchar::cost::screen_crossings(&boxes, &cam));
     assert_eq!(viewed.per_ray(None, lo, hi).all, v.all);
     assert_eq!(viewed.per_ray(Some(&cam), lo, hi).all, v.all);
-    let other = meshchar::trace::Camera { eye: cam.eye * 2.0, ..cam };
+    let other = meshchar::geom::Camera { eye: cam.eye * 2.0, ..cam };
     assert_eq!(viewed.per_ray(Some(&other), lo, hi), parallel.per_ray(Some(&other), lo, hi));
     // Zero-area triangles: the lattice's 400 collinear ones along its diagonal are all of its crossings along z
     // but the squares', and none of the non-degenerate ones (what the kd-tree holds as boxes).
@@ -469,7 +469,7 @@ fn screen_crossings_count_each_box_by_its_share_of_the_image() {
     let v = glam::Vec3::new;
     // At the origin looking down -z with a 90-degree field of view: the image spans x / depth and y / depth in
     // [-1, 1].
-    let cam = meshchar::trace::Camera {
+    let cam = meshchar::geom::Camera {
         eye: v(0.0, 0.0, 0.0),
         forward: v(0.0, 0.0, -1.0),
         right: v(1.0, 0.0, 0.0),
@@ -551,7 +551,7 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     let b = scene_box(&m);
     let cr = Crossings::of_mesh(&m);
     let (lo, hi) = (b.min.to_array(), b.max.to_array());
-    let cam = meshchar::trace::Camera::frame(&b);
+    let cam = meshchar::geom::Camera::frame(&b);
     assert_eq!(cr.for_workload(WorkloadKind::Primary, Some(&cam), lo, hi), cr.per_ray(Some(&cam), lo, hi));
     for k in [WorkloadKind::Shadow, WorkloadKind::Diffuse] {
         let r = cr.for_workload(k, Some(&cam), lo, hi);
@@ -570,7 +570,7 @@ fn the_overlap_floor_bounds_the_hierarchies_of_every_workload() {
     assert_eq!(cr.for_workload(WorkloadKind::Primary, None, lo, hi).image, 0.0);
     assert_eq!(cr.for_workload(WorkloadKind::Shadow, None, lo, hi).image, cr.view.expect("framing view").all);
     assert_eq!(cr.for_workload(WorkloadKind::Diffuse, Some(&cam), lo, hi).image, cr.view.unwrap().all);
-    let elsewhere = meshchar::trace::Camera { eye: cam.eye * 3.0, ..cam };
+    let elsewhere = meshchar::geom::Camera { eye: cam.eye * 3.0, ..cam };
     assert_eq!(cr.for_workload(WorkloadKind::Diffuse, Some(&elsewhere), lo, hi).image, 0.0);
     // The secondary floor is the larger of the isotropic one and the image's, scaled by the distinct share.
     let with_image =
@@ -766,7 +766,7 @@ fn the_grids_primary_floor_sees_triangles_crowded_into_one_cell() {
     // there without a floor under its triangle tests, and picked it at 145x the best total.
     use meshchar::cost::{overlap_floor, Crossings};
     use meshchar::trace::workload::{build_workload, mesh_bounds};
-    let m = meshchar::mesh::load_path(std::path::Path::new("degenerate:fan:2000:1")).unwrap().frames.remove(0);
+    let m = meshchar::eval::load_scene(std::path::Path::new("degenerate:fan:2000:1")).unwrap().frames.remove(0);
     let cam = Camera::frame(&mesh_bounds(&m));
     let b = scene_box(&m);
     let rc = Crossings::of_mesh(&m).for_workload(WorkloadKind::Primary, Some(&cam), b.min.to_array(), b.max.to_array());
@@ -789,7 +789,7 @@ fn the_mesh_bounds_are_the_same_on_any_number_of_threads() {
     // with the distinct copies counted (the overlapping soup crosses many boxes) and without.
     for mesh in [
         generate::overlapping_large(3000, 2),
-        meshchar::mesh::load_path(std::path::Path::new("family:city:2k:1")).unwrap().frames.remove(0),
+        meshchar::eval::load_scene(std::path::Path::new("family:city:2k:1")).unwrap().frames.remove(0),
     ] {
         let on = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();

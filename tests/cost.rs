@@ -761,7 +761,7 @@ fn the_baselines_are_scored_on_the_same_samples_by_workload_and_family() {
 fn view_features_tell_inside_from_outside_and_a_view_enters_only_a_model_fitted_with_views() {
     use glam::Vec3;
     use meshchar::cost::ViewFeatures;
-    use meshchar::trace::Camera;
+    use meshchar::geom::Camera;
     let (lo, hi) = ([0.0f32; 3], [1.0f32; 3]);
     let b = meshchar::geom::Aabb { min: Vec3::ZERO, max: Vec3::ONE };
     // Framing: outside, about 1.05 / sin(22.5 deg) half-diagonals away, the box on part of the image.

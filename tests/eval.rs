@@ -250,8 +250,9 @@ fn a_structure_over_its_budget_is_reported_failed_and_the_others_are_measured() 
 #[test]
 fn a_structure_over_the_trace_budget_is_reported_failed_and_a_reference_over_it_fails_the_scene() {
     use meshchar::accel::build_structure;
+    use meshchar::geom::Camera;
+    use meshchar::trace::trace;
     use meshchar::trace::workload::{build_workload, mesh_bounds};
-    use meshchar::trace::{trace, Camera};
     // The fan of a polygon over three points: 1,000 copies of one triangle. The BVH keeps one copy; the other
     // structures test them all on every ray that reaches them. At 32 x 32 rays the sample is every ray, so which
     // structures exceed the budget follows from their counts over all rays, computed here apart.
@@ -434,7 +435,7 @@ fn the_precise_oracle_repeats_every_frame_of_an_animation_as_often_as_the_first(
 fn a_record_keeps_its_camera_and_its_sample_reads_the_view_from_it() {
     use meshchar::cost::ViewFeatures;
     use meshchar::eval::record::{CameraRecord, OracleRecord};
-    use meshchar::trace::Camera;
+    use meshchar::geom::Camera;
     let anim = Animation::new("static", vec![scene(300, 0.0)]).unwrap();
     let mut c = config(WorkloadKind::Primary);
     c.structures = vec![StructureName::Bvh, StructureName::Grid];
@@ -502,9 +503,10 @@ fn refit_candidates_build_frame_0_refit_the_rest_and_agree_with_the_reference() 
 /// are the pixels; no triangle, no ray.
 #[test]
 fn the_secondary_rays_estimated_from_a_sample_of_the_primary_rays_count_the_workloads_own() {
+    use meshchar::geom::Camera;
     use meshchar::mesh::families::{generate, Family};
+    use meshchar::trace::views::View;
     use meshchar::trace::workload::{build_workload, estimate_secondary_rays, mesh_bounds};
-    use meshchar::trace::{views::View, Camera};
     let meshes = [
         generate(Family::Vegetation, 2000, 3).unwrap(),
         generate(Family::Interior, 2000, 3).unwrap(),

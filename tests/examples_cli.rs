@@ -260,7 +260,7 @@ fn the_budget_flags_reach_the_policy() {
     let grid = out.iter().find(|e| e["structure"] == "grid").expect("the grid excluded");
     // Counted exactly: what the built grid holds.
     use meshchar::accel::AccelStructure as _;
-    let scene = meshchar::mesh::load_path(Path::new("degenerate:overlapping:2000:1")).expect("scene");
+    let scene = meshchar::eval::load_scene(Path::new("degenerate:overlapping:2000:1")).expect("scene");
     let mesh = &scene.frames[0];
     let built = meshchar::accel::grid::Grid::build(mesh).and_then(|g| g.validate()).expect("grid").references as u64;
     let budget = (mesh.triangle_count() as u64).max(1000);
@@ -289,7 +289,7 @@ fn a_grid_counted_exactly_is_priced_by_its_references_and_the_grid_flags_reach_t
     let v = report(&[]);
     let excluded = v["excluded"].as_array().expect("excluded");
     assert!(excluded.iter().all(|e| e["structure"] != "grid"), "{excluded:?}");
-    let scene = meshchar::mesh::load_path(Path::new("degenerate:overlapping:20000:1")).expect("scene");
+    let scene = meshchar::eval::load_scene(Path::new("degenerate:overlapping:20000:1")).expect("scene");
     let mesh = &scene.frames[0];
     let bounds = meshchar::select::BuildBounds::of_mesh(mesh).expect("bounds");
     let work = bounds.grid_build_work().expect("counted exactly");

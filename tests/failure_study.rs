@@ -4,6 +4,7 @@
 //! references), never through timings.
 
 mod common;
+#[path = "../src/characterize/tests/exact.rs"]
 mod exact;
 mod gpu_support;
 
@@ -13,11 +14,12 @@ use meshchar::accel::lbvh::Lbvh;
 use meshchar::accel::AccelStructure;
 use meshchar::characterize::{Backend, Characterizer, Params};
 use meshchar::eval::failure_study::{self, Case, CaseStats};
+use meshchar::geom::Camera;
 use meshchar::geom::WorkloadKind;
 use meshchar::mesh::{generate, load_mesh, Mesh};
 use meshchar::select::{SceneKind, Structure};
 use meshchar::trace::workload::{mesh_bounds, primary_rays};
-use meshchar::trace::{trace, Camera, RaySet};
+use meshchar::trace::{trace, RaySet};
 use std::sync::OnceLock;
 
 const LARGE_N_MAX: usize = 100_000;

@@ -24,7 +24,7 @@ fn check(family: Family, n: usize, seed: u64) -> Mesh {
             assert!(c.eye.cmpge(b.min).all() && c.eye.cmple(b.max).all(), "{family} {n}: eye {} outside {b:?}", c.eye);
         }
         if v == View::Framing {
-            assert_eq!(c, meshchar::trace::Camera::frame(&b), "{family}: framing is Camera::frame");
+            assert_eq!(c, meshchar::geom::Camera::frame(&b), "{family}: framing is Camera::frame");
         }
     }
     m
@@ -129,21 +129,25 @@ fn a_family_spec_names_a_generated_scene_wherever_a_path_is_taken() {
         assert!(e.contains("family:NAME:TRIANGLES") || e.contains("unknown scene family"), "{bad}: {e}");
     }
     // Loading the spec gives the generator's mesh bit for bit, named by the spec.
-    let anim = meshchar::mesh::load_path(std::path::Path::new("family:city:1000:5")).unwrap();
+    let anim = meshchar::eval::load_scene(std::path::Path::new("family:city:1000:5")).unwrap();
     assert_eq!(anim.name, "family:city:1000:5");
     let want = generate(Family::City, 1000, 5).unwrap();
     assert_eq!(anim.frames.len(), 1);
     assert_eq!(bits(&anim.frames[0]), bits(&want));
     // A bad spec is an error naming it, and a count over the limit is refused.
-    let e = meshchar::mesh::load_path(std::path::Path::new("family:city:lots")).unwrap_err().to_string();
+    let e = meshchar::eval::load_scene(std::path::Path::new("family:city:lots")).unwrap_err().to_string();
     assert!(e.contains("family:city:lots"), "{e}");
-    assert!(meshchar::mesh::load_path(std::path::Path::new("family:city:100m")).is_err());
+    assert!(meshchar::eval::load_scene(std::path::Path::new("family:city:100m")).is_err());
+    // The file loaders read files only: a spec is a missing file to them.
+    let e = meshchar::mesh::load_path(std::path::Path::new("family:city:1000:5")).unwrap_err();
+    assert!(matches!(e, meshchar::mesh::MeshError::Io { .. }), "{e}");
 }
 
 #[test]
 fn a_degenerate_spec_names_a_failure_study_generator_wherever_a_path_is_taken() {
+    use meshchar::eval::scene::{load_scene as load_path, load_scene_mesh as load_mesh};
     use meshchar::mesh::degenerate::{self, parse_spec, Degenerate};
-    use meshchar::mesh::{generate as g, load_mesh, load_path};
+    use meshchar::mesh::generate as g;
     use std::path::Path;
     assert_eq!(parse_spec("degenerate:flat:10k:5"), Some(Ok((Degenerate::Flat, 10_000, 5))));
     assert_eq!(parse_spec("degenerate:All-Equal:1000"), Some(Ok((Degenerate::AllEqual, 1000, 0))));

@@ -6,14 +6,14 @@
 mod common;
 mod gpu_support;
 
-use meshchar::accel::device::TraceRay;
+use meshchar::accel::device_trace::TraceRay;
 use meshchar::accel::driver::{hit_agrees, DriverBuilder, DriverFlags};
 use meshchar::accel::{build_structure, AccelStructure, StructureName};
+use meshchar::geom::Camera;
 use meshchar::geom::{Ray, TraceCounters, WorkloadKind};
 use meshchar::gpu::{Context, MeshBuffers};
 use meshchar::mesh::{generate, load::load_mesh, Mesh};
 use meshchar::trace::workload::{build_workload, mesh_bounds};
-use meshchar::trace::Camera;
 
 /// A context with ray queries, or `None` (skip) when the device has none and `REQUIRE_GPU` is not `1`.
 fn ray_query_context() -> Option<gpu_support::GpuTest> {
@@ -38,7 +38,7 @@ fn disagreements(
     reference: &dyn AccelStructure,
     rays: &[Ray],
     any: bool,
-    hits: &[meshchar::accel::device::TraceHit],
+    hits: &[meshchar::accel::device_trace::TraceHit],
     extent: f32,
 ) -> usize {
     let mut bad = 0;

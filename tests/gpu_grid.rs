@@ -1,4 +1,4 @@
-//! The device grid builder (`meshchar::accel::gpu_grid`) against the host grid: the resolution, every cell's list
+//! The device grid builder (`meshchar::accel::gpu::grid`) against the host grid: the resolution, every cell's list
 //! (its triangles and their order) and the reference count equal the host grid's on the shared meshes, the
 //! degenerate generators and random soups, with default and other options; budgets fail as on the host; a recorded
 //! build with too small a reference array says how many it needs; the device-built grid traces like the host
@@ -7,8 +7,8 @@
 mod common;
 mod gpu_support;
 
-use meshchar::accel::device::{DeviceLayout, DeviceTracer, TraceRay};
-use meshchar::accel::gpu_grid::{triangle_bounds, GridBuildError, GridBuilder, GridPlan};
+use meshchar::accel::device_trace::{DeviceLayout, DeviceTracer, TraceRay};
+use meshchar::accel::gpu::grid::{triangle_bounds, GridBuildError, GridBuilder, GridPlan};
 use meshchar::accel::grid::{Grid, GridOptions};
 use meshchar::accel::{AccelError, AccelStructure};
 use meshchar::geom::{Ray, TraceCounters};
@@ -183,7 +183,7 @@ fn device_built_grid_traces_like_the_host_grid() {
         let g = builder.build(&buffers.view(), &triangle_bounds(&mesh), &GridOptions::default()).unwrap();
         let mut s = g.into_device_structure(&ctx).unwrap();
         let b = triangle_bounds(&mesh);
-        let camera = meshchar::trace::Camera::frame(&b);
+        let camera = meshchar::geom::Camera::frame(&b);
         let mut rays: Vec<Ray> = Vec::new();
         for y in 0..48 {
             for x in 0..48 {

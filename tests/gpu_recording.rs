@@ -15,8 +15,8 @@ use meshchar::accel::lbvh::{Lbvh, LbvhOptions};
 use meshchar::characterize::plan::{reference, Plan};
 use meshchar::characterize::vulkan::VulkanBackend;
 use meshchar::characterize::{cpu, features_cpu, Characterization, Params};
+use meshchar::characterize::{KeyBounds, Quantizer};
 use meshchar::gpu::{Buffer, Context, GeometryView, IndexType, Indices, MemoryKind, Pass, Vertices};
-use meshchar::keys::{KeyBounds, Quantizer};
 use meshchar::mesh::{generate, Mesh};
 
 const STRIDE: u32 = 32;
@@ -196,7 +196,7 @@ fn characterization_features_lbvh_and_refit_in_one_caller_command_buffer_over_in
 #[test]
 fn planned_runs_clamp_keys_outside_the_plan_exactly_as_the_reference() {
     let Some(ctx) = gpu_support::context() else { return };
-    let params = Params { morton_bits: meshchar::keys::MortonBits::Bits63, ..Params::default() };
+    let params = Params { morton_bits: meshchar::characterize::MortonBits::Bits63, ..Params::default() };
     let mut backend = VulkanBackend::new(&ctx).unwrap();
     let max_k = backend.passes().max_classes();
     // The plan of a small cube, applied to a mesh that reaches far outside it on every side.

@@ -9,14 +9,14 @@ mod common;
 mod gpu_support;
 
 use glam::Vec3;
-use meshchar::accel::device::{DeviceLayout, DeviceStructure, DeviceTracer, TraceRay};
+use meshchar::accel::device_trace::{DeviceLayout, DeviceStructure, DeviceTracer, TraceRay};
 use meshchar::accel::{build_structure, AccelStructure, StructureName};
+use meshchar::geom::Camera;
 use meshchar::geom::{Ray, TraceCounters, WorkloadKind};
 use meshchar::gpu::Context;
 use meshchar::mesh::{generate, load::load_mesh, Mesh};
 use meshchar::rng::SplitMix64;
 use meshchar::trace::workload::{build_workload, mesh_bounds};
-use meshchar::trace::Camera;
 
 /// Traces `rays` on the device through `accel` and compares every ray with the CPU. Returns the rays that hit.
 fn check(
@@ -286,7 +286,7 @@ fn deep_chain_bvh_uses_a_stack_sized_from_its_depth() {
 #[test]
 fn malformed_layouts_are_refused() {
     use meshchar::accel::bvh::BvhNode;
-    use meshchar::accel::device::{BihNode, KdNode};
+    use meshchar::accel::device_trace::{BihNode, KdNode};
     use meshchar::geom::{Aabb, Triangle};
     let Some(ctx) = gpu_support::context() else { return };
     let b = Aabb::new(Vec3::ZERO, Vec3::ONE);
@@ -378,7 +378,7 @@ fn device_built_trees_trace_like_the_cpu_trees() {
 /// device buffer they give the CPU tracer's hits and counts.
 #[test]
 fn primary_rays_on_the_device_equal_the_host_rays() {
-    use meshchar::accel::device::Pinhole;
+    use meshchar::accel::device_trace::Pinhole;
     use meshchar::trace::workload::primary_rays;
     let Some(ctx) = gpu_support::context() else { return };
     let tracer = DeviceTracer::new(&ctx).expect("tracer");
@@ -421,7 +421,7 @@ fn primary_rays_on_the_device_equal_the_host_rays() {
 /// order (misses spawn none), on a scan, a teapot in a stadium, and a zero-area scene (no hit, no ray).
 #[test]
 fn secondary_rays_on_the_device_equal_the_host_rays() {
-    use meshchar::accel::device::{Pinhole, SecondaryInputs};
+    use meshchar::accel::device_trace::{Pinhole, SecondaryInputs};
     use meshchar::trace::workload::{default_light, primary_rays, secondary_rays, WORKLOAD_SEED};
     let Some(ctx) = gpu_support::context() else { return };
     let tracer = DeviceTracer::new(&ctx).expect("tracer");

@@ -346,14 +346,14 @@ where
 }
 
 /// `--camera EX,EY,EZ,TX,TY,TZ[,FOV]`.
-pub fn camera(s: &str) -> Result<meshchar::trace::Camera, String> {
+pub fn camera(s: &str) -> Result<meshchar::geom::Camera, String> {
     let v: Vec<f32> =
         s.split(',').map(|s| s.trim().parse::<f32>()).collect::<Result<_, _>>().map_err(|_| "needs numbers")?;
     if v.len() != 6 && v.len() != 7 {
         return Err("needs EX,EY,EZ,TX,TY,TZ[,FOV]".into());
     }
     let fov = v.get(6).copied().unwrap_or(45.0);
-    meshchar::trace::Camera::look_at(
+    meshchar::geom::Camera::look_at(
         glam::Vec3::new(v[0], v[1], v[2]),
         glam::Vec3::new(v[3], v[4], v[5]),
         glam::Vec3::Y,

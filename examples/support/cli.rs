@@ -177,17 +177,21 @@ fn available_memory() -> Option<u64> {
     }
 }
 
-/// [`meshchar::mesh::load_path`], then [`check_memory`] at [`BYTES_PER_TRIANGLE`] for the first frame's triangles.
+/// [`meshchar::eval::scene::load_scene`] (a file, a directory of frames or a generated scene's spec), then
+/// [`check_memory`] at [`BYTES_PER_TRIANGLE`] for the first frame's triangles.
+#[cfg(feature = "eval")]
 pub fn load_path_checked(path: &std::path::Path) -> anyhow::Result<meshchar::mesh::Animation> {
-    let scene = meshchar::mesh::load_path(path)?;
+    let scene = meshchar::eval::scene::load_scene(path)?;
     let triangles = scene.frames.first().map_or(0, |f| f.triangle_count());
     check_memory(&path.display().to_string(), triangles, BYTES_PER_TRIANGLE)?;
     Ok(scene)
 }
 
-/// [`meshchar::mesh::load_mesh`], then [`check_memory`] at `bytes_per_triangle`.
+/// [`meshchar::eval::scene::load_scene_mesh`] (a file or a generated scene's spec), then [`check_memory`] at
+/// `bytes_per_triangle`.
+#[cfg(feature = "eval")]
 pub fn load_mesh_checked(path: &std::path::Path, bytes_per_triangle: u64) -> anyhow::Result<meshchar::mesh::Mesh> {
-    let mesh = meshchar::mesh::load_mesh(path)?;
+    let mesh = meshchar::eval::scene::load_scene_mesh(path)?;
     check_memory(&path.display().to_string(), mesh.triangle_count(), bytes_per_triangle)?;
     Ok(mesh)
 }

@@ -286,9 +286,9 @@ impl Bih {
         &self.nodes
     }
 
-    /// The arrays the device traversal reads (see [`crate::accel::device`]).
-    pub fn device_layout(&self) -> crate::accel::device::DeviceLayout<'_> {
-        crate::accel::device::DeviceLayout::Bih {
+    /// The arrays the device traversal reads (see [`crate::accel::device_trace`]).
+    pub fn device_layout(&self) -> crate::accel::device_trace::DeviceLayout<'_> {
+        crate::accel::device_trace::DeviceLayout::Bih {
             nodes: &self.nodes,
             tris: &self.tris,
             ids: &self.ids,

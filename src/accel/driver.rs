@@ -35,12 +35,12 @@
 //! Needs [`crate::gpu::DeviceCaps::ray_query`] (lavapipe from Mesa 24.1 on, current NVIDIA and AMD drivers); an
 //! owned context enables it where supported, an engine sets [`crate::gpu::RawDevice::ray_query_enabled`].
 
-use crate::accel::device::{TraceHit, TraceRay};
+use crate::accel::device_trace::{TraceHit, TraceRay};
 use crate::gpu::{shaders, Buffer, Context, GeometryView, GpuError, IndexType, Kernel, KernelDesc, MemoryKind};
 use crate::gpu::{Recorder, Timer};
 use ash::vk;
 
-pub use crate::gpu::shaders::trace_rq::Push as TraceRqPush;
+pub(crate) use crate::gpu::shaders::trace_rq::Push as TraceRqPush;
 
 /// One of the driver structures' build-flag choices (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

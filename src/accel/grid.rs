@@ -29,7 +29,7 @@
 //! counters (which copies of one triangle would all contend for), and the same grid on every thread count. Storage
 //! is compressed rows: `cell_start[c] .. cell_start[c + 1]` indexes the reference array.
 //!
-//! The device builder ([`crate::accel::gpu_grid`]) makes the same cell lists from the same [`GridFrame`] (the
+//! The device builder ([`crate::accel::gpu::grid`]) makes the same cell lists from the same [`GridFrame`] (the
 //! frame's constants are computed once, in [`GridFrame::new`], for both).
 //!
 //! # Budget
@@ -295,9 +295,9 @@ impl Grid {
         Ok((counts, None))
     }
 
-    /// The arrays the device traversal reads (see [`crate::accel::device`]).
-    pub fn device_layout(&self) -> crate::accel::device::DeviceLayout<'_> {
-        crate::accel::device::DeviceLayout::Grid {
+    /// The arrays the device traversal reads (see [`crate::accel::device_trace`]).
+    pub fn device_layout(&self) -> crate::accel::device_trace::DeviceLayout<'_> {
+        crate::accel::device_trace::DeviceLayout::Grid {
             bounds: self.frame.bounds,
             res: self.frame.res,
             cell_size: self.frame.cell_size,

@@ -106,11 +106,11 @@ pub const WIDEN: f32 = 1e-4;
 /// its inverse (f32, as the traversal uses them), and the two constants of the widening of a triangle's cells
 /// (`crate::accel::grid`'s module docs): `widen = cell_size * WIDEN + max(|min|, |max|) * 8 eps` per axis (f64) and
 /// `pad_scale = 16 eps (max(|min|, |max|) + largest extent)`, which the pad of a triangle multiplies by
-/// `|e1| |e2| / |e1 x e2|`. The host grid and the device grid builder (`crate::accel::gpu_grid`) compute their
+/// `|e1| |e2| / |e1 x e2|`. The host grid and the device grid builder (`crate::accel::gpu::grid`) compute their
 /// cells from one `GridFrame`, so both follow the same rule bit for bit.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GridFrame {
-    /// The scene box, a zero extent padded (see [`resolution`]).
+    /// The scene box, a zero extent padded (see `resolution`).
     pub bounds: Aabb,
     /// Cells along x, y, z.
     pub res: [u32; 3],
@@ -244,7 +244,7 @@ impl Clipper {
 }
 
 impl GridFrame {
-    /// The cells of box `b` widened by [`WIDEN`] of a cell (f32): inclusive index ranges per axis.
+    /// The cells of box `b` widened by `WIDEN` of a cell (f32): inclusive index ranges per axis.
     pub fn box_cells(&self, b: &Aabb) -> ([u32; 3], [u32; 3]) {
         let lo = ((b.min - self.bounds.min) * self.inv_cell - WIDEN).floor();
         let hi = ((b.max - self.bounds.min) * self.inv_cell + WIDEN).floor();

@@ -3,9 +3,9 @@
 //!
 //! # Definition
 //!
-//! 1. Keys: for triangle `i`, `s_i = centroid_key(v0, v1, v2)`; bounds `lo`, `hi` = per-axis [`min_total`] /
-//!    [`max_total`] of all `s_i`; `scale = quantization_scale(lo, hi, bits)`; `code_i = morton(quantize(s_i, lo,
-//!    scale, bits), bits)` ([`crate::keys`], docs/spec.md steps 1 to 4; 30-bit by default, 63-bit optional).
+//! 1. Keys: for triangle `i`, `s_i = centroid_key(v0, v1, v2)`; bounds `lo`, `hi` = per-axis `min_total` /
+//!    `max_total` of all `s_i`; `scale = quantization_scale(lo, hi, bits)`; `code_i = morton(quantize(s_i, lo,
+//!    scale, bits), bits)` (`crate::keys`, docs/spec.md steps 1 to 4; 30-bit by default, 63-bit optional).
 //! 2. Sort by the pair `(code_i, i)`; position `k` of the sorted order holds triangle `ids[k]`. The *extended key*
 //!    of position `k` is the concatenation `code_k ‖ ids[k]` (`3b + 32` bits); all extended keys are distinct.
 //! 3. `delta(k, j)` = length of the common prefix of the extended keys of positions `k` and `j`, or `-1` when `j`
@@ -41,13 +41,11 @@
 //!    choice is optimal for the SAH cost of the crate over all collapses of the given tree (the cost is a sum over
 //!    nodes; a subtree's best cost does not depend on what lies above it).
 //!
-//! [`min_total`]: crate::keys::min_total
-//! [`max_total`]: crate::keys::max_total
 
 use super::bvh::{BvhNode, BvhTree};
 use super::{check_mesh, AccelError, AccelStats, AccelStructure, StructureName};
 use crate::geom::{Aabb, Triangle};
-use crate::keys::{centroid_key, MortonBits};
+use crate::keys::{centroid_key, MortonBits, Quantizer};
 use crate::mesh::Mesh;
 use rayon::prelude::*;
 
@@ -70,7 +68,7 @@ impl Default for LbvhOptions {
 /// Largest leaf the SAH collapse forms.
 pub const MAX_COLLAPSE_LEAF: u32 = 64;
 
-/// Morton codes of docs/spec.md for every triangle, in mesh order ([`crate::keys::morton_codes`] over the keys of
+/// Morton codes of docs/spec.md for every triangle, in mesh order (`crate::keys::morton_codes` over the keys of
 /// the mesh, computed once). The mesh must be valid (see [`crate::accel::prepare`]).
 pub fn morton_codes(mesh: &Mesh, bits: MortonBits, structure: &'static str) -> Result<Vec<u64>, AccelError> {
     let n = mesh.triangle_count();
@@ -373,10 +371,48 @@ impl Lbvh {
         crate::in_pool(|| Self::build_here(mesh, o))
     }
 
+    /// The LBVH of `mesh` over the codes of a given quantizer instead of the mesh's own bounds: what
+    /// [`crate::accel::gpu::BvhBuilder::record_lbvh`] builds on the device with that quantizer (a planned rebuild
+    /// with the quantizer of a [`crate::characterize::plan::Plan`]), node for node. A key outside the quantizer's
+    /// bounds gets the code of the nearest cell (docs/spec.md, "Planned characterization"). With the quantizer of
+    /// the mesh's own bounds it is [`Lbvh::build_with`]'s tree.
+    ///
+    /// Errors: those of [`Lbvh::build_with`], and [`AccelError::Invalid`] when the quantizer's code width is not
+    /// `o.bits`.
+    pub fn build_quantized(mesh: &Mesh, quantizer: &Quantizer, o: &LbvhOptions) -> Result<Self, AccelError> {
+        if quantizer.bits() != o.bits {
+            return Err(AccelError::Invalid {
+                structure: "lbvh",
+                reason: format!(
+                    "the quantizer has {}-bit codes, the options ask for {}",
+                    quantizer.bits().total(),
+                    o.bits.total()
+                ),
+            });
+        }
+        crate::in_pool(|| {
+            check_mesh(mesh, "lbvh")?;
+            let codes: Vec<u64> = (0..mesh.triangle_count())
+                .into_par_iter()
+                .map(|i| {
+                    let [a, b, c] = mesh.indices[i];
+                    let p = |k: u32| mesh.positions[k as usize];
+                    quantizer.code(centroid_key(p(a), p(b), p(c)))
+                })
+                .collect();
+            Self::build_from_codes(mesh, &codes, o)
+        })
+    }
+
     fn build_here(mesh: &Mesh, o: &LbvhOptions) -> Result<Self, AccelError> {
         check_mesh(mesh, "lbvh")?;
         let codes = morton_codes(mesh, o.bits, "lbvh")?;
-        let keys = sorted_keys(&codes);
+        Self::build_from_codes(mesh, &codes, o)
+    }
+
+    /// The tree over the Morton codes of every triangle, in mesh order (the mesh checked).
+    fn build_from_codes(mesh: &Mesh, codes: &[u64], o: &LbvhOptions) -> Result<Self, AccelError> {
+        let keys = sorted_keys(codes);
         // The vertices gathered once in sorted order, so that the leaf boxes and the triangle records read them in
         // order: on meshes stored in no spatial order (a particle soup) a second gather from the mesh cost the
         // build a third of its time at 200K triangles.

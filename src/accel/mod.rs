@@ -54,7 +54,7 @@ macro_rules! traversal_methods {
         fn occluded(&self, ray: &$crate::geom::Ray, c: &mut $crate::geom::TraceCounters) -> bool {
             self$(.$field)*.traverse(ray, true, c).is_some()
         }
-        fn device_layout(&self) -> Option<$crate::accel::device::DeviceLayout<'_>> {
+        fn device_layout(&self) -> Option<$crate::accel::device_trace::DeviceLayout<'_>> {
             Some(self$(.$field)*.device_layout())
         }
     };
@@ -62,17 +62,17 @@ macro_rules! traversal_methods {
 
 #[cfg(feature = "eval")]
 pub mod bih;
-pub mod bounce;
+pub(crate) mod bounce;
 #[cfg(feature = "eval")]
 pub mod brute;
 pub mod bvh;
 pub mod device;
+pub mod device_trace;
 pub mod driver;
 pub mod gpu;
-pub mod gpu_grid;
 #[cfg(feature = "eval")]
 pub mod grid;
-pub mod grid_rule;
+pub(crate) mod grid_rule;
 pub mod hlbvh;
 #[cfg(feature = "eval")]
 pub mod kdtree;
@@ -152,7 +152,8 @@ pub enum AccelError {
         /// How the budget follows from the options (`64 per triangle for 300000 triangles, at least 33554432`).
         rule: String,
     },
-    /// `validate()` found a broken invariant.
+    /// `validate()` found a broken invariant, or the input breaks one the builder needs (a quantizer of another code
+    /// width).
     #[error("{structure}: invalid: {reason}")]
     Invalid {
         /// Which structure.
@@ -314,9 +315,9 @@ pub trait AccelStructure: Send + Sync {
     fn memory_bytes(&self) -> usize;
     /// SAH cost with the constants of [`SAH_TRAVERSAL_COST`] and [`SAH_INTERSECTION_COST`], where it applies.
     fn sah_cost(&self) -> Option<f64>;
-    /// The arrays the device traversal reads ([`device::DeviceStructure::upload`]); `None` for a structure without
+    /// The arrays the device traversal reads ([`device_trace::DeviceStructure::upload`]); `None` for a structure without
     /// one (the brute-force reference).
-    fn device_layout(&self) -> Option<device::DeviceLayout<'_>> {
+    fn device_layout(&self) -> Option<device_trace::DeviceLayout<'_>> {
         None
     }
 }

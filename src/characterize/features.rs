@@ -327,7 +327,7 @@ pub fn extent_exponents(lo: &[f32; 3], hi: &[f32; 3]) -> [i32; 3] {
     std::array::from_fn(|a| exponent(hi[a] - lo[a]).unwrap_or(i32::MIN))
 }
 
-/// The features from the GPU pass's integers ([`crate::characterize::gpu::features::FeaturesGpu`]) for `triangles` sampled
+/// The features from the GPU pass's integers (`crate::characterize::gpu::features::FeaturesGpu`) for `triangles` sampled
 /// triangles of a `total_triangles`-triangle mesh with `bits` codes.
 pub fn features_from_gpu(
     g: &super::gpu::features::GpuFeatures,

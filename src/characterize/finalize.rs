@@ -184,7 +184,8 @@ pub fn class_thresholds(code_min: u64, code_max: u64, k: u32) -> Vec<u64> {
 
 /// Class of `x = m - m_min` from [`class_thresholds`] by binary search (equal to [`class_of`]).
 #[inline]
-pub fn class_from_thresholds(x: u64, thresholds: &[u64]) -> u32 {
+#[cfg(test)]
+pub(crate) fn class_from_thresholds(x: u64, thresholds: &[u64]) -> u32 {
     thresholds.partition_point(|&t| t <= x) as u32
 }
 

@@ -13,16 +13,20 @@
 
 pub mod cpu;
 pub mod features;
-pub mod finalize;
-pub mod gpu;
+pub(crate) mod finalize;
+pub(crate) mod gpu;
 pub mod plan;
+#[cfg(test)]
+mod tests;
 pub mod vulkan;
 
-pub use crate::keys::MortonBits;
+pub use crate::keys::{KeyBounds, KeyError, MortonBits, Quantizer};
 pub use features::{features_cpu, Features};
-pub use finalize::{class_count, class_of, class_thresholds, histogram_stats, histogram_stats_exact, moments};
+pub(crate) use finalize::{class_thresholds, moments};
+// The selection's unit tests read the histogram statistics of hand-made histograms.
+#[cfg(test)]
+pub(crate) use finalize::histogram_stats;
 
-use crate::keys::KeyError;
 use crate::mesh::{Animation, Mesh, MeshError};
 use num_bigint::BigUint;
 

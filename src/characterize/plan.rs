@@ -25,6 +25,8 @@ pub struct Plan {
     pub bits: MortonBits,
     /// `lo` of the quantizer (step 3).
     pub lo: [f32; 3],
+    /// `hi` of the quantizer's bounds (step 2; the codes read only `lo` and `scale`).
+    pub hi: [f32; 3],
     /// `scale` of the quantizer (step 3).
     pub scale: [f32; 3],
     /// `m_min` of the class rule (step 7).
@@ -38,7 +40,7 @@ pub struct Plan {
 impl Plan {
     /// The plan for the next run that a report gives: the quantizer of its own bounds, its code range, and the
     /// class count its code statistics give under `params.class_rule`, at most `max_classes` (the device's limit,
-    /// [`crate::characterize::gpu::passes::CharacterizeGpu::max_classes`]).
+    /// `crate::characterize::gpu::passes::CharacterizeGpu::max_classes`).
     ///
     /// Errors: bounds that cannot be quantized ([`CharError::Input`]).
     pub fn after(report: &Characterization, params: &Params, max_classes: u32) -> Result<Plan, CharError> {
@@ -50,6 +52,7 @@ impl Plan {
         Ok(Plan {
             bits: params.morton_bits,
             lo: q.lo(),
+            hi: q.hi(),
             scale: q.scale(),
             code_min: report.code_stats.code_min,
             code_max: report.code_stats.code_max,
@@ -64,6 +67,13 @@ impl Plan {
         let mut p = Plan::after(&c, params, max_classes)?;
         p.classes = c.classes.min(max_classes.max(1));
         Ok(p)
+    }
+
+    /// The plan's quantizer (steps 2-4: `lo`, `hi`, `scale` and the code width), as the device builders take it
+    /// ([`crate::accel::gpu::BvhBuilder::record_lbvh`], [`crate::accel::lbvh::Lbvh::build_quantized`]): a tree
+    /// rebuilt in the same command buffer as the planned characterization uses the codes that run used.
+    pub fn quantizer(&self) -> Quantizer {
+        Quantizer::from_parts(self.lo, self.hi, self.scale, self.bits)
     }
 
     /// `t_j = ceil(j (m_max - m_min) / k)`, `j = 1 .. k - 1`: the class thresholds of the plan.

@@ -1,5 +1,5 @@
-//! The Vulkan backend: the exact GPU passes of [`super::gpu`] (characterization and scene features), finished on
-//! the host by the math of [`super::finalize`], the same as the CPU paths'.
+//! The Vulkan backend: the exact GPU passes of `super::gpu` (characterization and scene features), finished on
+//! the host by the math of `super::finalize`, the same as the CPU paths'.
 
 use super::features::{features_from_gpu, SIZE_BINS};
 use super::finalize::class_count_of;
@@ -115,7 +115,7 @@ impl VulkanBackend {
     }
 
     /// Records a planned characterization of the geometry `view` (named `name` in the report) into `rec` (see
-    /// [`super::plan`] and [`CharacterizeGpu::record`] for the plan rule and the recording contract), and with
+    /// [`super::plan`] and `CharacterizeGpu::record` for the plan rule and the recording contract), and with
     /// `features` the scene-feature pass after it, reading the codes it leaves (no second read of the geometry's
     /// keys). Nothing waits. [`VulkanBackend::finish_planned`] reads the report once the command buffer has
     /// completed.

@@ -10,12 +10,13 @@ use crate::accel::bvh::Bvh;
 use crate::accel::lbvh::Lbvh;
 use crate::accel::{AccelError, AccelStructure};
 use crate::characterize::{CharError, Characterization, Characterizer, Params};
+use crate::geom::Camera;
 use crate::geom::WorkloadKind;
 use crate::mesh::{generate, Animation, Mesh, MeshError};
 use crate::select::{Policy, SceneSummary, ThesisPolicy};
 use crate::select::{SceneKind, Structure};
 use crate::trace::workload::{mesh_bounds, primary_rays};
-use crate::trace::{trace, Camera, RaySet};
+use crate::trace::{trace, RaySet};
 use std::time::Instant;
 
 /// One scene of the study: a name, what it stands for, and its frames (one for a static scene).

@@ -12,7 +12,9 @@ pub mod oracle;
 pub mod proxy;
 pub mod record;
 pub mod render;
+pub mod scene;
 pub mod tradeoff;
 
 pub use oracle::{evaluate_scene, EvalError, Measurement, OracleConfig, Rebuild, SceneEvaluation, StructureResult};
 pub use record::{OracleRecord, StructureRecord};
+pub use scene::load_scene;

@@ -11,8 +11,8 @@ use crate::accel::{AccelStats, StructureName};
 use crate::characterize::{features_cpu, Features, Params};
 use crate::cost::{Prediction, Workload};
 use crate::eval::fit::{DriverMeasured, Measured, Sample, StageCosts};
+use crate::geom::Camera;
 use crate::geom::WorkloadKind;
-use crate::trace::Camera;
 use serde::{Deserialize, Deserializer, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -648,7 +648,7 @@ pub fn load_samples_admitted(
             let scene_err = |reason: String| RecordError::Scene { file: name.clone(), mesh: rec.mesh.clone(), reason };
             if !cache.contains_key(&rec.mesh) {
                 progress(&rec.mesh);
-                let scene = crate::mesh::load_path(Path::new(&rec.mesh)).map_err(|e| scene_err(e.to_string()))?;
+                let scene = super::scene::load_scene(Path::new(&rec.mesh)).map_err(|e| scene_err(e.to_string()))?;
                 let first = scene.frames.first().ok_or_else(|| scene_err("the scene has no frames".into()))?;
                 admit(&rec.mesh, first.triangle_count()).map_err(scene_err)?;
                 let (f, mut costs) = time_scene_stages(first, params).map_err(scene_err)?;

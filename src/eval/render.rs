@@ -8,10 +8,10 @@
 
 use crate::accel::bvh::Bvh;
 use crate::accel::{AccelError, AccelStructure};
+use crate::geom::Camera;
 use crate::geom::TraceCounters;
 use crate::mesh::Mesh;
 use crate::trace::workload::mesh_bounds;
-use crate::trace::Camera;
 
 /// Shade levels of the Lambert term (level `l` scales a class colour by `0.3 + 0.7 l / (SHADE_LEVELS - 1)`).
 pub const SHADE_LEVELS: u32 = 12;

@@ -5,7 +5,7 @@ use crate::keys::from_ordered_bits;
 /// Items each invocation handles per tile by default.
 const ITEMS: u32 = 8;
 
-pub use crate::gpu::shaders::bounds::Push as BoundsPush;
+pub(crate) use crate::gpu::shaders::bounds::Push as BoundsPush;
 
 /// Per-axis bounds of a point set on the GPU: subgroup min/max, shared-memory atomics across subgroups, one global
 /// atomic per value per workgroup. Exact (min and max in IEEE total order), for any subgroup size and any count.

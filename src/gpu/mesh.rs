@@ -5,7 +5,7 @@
 use crate::gpu::{Buffer, Context, GeometryView, GpuError, IndexType, Indices, Result, Vertices};
 use crate::keys::{KeyBounds, KeyError};
 
-pub use crate::gpu::shaders::keys_bounds::Push as KeysPush;
+pub(crate) use crate::gpu::shaders::keys_bounds::Push as KeysPush;
 
 /// A mesh on the device: positions and indices, addressable by the kernels (and by a host engine).
 #[derive(Debug)]

@@ -12,30 +12,41 @@
 //! buffer limits, and kernels are specialized for them at pipeline creation. Large arrays are addressed through
 //! buffer device addresses, so no work is limited by `maxStorageBufferRange`.
 
+mod adapter;
 mod bounds;
 mod buffer;
 mod context;
 mod geometry;
+mod instance;
 mod kernel;
 mod mesh;
 mod pipeline_cache;
 mod record;
-pub mod shaders;
+// The reflection of every shader is data: not every field, constant or checker is read by the library itself.
+#[allow(dead_code)]
+pub(crate) mod shaders;
 pub mod sort;
+mod submit;
+#[cfg(test)]
+pub(crate) mod testing;
+#[cfg(test)]
+mod tests;
 
-pub use bounds::{BoundsPush, PointBounds};
-pub use buffer::{Buffer, MemoryKind};
-pub use context::{
+pub use adapter::{
     enumerate_devices, ray_tracing_device_extensions, ray_tracing_device_features, required_device_extensions,
-    required_device_features, Context, ContextDesc, DeviceCaps, DeviceSummary, DeviceType, RawDevice,
+    required_device_features, DeviceCaps, DeviceSummary, DeviceType,
 };
+pub use bounds::PointBounds;
+pub use buffer::{Buffer, MemoryKind};
+pub use context::{Context, ContextDesc, RawDevice};
 pub(crate) use geometry::geometry_push;
 pub use geometry::{GeometryView, IndexType, Indices, Vertices};
-pub use kernel::{Kernel, KernelDesc};
+pub(crate) use kernel::{Kernel, KernelDesc};
 pub(crate) use mesh::bounds_read_back;
-pub use mesh::{InputError, KeysPush, MeshBuffers, RunError};
-pub use record::{CompletionFlag, Pass, Recorder, Timer};
-pub use shaders::{check_push_layout, check_struct_layout, PushConstants, ShaderInfo};
+pub(crate) use mesh::KeysPush;
+pub use mesh::{InputError, MeshBuffers, RunError};
+pub(crate) use record::CompletionFlag;
+pub use record::{Pass, Recorder, Timer};
 
 use ash::vk;
 

@@ -41,7 +41,7 @@ impl Pass {
 /// # The unsafe contract
 ///
 /// Recording is where memory safety is decided, so it is where `unsafe` sits: wrapping a raw command buffer
-/// ([`Recorder::new`]) and dispatching a kernel with raw device addresses ([`Recorder::dispatch`]) are `unsafe`;
+/// ([`Recorder::new`]) and dispatching a kernel with raw device addresses (`Recorder::dispatch`) are `unsafe`;
 /// the crate's operations (characterization, features, BVH builds, refit, sort, bounds) record through a
 /// `Recorder` from safe methods, because they build their push constants from buffers and views whose ranges they
 /// checked. Whoever made the recorder keeps every buffer used alive until the command buffer completes.
@@ -75,7 +75,7 @@ impl<'a> Recorder<'a> {
     }
 
     /// The context.
-    pub fn context(&self) -> &'a Context {
+    pub(crate) fn context(&self) -> &'a Context {
         self.ctx
     }
 
@@ -91,7 +91,7 @@ impl<'a> Recorder<'a> {
     /// Every device address in `push` points into a live buffer of this device with room for everything the
     /// kernel reads and writes for the counts in `push` (each kernel's GLSL source documents its arrays), and the
     /// buffers stay alive until the command buffer completes.
-    pub unsafe fn dispatch<P: PushConstants>(&mut self, kernel: &Kernel<P>, push: &P, groups: u32) {
+    pub(crate) unsafe fn dispatch<P: PushConstants>(&mut self, kernel: &Kernel<P>, push: &P, groups: u32) {
         let dev = self.dev();
         // SAFETY: recording command buffer; pipeline and layout of this device; push size checked at creation.
         unsafe {
@@ -107,7 +107,7 @@ impl<'a> Recorder<'a> {
 
     /// Workgroups to dispatch for `items` items at `per_group` items per workgroup, clamped to the device's
     /// `maxComputeWorkGroupCount[0]` (kernels loop over the remaining tiles).
-    pub fn groups_for(&self, items: u64, per_group: u64) -> u32 {
+    pub(crate) fn groups_for(&self, items: u64, per_group: u64) -> u32 {
         let needed = items.div_ceil(per_group.max(1)).max(1);
         needed.min(self.ctx.caps().max_workgroup_count[0] as u64) as u32
     }

@@ -132,7 +132,7 @@ impl<T: FieldType, const N: usize> FieldType for [T; N] {
 /// A Rust struct that mirrors a shader's push-constant block or another struct of a shader (a BVH node, say).
 ///
 /// The generated mirrors (`shaders::<name>::Push`, [`BvhNode`]) implement it; a hand-written one does with
-/// [`push_layout!`](crate::push_layout), which lists the members so the engine can compare their names, offsets,
+/// `push_layout!`, which lists the members so the engine can compare their names, offsets,
 /// sizes and types with the reflected block ([`check_push_layout`]) or struct ([`check_struct_layout`]).
 pub trait PushConstants: bytemuck::Pod {
     /// Every field but padding, in declaration order.
@@ -141,10 +141,9 @@ pub trait PushConstants: bytemuck::Pod {
 
 /// Implements [`PushConstants`] (and [`FieldType`], with the struct's name) for a `#[repr(C)]` struct by listing
 /// its fields, which must carry the GLSL member names.
-#[macro_export]
 macro_rules! push_layout {
     ($ty:ty { $($field:ident),* $(,)? }) => {
-        impl $crate::gpu::PushConstants for $ty {
+        impl $crate::gpu::shaders::PushConstants for $ty {
             fn members() -> Vec<$crate::gpu::shaders::FieldLayout> {
                 fn field<T: $crate::gpu::shaders::FieldType>(
                     name: &'static str,
@@ -168,6 +167,7 @@ macro_rules! push_layout {
         }
     };
 }
+pub(crate) use push_layout;
 
 fn same(rust: &FieldLayout, glsl: &MemberInfo) -> bool {
     rust.name == glsl.name

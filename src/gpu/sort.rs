@@ -279,10 +279,10 @@ impl SortStorage {
     }
 }
 
-pub use crate::gpu::shaders::sort_count::Push as SortCountPush;
-pub use crate::gpu::shaders::sort_scan_down::Push as SortScanDownPush;
-pub use crate::gpu::shaders::sort_scan_reduce::Push as SortScanReducePush;
-pub use crate::gpu::shaders::sort_scatter::Push as SortScatterPush;
+pub(crate) use crate::gpu::shaders::sort_count::Push as SortCountPush;
+pub(crate) use crate::gpu::shaders::sort_scan_down::Push as SortScanDownPush;
+pub(crate) use crate::gpu::shaders::sort_scan_reduce::Push as SortScanReducePush;
+pub(crate) use crate::gpu::shaders::sort_scatter::Push as SortScatterPush;
 
 /// What a device needs for the sort, beyond what every [`Context`] already requires.
 #[derive(Clone, Debug, PartialEq, Eq)]

@@ -1,5 +1,6 @@
 //! Degenerate scenes by name, for the "no catastrophe" checks of the selection: `degenerate:NAME:TRIANGLES[:SEED]`
-//! is a scene wherever a path is taken (like `family:` specs, see [`super::families`]), built by the seeded
+//! is a scene wherever the tools take a path (like `family:` specs, see [`super::families`]; the evaluation layer's
+//! `eval::scene` reads them, the file loaders do not), built by the seeded
 //! generators of [`super::generate`] that the failure study uses (`docs/failure-study.md`).
 //!
 //! | name | [`Degenerate`] | the scene (`n` = TRIANGLES) |

@@ -12,10 +12,12 @@ mod error;
 pub mod families;
 pub mod generate;
 pub mod load;
+#[cfg(test)]
+pub(crate) mod testing;
 
 pub use embedded::{default_scene, default_teapot};
 pub use error::MeshError;
-pub use load::{generated_scene, load_animation, load_mesh, load_path, parse_mesh, MeshFormat};
+pub use load::{load_animation, load_mesh, load_path, parse_mesh, MeshFormat};
 
 use glam::Vec3;
 

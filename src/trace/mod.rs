@@ -1,12 +1,10 @@
 //! Cameras, workloads (primary, shadow and diffuse ray sets) and a counting parallel tracer over any structure.
 //!
-//! Rays, hits, the ray-triangle and slab tests live in [`crate::geom`].
+//! Rays, hits, cameras, the ray-triangle and slab tests live in [`crate::geom`].
 
-pub mod camera;
 pub mod views;
 pub mod workload;
 
-pub use camera::Camera;
 pub use workload::RaySet;
 
 use crate::accel::AccelStructure;

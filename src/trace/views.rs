@@ -5,14 +5,14 @@
 //! |---|---|---|
 //! | `framing` | [`View::Framing`] | [`Camera::frame`]: outside, the whole scene in view |
 //! | `inside` | [`View::Inside`] | the eye inside the bounds, at `lo + (0.37, 0.42, 0.41) * extent` (off the planes of symmetry where walls of regular layouts lie), looking horizontally along the longest horizontal axis, 70 degree field of view: a player's view of an interior |
-//! | `close-up` | [`View::CloseUp`] | looking at the centre from [`super::camera::AUTO_VIEW_DIRECTION`] at a fifth of the bounding radius, 30 degree field of view: a detail fills the image |
+//! | `close-up` | [`View::CloseUp`] | looking at the centre from [`crate::geom::camera::AUTO_VIEW_DIRECTION`] at a fifth of the bounding radius, 30 degree field of view: a detail fills the image |
 //! | `grazing` | [`View::Grazing`] | from outside along the longest axis, nearly parallel to the dominant plane (the one across the smallest extent): 2% of the bounding radius above the scene's top in that direction, looking at a point a tenth of the smallest extent above the centre |
 //!
 //! The presets depend on the bounds only. An empty or point-like box is treated as the unit cube around its centre
 //! (the origin when empty), so every preset gives a camera with finite vectors for any finite box.
 
-use super::Camera;
 use crate::geom::Aabb;
+use crate::geom::Camera;
 use glam::Vec3;
 
 /// A camera preset (see the module docs).
@@ -64,7 +64,7 @@ impl View {
                 look(eye, eye + dir * radius, Vec3::Y, 70.0)
             }
             View::CloseUp => {
-                let dir = Vec3::from_array(super::camera::AUTO_VIEW_DIRECTION).normalize();
+                let dir = Vec3::from_array(crate::geom::camera::AUTO_VIEW_DIRECTION).normalize();
                 look(center + dir * (0.2 * radius), center, Vec3::Y, 30.0)
             }
             View::Grazing => {

@@ -4,8 +4,9 @@
 //! Shadow and diffuse rays start at the hit points of the primary rays; primary rays that miss spawn nothing. The
 //! hit points come from a reference structure before any timing, so every structure traces the same rays.
 
-use super::{trace, Camera};
+use super::trace;
 use crate::accel::AccelStructure;
+use crate::geom::Camera;
 use crate::geom::{Aabb, Hit, Ray, WorkloadKind};
 use crate::mesh::Mesh;
 use glam::Vec3;

@@ -213,9 +213,9 @@ impl BvhTree {
         bytes_of(&self.nodes) + bytes_of(&self.tris) + bytes_of(&self.ids) + bytes_of(&self.copies)
     }
 
-    /// The arrays the device traversal reads (see [`crate::accel::device`]).
-    pub fn device_layout(&self) -> crate::accel::device::DeviceLayout<'_> {
-        crate::accel::device::DeviceLayout::Bvh { nodes: &self.nodes, tris: &self.tris, ids: &self.ids }
+    /// The arrays the device traversal reads (see [`crate::accel::device_trace`]).
+    pub fn device_layout(&self) -> crate::accel::device_trace::DeviceLayout<'_> {
+        crate::accel::device_trace::DeviceLayout::Bvh { nodes: &self.nodes, tris: &self.tris, ids: &self.ids }
     }
 
     /// Closest hit (or any hit when `any`), counting box and triangle tests.

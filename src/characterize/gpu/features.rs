@@ -32,8 +32,8 @@ const ITEMS: u32 = 8;
 pub const MASK_LOG2: u32 = 21;
 const MASK_WORDS: u64 = 1 << (MASK_LOG2 - 5);
 
-pub use crate::gpu::shaders::features::Push as FeaturesPush;
-pub use crate::gpu::shaders::features_bounds::Push as FeatureBoundsPush;
+pub(crate) use crate::gpu::shaders::features::Push as FeaturesPush;
+pub(crate) use crate::gpu::shaders::features_bounds::Push as FeatureBoundsPush;
 
 /// What the feature pass read back.
 #[derive(Clone, Debug, PartialEq)]

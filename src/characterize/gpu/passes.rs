@@ -51,9 +51,9 @@ const OFF_CHI: u64 = OFF_MORTON + 8 * MOMENTS_WORDS as u64; // uint64[CHI_WORDS]
 const OFF_HIST: u64 = OFF_CHI + 64; // uint[k]
 const RESULT_BYTES: u64 = OFF_HIST + 4 * MAX_GPU_CLASSES as u64;
 
-pub use crate::gpu::shaders::chi_square::Push as ChiPush;
-pub use crate::gpu::shaders::classes_histogram::Push as ClassesPush;
-pub use crate::gpu::shaders::morton_moments::Push as MortonPush;
+pub(crate) use crate::gpu::shaders::chi_square::Push as ChiPush;
+pub(crate) use crate::gpu::shaders::classes_histogram::Push as ClassesPush;
+pub(crate) use crate::gpu::shaders::morton_moments::Push as MortonPush;
 
 /// What the host decides between the moment pass and the class pass: the class count and its thresholds.
 #[derive(Clone, Debug, PartialEq, Eq)]

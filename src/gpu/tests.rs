@@ -1,11 +1,11 @@
-//! The first kernel end to end: bounds of point sets on the GPU equal the CPU's exactly.
+//! The first kernel end to end: bounds of point sets on the GPU equal the CPU's exactly; and every push-constant
+//! mirror against its shader's reflection.
 
-mod gpu_support;
-
-use meshchar::gpu::PointBounds;
-use meshchar::gpu::{shaders, Context};
-use meshchar::keys::{max_total, min_total};
-use meshchar::rng::SplitMix64 as Rng;
+use super::testing as gpu_support;
+use super::PointBounds;
+use super::{shaders, Context};
+use crate::keys::{max_total, min_total};
+use crate::rng::SplitMix64 as Rng;
 
 fn cpu_bounds(p: &[[f32; 3]]) -> Option<([f32; 3], [f32; 3])> {
     let first = *p.first()?;
@@ -90,20 +90,30 @@ fn bounds_more_workgroups_than_one_dispatch_dimension() {
 
 #[test]
 fn every_push_constant_struct_matches_its_shader() {
-    use meshchar::characterize::gpu::passes::{ChiPush, ClassesPush, MortonPush};
-    use meshchar::gpu::check_push_layout;
-    use meshchar::gpu::KeysPush;
-    check_push_layout::<meshchar::gpu::BoundsPush>(&shaders::bounds::INFO).expect("bounds");
+    // The mirrors as the crate's modules name them (characterize::gpu, accel::gpu, gpu::sort re-export these).
+    use super::KeysPush;
+    use shaders::check_push_layout;
+    use shaders::chi_square::Push as ChiPush;
+    use shaders::classes_histogram::Push as ClassesPush;
+    use shaders::morton_moments::Push as MortonPush;
+    check_push_layout::<super::bounds::BoundsPush>(&shaders::bounds::INFO).expect("bounds");
     check_push_layout::<KeysPush>(&shaders::keys_bounds::INFO).expect("keys_bounds");
     check_push_layout::<MortonPush>(&shaders::morton_moments::INFO).expect("morton_moments");
     check_push_layout::<ClassesPush>(&shaders::classes_histogram::INFO).expect("classes_histogram");
     check_push_layout::<ChiPush>(&shaders::chi_square::INFO).expect("chi_square");
-    check_push_layout::<meshchar::characterize::gpu::features::FeatureBoundsPush>(&shaders::features_bounds::INFO)
-        .expect("features_bounds");
-    check_push_layout::<meshchar::characterize::gpu::features::FeaturesPush>(&shaders::features::INFO)
-        .expect("features");
+    check_push_layout::<shaders::features_bounds::Push>(&shaders::features_bounds::INFO).expect("features_bounds");
+    check_push_layout::<shaders::features::Push>(&shaders::features::INFO).expect("features");
     {
-        use meshchar::accel::gpu::*;
+        use shaders::bvh_collapse_cost::Push as CollapseCostPush;
+        use shaders::bvh_compact::Push as CompactPush;
+        use shaders::bvh_fit::Push as FitPush;
+        use shaders::bvh_leaves::Push as LeavesPush;
+        use shaders::bvh_parents::Push as ParentsPush;
+        use shaders::hlbvh_heads::Push as HeadsPush;
+        use shaders::hlbvh_roots::Push as RootsPush;
+        use shaders::hlbvh_scan::Push as ScanPush;
+        use shaders::lbvh_codes::Push as CodesPush;
+        use shaders::lbvh_karras::Push as KarrasPush;
         check_push_layout::<CodesPush>(&shaders::lbvh_codes::INFO).expect("lbvh_codes");
         check_push_layout::<KarrasPush>(&shaders::lbvh_karras::INFO).expect("lbvh_karras");
         check_push_layout::<LeavesPush>(&shaders::bvh_leaves::INFO).expect("bvh_leaves");
@@ -116,7 +126,7 @@ fn every_push_constant_struct_matches_its_shader() {
         check_push_layout::<RootsPush>(&shaders::hlbvh_roots::INFO).expect("hlbvh_roots");
     }
     {
-        use meshchar::gpu::sort::*;
+        use super::sort::*;
         check_push_layout::<SortCountPush>(&shaders::sort_count::INFO).expect("sort_count");
         check_push_layout::<SortScanReducePush>(&shaders::sort_scan_reduce::INFO).expect("sort_scan_reduce");
         check_push_layout::<SortScanDownPush>(&shaders::sort_scan_down::INFO).expect("sort_scan_down");
@@ -138,15 +148,15 @@ struct Swapped {
     points: u64,
     count: u64,
 }
-meshchar::push_layout!(Swapped { result, points, count });
+crate::push_layout!(Swapped { result, points, count });
 
 #[test]
 fn layout_mismatches_are_caught() {
-    use meshchar::gpu::{check_push_layout, check_struct_layout};
+    use shaders::{check_push_layout, check_struct_layout};
     let err = check_push_layout::<Swapped>(&shaders::bounds::INFO).expect_err("swapped members must not match");
     assert!(err.contains("points"), "{err}");
     assert!(check_struct_layout::<Swapped>(&shaders::bounds::INFO, "Push").is_err());
-    check_struct_layout::<meshchar::gpu::BoundsPush>(&shaders::bounds::INFO, "Push").expect("the real mirror matches");
+    check_struct_layout::<super::bounds::BoundsPush>(&shaders::bounds::INFO, "Push").expect("the real mirror matches");
 }
 
 /// The same names, offsets and sizes as the block of `bounds.comp`, but an `f64` where GLSL has a `uint64_t`: types
@@ -158,11 +168,11 @@ struct FloatCount {
     result: u64,
     count: f64,
 }
-meshchar::push_layout!(FloatCount { points, result, count });
+crate::push_layout!(FloatCount { points, result, count });
 
 #[test]
 fn type_mismatches_are_caught() {
-    use meshchar::gpu::{check_push_layout, check_struct_layout};
+    use shaders::{check_push_layout, check_struct_layout};
     let err = check_push_layout::<FloatCount>(&shaders::bounds::INFO).expect_err("f64 must not match uint64_t");
     // The member named `count` differs, and the message shows the types.
     assert!(err.starts_with("member count differs") && err.contains("\"f64\""), "{err}");

@@ -50,11 +50,11 @@
 //! [`GpuGrid`] keeps the grid on the device: [`GpuGrid::cell_start`] (`cells + 1` `u32`: cell `c`'s list is
 //! `refs[cell_start[c] .. cell_start[c + 1]]`, cell `(x, y, z)` is `x + res_x (y + res_y z)`), [`GpuGrid::refs`]
 //! (triangle indices) and [`GpuGrid::records`] (one [`TriRecord`] per triangle, mesh order): the layout of
-//! [`crate::accel::device::DeviceLayout::Grid`], which [`GpuGrid::into_device_structure`] hands to the traversal
+//! [`crate::accel::device_trace::DeviceLayout::Grid`], which [`GpuGrid::into_device_structure`] hands to the traversal
 //! kernel without a read-back.
 
-use crate::accel::device::{DeviceStructure, TraceScene, TriRecord};
-use crate::accel::grid_rule::{GridFrame, GridOptions};
+use crate::accel::device_trace::{DeviceStructure, TraceScene, TriRecord};
+pub use crate::accel::grid_rule::{GridFrame, GridOptions};
 use crate::accel::{AccelError, MAX_TRIANGLES};
 use crate::geom::{Aabb, Triangle};
 use crate::gpu::sort::{KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
@@ -63,9 +63,9 @@ use crate::gpu::{
     MemoryKind, Pass, Recorder, Timer,
 };
 
-pub use crate::gpu::shaders::grid_cells::Push as GridCellsPush;
-pub use crate::gpu::shaders::grid_starts::Push as GridStartsPush;
-pub use crate::gpu::shaders::GridHeader;
+pub(crate) use crate::gpu::shaders::grid_cells::Push as GridCellsPush;
+pub(crate) use crate::gpu::shaders::grid_starts::Push as GridStartsPush;
+pub(crate) use crate::gpu::shaders::GridHeader;
 
 /// Largest resolution along one axis the device builder takes (the host grid's default `max_resolution` is 1,024).
 pub const MAX_DEVICE_RESOLUTION: u32 = 65_535;
@@ -377,7 +377,7 @@ impl GpuGrid {
         Ok((starts, refs))
     }
 
-    /// The grid as the traversal kernel's structure ([`crate::accel::device::DeviceTracer`]), its buffers moved,
+    /// The grid as the traversal kernel's structure ([`crate::accel::device_trace::DeviceTracer`]), its buffers moved,
     /// only the 64-byte scene header uploaded (submits and waits).
     ///
     /// # Errors

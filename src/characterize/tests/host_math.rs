@@ -17,20 +17,20 @@
 //! | `concentrated_share` | `C / n` | correctly rounded |
 //!
 //! The ulp bounds of `std_dev` and `skewness` are decided exactly (by squaring both ends of the interval), and the
-//! largest error found in each figure is printed (`cargo test --test host_math -- --nocapture`). Inputs: real
+//! largest error found in each figure is printed (`cargo test --lib host_math -- --nocapture`). Inputs: real
 //! meshes from `../shared/meshes` at both code widths and a sampled stride (the power sums recomputed from the
 //! codes), and edge cases: `n = 1, 2`, all codes equal, two values, codes near `2^63`, random 63-bit codes, huge
 //! histogram counts.
 
-mod common;
-mod exact;
-
-use exact::{correctly_rounded, correctly_rounded32, histogram_exact, rat, rat32, ratio, sqrt, sqrt_within, ulps};
-use meshchar::characterize::finalize::{class_count, histogram_stats, moments};
-use meshchar::characterize::{cpu, ClassRule, CodeStats, HistogramStats, Moments, Params, MAX_CLASSES};
-use meshchar::keys::{quantization_scale, MortonBits};
-use meshchar::mesh::load_mesh;
-use meshchar::rng::SplitMix64;
+use super::exact::{
+    correctly_rounded, correctly_rounded32, histogram_exact, rat, rat32, ratio, sqrt, sqrt_within, ulps,
+};
+use crate::characterize::finalize::{class_count, histogram_stats, moments};
+use crate::characterize::{cpu, ClassRule, CodeStats, HistogramStats, Moments, Params, MAX_CLASSES};
+use crate::keys::{quantization_scale, MortonBits};
+use crate::mesh::load_mesh;
+use crate::mesh::testing as common;
+use crate::rng::SplitMix64;
 use num_bigint::{BigInt, BigUint};
 use num_rational::BigRational;
 use num_traits::{One, Signed, Zero};

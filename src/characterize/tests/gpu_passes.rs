@@ -3,12 +3,11 @@
 //! chi-square numerator. Any subgroup size and count: edge counts, a sample stride, 63-bit codes, and a mesh whose
 //! arrays exceed one storage-buffer binding.
 
-mod gpu_support;
-
-use meshchar::characterize::gpu::passes::{CharacterizeGpu, ClassPlan, CodeSums};
-use meshchar::gpu::MeshBuffers;
-use meshchar::keys::{centroid_key, max_total, min_total, morton, quantization_scale, quantize, MortonBits};
-use meshchar::rng::SplitMix64 as Rng;
+use crate::characterize::gpu::passes::{CharacterizeGpu, ClassPlan, CodeSums};
+use crate::gpu::testing as gpu_support;
+use crate::gpu::MeshBuffers;
+use crate::keys::{centroid_key, max_total, min_total, morton, quantization_scale, quantize, MortonBits};
+use crate::rng::SplitMix64 as Rng;
 
 /// The thresholds of docs/spec.md step 7 for `k` classes, computed with u128.
 fn thresholds(min: u64, max: u64, k: u32) -> Vec<u64> {
@@ -114,7 +113,7 @@ fn expected(pos: &[[f32; 3]], idx: &[[u32; 3]], stride: usize, bits: MortonBits)
 
 fn check(
     gpu: &mut CharacterizeGpu,
-    ctx: &meshchar::gpu::Context,
+    ctx: &crate::gpu::Context,
     pos: &[[f32; 3]],
     idx: &[[u32; 3]],
     stride: usize,
