@@ -1268,11 +1268,11 @@ impl Run<'_> {
         for (i, st) in self.states.iter_mut().enumerate() {
             let (plan, plan_from, own) = match reports.next() {
                 Some((report, features, ms)) => {
-                    let max = st.backend.passes().max_classes();
+                    let max = st.backend.max_classes();
                     (Plan::after(&report, &self.params, max)?, Some(t), Some((report, features, ms)))
                 }
                 None => {
-                    let max = st.backend.passes().max_classes();
+                    let max = st.backend.max_classes();
                     let (from, report, _) = &st.latest;
                     let plan = Plan::after(report, &self.params, max)?;
                     st.backend.record_planned(&mut rec, s, &st.view, &scene[i].name, &self.params, &plan, true)?;

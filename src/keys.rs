@@ -42,7 +42,7 @@ impl MortonBits {
 
 /// Step 1: `s = (v0 + v1) + v2` per axis in f32, left to right (three times the centroid).
 #[inline]
-pub fn centroid_key(v0: [f32; 3], v1: [f32; 3], v2: [f32; 3]) -> [f32; 3] {
+pub(crate) fn centroid_key(v0: [f32; 3], v1: [f32; 3], v2: [f32; 3]) -> [f32; 3] {
     [(v0[0] + v1[0]) + v2[0], (v0[1] + v1[1]) + v2[1], (v0[2] + v1[2]) + v2[2]]
 }
 
@@ -51,7 +51,7 @@ pub fn centroid_key(v0: [f32; 3], v1: [f32; 3], v2: [f32; 3]) -> [f32; 3] {
 /// Bounds are reduced in this representation on every backend, so that the minimum of `{-0.0, +0.0}` is the same
 /// bit pattern everywhere.
 #[inline]
-pub fn ordered_bits(x: f32) -> u32 {
+pub(crate) fn ordered_bits(x: f32) -> u32 {
     let b = x.to_bits();
     if b & 0x8000_0000 != 0 {
         !b
@@ -62,7 +62,7 @@ pub fn ordered_bits(x: f32) -> u32 {
 
 /// Inverse of [`ordered_bits`].
 #[inline]
-pub fn from_ordered_bits(u: u32) -> f32 {
+pub(crate) fn from_ordered_bits(u: u32) -> f32 {
     if u & 0x8000_0000 != 0 {
         f32::from_bits(u & 0x7fff_ffff)
     } else {
@@ -72,7 +72,7 @@ pub fn from_ordered_bits(u: u32) -> f32 {
 
 /// Per-axis minimum in the total order of [`ordered_bits`].
 #[inline]
-pub fn min_total(a: f32, b: f32) -> f32 {
+pub(crate) fn min_total(a: f32, b: f32) -> f32 {
     if ordered_bits(b) < ordered_bits(a) {
         b
     } else {
@@ -82,7 +82,7 @@ pub fn min_total(a: f32, b: f32) -> f32 {
 
 /// Per-axis maximum in the total order of [`ordered_bits`].
 #[inline]
-pub fn max_total(a: f32, b: f32) -> f32 {
+pub(crate) fn max_total(a: f32, b: f32) -> f32 {
     if ordered_bits(b) > ordered_bits(a) {
         b
     } else {
@@ -325,7 +325,7 @@ impl Quantizer {
 
 /// Steps 1 to 4 over `key(j)` for `j` in `0 .. n`, in parallel: the quantizer and the code of every key, in order.
 /// Errors as [`Quantizer::of_keys`].
-pub fn morton_codes(
+pub(crate) fn morton_codes(
     n: usize,
     key: impl Fn(usize) -> [f32; 3] + Sync,
     bits: MortonBits,
@@ -338,7 +338,7 @@ pub fn morton_codes(
 
 /// Step 3, per triangle: `q = min(floor((s - lo) * scale), 2^b - 1)` in f32, then to an unsigned integer.
 #[inline]
-pub fn quantize(s: [f32; 3], lo: [f32; 3], scale: [f32; 3], bits: MortonBits) -> [u32; 3] {
+pub(crate) fn quantize(s: [f32; 3], lo: [f32; 3], scale: [f32; 3], bits: MortonBits) -> [u32; 3] {
     let top = ((1u32 << bits.per_axis()) - 1) as f32;
     let mut q = [0u32; 3];
     for a in 0..3 {
@@ -353,7 +353,7 @@ pub fn quantize(s: [f32; 3], lo: [f32; 3], scale: [f32; 3], bits: MortonBits) ->
 
 /// Spreads the low 10 bits of `v` so that bit `i` lands on bit `3 i`.
 #[inline]
-pub fn spread10(v: u32) -> u32 {
+pub(crate) fn spread10(v: u32) -> u32 {
     let mut x = v & 0x3ff;
     x = (x | (x << 16)) & 0x0300_00ff;
     x = (x | (x << 8)) & 0x0300_f00f;
@@ -364,7 +364,7 @@ pub fn spread10(v: u32) -> u32 {
 
 /// Spreads the low 21 bits of `v` so that bit `i` lands on bit `3 i`.
 #[inline]
-pub fn spread21(v: u32) -> u64 {
+pub(crate) fn spread21(v: u32) -> u64 {
     let mut x = (v as u64) & 0x1f_ffff;
     x = (x | (x << 32)) & 0x001f_0000_0000_ffff;
     x = (x | (x << 16)) & 0x001f_0000_ff00_00ff;
@@ -376,7 +376,7 @@ pub fn spread21(v: u32) -> u64 {
 
 /// Step 4: interleave `q` (bit `i` of x to bit `3i+2`, of y to `3i+1`, of z to `3i`).
 #[inline]
-pub fn morton(q: [u32; 3], bits: MortonBits) -> u64 {
+pub(crate) fn morton(q: [u32; 3], bits: MortonBits) -> u64 {
     match bits {
         MortonBits::Bits30 => ((spread10(q[0]) << 2) | (spread10(q[1]) << 1) | spread10(q[2])) as u64,
         MortonBits::Bits63 => (spread21(q[0]) << 2) | (spread21(q[1]) << 1) | spread21(q[2]),

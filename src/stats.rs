@@ -53,7 +53,7 @@ const SMALL_Y: f64 = 1e-14;
 
 /// Upper tail `P(X >= x)` of the chi-square distribution with `dof` degrees of freedom (1 for `dof == 0` or
 /// `x <= 0`; 0 where it falls below f64's normal range, about 1e-308, or `x` is infinite).
-pub fn chi2_sf(x: f64, dof: u32) -> f64 {
+pub(crate) fn chi2_sf(x: f64, dof: u32) -> f64 {
     if dof == 0 || x.is_nan() || x <= 0.0 {
         return 1.0;
     }
@@ -80,7 +80,7 @@ fn chi2_ln_pdf(x: f64, dof: u32) -> f64 {
 ///
 /// Returns 0 for `dof == 0` or `alpha >= 1`, and `f64::INFINITY` for `alpha <= 0` (no finite value rejects nothing);
 /// NaN `alpha` is treated as 0.
-pub fn chi2_critical(alpha: f64, dof: u32) -> f64 {
+pub(crate) fn chi2_critical(alpha: f64, dof: u32) -> f64 {
     if dof == 0 || alpha >= 1.0 {
         return 0.0;
     }

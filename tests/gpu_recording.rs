@@ -151,7 +151,7 @@ fn characterization_features_lbvh_and_refit_in_one_caller_command_buffer_over_in
     let (va, vb) = (view_a(&layout, &a), view_b(&layout, &b));
     let params = Params::default();
     let mut backend = VulkanBackend::with_slots(&ctx, 2).unwrap();
-    let max_k = backend.passes().max_classes();
+    let max_k = backend.max_classes();
     let plan_a = Plan::exact(&a, &params, max_k).unwrap();
     let plan_b = Plan::exact(&b_stale, &params, max_k).unwrap();
     assert_ne!(plan_b, Plan::exact(&b, &params, max_k).unwrap(), "the stale plan must differ from b's own");
@@ -198,7 +198,7 @@ fn planned_runs_clamp_keys_outside_the_plan_exactly_as_the_reference() {
     let Some(ctx) = gpu_support::context() else { return };
     let params = Params { morton_bits: meshchar::characterize::MortonBits::Bits63, ..Params::default() };
     let mut backend = VulkanBackend::new(&ctx).unwrap();
-    let max_k = backend.passes().max_classes();
+    let max_k = backend.max_classes();
     // The plan of a small cube, applied to a mesh that reaches far outside it on every side.
     let small = generate::random_soup(300, 2);
     let mut big = generate::random_soup(2000, 9);
@@ -224,7 +224,7 @@ fn finishing_before_completion_or_recording_a_busy_slot_is_an_error() {
     let params = Params::default();
     let mut backend = VulkanBackend::new(&ctx).unwrap();
     let mesh = generate::random_soup(100, 1);
-    let plan = Plan::exact(&mesh, &params, backend.passes().max_classes()).unwrap();
+    let plan = Plan::exact(&mesh, &params, backend.max_classes()).unwrap();
     let buffers = meshchar::gpu::MeshBuffers::upload(&ctx, &mesh.positions, &mesh.indices).unwrap();
     assert!(backend.finish_planned(0).is_err(), "nothing recorded");
     gpu_support::in_caller_command_buffer(&ctx, |rec| {

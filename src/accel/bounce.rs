@@ -59,7 +59,7 @@ pub fn diffuse_direction(n: Vec3, seed: u64, index: usize) -> Vec3 {
 /// then a shadow ray to `light` (`geom::camera::shadow_ray`) or a diffuse ray drawn with `seed` and the primary
 /// ray's index ([`diffuse_direction`]); a primary workload gives the primary rays that hit. Misses, hits on no
 /// triangle of the mesh and starts that fail make no ray.
-pub fn secondary_from_hits(
+pub(crate) fn secondary_from_hits(
     kind: crate::geom::WorkloadKind,
     mesh: &crate::mesh::Mesh,
     primary: &[crate::geom::Ray],

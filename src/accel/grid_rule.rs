@@ -65,7 +65,13 @@ impl GridOptions {
 /// The padded bounds and the resolution of a grid over `n` triangles in `bounds`: the density rule of Cleary and
 /// Wyvill 1988 (`n_i = round(e_i * cbrt(density * n / V))`, clamped to `1 ..= max_resolution`), a zero extent
 /// padded to `1e-3` of the largest (to 1 for a point), the density lowered until the cells fit `max_cells`.
-pub fn resolution(bounds: &Aabb, n: usize, density: f32, max_resolution: u32, max_cells: usize) -> (Aabb, [u32; 3]) {
+pub(crate) fn resolution(
+    bounds: &Aabb,
+    n: usize,
+    density: f32,
+    max_resolution: u32,
+    max_cells: usize,
+) -> (Aabb, [u32; 3]) {
     let mut b = *bounds;
     let ext = b.extent();
     let m = ext.max_element();
@@ -100,7 +106,7 @@ pub fn resolution(bounds: &Aabb, n: usize, density: f32, max_resolution: u32, ma
 }
 
 /// The widening of a triangle's box cells, in cells (`1e-4`): see [`GridFrame`].
-pub const WIDEN: f32 = 1e-4;
+pub(crate) const WIDEN: f32 = 1e-4;
 
 /// Everything the grid's cell rule needs besides the triangle: the padded bounds, the resolution, the cell size and
 /// its inverse (f32, as the traversal uses them), and the two constants of the widening of a triangle's cells

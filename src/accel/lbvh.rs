@@ -23,18 +23,18 @@
 //!    its children's. (Here: the parallel bottom-up pass of Karras 2012, each leaf walking up and the second
 //!    arrival at a node computing its box.)
 //! 7. Optional SAH leaf collapse ([`LbvhOptions::max_leaf`] `> 1`; off by default, on by default in the
-//!    [`super::hlbvh`]), applied by [`collapse_leaves`] to any tree of one-record leaves. A radix tree splits at
+//!    [`super::hlbvh`]), applied by `collapse_leaves` to any tree of one-record leaves. A radix tree splits at
 //!    Morton bits down to single triangles, where the binned-SAH builder ([`super::bvh`]) stops as soon as a leaf
 //!    is cheaper; the collapse takes that decision back bottom-up, in the spirit of the post-processing of Karras
 //!    and Aila 2013 ("Fast parallel construction of high-quality bounding volume hierarchies", HPG), which also
 //!    collapses subtrees into leaves by the SAH. Bottom-up, with the SAH constants `K_T = K_I = 1` of the crate and
-//!    half areas `h` ([`collapse_half_area`]): a leaf of `c` records costs `h c`; an internal node's record range
+//!    half areas `h` (`collapse_half_area`): a leaf of `c` records costs `h c`; an internal node's record range
 //!    is `first = min`, `end = max` of its children's, `count` their sum; its split cost is `(h + C_L) + C_R`, its
 //!    leaf cost `h count`; it *collapses* when `end - first == count` (its records are contiguous, always true
 //!    inside a Karras tree, not always above the HLBVH's clusters), `count <= max_leaf` and leaf cost `<=` split
 //!    cost; its cost is then the leaf cost, else the split cost. Each of these values is an f32 computed in that
 //!    order, without fused multiply-add, every difference and product flushed to 0 below the smallest normal
-//!    ([`flush_subnormal`]): a GPU computes the same bits, so GPU and CPU make the same decisions. The kept nodes
+//!    (`flush_subnormal`): a GPU computes the same bits, so GPU and CPU make the same decisions. The kept nodes
 //!    (those with no collapsed ancestor) are renumbered depth first: the root is 0, an internal node `k` has its
 //!    left child at `k + 1` and its right child at `k + 1 + size(left)` (`size` = kept nodes of a subtree); a
 //!    collapsed node becomes the leaf `first .. end`. The records keep their sorted order. The greedy bottom-up
@@ -70,7 +70,7 @@ pub const MAX_COLLAPSE_LEAF: u32 = 64;
 
 /// Morton codes of docs/spec.md for every triangle, in mesh order (`crate::keys::morton_codes` over the keys of
 /// the mesh, computed once). The mesh must be valid (see [`crate::accel::prepare`]).
-pub fn morton_codes(mesh: &Mesh, bits: MortonBits, structure: &'static str) -> Result<Vec<u64>, AccelError> {
+pub(crate) fn morton_codes(mesh: &Mesh, bits: MortonBits, structure: &'static str) -> Result<Vec<u64>, AccelError> {
     let n = mesh.triangle_count();
     if n == 0 {
         return Ok(Vec::new());
@@ -88,7 +88,7 @@ pub fn morton_codes(mesh: &Mesh, bits: MortonBits, structure: &'static str) -> R
 }
 
 /// Sorted `(code, triangle)` pairs.
-pub fn sorted_keys(codes: &[u64]) -> Vec<(u64, u32)> {
+pub(crate) fn sorted_keys(codes: &[u64]) -> Vec<(u64, u32)> {
     let top = codes.par_iter().copied().max().unwrap_or(0);
     let bits = 64 - top.leading_zeros();
     // A stable sort by code of the pairs in triangle order sorts them by (code, triangle). Codes of up to 32 bits
@@ -105,7 +105,8 @@ pub fn sorted_keys(codes: &[u64]) -> Vec<(u64, u32)> {
 
 /// Karras 2012 radix tree over sorted, distinct extended keys: for each internal node `k` in `0 .. n-1`, its
 /// `(left, right)` children in the unified numbering (internal `k`, leaf `n - 1 + p`).
-pub fn radix_tree_children(keys: &[(u64, u32)], code_bits: u32) -> Vec<(u32, u32)> {
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) fn radix_tree_children(keys: &[(u64, u32)], code_bits: u32) -> Vec<(u32, u32)> {
     let n = keys.len() as i64;
     let delta = |i: i64, j: i64| -> i64 {
         if j < 0 || j >= n {
@@ -260,7 +261,7 @@ impl<F: Fn(usize) -> Aabb + Sync> KarrasBuild<'_, F> {
 /// `x`, or 0 where it is below the smallest normal f32: the collapse's arithmetic never meets a subnormal, so a
 /// device that flushes subnormals computes the same values as the host.
 #[inline]
-pub fn flush_subnormal(x: f32) -> f32 {
+pub(crate) fn flush_subnormal(x: f32) -> f32 {
     if x < f32::MIN_POSITIVE {
         0.0
     } else {
@@ -272,7 +273,7 @@ pub fn flush_subnormal(x: f32) -> f32 {
 /// `e = max - min` per axis, then `(e.x e.y + e.y e.z) + e.z e.x`, every difference and product flushed with
 /// [`flush_subnormal`], no fused multiply-add.
 #[inline]
-pub fn collapse_half_area(nd: &BvhNode) -> f32 {
+pub(crate) fn collapse_half_area(nd: &BvhNode) -> f32 {
     let e: [f32; 3] = std::array::from_fn(|a| flush_subnormal(nd.max[a] - nd.min[a]));
     let xy = flush_subnormal(e[0] * e[1]);
     let yz = flush_subnormal(e[1] * e[2]);
@@ -293,7 +294,7 @@ struct CollapseInfo {
 
 /// The SAH leaf collapse (step 7 of the module docs) of a tree in the crate's layout whose leaves hold one record
 /// each: bottom-up costs, then the surviving nodes in depth-first order. `max_leaf <= 1` returns the tree as is.
-pub fn collapse_leaves(nodes: &[BvhNode], max_leaf: u32) -> Vec<BvhNode> {
+pub(crate) fn collapse_leaves(nodes: &[BvhNode], max_leaf: u32) -> Vec<BvhNode> {
     let max_leaf = max_leaf.min(MAX_COLLAPSE_LEAF);
     if max_leaf <= 1 || nodes.is_empty() {
         return nodes.to_vec();

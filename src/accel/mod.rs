@@ -345,7 +345,7 @@ pub fn build_structure(name: StructureName, mesh: &Mesh) -> Result<Box<dyn Accel
 
 /// The checks of [`prepare`] without its arrays: the mesh is valid ([`Mesh::validate`]) and has at most
 /// [`MAX_TRIANGLES`] triangles.
-pub fn check_mesh(mesh: &Mesh, structure: &'static str) -> Result<(), AccelError> {
+pub(crate) fn check_mesh(mesh: &Mesh, structure: &'static str) -> Result<(), AccelError> {
     mesh.validate()?;
     let n = mesh.triangle_count();
     if n > MAX_TRIANGLES {
@@ -357,7 +357,7 @@ pub fn check_mesh(mesh: &Mesh, structure: &'static str) -> Result<(), AccelError
 /// Triangle records and bounding boxes of a mesh, in mesh order, after checking the mesh.
 ///
 /// Bounding boxes come from the mesh's vertices (also for zero-area triangles).
-pub fn prepare(mesh: &Mesh, structure: &'static str) -> Result<(Vec<Triangle>, Vec<Aabb>), AccelError> {
+pub(crate) fn prepare(mesh: &Mesh, structure: &'static str) -> Result<(Vec<Triangle>, Vec<Aabb>), AccelError> {
     check_mesh(mesh, structure)?;
     let n = mesh.triangle_count();
     use rayon::prelude::*;
@@ -408,7 +408,7 @@ pub(crate) fn renumber_by_first_use(
 
 impl AccelStats {
     /// The work of the build of `structure` (the structure these statistics are of): its
-    /// [`AccelStats::reference_levels`] (for the grid, its references) plus [`node_build_work`] per node, which the
+    /// [`AccelStats::reference_levels`] (for the grid, its references) plus `node_build_work` per node, which the
     /// cost model's build law reads where a probe built the structure (`cost::StructureModel::build_work_coef`).
     /// Only the SAH BVH's nodes count ([`BVH_NODE_WORK`]); a grid's cells (about four per triangle in every grid
     /// here) cost a prefix sum, far less than its references, and would drown them (`docs/cost-model.md`, "Eighth
@@ -433,7 +433,7 @@ pub const BVH_NODE_WORK: f64 = 3.0;
 /// The build work a node of `structure` adds to its [`AccelStats::build_work`]: [`BVH_NODE_WORK`] for the SAH BVH,
 /// 0 for every other structure (the LBVH's and the HLBVH's nodes come from the sorted keys at a cost their
 /// references already carry; the BIH's and the kd-tree's showed no gain, and the grid's cells are left out).
-pub fn node_build_work(structure: StructureName) -> f64 {
+pub(crate) fn node_build_work(structure: StructureName) -> f64 {
     match structure {
         StructureName::Bvh => BVH_NODE_WORK,
         _ => 0.0,

@@ -302,7 +302,7 @@ pub fn features_cpu(mesh: &Mesh, params: &Params) -> Result<Features, CharError>
 /// Occupied cells per depth `1 ..= OCCUPANCY_DEPTHS` from the mask of occupied deepest cells (`2^(3
 /// OCCUPANCY_DEPTHS)` bits as u64 words, bit `b` of word `w` being cell `64 w + b`): the set bits, then 8-way ORs
 /// down to depth 1. Shared by the CPU reference and the GPU pass, which produce the same mask.
-pub fn occupancy_from_mask(mask: &[u64]) -> Vec<u64> {
+pub(crate) fn occupancy_from_mask(mask: &[u64]) -> Vec<u64> {
     let mut occupied_cells = vec![0u64; OCCUPANCY_DEPTHS];
     // `level` holds `8^d` bits, 64 to a word (the last word partly used below depth 2).
     let mut level: Vec<u64> = mask.to_vec();
@@ -323,13 +323,13 @@ pub fn occupancy_from_mask(mask: &[u64]) -> Vec<u64> {
 }
 
 /// Unbiased exponents of the extents `hi - lo` per axis, `i32::MIN` where zero or not normal.
-pub fn extent_exponents(lo: &[f32; 3], hi: &[f32; 3]) -> [i32; 3] {
+pub(crate) fn extent_exponents(lo: &[f32; 3], hi: &[f32; 3]) -> [i32; 3] {
     std::array::from_fn(|a| exponent(hi[a] - lo[a]).unwrap_or(i32::MIN))
 }
 
 /// The features from the GPU pass's integers (`crate::characterize::gpu::features::FeaturesGpu`) for `triangles` sampled
 /// triangles of a `total_triangles`-triangle mesh with `bits` codes.
-pub fn features_from_gpu(
+pub(crate) fn features_from_gpu(
     g: &super::gpu::features::GpuFeatures,
     triangles: u64,
     total_triangles: u64,

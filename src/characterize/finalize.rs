@@ -15,7 +15,7 @@ use num_traits::Zero;
 /// Returns 0 when `den` is zero (callers never divide by zero; this keeps the function total). Results that exceed
 /// the f64 range are `f64::MAX`; results below the normal range are flushed toward 0 (only a denominator of more than
 /// about 1000 bits could produce one).
-pub fn ratio_to_f64(num: &BigUint, den: &BigUint) -> f64 {
+pub(crate) fn ratio_to_f64(num: &BigUint, den: &BigUint) -> f64 {
     if den.is_zero() || num.is_zero() {
         return 0.0;
     }
@@ -73,7 +73,7 @@ fn signed_ratio_to_f64(num: &BigInt, den: &BigUint) -> f64 {
 
 /// Exact central moments of the codes, scaled to integers: `M2n = n S2 - S1^2 = n sum (m - mu)^2` (never
 /// negative) and `M3n = n^2 S3 - 3 n S1 S2 + 2 S1^3 = n^2 sum (m - mu)^3` (signed).
-pub fn central_moments(s: &CodeStats) -> (BigUint, BigInt) {
+pub(crate) fn central_moments(s: &CodeStats) -> (BigUint, BigInt) {
     let n = BigInt::from(s.n);
     let s1 = BigInt::from(s.s1.clone());
     let s2 = BigInt::from(s.s2.clone());
@@ -97,7 +97,7 @@ pub fn central_moments(s: &CodeStats) -> (BigUint, BigInt) {
 /// below `1.5 * 2^-53` for `std_dev` (1 ulp) and `3.5 * 2^-53` for `skewness` (4 ulp); `tests/host_math.rs` checks
 /// all three against exact rationals. `n == 0` gives all zeros;
 /// `M2n == 0` (all codes equal, `n == 1`) gives `std_dev = skewness = 0`. Never NaN or infinite.
-pub fn moments(s: &CodeStats) -> Moments {
+pub(crate) fn moments(s: &CodeStats) -> Moments {
     if s.n == 0 {
         return Moments { mean: 0.0, std_dev: 0.0, skewness: 0.0 };
     }
@@ -122,7 +122,7 @@ pub fn moments(s: &CodeStats) -> Moments {
 ///
 /// For every rule `k = 1` when `n == 0` or `all_equal`: a single code value has a single class (and step 7 puts
 /// every triangle in class 0 anyway).
-pub fn class_count(rule: ClassRule, n: u64, m: &Moments, all_equal: bool) -> u32 {
+pub(crate) fn class_count(rule: ClassRule, n: u64, m: &Moments, all_equal: bool) -> u32 {
     if n == 0 || all_equal {
         return 1;
     }
@@ -147,14 +147,14 @@ pub fn class_count(rule: ClassRule, n: u64, m: &Moments, all_equal: bool) -> u32
 
 /// The class count of step 6 for the codes of `s`: [`class_count`] with the [`moments`] of `s` (every code equal when
 /// `code_min == code_max`). What every backend plans its classes with.
-pub fn class_count_of(rule: ClassRule, s: &CodeStats) -> u32 {
+pub(crate) fn class_count_of(rule: ClassRule, s: &CodeStats) -> u32 {
     class_count(rule, s.n, &moments(s), s.code_min == s.code_max)
 }
 
 /// Class of a code (docs/spec.md step 7): `min(((m - m_min) k) div (m_max - m_min), k - 1)`, exact in `u128`; 0 when
 /// `m_max == m_min` or `k <= 1`. Codes outside `[m_min, m_max]` are clamped to the nearest end.
 #[inline]
-pub fn class_of(code: u64, code_min: u64, code_max: u64, k: u32) -> u32 {
+pub(crate) fn class_of(code: u64, code_min: u64, code_max: u64, k: u32) -> u32 {
     if code_max <= code_min || k <= 1 {
         return 0;
     }
@@ -170,7 +170,7 @@ pub fn class_of(code: u64, code_min: u64, code_max: u64, k: u32) -> u32 {
 /// `x >= j D / k` iff `x >= ceil(j D / k)`. The GPU uses this form to avoid 128-bit division. The result always has
 /// `k - 1` entries (none for `k <= 1`); when `D == 0` every entry is `u64::MAX`, so every code is in class 0 as
 /// [`class_of`] says.
-pub fn class_thresholds(code_min: u64, code_max: u64, k: u32) -> Vec<u64> {
+pub(crate) fn class_thresholds(code_min: u64, code_max: u64, k: u32) -> Vec<u64> {
     if k <= 1 {
         return Vec::new();
     }
@@ -225,7 +225,7 @@ fn chi_numerator(hist: &[u64], n: u64) -> BigUint {
 /// Counts the exact quantities (`T = sum (k O_i - n)^2`, empty classes `O_i == 0`, concentrated classes
 /// `k O_i > n` and the triangles in them) and hands them to [`histogram_stats_from`]. For `k <= 1` (or `n == 0`):
 /// chi-square 0, p 1, critical value 0, uniform, V 0. Never NaN or infinite.
-pub fn histogram_stats(hist: &[u64], n: u64, alpha: f64) -> HistogramStats {
+pub(crate) fn histogram_stats(hist: &[u64], n: u64, alpha: f64) -> HistogramStats {
     let k = hist.len() as u64;
     let empty_classes = hist.iter().filter(|&&o| o == 0).count() as u32;
     let mut concentrated_classes = 0u32;
@@ -241,7 +241,7 @@ pub fn histogram_stats(hist: &[u64], n: u64, alpha: f64) -> HistogramStats {
 }
 
 /// [`histogram_stats_from`] with a `u128` chi-square numerator, as the GPU reduces it.
-pub fn histogram_stats_exact(
+pub(crate) fn histogram_stats_exact(
     chi_numerator: u128,
     empty_classes: u32,
     concentrated_classes: u32,
@@ -268,7 +268,7 @@ pub fn histogram_stats_exact(
 /// `V = sqrt(t / (n^2 k (k - 1)))` likewise; the concentrated share `concentrated_triangles / n` likewise; p-value
 /// and critical value from [`crate::stats`]; uniform iff `chi2 <= critical value`. For `k <= 1` or `n == 0`:
 /// chi-square 0, p 1, critical value 0, uniform, V 0, no concentrated class. Never NaN or infinite.
-pub fn histogram_stats_from(
+pub(crate) fn histogram_stats_from(
     t: &BigUint,
     empty_classes: u32,
     concentrated_classes: u32,

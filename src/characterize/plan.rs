@@ -82,7 +82,7 @@ impl Plan {
     }
 
     /// The plan as the GPU passes take it.
-    pub fn pass_plan(&self) -> super::gpu::passes::PassPlan {
+    pub(crate) fn pass_plan(&self) -> super::gpu::passes::PassPlan {
         super::gpu::passes::PassPlan {
             lo: self.lo,
             scale: self.scale,

@@ -16,7 +16,7 @@ use num_bigint::BigUint;
 use std::time::Instant;
 
 /// Sum of 24-bit limbs (each may hold more than 24 bits) as an exact integer.
-pub fn limbs_to_biguint(limbs: &[u64]) -> BigUint {
+pub(crate) fn limbs_to_biguint(limbs: &[u64]) -> BigUint {
     limbs.iter().rev().fold(BigUint::default(), |acc, &l| (acc << 24u32) + BigUint::from(l))
 }
 
@@ -215,7 +215,12 @@ impl VulkanBackend {
     }
 
     /// The GPU passes (for their device arrays: keys, codes, classes).
-    pub fn passes(&self) -> &CharacterizeGpu {
+    /// The most classes the device passes take (a [`crate::characterize::plan::Plan`]'s `classes` is clamped to it).
+    pub fn max_classes(&self) -> u32 {
+        self.passes().max_classes()
+    }
+
+    pub(crate) fn passes(&self) -> &CharacterizeGpu {
         &self.gpu
     }
 

@@ -19,7 +19,7 @@ use std::time::Instant;
 
 /// Nanoseconds per ray-box and per ray-triangle test, each measured in isolation: one thread, the data in the
 /// first-level cache, the project's own tests (the slab test every hierarchy's traversal makes, and
-/// [`closer_hit`], Moller-Trumbore with the tie rule).
+/// `closer_hit`, Moller-Trumbore with the tie rule).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct TestPrices {
     /// Nanoseconds per ray-box slab test.

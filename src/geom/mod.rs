@@ -24,4 +24,5 @@ pub(crate) use ray::RayInv;
 #[cfg(test)]
 pub(crate) use ray::SLAB_ROBUST;
 pub use ray::{Hit, Ray, TraceCounters, WorkloadKind};
-pub use triangle::{closer_hit, cull_bound, hits_agree, intersect_triangle, tie_margin, Triangle};
+pub(crate) use triangle::{closer_hit, cull_bound, tie_margin};
+pub use triangle::{hits_agree, intersect_triangle, Triangle};

@@ -84,7 +84,7 @@ fn next_up(t: f32) -> f32 {
 /// `best_t` (a tied triangle may lie at its entry), so every structure returns the same triangle and the same `t`
 /// bits as the brute-force reference, which tests triangles in mesh order.
 #[inline]
-pub fn closer_hit(
+pub(crate) fn closer_hit(
     tri: &Triangle,
     id: u32,
     origin: Vec3,
@@ -106,7 +106,7 @@ pub fn closer_hit(
 /// covers rays down to about 1/16 of normal incidence; closer to grazing, a tie between overlapping coplanar
 /// triangles can still be missed). Zero for an empty scene or a zero direction.
 #[inline]
-pub fn tie_margin(origin: Vec3, dir: Vec3, scene: &crate::geom::Aabb) -> f32 {
+pub(crate) fn tie_margin(origin: Vec3, dir: Vec3, scene: &crate::geom::Aabb) -> f32 {
     let d = dir.abs().max_element();
     if scene.is_empty() || d.is_nan() || d <= 0.0 {
         return 0.0;
@@ -120,13 +120,13 @@ pub fn tie_margin(origin: Vec3, dir: Vec3, scene: &crate::geom::Aabb) -> f32 {
 /// distance) plus `margin`, so that no node or cell that may hold a triangle whose computed distance is at most
 /// `best_t` is culled: the tie rule of [`closer_hit`] needs every such triangle tested.
 #[inline]
-pub fn cull_bound(best_t: f32, margin: f32) -> f32 {
+pub(crate) fn cull_bound(best_t: f32, margin: f32) -> f32 {
     let r = super::ray::SLAB_ROBUST;
     (if best_t >= 0.0 { best_t * r } else { best_t / r }) + margin
 }
 
 /// Whether two closest-hit results agree: both miss, or both hit the same triangle at the same `t` bits. Every
-/// structure shares one triangle test and the tie rule of [`closer_hit`], so anything else is a lost or wrong hit.
+/// structure shares one triangle test and the tie rule of `closer_hit`, so anything else is a lost or wrong hit.
 pub fn hits_agree(a: &Option<Hit>, b: &Option<Hit>) -> bool {
     match (a, b) {
         (None, None) => true,

@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 /// How to build a [`Kernel`].
 #[derive(Clone, Debug)]
-pub struct KernelDesc {
+pub(crate) struct KernelDesc {
     /// The reflected shader (`gpu::shaders::<name>::INFO`).
     pub shader: &'static ShaderInfo,
     /// Workgroup size (x) for shaders that declare `local_size_x_id`; `None` uses the device's
@@ -19,11 +19,11 @@ pub struct KernelDesc {
 
 impl KernelDesc {
     /// A description with the device's default workgroup size and no other constants.
-    pub fn new(shader: &'static ShaderInfo) -> Self {
+    pub(crate) fn new(shader: &'static ShaderInfo) -> Self {
         KernelDesc { shader, workgroup_size: None, constants: Vec::new() }
     }
     /// Sets a specialization constant by name.
-    pub fn constant(mut self, name: &'static str, value: u32) -> Self {
+    pub(crate) fn constant(mut self, name: &'static str, value: u32) -> Self {
         self.constants.push((name, value));
         self
     }
@@ -34,7 +34,7 @@ impl KernelDesc {
 ///
 /// Kernels address their arrays by buffer device address (passed in the push constants), so they have no
 /// descriptor sets and no limit from `maxStorageBufferRange`.
-pub struct Kernel<P: PushConstants> {
+pub(crate) struct Kernel<P: PushConstants> {
     ctx: Arc<Inner>,
     pub(crate) pipeline: vk::Pipeline,
     pub(crate) layout: vk::PipelineLayout,
@@ -58,7 +58,7 @@ impl<P: PushConstants> Kernel<P> {
     ///
     /// Some drivers compile a pipeline only at its first dispatch (lavapipe compiles with LLVM then): time a
     /// kernel's work only after it ran once (see `VulkanBackend::warmup_ms`).
-    pub fn new(ctx: &Context, desc: &KernelDesc) -> Result<Self> {
+    pub(crate) fn new(ctx: &Context, desc: &KernelDesc) -> Result<Self> {
         let info = desc.shader;
         check_push_layout::<P>(info).map_err(GpuError::Layout)?;
         if !info.bindings.is_empty() {
@@ -146,12 +146,12 @@ impl<P: PushConstants> Kernel<P> {
     }
 
     /// Invocations per workgroup.
-    pub fn workgroup_size(&self) -> u32 {
+    pub(crate) fn workgroup_size(&self) -> u32 {
         self.workgroup_size
     }
 
     /// The shader's reflection.
-    pub fn shader(&self) -> &'static ShaderInfo {
+    pub(crate) fn shader(&self) -> &'static ShaderInfo {
         self.shader
     }
 }

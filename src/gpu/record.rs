@@ -285,7 +285,7 @@ impl Drop for Timer {
 /// availability cannot: a reused query pool still holds the previous run's results until the recorded reset runs).
 /// Checking it is no substitute for synchronization: the caller reads results only after it has seen the command
 /// buffer complete (its fence); the flag turns a forgotten wait into an error instead of stale numbers.
-pub struct CompletionFlag {
+pub(crate) struct CompletionFlag {
     buffer: super::Buffer,
     serial: u32,
 }
@@ -298,14 +298,14 @@ impl std::fmt::Debug for CompletionFlag {
 
 impl CompletionFlag {
     /// A flag in a buffer of its own.
-    pub fn new(ctx: &Context) -> Result<Self> {
+    pub(crate) fn new(ctx: &Context) -> Result<Self> {
         Ok(CompletionFlag { buffer: ctx.create_buffer("completion flag", 4, super::MemoryKind::Readback)?, serial: 0 })
     }
 
     /// Clears the flag on the host and records, at the current point of `rec`, the device's write of a new serial
     /// after every earlier compute and transfer command, made visible to the host. Record it last. The flag's
     /// previous run must have completed.
-    pub fn record(&mut self, rec: &mut Recorder<'_>) -> Result<()> {
+    pub(crate) fn record(&mut self, rec: &mut Recorder<'_>) -> Result<()> {
         self.serial = self.serial.wrapping_add(1).max(1);
         self.buffer.write(0, &[0u32])?;
         let mb = [vk::MemoryBarrier::default()
@@ -330,7 +330,7 @@ impl CompletionFlag {
 
     /// `Ok` once the device has written the serial of the last [`CompletionFlag::record`];
     /// [`GpuError::NotReady`](super::GpuError::NotReady) naming `what` before.
-    pub fn check(&self, what: &str) -> Result<()> {
+    pub(crate) fn check(&self, what: &str) -> Result<()> {
         let v: Vec<u32> = self.buffer.read(0, 1)?;
         if self.serial == 0 || v[0] != self.serial {
             return Err(super::GpuError::NotReady(what.to_string()));

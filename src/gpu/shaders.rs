@@ -13,7 +13,7 @@
 
 /// Kind of a descriptor binding.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum DescriptorKind {
+pub(crate) enum DescriptorKind {
     /// `buffer` block (storage buffer).
     StorageBuffer,
     /// `uniform` block.
@@ -22,7 +22,7 @@ pub enum DescriptorKind {
 
 /// One descriptor binding of a shader.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct BindingInfo {
+pub(crate) struct BindingInfo {
     /// Variable name in GLSL.
     pub name: &'static str,
     /// Descriptor set.
@@ -37,7 +37,7 @@ pub struct BindingInfo {
 
 /// One member of the push-constant block or of a struct.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct MemberInfo {
+pub(crate) struct MemberInfo {
     /// Member name in GLSL.
     pub name: &'static str,
     /// Byte offset.
@@ -51,7 +51,7 @@ pub struct MemberInfo {
 
 /// One specialization constant.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct SpecConstantInfo {
+pub(crate) struct SpecConstantInfo {
     /// Name in GLSL.
     pub name: &'static str,
     /// `constant_id`.
@@ -60,7 +60,7 @@ pub struct SpecConstantInfo {
 
 /// A struct declared in a shader with explicit member offsets (a buffer block or a struct inside one).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct StructInfo {
+pub(crate) struct StructInfo {
     /// Struct (or block) name in GLSL.
     pub name: &'static str,
     /// Members in declaration order.
@@ -69,7 +69,7 @@ pub struct StructInfo {
 
 /// Everything the engine needs to know about a compiled compute shader.
 #[derive(Clone, Copy, Debug)]
-pub struct ShaderInfo {
+pub(crate) struct ShaderInfo {
     /// File stem (`glsl/<name>.comp`).
     pub name: &'static str,
     /// Entry point.
@@ -94,14 +94,14 @@ pub struct ShaderInfo {
 
 impl ShaderInfo {
     /// The id of the specialization constant named `name`.
-    pub fn spec_id(&self, name: &str) -> Option<u32> {
+    pub(crate) fn spec_id(&self, name: &str) -> Option<u32> {
         self.spec_constants.iter().find(|s| s.name == name).map(|s| s.id)
     }
 }
 
 /// One field of a Rust mirror of a shader struct, as [`PushConstants::members`] lists it.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct FieldLayout {
+pub(crate) struct FieldLayout {
     /// Field name (the GLSL member name).
     pub name: &'static str,
     /// Byte offset.
@@ -113,7 +113,7 @@ pub struct FieldLayout {
 }
 
 /// A type that can be a field of a Rust mirror of a shader struct: its spelling, compared with [`MemberInfo::ty`].
-pub trait FieldType {
+pub(crate) trait FieldType {
     /// The type's name (`u32`, `[f32; 3]`, a struct's name).
     fn type_name() -> String;
 }
@@ -134,7 +134,7 @@ impl<T: FieldType, const N: usize> FieldType for [T; N] {
 /// The generated mirrors (`shaders::<name>::Push`, [`BvhNode`]) implement it; a hand-written one does with
 /// `push_layout!`, which lists the members so the engine can compare their names, offsets,
 /// sizes and types with the reflected block ([`check_push_layout`]) or struct ([`check_struct_layout`]).
-pub trait PushConstants: bytemuck::Pod {
+pub(crate) trait PushConstants: bytemuck::Pod {
     /// Every field but padding, in declaration order.
     fn members() -> Vec<FieldLayout>;
 }
@@ -184,7 +184,7 @@ fn describe(rust: &[FieldLayout], glsl: &[MemberInfo]) -> String {
 
 /// Compares a Rust push-constant struct with the reflected block: same member names in the same order, same
 /// offsets, sizes and types, and a total size that covers the block.
-pub fn check_push_layout<P: PushConstants>(info: &ShaderInfo) -> Result<(), String> {
+pub(crate) fn check_push_layout<P: PushConstants>(info: &ShaderInfo) -> Result<(), String> {
     let rust = P::members();
     let glsl = info.push_constant_members;
     let describe = || format!("shader {}: {}", info.name, describe(&rust, glsl));
@@ -208,7 +208,7 @@ pub fn check_push_layout<P: PushConstants>(info: &ShaderInfo) -> Result<(), Stri
 }
 
 /// Compares a Rust struct with the shader struct named `glsl_name`: same member names, offsets, sizes and types.
-pub fn check_struct_layout<P: PushConstants>(info: &ShaderInfo, glsl_name: &str) -> Result<(), String> {
+pub(crate) fn check_struct_layout<P: PushConstants>(info: &ShaderInfo, glsl_name: &str) -> Result<(), String> {
     let s = info
         .structs
         .iter()

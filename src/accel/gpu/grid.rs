@@ -8,7 +8,7 @@
 //!
 //! 1. `grid_count` (`glsl/grid_cells.comp`, MODE 0): per triangle, its record (the [`TriRecord`] the traversal
 //!    reads, mesh order) and its number of cells, also added to a 64-bit reference total.
-//! 2. `grid_scan`: the exclusive prefix sums of the counts ([`RadixSort::record_exclusive_scan`]): where each
+//! 2. `grid_scan`: the exclusive prefix sums of the counts (`RadixSort::record_exclusive_scan`): where each
 //!    triangle's references begin.
 //! 3. `grid_emit` (MODE 1): per triangle, its cells as sort keys with the triangle as payload, from its offset on:
 //!    the references in triangle order.

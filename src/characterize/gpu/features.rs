@@ -29,7 +29,7 @@ use crate::keys::{from_ordered_bits, MortonBits};
 
 const ITEMS: u32 = 8;
 /// Bits of the occupancy mask index: the top `MASK_LOG2` bits of a code (depth 7, `2^21` cells).
-pub const MASK_LOG2: u32 = 21;
+pub(crate) const MASK_LOG2: u32 = 21;
 const MASK_WORDS: u64 = 1 << (MASK_LOG2 - 5);
 
 pub(crate) use crate::gpu::shaders::features::Push as FeaturesPush;
@@ -53,7 +53,7 @@ pub struct GpuFeatures {
 }
 
 /// The feature pipelines and their buffers.
-pub struct FeaturesGpu {
+pub(crate) struct FeaturesGpu {
     ctx: Context,
     kernels: std::sync::Arc<Kernels>,
     size_bins: u32,
@@ -72,7 +72,7 @@ struct Kernels {
 
 impl FeaturesGpu {
     /// Builds the pipelines for a histogram of `size_bins` bins (at least 1).
-    pub fn new(ctx: &Context, size_bins: u32) -> Result<Self> {
+    pub(crate) fn new(ctx: &Context, size_bins: u32) -> Result<Self> {
         let size_bins = size_bins.max(1);
         let mk = |b63: u32| {
             Kernel::new(
@@ -106,7 +106,7 @@ impl FeaturesGpu {
 
     /// A second pass object with buffers of its own and the same pipelines (already compiled and warmed when this
     /// one is): one per run that may be in flight at once.
-    pub fn sharing_pipelines(&self) -> Result<Self> {
+    pub(crate) fn sharing_pipelines(&self) -> Result<Self> {
         Self::with_kernels(&self.ctx, self.kernels.clone(), self.size_bins)
     }
 
@@ -123,7 +123,7 @@ impl FeaturesGpu {
 
     /// Runs the pass over `n` sampled triangles (every `stride`-th of the view) whose `bits` Morton codes are in
     /// `codes` (as [`super::passes::CharacterizeGpu::device_arrays`] leaves them), submits and waits.
-    pub fn run(
+    pub(crate) fn run(
         &mut self,
         view: &GeometryView<'_>,
         codes: &Buffer,
@@ -138,7 +138,7 @@ impl FeaturesGpu {
 
     /// Records the pass (see the module docs for the recording contract); [`FeaturesGpu::finish`] reads it once
     /// the command buffer has completed. A pass recorded and not yet finished is an error.
-    pub fn record(
+    pub(crate) fn record(
         &mut self,
         rec: &mut Recorder<'_>,
         view: &GeometryView<'_>,
@@ -202,7 +202,7 @@ impl FeaturesGpu {
 
     /// The results of the recorded pass once its command buffer has completed ([`GpuError::NotReady`], and still
     /// pending, before).
-    pub fn finish(&mut self) -> Result<GpuFeatures> {
+    pub(crate) fn finish(&mut self) -> Result<GpuFeatures> {
         if !self.pending {
             return Err(GpuError::Buffer("feature pass: nothing recorded".into()));
         }

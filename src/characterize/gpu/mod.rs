@@ -3,5 +3,5 @@
 //! features ([`features`]: occupied Morton cells and the triangle-size histogram). The host-side meaning of those
 //! numbers lives in the parent module; the backend that drives them is [`super::vulkan`].
 
-pub mod features;
-pub mod passes;
+pub(crate) mod features;
+pub(crate) mod passes;

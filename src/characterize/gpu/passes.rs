@@ -38,10 +38,10 @@ use crate::keys::{MortonBits, Quantizer};
 /// Items per invocation and tile in the per-triangle passes.
 const ITEMS: u32 = 8;
 /// Limbs of the exact sums: 4 for S1, 7 for S2, 10 for S3 (see `glsl/include/wide.glsl`).
-pub const LIMBS: [usize; 3] = [4, 7, 10];
+pub(crate) const LIMBS: [usize; 3] = [4, 7, 10];
 const NLIMBS: usize = 21;
 /// Largest class count the histogram kernel privatizes in shared memory.
-pub const MAX_GPU_CLASSES: u32 = 4096;
+pub(crate) const MAX_GPU_CLASSES: u32 = 4096;
 
 // Byte offsets inside the small result buffer (the layouts of its parts are in `glsl/include/layout.glsl`).
 const OFF_BOUNDS: u64 = 0; // uint[BOUNDS_WORDS]
@@ -81,7 +81,7 @@ pub struct PassPlan {
 
 /// Exact results of the moment pass.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct CodeSums {
+pub(crate) struct CodeSums {
     /// Number of codes.
     pub n: u64,
     /// Smallest code.
@@ -94,7 +94,7 @@ pub struct CodeSums {
 
 /// Everything the GPU computed for one mesh or frame.
 #[derive(Clone, Debug, PartialEq)]
-pub struct GpuCharacterization {
+pub(crate) struct GpuCharacterization {
     /// Sampled triangles `n`.
     pub n: u64,
     /// Bounds of the keys.
@@ -176,7 +176,7 @@ impl Slot {
 
 /// The characterization pipelines and their buffers, reused across meshes and frames (buffers grow when needed),
 /// with one set of per-run buffers ("slot") per run that may be in flight at once.
-pub struct CharacterizeGpu {
+pub(crate) struct CharacterizeGpu {
     ctx: Context,
     k: Kernels,
     slots: Vec<Slot>,
@@ -300,12 +300,13 @@ fn sample_count(view: &GeometryView<'_>, stride: u64) -> std::result::Result<u64
 
 impl CharacterizeGpu {
     /// Builds the pipelines for the context's device, with one slot.
-    pub fn new(ctx: &Context) -> Result<Self> {
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) fn new(ctx: &Context) -> Result<Self> {
         Self::with_slots(ctx, 1)
     }
 
     /// Builds the pipelines with `slots` slots (at least 1): as many planned runs as may be in flight at once.
-    pub fn with_slots(ctx: &Context, slots: usize) -> Result<Self> {
+    pub(crate) fn with_slots(ctx: &Context, slots: usize) -> Result<Self> {
         let caps = ctx.caps();
         // Shared memory: the histogram plus a margin for the compiler's own use.
         let max_k = MAX_GPU_CLASSES.min((caps.max_shared_memory / 4).saturating_sub(256)).max(1);
@@ -342,13 +343,8 @@ impl CharacterizeGpu {
     }
 
     /// Largest class count this device's histogram kernel accepts.
-    pub fn max_classes(&self) -> u32 {
+    pub(crate) fn max_classes(&self) -> u32 {
         self.k.max_k
-    }
-
-    /// Number of slots.
-    pub fn slots(&self) -> usize {
-        self.slots.len()
     }
 
     fn slot(&mut self, slot: usize) -> Result<&mut Slot> {
@@ -357,12 +353,12 @@ impl CharacterizeGpu {
 
     /// The device buffers of slot 0's last run: keys (f32 xyz), codes (u32 or u64) and classes (u32), for later
     /// passes (a BVH builder, a renderer of classes). `None` before the first run.
-    pub fn device_arrays(&self) -> Option<(&Buffer, &Buffer, &Buffer)> {
+    pub(crate) fn device_arrays(&self) -> Option<(&Buffer, &Buffer, &Buffer)> {
         self.slot_arrays(0)
     }
 
     /// The device buffers of a slot's last run (see [`CharacterizeGpu::device_arrays`]).
-    pub fn slot_arrays(&self, slot: usize) -> Option<(&Buffer, &Buffer, &Buffer)> {
+    pub(crate) fn slot_arrays(&self, slot: usize) -> Option<(&Buffer, &Buffer, &Buffer)> {
         self.slots.get(slot)?.scratch.as_ref().map(|s| (&s.keys, &s.codes, &s.classes))
     }
 
@@ -373,7 +369,7 @@ impl CharacterizeGpu {
     ///
     /// The slot must not be in use: its previous run finished ([`CharacterizeGpu::finish`]) or never recorded; a
     /// slot with a run not yet finished is an error (its buffers may still be in flight).
-    pub fn record(
+    pub(crate) fn record(
         &mut self,
         rec: &mut Recorder<'_>,
         slot: usize,
@@ -415,7 +411,7 @@ impl CharacterizeGpu {
     /// it complete (its fence signalled). A run that has not completed gives [`GpuError::NotReady`] and stays
     /// pending; any other outcome frees the slot. Errors about the
     /// input (a frame whose own bounds overflow) are [`RunError::Input`].
-    pub fn finish(&mut self, slot: usize) -> std::result::Result<GpuCharacterization, RunError> {
+    pub(crate) fn finish(&mut self, slot: usize) -> std::result::Result<GpuCharacterization, RunError> {
         let s = self.slot(slot)?;
         if s.pending.is_some() {
             s.done.check(&format!("characterization slot {slot}"))?;
@@ -436,7 +432,7 @@ impl CharacterizeGpu {
     /// Characterizes the geometry on the device in the staged mode (see the module docs): every `stride`-th
     /// triangle, `bits` Morton codes; `plan` turns the exact code sums into the class count and thresholds (see
     /// [`crate::characterize`]). With `read_back`, the codes and classes are copied to the host too. Uses slot 0.
-    pub fn run(
+    pub(crate) fn run(
         &mut self,
         view: &GeometryView<'_>,
         bits: MortonBits,

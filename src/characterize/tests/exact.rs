@@ -7,33 +7,33 @@ use num_rational::BigRational;
 use num_traits::{Signed, ToPrimitive, Zero};
 
 /// The exact value of a finite f64.
-pub fn rat(x: f64) -> BigRational {
+pub(crate) fn rat(x: f64) -> BigRational {
     BigRational::from_float(x).expect("finite")
 }
 
 /// The exact value of a finite f32.
-pub fn rat32(x: f32) -> BigRational {
+pub(crate) fn rat32(x: f32) -> BigRational {
     BigRational::from_float(x).expect("finite")
 }
 
 /// `a / b` for integers, `b != 0`.
-pub fn ratio(a: impl Into<BigInt>, b: impl Into<BigInt>) -> BigRational {
+pub(crate) fn ratio(a: impl Into<BigInt>, b: impl Into<BigInt>) -> BigRational {
     BigRational::new(a.into(), b.into())
 }
 
 /// The distance from `|x|` to the next f64 up: one unit in the last place of `x` (the smallest subnormal for 0).
-pub fn ulp(x: f64) -> f64 {
+pub(crate) fn ulp(x: f64) -> f64 {
     let a = x.abs();
     f64::from_bits(a.to_bits() + 1) - a
 }
 
 /// `|x - q| / ulp(x)`.
-pub fn ulps(x: f64, q: &BigRational) -> f64 {
+pub(crate) fn ulps(x: f64, q: &BigRational) -> f64 {
     ((rat(x) - q).abs() / rat(ulp(x))).to_f64().unwrap_or(f64::INFINITY)
 }
 
 /// Whether `x` is `q` rounded to the nearest f64, ties to even (`q` within the normal range or zero).
-pub fn correctly_rounded(x: f64, q: &BigRational) -> bool {
+pub(crate) fn correctly_rounded(x: f64, q: &BigRational) -> bool {
     if q.is_zero() || x == 0.0 {
         return q.is_zero() && x == 0.0;
     }
@@ -53,7 +53,7 @@ pub fn correctly_rounded(x: f64, q: &BigRational) -> bool {
 }
 
 /// Whether `x` is `q` rounded to the nearest f32, ties to even (`q > 0` within the normal range).
-pub fn correctly_rounded32(x: f32, q: &BigRational) -> bool {
+pub(crate) fn correctly_rounded32(x: f32, q: &BigRational) -> bool {
     if !(x > 0.0 && q.is_positive()) {
         return false;
     }
@@ -69,7 +69,7 @@ pub fn correctly_rounded32(x: f32, q: &BigRational) -> bool {
 
 /// `sqrt(q)` for `q >= 0`, truncated to at least 256 significant bits (relative error below `2^-255`): accurate
 /// enough to measure an f64's error in ulps to far more digits than are reported.
-pub fn sqrt(q: &BigRational) -> BigRational {
+pub(crate) fn sqrt(q: &BigRational) -> BigRational {
     if q.is_zero() {
         return BigRational::zero();
     }
@@ -82,7 +82,7 @@ pub fn sqrt(q: &BigRational) -> BigRational {
 
 /// Whether `|x - r| <= k ulp(x)` for `r = sign * sqrt(r2)` (`r2 >= 0`), decided exactly by comparing squares:
 /// `(|x| - k ulp)^2 <= r2 <= (|x| + k ulp)^2`, with the sign of `x` that of `r` (or `x == 0` when `r2 == 0`).
-pub fn sqrt_within(x: f64, negative: bool, r2: &BigRational, k: f64) -> bool {
+pub(crate) fn sqrt_within(x: f64, negative: bool, r2: &BigRational, k: f64) -> bool {
     if r2.is_zero() {
         return x == 0.0;
     }
@@ -111,7 +111,7 @@ pub struct HistogramExact {
 }
 
 /// [`HistogramExact`] of `hist`, by the definitions, in big integers.
-pub fn histogram_exact(hist: &[u64], n: u64) -> HistogramExact {
+pub(crate) fn histogram_exact(hist: &[u64], n: u64) -> HistogramExact {
     let k = hist.len() as u64;
     let empty_classes = hist.iter().filter(|&&o| o == 0).count();
     if k <= 1 || n == 0 {

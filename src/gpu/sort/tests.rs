@@ -3,11 +3,10 @@
 //! than one dispatch dimension allows; every subgroup size lavapipe can emulate (4 to 128); caller-recorded sorts
 //! sharing one command buffer; and errors for bad input. The validation layer must stay silent throughout.
 
-mod gpu_support;
-
-use meshchar::gpu::sort::{sort_cpu, KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
-use meshchar::gpu::{Context, GpuError, MemoryKind};
-use meshchar::rng::SplitMix64 as Rng;
+use super::{sort_cpu, KeyBits, RadixSort, SortConfig, SortStorage, SortedIn};
+use crate::gpu::testing as gpu_support;
+use crate::gpu::{Context, GpuError, MemoryKind};
+use crate::rng::SplitMix64 as Rng;
 use std::fmt::Debug;
 
 #[derive(Clone, Copy, Debug)]

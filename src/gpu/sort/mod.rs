@@ -4,7 +4,7 @@
 //! kernels in the reduce-then-scan shape of Merrill and Grimshaw (*High Performance and Scalable Radix Sorting*,
 //! Parallel Processing Letters 21(2), 2011):
 //!
-//! 1. **count** (`glsl/sort_count.comp`): every block of [`SortConfig::block_keys`] keys writes its 256-bin digit
+//! 1. **count** (`glsl/sort_count.comp`): every block of `SortConfig::block_keys` keys writes its 256-bin digit
 //!    histogram to `counts[digit * blocks + block]`;
 //! 2. **scan** (`glsl/sort_scan_reduce.comp`, `glsl/sort_scan_down.comp`): an exclusive prefix sum of that whole
 //!    array, which turns each count into the first output position of that digit from that block. Tile sums go up a
@@ -75,7 +75,7 @@ impl KeyBits {
     }
 
     /// Digit passes (8 bits each).
-    pub fn passes(self) -> u32 {
+    pub(crate) fn passes(self) -> u32 {
         (self.bytes() as u32 * 8) / DIGIT_BITS
     }
 }
@@ -121,7 +121,7 @@ impl SortConfig {
         SortConfig { workgroup_size: 32, keys_per_thread: 64, scan_workgroup_size: 64, scan_items: 32 };
 
     /// The profile for the device ([`SortConfig::CPU`] for a [`DeviceType::Cpu`], else [`SortConfig::GPU`]), fitted
-    /// to its limits with [`SortConfig::fitted`].
+    /// to its limits with `SortConfig::fitted`.
     pub fn for_device(caps: &DeviceCaps) -> Self {
         let profile = if caps.device_type == DeviceType::Cpu { Self::CPU } else { Self::GPU };
         profile.fitted(caps)
@@ -129,7 +129,7 @@ impl SortConfig {
 
     /// This configuration with workgroup sizes lowered (never below the largest subgroup size) until the device's
     /// workgroup and shared-memory limits hold, and keys per invocation clamped to `1..=`[`MAX_KEYS_PER_THREAD`].
-    pub fn fitted(mut self, caps: &DeviceCaps) -> Self {
+    pub(crate) fn fitted(mut self, caps: &DeviceCaps) -> Self {
         let max_sg = caps.max_subgroup_size.max(1);
         let min_sg = caps.min_subgroup_size.max(1);
         let max_wg = caps.max_workgroup_size[0].min(caps.max_workgroup_invocations).max(1);
@@ -148,17 +148,17 @@ impl SortConfig {
     }
 
     /// Keys per block of the count and scatter kernels.
-    pub fn block_keys(&self) -> u64 {
+    pub(crate) fn block_keys(&self) -> u64 {
         self.workgroup_size as u64 * self.keys_per_thread as u64
     }
 
     /// Counts per tile of the scan kernels.
-    pub fn scan_tile(&self) -> u64 {
+    pub(crate) fn scan_tile(&self) -> u64 {
         self.scan_workgroup_size as u64 * self.scan_items as u64
     }
 
     /// Every reason the device cannot run this configuration (empty when it can).
-    pub fn check(&self, caps: &DeviceCaps) -> Vec<String> {
+    pub(crate) fn check(&self, caps: &DeviceCaps) -> Vec<String> {
         let mut why = Vec::new();
         let max_wg = caps.max_workgroup_size[0].min(caps.max_workgroup_invocations);
         let min_sg = caps.min_subgroup_size.max(1);
@@ -324,7 +324,7 @@ impl RadixSort {
     }
 
     /// Builds the pipelines on the context's device. A configuration the device cannot run gives
-    /// [`GpuError::Limit`] (see [`SortConfig::check`]).
+    /// [`GpuError::Limit`] (see `SortConfig::check`).
     pub fn new(ctx: &Context, config: SortConfig) -> Result<Self> {
         let caps = ctx.caps();
         let why = config.check(caps);
@@ -520,7 +520,7 @@ impl RadixSort {
     }
 
     /// Bytes of scratch [`RadixSort::record_exclusive_scan`] needs for `n` elements (the levels above the data).
-    pub fn scan_scratch_bytes(&self, n: u64) -> u64 {
+    pub(crate) fn scan_scratch_bytes(&self, n: u64) -> u64 {
         self.scan_levels(n, 0).iter().skip(1).map(|&(_, m)| (4 * m).next_multiple_of(REGION_ALIGN)).sum::<u64>().max(4)
     }
 
@@ -544,7 +544,13 @@ impl RadixSort {
     /// # Errors
     ///
     /// [`GpuError::Buffer`] when `data` holds fewer than `n` elements or `scratch` is too small.
-    pub fn record_exclusive_scan(&self, rec: &mut Recorder<'_>, data: &Buffer, n: u64, scratch: &Buffer) -> Result<()> {
+    pub(crate) fn record_exclusive_scan(
+        &self,
+        rec: &mut Recorder<'_>,
+        data: &Buffer,
+        n: u64,
+        scratch: &Buffer,
+    ) -> Result<()> {
         if data.size() < 4 * n || scratch.size() < self.scan_scratch_bytes(n) {
             return Err(GpuError::Buffer(format!(
                 "scan of {n} elements: buffers of {} and {} bytes (need {} and {})",
@@ -655,7 +661,8 @@ impl RadixSort {
 
 /// The CPU reference: a stable sort of `keys` carrying `payload` along (the test oracle of the GPU sort). Payloads
 /// shorter than the keys are an error of the caller and give `None` for them.
-pub fn sort_cpu<K: Ord + Copy>(keys: &[K], payload: Option<&[u32]>) -> (Vec<K>, Option<Vec<u32>>) {
+#[cfg(test)]
+pub(crate) fn sort_cpu<K: Ord + Copy>(keys: &[K], payload: Option<&[u32]>) -> (Vec<K>, Option<Vec<u32>>) {
     match payload.filter(|p| p.len() == keys.len()) {
         Some(p) => {
             let mut pairs: Vec<(K, u32)> = keys.iter().copied().zip(p.iter().copied()).collect();
@@ -670,3 +677,6 @@ pub fn sort_cpu<K: Ord + Copy>(keys: &[K], payload: Option<&[u32]>) -> (Vec<K>, 
         }
     }
 }
+
+#[cfg(test)]
+mod tests;
