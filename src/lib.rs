@@ -4,6 +4,36 @@
 //! Tracing in Real-time* as explicit Vulkan compute pipelines with CPU references beside them: centroid keys, Morton
 //! codes, moments, Doane's number of equivalence classes, a histogram of classes, a chi-square uniformity test,
 //! concentration and empty classes; then the selection of an acceleration structure.
+//!
+//! The main job, on the host: characterize a mesh, then ask which structure gives the lowest total time for a
+//! camera and a workload, the decision's own cost counted, and why.
+//!
+//! ```
+//! use meshchar::characterize::{cpu, features_cpu, Params};
+//! use meshchar::cost::CostModel;
+//! use meshchar::select::{Scene, Selector, TargetWorkload};
+//!
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let mesh = meshchar::mesh::default_teapot(); // or meshchar::mesh::load_mesh(Path::new("bunny.ply"))?
+//! let params = Params::default();
+//! let characterizations = [cpu::fast(&mesh, &params)?];
+//! let features = [features_cpu(&mesh, &params)?];
+//!
+//! let model = CostModel::shipped()?; // the calibration file fitted on this project's CPU records
+//! let workload = TargetWorkload { frames: 100, ..TargetWorkload::default() }; // 1024 x 1024 primary rays
+//! let selector = Selector::new(&model, workload);
+//! let meshes = std::slice::from_ref(&mesh); // lets the selector build probes when they pay
+//! let scene = Scene { name: "teapot", characterizations: &characterizations, features: &features, meshes };
+//! let decision = selector.select(&scene);
+//!
+//! println!("{} (decided at level {})", decision.structure(), decision.level.number());
+//! for reason in &decision.selection.reasons {
+//!     println!("  {reason}");
+//! }
+//! assert!(!decision.selection.reasons.is_empty());
+//! # Ok(())
+//! # }
+//! ```
 #![deny(missing_docs)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
