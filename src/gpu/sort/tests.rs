@@ -269,9 +269,12 @@ fn sort_is_correct_at_every_subgroup_size_lavapipe_emulates() {
     }
     drop(ctx);
     let exe = std::env::current_exe().expect("test binary");
+    // The child's full test name within the crate's test binary (its module path without the crate's name).
+    let module = module_path!().split_once("::").map_or("", |m| m.1);
+    let child = format!("{module}::sort_at_emulated_subgroup_size");
     for sg in [4u32, 16] {
         let out = std::process::Command::new(&exe)
-            .args(["--exact", "sort_at_emulated_subgroup_size", "--nocapture", "--test-threads=1"])
+            .args(["--exact", child.as_str(), "--nocapture", "--test-threads=1"])
             .env("LP_NATIVE_VECTOR_WIDTH", (32 * sg).to_string())
             .env("MESHCHAR_SORT_SUBGROUP", sg.to_string())
             .env("REQUIRE_GPU", "1")
