@@ -26,13 +26,39 @@ fn binary() -> PathBuf {
     );
     let built = std::fs::metadata(&path).and_then(|m| m.modified()).expect("the binary's time");
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    // What cargo relinks the example for (a manifest edit need not relink it, and without `compile-glsl` an edit
-    // of glsl/ rebuilds nothing).
-    let sources = [root.join("examples/engine_frame.rs"), root.join("examples/support"), root.join("src")];
+    // What cargo relinks the example for: the sources its dep-info file beside it lists (a test-only module of the
+    // library is not among them), else the example's and the library's folders.
+    let sources = dep_info_sources(&path.with_extension("d")).unwrap_or_else(|| {
+        vec![root.join("examples/engine_frame.rs"), root.join("examples/support"), root.join("src")]
+    });
     if let Some(newer) = newest_source(&sources, built) {
         panic!("example binary {} is older than {}: rebuild the examples", path.display(), newer.display());
     }
     path
+}
+
+/// The sources a cargo dep-info file (`target: dep dep ...`, spaces in a path escaped by a backslash) lists.
+fn dep_info_sources(file: &Path) -> Option<Vec<PathBuf>> {
+    let text = std::fs::read_to_string(file).ok()?;
+    let deps = text.lines().next()?.split_once(": ")?.1;
+    let mut out = Vec::new();
+    let mut cur = String::new();
+    let mut chars = deps.chars();
+    while let Some(c) = chars.next() {
+        match c {
+            '\\' => cur.extend(chars.next()),
+            ' ' => {
+                if !cur.is_empty() {
+                    out.push(PathBuf::from(std::mem::take(&mut cur)));
+                }
+            }
+            c => cur.push(c),
+        }
+    }
+    if !cur.is_empty() {
+        out.push(PathBuf::from(cur));
+    }
+    (!out.is_empty()).then_some(out)
 }
 
 /// A file under `paths` modified after `time`, if any.
