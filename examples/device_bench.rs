@@ -89,7 +89,8 @@ fn meshes(args: &Args, min: u64, max: u64, soups: bool) -> anyhow::Result<Vec<(S
     let mut out = Vec::new();
     for spec in &args.mesh {
         let (name, file) = spec.split_once('=').ok_or_else(|| anyhow::anyhow!("--mesh {spec}: expected NAME=FILE"))?;
-        out.push((name.to_string(), load_mesh(&PathBuf::from(file))?));
+        let mesh = load_mesh(&PathBuf::from(file)).map_err(|e| anyhow::anyhow!("{file}: {e}"))?;
+        out.push((name.to_string(), mesh));
     }
     let base = meshchar::mesh::default_scene();
     let mut level = 0;
@@ -127,21 +128,23 @@ fn device_json(ctx: &Context) -> Value {
 fn run(args: Args) -> anyhow::Result<()> {
     let rounds = args.rounds.unwrap_or(if args.quick { 3 } else { 5 }) as usize;
     let max = args.max_triangles.unwrap_or(if args.quick { 20_000 } else { 16_000_000 });
+    // The meshes first, so that a bad file is named before any device is looked for.
+    let list = match args.part {
+        Part::Characterize => meshes(&args, 0, max, true)?,
+        Part::Sort => Vec::new(),
+        Part::Lbvh | Part::Hlbvh => meshes(&args, 1_000, max, false)?,
+        Part::Trace => {
+            let limit = args.max_triangles.unwrap_or(if args.quick { 20_000 } else { 1_000_000 });
+            meshes(&args, if args.quick { 1_000 } else { 50_000 }, limit, false)?
+        }
+    };
     let ctx = context()?;
     let t = Instant::now();
     let mut out = match args.part {
-        Part::Characterize => characterize(&ctx, &meshes(&args, 0, max, true)?, rounds)?,
+        Part::Characterize => characterize(&ctx, &list, rounds)?,
         Part::Sort => sort(&ctx, args.quick, rounds)?,
-        Part::Lbvh | Part::Hlbvh => build(&ctx, &meshes(&args, 1_000, max, false)?, rounds, args.part)?,
-        Part::Trace => {
-            let limit = args.max_triangles.unwrap_or(if args.quick { 20_000 } else { 1_000_000 });
-            trace_part(
-                &ctx,
-                &meshes(&args, if args.quick { 1_000 } else { 50_000 }, limit, false)?,
-                args.quick,
-                rounds,
-            )?
-        }
+        Part::Lbvh | Part::Hlbvh => build(&ctx, &list, rounds, args.part)?,
+        Part::Trace => trace_part(&ctx, &list, args.quick, rounds)?,
     };
     out["device"] = device_json(&ctx);
     out["rounds"] = json!(rounds);

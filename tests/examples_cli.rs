@@ -9,13 +9,16 @@
 //! them first with `cargo build --release --examples` (as `scripts/test` does; `cargo test --examples` builds
 //! test harnesses instead). A missing binary, or one older than the sources, fails the test.
 
+mod example_binary;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
-const EXAMPLES: [&str; 9] = [
+const EXAMPLES: [&str; 10] = [
     "build_bvh",
     "calibrate",
     "characterize",
+    "device_bench",
     "devices",
     "engine_frame",
     "evaluate",
@@ -24,46 +27,9 @@ const EXAMPLES: [&str; 9] = [
     "tradeoff",
 ];
 
-/// The example binary `name`: `current_exe()` is `target/<profile>/deps/examples_cli-<hash>`.
+/// The example binary `name` ([`example_binary::path`]).
 fn binary(name: &str) -> PathBuf {
-    let exe = std::env::current_exe().expect("the test's own path");
-    let dir = exe.parent().and_then(Path::parent).expect("target/<profile>");
-    let path = dir.join("examples").join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
-    assert!(
-        path.is_file(),
-        "example binary {} not found: build the examples first (`cargo build --release --examples`; \
-         `cargo test --examples` builds test harnesses, not these binaries)",
-        path.display()
-    );
-    let built = std::fs::metadata(&path).and_then(|m| m.modified()).expect("the binary's time");
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    // What cargo relinks this example for: its own source, the shared support code, the library.
-    let sources = [root.join("examples").join(format!("{name}.rs")), root.join("examples/support"), root.join("src")];
-    if let Some(newer) = newest_source(&sources, built) {
-        panic!(
-            "example binary {} is older than {}: rebuild the examples (`cargo build --release --examples`)",
-            path.display(),
-            newer.display()
-        );
-    }
-    path
-}
-
-/// A file under `paths` modified after `time`, if any.
-fn newest_source(paths: &[PathBuf], time: std::time::SystemTime) -> Option<PathBuf> {
-    for p in paths {
-        let Ok(meta) = std::fs::metadata(p) else { continue };
-        if meta.is_dir() {
-            let entries: Vec<PathBuf> =
-                std::fs::read_dir(p).into_iter().flatten().flatten().map(|e| e.path()).collect();
-            if let Some(f) = newest_source(&entries, time) {
-                return Some(f);
-            }
-        } else if meta.modified().is_ok_and(|m| m > time) {
-            return Some(p.clone());
-        }
-    }
-    None
+    example_binary::path(name)
 }
 
 /// Runs example `name` with `args`, no standard input, its outputs captured (so not terminals).
@@ -498,10 +464,12 @@ fn every_example_refuses_a_bad_input_naming_it() {
     let (text, empty, garbage) = (dir.join("text.obj"), dir.join("empty.obj"), dir.join("garbage.json"));
     let (tet, missing, png) = (dir.join("tetrahedron.obj"), dir.join("no-such-mesh.obj"), dir.join("x.png"));
     let out_dir = dir.join("tradeoff");
+    let bad_mesh = format!("bad={}", text.display());
     let cases: Vec<(&str, Vec<&str>, &Path)> = vec![
         ("build_bvh", vec!["--backend", "cpu", arg(&text)], &text),
         ("calibrate", vec!["--from-oracle", arg(&garbage), "--no-refit"], &garbage),
         ("characterize", vec!["--backend", "cpu", arg(&empty)], &empty),
+        ("device_bench", vec!["characterize", "--quick", "--mesh", bad_mesh.as_str()], &text),
         // devices reads no file but the Vulkan driver list (below).
         ("engine_frame", vec!["--frames", "1", "--mesh", arg(&text)], &text),
         ("evaluate", vec![arg(&empty), "--resolution", "8", "--repeats", "1"], &empty),
@@ -712,6 +680,17 @@ fn every_example_runs_on_a_small_input() {
         assert!(out.status.code().is_some_and(|c| c != 101) && stderr.starts_with("devices: "), "{stderr}");
     }
     ran.push("devices");
+    let out = run("device_bench", &["sort", "--quick", "--rounds", "1"]);
+    let (stdout, stderr) = text(&out);
+    if out.status.code() == Some(0) {
+        let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("device_bench sort");
+        let sizes = v["sizes"].as_array().expect("sizes");
+        assert!(!sizes.is_empty() && sizes.iter().all(|s| s["agrees"] == true), "{v}");
+    } else {
+        assert!(std::env::var("REQUIRE_GPU").map_or(true, |v| v != "1"), "device_bench: {stderr}");
+        assert!(out.status.code().is_some_and(|c| c != 101) && stderr.starts_with("device_bench: "), "{stderr}");
+    }
+    ran.push("device_bench");
     let fs_dir = dir.join("failure-study");
     let stdout = ok("failure_study", &["--no-oracle", "--large-n-max", "0", "--backend", "cpu", "--out", arg(&fs_dir)]);
     assert!(stdout.contains("| all_equal |") && fs_dir.join("failure-study.json").is_file(), "{stdout}");

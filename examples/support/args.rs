@@ -58,8 +58,21 @@ impl PolicyArgs {
     /// The cost model of `--cost-model`, or without it the shipped one for `target`
     /// ([`CostModel::for_trace_target`]: its `chosen_as` says which file and why); a file that cannot be loaded is
     /// an error.
+    /// Tracing on a device that no calibration describes falls back to the CPU file: that is said on standard
+    /// error too, with the step that fixes it.
     pub fn cost_model_for(&self, target: TraceTarget<'_>) -> anyhow::Result<CostModel> {
-        CostModel::for_trace_target(self.cost_model.as_deref(), target).context("cost model")
+        let model = CostModel::for_trace_target(self.cost_model.as_deref(), target).context("cost model")?;
+        if let TraceTarget::Device(d) = target {
+            if model.trace_backend == meshchar::accel::device::TraceBackend::Cpu {
+                eprintln!(
+                    "warning: no calibration of {} ({}): the selection prices device traces with the CPU \
+                     tracer's calibration; run `calibrate --trace-backend vulkan` on this device and pass \
+                     --cost-model",
+                    d.name, d.driver
+                );
+            }
+        }
+        Ok(model)
     }
 
     /// [`PolicyArgs::cost_model_for`] the CPU tracer.
