@@ -16,7 +16,7 @@ use meshchar::accel::hlbvh::{Hlbvh, HlbvhOptions};
 use meshchar::accel::lbvh::{Lbvh, LbvhOptions};
 use meshchar::accel::{build_structure, AccelStructure, StructureName};
 use meshchar::characterize::vulkan::VulkanBackend;
-use meshchar::characterize::{cpu, Characterization, Params};
+use meshchar::characterize::{cpu, Params};
 use meshchar::geom::{Camera, WorkloadKind};
 use meshchar::gpu::sort::{KeyBits, RadixSort, SortConfig, SortStorage};
 use meshchar::gpu::{Context, ContextDesc, MemoryKind, MeshBuffers, Timer};
@@ -154,15 +154,6 @@ fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The report's content: timings, backend and device left out.
-fn content(c: &Characterization) -> Characterization {
-    let mut c = c.clone();
-    c.timings.clear();
-    c.backend.clear();
-    c.device.clear();
-    c
-}
-
 fn characterize(ctx: &Context, meshes: &[(String, Mesh)], rounds: usize) -> anyhow::Result<Value> {
     let mut vk = VulkanBackend::new(ctx)?;
     let params = Params::default();
@@ -177,11 +168,11 @@ fn characterize(ctx: &Context, meshes: &[(String, Mesh)], rounds: usize) -> anyh
             let t = Instant::now();
             let c = cpu::fast(mesh, &params)?;
             cpu_ms.push(ms_since(t));
-            agrees &= content(&c) == content(&reference);
+            agrees &= c.same_result(&reference);
             let t = Instant::now();
             let g = vk.characterize(mesh, &params)?;
             wall_ms.push(ms_since(t));
-            agrees &= content(&g) == content(&reference);
+            agrees &= g.same_result(&reference);
             let mut sum = 0.0;
             for p in g.timings.iter().filter(|p| p.name != "total" && p.name != "upload") {
                 passes.entry(p.name.clone()).or_default().push(p.ms);

@@ -37,6 +37,10 @@
 #![deny(missing_docs)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 
+/// The `ash` crate meshchar is built on (0.38): an engine hands its device over as these types
+/// ([`gpu::Context::from_raw`]), so it uses this re-export, or the same `ash` version, to make them.
+pub use ash;
+
 pub mod accel;
 pub mod characterize;
 pub mod cost;

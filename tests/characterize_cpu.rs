@@ -623,3 +623,21 @@ mod prop {
         }
     }
 }
+
+/// `Characterization::same_result`: the naive and the rayon backends report the same result (their timings, backend
+/// and device differ), and a report that differs in one count does not.
+#[test]
+fn same_result_ignores_timings_backend_and_device_only() {
+    let mesh = random_mesh(500, 1.0, 11);
+    let p = params(MortonBits::Bits30);
+    let naive = cpu::naive(&mesh, &p).unwrap();
+    let fast = cpu::fast(&mesh, &p).unwrap();
+    assert_ne!(naive.backend, fast.backend);
+    assert!(naive.same_result(&fast) && fast.same_result(&naive));
+    let mut other = fast.clone();
+    other.histogram[0] += 1;
+    assert!(!fast.same_result(&other));
+    let mut other = fast.clone();
+    other.triangles += 1;
+    assert!(!fast.same_result(&other));
+}

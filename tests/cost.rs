@@ -1274,7 +1274,7 @@ fn held_out_by_family_the_calibrated_policy_regrets_little_against_the_baselines
 }
 
 /// The family records of the precise oracle in rounds (`docs/data/families-rounds-*.jsonl` and its second run
-/// `families-rounds-repeat-*`, twelfth session): every structure of a record was measured in every round (the same
+/// `families-rounds-repeat-*`): every structure of a record was measured in every round (the same
 /// repeats), rounds went on until every interval met the +-2% target or past the cap of 20; and on them, as on the
 /// first records, the calibrated policy held out by family regrets at most 3% on average per workload and at most
 /// half the best single structure's.
@@ -1302,8 +1302,7 @@ fn the_family_records_in_rounds_measure_every_structure_alike_and_hold_the_mean_
     }
 }
 
-/// The second set of family scenes (`docs/data/families-seed2-*.jsonl` and `families-seed2-repeat-*`, thirteenth
-/// session): the seven families from seed 2 at 5K and 50K triangles, sizes and a seed no fit had seen, four views and
+/// The second set of family scenes (`docs/data/families-seed2-*.jsonl` and `families-seed2-repeat-*`): the seven families from seed 2 at 5K and 50K triangles, sizes and a seed no fit had seen, four views and
 /// three workloads, measured twice by the oracle in rounds; the repeat's records say how (the cap, the allowance,
 /// the rounds), the first's predate those fields. On them the deterministic calibrated policy, held out by family,
 /// regrets at most 3% overall and at most half the best single structure's in every workload (diffuse rays miss the

@@ -411,8 +411,7 @@ impl AccelStats {
     /// [`AccelStats::reference_levels`] (for the grid, its references) plus `node_build_work` per node, which the
     /// cost model's build law reads where a probe built the structure (`cost::StructureModel::build_work_coef`).
     /// Only the SAH BVH's nodes count ([`BVH_NODE_WORK`]); a grid's cells (about four per triangle in every grid
-    /// here) cost a prefix sum, far less than its references, and would drown them (`docs/cost-model.md`, "Eighth
-    /// session"). `None` for statistics without reference levels (records written before they were counted) and for
+    /// here) cost a prefix sum, far less than its references, and would drown them (`docs/results/2026-12-06-cost-model-build-work-law.md`). `None` for statistics without reference levels (records written before they were counted) and for
     /// an empty structure.
     pub fn build_work(&self, structure: StructureName) -> Option<f64> {
         (self.reference_levels > 0)
@@ -427,7 +426,7 @@ impl AccelStats {
 /// (`docs/data/families-rounds-*.jsonl`, the BVH's median build per scene, the build law's RMS error of `ln` ms
 /// 0.115 -> 0.077 at 3 over 0 to 240) and checked on the second (`families-seed2-*`, fitted on the first: 0.196 ->
 /// 0.146); neutral on the shared meshes (0.84-1.15 nodes per triangle; leave-one-scene-out 0.089 -> 0.091).
-/// `docs/cost-model.md`, "Sixteenth session".
+/// `docs/results/2026-12-06-cost-model-bvh-nodes-probe-band.md`.
 pub const BVH_NODE_WORK: f64 = 3.0;
 
 /// The build work a node of `structure` adds to its [`AccelStats::build_work`]: [`BVH_NODE_WORK`] for the SAH BVH,

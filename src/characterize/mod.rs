@@ -515,3 +515,19 @@ pub struct Characterization {
     /// The device (GPU name, or the CPU and thread count).
     pub device: String,
 }
+
+impl Characterization {
+    /// Whether `other` reports the same characterization: every field but the pass timings, the backend and the
+    /// device, which differ between runs and backends by design. The CPU reference and a device run of the same mesh
+    /// and parameters compare equal (the backends are bit-identical); so does a planned run's report with the report of
+    /// its CPU reference ([`plan::reference`]).
+    pub fn same_result(&self, other: &Characterization) -> bool {
+        let strip = |c: &Characterization| Characterization {
+            timings: Vec::new(),
+            backend: String::new(),
+            device: String::new(),
+            ..c.clone()
+        };
+        strip(self) == strip(other)
+    }
+}

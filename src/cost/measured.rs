@@ -14,7 +14,7 @@
 //!
 //! This costs what it measures: [`MEASURED_WARMUP`] + [`MEASURED_REPEATS`] builds and frames of every structure
 //! measured (on the scene families, 2.3 structures where there is a close call, each about 1.2x the best one's
-//! frame: some 11 frames of the best structure; `docs/cost-model.md`, "Eleventh session"). It pays where the
+//! frame: some 11 frames of the best structure; `docs/results/2026-12-06-cost-model-measured-close-calls.md`). It pays where the
 //! structure is kept for many frames, or built once for a long run; it is off by default and bounded by a budget
 //! the caller gives ([`crate::select::Selector`], level 3).
 

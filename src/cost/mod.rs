@@ -33,7 +33,7 @@
 //! ([`overlap_floor`]) when the caller gives one. A fitted calibration clamps the geometric features into the range
 //! it was fitted on ([`StructureModel::feature_range`]).
 //!
-//! Two terms bend the straight laws where measurement showed they must (ninth session, `docs/cost-model.md`).
+//! Two terms bend the straight laws where measurement showed they must (`docs/results/2026-12-06-cost-model-curved-builds-incoherent-price.md`).
 //! `q` ([`curvature_term`]) is `(ln n - 10)^2` over the calibration's sizes and its tangent beyond them, with
 //! `d_s, d'_s >= 0` ([`StructureModel::build_curvature`]): the build time per triangle is U-shaped in `n` (the
 //! BVH's 0.28, 0.19 and 0.22 us at 2K, 20K and 200K triangles), fixed costs weighing on small builds and cache
@@ -41,7 +41,7 @@
 //! incoherent ray's tests higher the more of them it makes: its neighbours share the top of a tree but not the
 //! deep, scattered nodes and triangles a long traversal reaches (a BVH's diffuse rays in the sliver-filled
 //! engineering models pay 5.2 ns per test at 1,080 tests per ray, 3.1 ns at 430, against 2.2 to 2.5 ns for primary
-//! rays). Two more prices per test follow the rays and the view (seventeenth session): `test_diffuse`, the extra of
+//! rays). Two more prices per test follow the rays and the view (`docs/results/2026-12-06-cost-model-diffuse-view-prices.md`): `test_diffuse`, the extra of
 //! a diffuse ray's test over a shadow ray's (a closest hit among scattered rays against a first hit), and
 //! `test_outside_log_n`, an extra per unit of `ln n` when the eye is outside the bounds ([`price_outside_ln_n`]:
 //! seen from outside, neighbouring rays land far apart and share less of the structure: on the first family set's
@@ -124,8 +124,7 @@
 //!   calibration scene (a small object in a vast empty box: the teapot in a stadium, whose mean triangle size and
 //!   triangles per cell lie 1.7 and 1.9 times beyond the other families' largest).
 //! * `trace_price` has one price per [`PRICE_NAMES`], each `>= 0` (ns per ray or per test: the fit is
-//!   non-negative least squares, and a negative price would make more work cheaper; since the fourteenth session
-//!   a CPU calibration also keeps each triangle-test price at least its box-test price, `fit_prices`, which the
+//!   non-negative least squares, and a negative price would make more work cheaper; a CPU calibration also keeps each triangle-test price at least its box-test price, `fit_prices`, which the
 //!   validation does not require of other files) and at most [`PRICE_LIMIT_NS`] (1 ms: the devices in scope pay 1
 //!   to 40 ns per test, so a larger price is a unit error), and not all zero (tracing is never free).
 //! * The fit errors (`fit.*`, `total_rms_log`) are root-mean-square values: `>= 0`.
@@ -156,9 +155,9 @@ pub use probe::{probe, Probe, ProbeCounts, PROBED};
 /// The half-width of a law's band about a probe's sampled mean, in the fit's RMS errors of `ln(1 + count)`
 /// ([`FitError::box_tests`]): a probed count whose law `c` lies outside `(1 + c) / (1 + mean)` in
 /// `exp(+-PROBE_BAND * rms)` is held to the sample
-/// ([`StructureModel::predict_floored`]). One RMS: of 0 (always held), 1 and 2 (the fifth session's), measured held
+/// ([`StructureModel::predict_floored`]). One RMS: of 0 (always held), 1 and 2, measured held
 /// out on the scene families (by family 6.9%, 3.9%, 4.2%; by scene 6.1%, 4.2%, 3.8%) and checked on the other record
-/// sets (`docs/cost-model.md`, "Probes").
+/// sets (`docs/results/2026-12-05-cost-model-probes.md`).
 pub const PROBE_BAND: f64 = 1.0;
 
 /// The band ([`PROBE_BAND`]'s unit) within which a model traced on the CPU keeps a probed structure's own law
@@ -166,15 +165,15 @@ pub const PROBE_BAND: f64 = 1.0;
 /// the very tree the frame would trace, with a sample of the frame's rays, so its mean is that structure's count up
 /// to the sample's error, and a law that differs from it has nothing to add. The probed structures' shared
 /// correction of the unprobed kd-tree still reads its counts held at [`PROBE_BAND`] (a correction from counts held
-/// everywhere picked the kd-tree for sliver-rich scenes over many frames at up to 11x the grid, seventh session). A
+/// everywhere picked the kd-tree for sliver-rich scenes over many frames at up to 11x the grid). A
 /// device calibration keeps [`PROBE_BAND`]: there the probe's CPU tree stands in for the device's own build (held
 /// at 0 its LBVH and BVH counts cost the H200 family records' primary rays 3.9% -> 19.6%, worst 313%). Measured in
-/// `docs/cost-model.md`, "Sixteenth session".
+/// `docs/results/2026-12-06-cost-model-bvh-nodes-probe-band.md`.
 pub const OWN_PROBE_BAND_CPU: f64 = 0.0;
 
 /// The hierarchy that is not probed but takes the probed hierarchies' correction of its counts
 /// ([`CostModel::predict_floored`]): the kd-tree, whose laws' errors on the scene families follow the LBVH's
-/// (residual correlation 0.83). The HLBVH shared it too until it was probed (eighth session, [`PROBED`]). The
+/// (residual correlation 0.83). The HLBVH shared it too until it was probed ([`PROBED`]). The
 /// grid's errors (0.58) are its own: it is probed, and its correction is not shared (taking it into the shared mean
 /// sent particle soups and cities to the HLBVH: held out by family 2.8% -> 3.6%).
 pub const SHARES_PROBES: [StructureName; 1] = [StructureName::KdTree];
@@ -298,7 +297,7 @@ pub const BUILD_CURVATURE_MIN_SPAN: f64 = 3.4012;
 /// The least number of distinct triangle counts among a structure's calibration builds for a curvature to be
 /// fitted: 3, the fewest that identify one. (The scene families have exactly three sizes, 2K, 20K and 200K
 /// triangles, each built on 84 records, which the parabola does not meet exactly; held out by family it lowers the
-/// build error of every probed hierarchy, `docs/cost-model.md`, "Ninth session".)
+/// build error of every probed hierarchy, `docs/results/2026-12-06-cost-model-curved-builds-incoherent-price.md`.)
 pub const BUILD_CURVATURE_MIN_SIZES: usize = 3;
 
 /// The largest `ln n` a [`StructureModel::build_ln_n_range`] may name: `ln 2^40`, far beyond any scene, so that
@@ -468,9 +467,7 @@ pub struct FitError {
     #[serde(deserialize_with = "f64_or_null")]
     pub build: f64,
     /// Box tests per ray, as the error of `ln(1 + count)` (every ray tests at least one box, so a miss by a
-    /// fraction of a test counts for little however large its ratio; calibrations before the seventh session of
-    /// 2026-12-05 stored `ln` of the count itself, floored at 0.001: such a file still reads, and its larger
-    /// figures give the probes a wider band, [`PROBE_BAND`]; `calibrate` rewrites them).
+    /// fraction of a test counts for little however large its ratio).
     #[serde(deserialize_with = "f64_or_null")]
     pub box_tests: f64,
     /// Triangle tests per ray, as the error of `ln(1 + count)` (as [`FitError::box_tests`]).

@@ -3,7 +3,7 @@
 //! The count laws of the model are log-linear in the characterization's features, none of which sees triangles
 //! that overlap or coincide: on 2,000 large triangles with vertices uniform in a cube the model predicted 1.4
 //! triangle tests per ray for the BVH where it makes 153, and picked it at 6.9x the grid's total
-//! (`docs/cost-model.md`, "No catastrophe"). [`Crossings`] measures the overlap exactly from the mesh,
+//! (`docs/results/2026-12-04-cost-model-degenerate-overlap-floor.md`). [`Crossings`] measures the overlap exactly from the mesh,
 //! [`Crossings::for_workload`] turns it into the boxes a ray of a workload crosses on average ([`RayCrossings`]),
 //! and [`overlap_floor`] bounds the hierarchies' box and triangle tests per ray, and the grid's triangle tests per
 //! primary ray, from below with it. Where the view was probed ([`Crossings::with_probes`]), [`overlap_floor`] also

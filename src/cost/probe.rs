@@ -56,14 +56,14 @@ impl ProbeCounts {
 }
 
 /// The structures the policy probes ([`super::Crossings::with_probes`]): the LBVH, the binned-SAH BVH, the BIH, the
-/// grid and the HLBVH. The BIH and the grid were added in the seventh session of 2026-12-05, once the band read
+/// grid and the HLBVH. The BIH and the grid were added on 2026-12-05, once the band read
 /// counts on `ln(1 + count)`: held out by family on the scene families, `calibrated_cv` 4.0% -> 2.8% (the engineering
 /// family 11.5% -> 5.6%); without the BIH 4.8% (its sliver error is its own: 21% on the engineering family). The
-/// HLBVH, which gained nothing on those records (2.8%), was added in the eighth session (2026-12-06): on the records
+/// HLBVH, which gained nothing on those records (2.8%), was added on 2026-12-06: on the records
 /// measured again, and with the shipped calibration refitted on them, its shared correction left it 2.6-3.6x below
 /// its counts where slivers or overlapping triangles make its traversal explode (the engineering family close up,
 /// `overlapping:2000`: chosen there at 1.8x the best), and probed, the families read 2.4% / 3.0% -> 2.6% / 2.7% by
-/// scene / by family (`docs/cost-model.md`, "Eighth session"). The BIH and the grid exist only with the `eval`
+/// scene / by family (`docs/results/2026-12-05-cost-model-probes.md`). The BIH and the grid exist only with the `eval`
 /// feature; a build that fails (or a grid past its count threshold, [`PROBE_GRID_BUDGET`]) gives no probe.
 pub const PROBED: [StructureName; PROBES] =
     [StructureName::Lbvh, StructureName::Bvh, StructureName::Bih, StructureName::Grid, StructureName::Hlbvh];

@@ -4,7 +4,7 @@
 //! The count probes ([`super::probe()`]) make the policy's test counts exact on a sample; what stays predicted is
 //! the time per build and per test, and those are where the held-out errors were left (on the scene families,
 //! replacing the predicted builds of every structure by the measured ones took the mean regret of primary rays from
-//! 3.1% to 1.8%, and the traces from 3.1% to 1.4%, `docs/cost-model.md`, "Ninth session"). A timed probe measures
+//! 3.1% to 1.8%, and the traces from 3.1% to 1.4%, `docs/results/2026-12-06-cost-model-curved-builds-incoherent-price.md`). A timed probe measures
 //! them directly, at a price: every contender ([`contenders`]) is built once (the count probes already build five of
 //! the six structures) and [`TIMED_SIDE`]`^2` rays of the workload's kind are traced through each, on one thread, a
 //! few times ([`TIMED_REPEATS`], the fastest kept: interruptions only ever add time).
@@ -20,7 +20,7 @@
 //! off by default: a caller asks for them with [`crate::select::Selector`], level 2 (or
 //! [`crate::select::BuildBounds::with_timed_probes`], which [`crate::select::CalibratedPolicy::timed_probes`]
 //! reads); `evaluate --compare-policies --timed-probes` scores them against the deterministic policy on the same
-//! records (`docs/cost-model.md`, "Tenth session").
+//! records (`docs/results/2026-12-06-cost-model-timed-probes.md`).
 
 use crate::accel::{AccelStructure, StructureName};
 use crate::geom::camera::default_light;

@@ -322,7 +322,7 @@ pub struct OracleRecord {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub precision_ms: Option<f64>,
     /// Under a precision target: how the repeats past the first were made. `every_structure`: in rounds of every
-    /// structure until all intervals met the target (the twelfth session's oracle, [`super::oracle::OracleConfig::precision`]);
+    /// structure until all intervals met the target (the oracle in rounds, [`super::oracle::OracleConfig::precision`]);
     /// absent in records written before, where a structure whose interval met the target stopped while the others
     /// went on.
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -341,7 +341,9 @@ impl Context {
         self.inner.queue_family
     }
 
-    /// Every warning and error the validation layer reported so far (empty without validation).
+    /// Every warning and error the validation layer reported so far (empty without validation). Only a context
+    /// that owns its instance ([`Context::new`]) installs a messenger: on a borrowed device ([`Context::from_raw`])
+    /// this is always empty, and the messages go to the engine's own messenger.
     pub fn validation_messages(&self) -> Vec<String> {
         lock(&self.inner.messages).clone()
     }

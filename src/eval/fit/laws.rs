@@ -19,7 +19,7 @@ use crate::geom::WorkloadKind;
 /// several times too cheap. Fitted as `box' = box`, `prim' = prim - box >= 0` (the same for the incoherent pair), so
 /// the constraint costs nothing where the data choose the larger triangle price themselves. Device samples keep the
 /// plain fit: no isolated price says what a test costs there, and on the lavapipe records the constraint cost the
-/// shipped file's selections 1.66% -> 2.38% mean regret in sample (`docs/cost-model.md`, "Fourteenth session").
+/// shipped file's selections 1.66% -> 2.38% mean regret in sample (`docs/results/2026-12-06-cost-model-curved-builds-incoherent-price.md`).
 fn fit_prices(rows: &[Vec<f64>], y: &[f64], w: &[f64], cpu: bool) -> Option<Vec<f64>> {
     if !cpu {
         return linalg::weighted_nonneg(rows, y, w, &[true; PRICE_NAMES.len()]);

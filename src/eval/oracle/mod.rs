@@ -43,7 +43,7 @@
 //! its interval met the target. Every structure takes part in every round so that the machine's drift hits all
 //! alike: on the 2-core VM the same build and trace run up to 1.6x slower for seconds at a time, and when a
 //! structure already precise stopped while another went on into such a stretch, the one measured on was judged
-//! slower than it is (`docs/cost-model.md`, "Twelfth session"). With intervals, two totals are within noise when
+//! slower than it is (`docs/results/2026-12-06-cost-model-oracle-in-rounds.md`). With intervals, two totals are within noise when
 //! their intervals overlap. On an animation, frame 0 decides the repeats and later frames repeat each structure as
 //! often, so that every repeat's total covers every frame.
 //!
