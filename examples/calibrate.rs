@@ -285,9 +285,9 @@ fn run(args: Args) -> anyhow::Result<()> {
         let name = r.map_or_else(|| "size only".to_string(), |r| format!("ridge {r}"));
         eprintln!("prior, {name}: mean regret held out {:.1}%", 100.0 * regret);
     }
-    model = model.with_prior(&samples, prior_ridge)?;
+    model = model.with_prior(&samples, prior_ridge)?.with_size(&samples)?;
     model.uncertainty = meshchar::eval::fit::fit_uncertainty(&samples, &|t| {
-        CostModel::fit_with(t, &device, "held out", ridge, crossings)?.with_prior(t, prior_ridge)
+        CostModel::fit_with(t, &device, "held out", ridge, crossings)?.with_prior(t, prior_ridge)?.with_size(t)
     });
     model.inquiry_costs = meshchar::eval::fit::fit_inquiry_costs(&samples);
     if backend == TraceBackend::Vulkan && samples.iter().any(|s| !s.driver.is_empty()) {

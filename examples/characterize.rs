@@ -193,8 +193,9 @@ fn process(
     }
     let select_ms = t1.elapsed().as_secs_f64() * 1e3;
     let frames = if scene.frames.len() > 1 { scene.frames.len() as u64 } else { args.frames };
+    // A decision on the triangle count alone did not read the characterization (which fills the report).
     let cost = SelectionCost::new(
-        characterize_ms,
+        if chosen.characterized { characterize_ms } else { 0.0 },
         select_ms,
         scene.frames.len(),
         chosen.predicted.as_ref().and_then(|p| p.iter().find(|p| p.structure == chosen.selection.structure)),

@@ -1744,3 +1744,47 @@ fn laws(
 ) -> Vec<meshchar::cost::Prediction> {
     model.predict_floored(f, w, &|_| meshchar::cost::TestFloor { crossings: 0.0, ..Default::default() })
 }
+
+/// The size rung ([`Selector::size_rung`]): the triangle count alone decides where characterizing costs more than
+/// it could gain or more than the decision budget allows, and the decision says so; where the size laws are far
+/// less certain than level 0 and the frames many, characterizing pays and the ladder decides as before. A fixed
+/// level and a known camera never take the rung.
+#[test]
+fn the_size_rung_characterizes_only_where_it_pays() {
+    let mesh = generate::clustered(4000, 4, 3);
+    let p = Params::default();
+    let frames = [cpu::fast(&mesh, &p).unwrap()];
+    let feats = [features_cpu(&mesh, &p).unwrap()];
+    let n = mesh.triangle_count() as u64;
+    let w = |frames: u64| TargetWorkload { frames, ..TargetWorkload::default() };
+    let scene = Scene { name: "clustered", characterizations: &frames, features: &feats, meshes: &[] };
+    let mut model = CostModel::shipped().unwrap();
+    let s = Selector::new(&model, w(1));
+    let r = s.size_rung(n).expect("the shipped file has size laws, their errors and the stage laws");
+    assert_eq!(r.characterize, r.gain_ms > r.cost_ms && r.cost_ms <= r.allowed_ms, "{r:?}");
+    let d = s.select(&scene);
+    assert_eq!(d.characterized, r.characterize);
+    if !r.characterize {
+        assert_eq!(Some(d.structure()), r.structure);
+        assert!(d.selection.reasons[0].contains("on the triangle count alone"), "{:?}", d.selection.reasons);
+        assert!(d.selection.reasons[1].starts_with("margin"), "{:?}", d.selection.reasons);
+    }
+    // Size laws far less certain than the features': worth knowing over a million frames, not over one (where the
+    // characterization is over 1% of the frame).
+    for u in model.uncertainty.as_mut().unwrap().structures.iter_mut() {
+        u.size = Some(2.0);
+        u.prior = 0.01;
+    }
+    let one = Selector::new(&model, w(1)).size_rung(n).unwrap();
+    assert!(!one.characterize && one.cost_ms > one.allowed_ms, "{one:?}");
+    let many = Selector::new(&model, w(1_000_000));
+    let r = many.size_rung(n).unwrap();
+    assert!(r.characterize && r.gain_ms > r.cost_ms, "{r:?}");
+    let d = many.select(&scene);
+    assert!(d.characterized && !d.selection.reasons[0].contains("triangle count alone"), "{:?}", d.selection.reasons);
+    let mut fixed = Selector::new(&model, w(1));
+    fixed.inquiry = Inquiry::Fixed(Level::Prior);
+    assert!(fixed.size_rung(n).is_none() && fixed.select(&scene).characterized);
+    let camera = Camera::frame(&Aabb::new(feats[0].lo.into(), feats[0].hi.into()));
+    assert!(Selector::new(&model, TargetWorkload { camera: Some(camera), ..w(1) }).size_rung(n).is_none());
+}

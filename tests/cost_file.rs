@@ -682,3 +682,32 @@ fn the_shipped_file_has_timed_probe_ratios_for_every_structure_and_refuses_bad_o
     let m = CostModel::from_json(&v.to_string()).expect("an unfitted ratio is null");
     assert_eq!(m.timed.unwrap().structures[0].trace[1], None);
 }
+
+/// The size laws read the triangle count alone: a file whose size law reads a geometric feature, or a view, is
+/// refused naming the structure; the shipped one reads and predicts from `n` alone.
+#[test]
+fn size_laws_read_the_triangle_count_alone() {
+    let shipped = CostModel::from_json(SHIPPED_CPU).unwrap();
+    let w = meshchar::cost::Workload {
+        kind: meshchar::geom::WorkloadKind::Primary,
+        rays_per_frame: 65536,
+        frames: 1,
+        builds: 1,
+        view: None,
+    };
+    let p = shipped.predict_size(20_000, &w).expect("the shipped file has size laws");
+    assert_eq!(p.len(), shipped.structures.len());
+    assert!(p.iter().all(|p| p.total_ms.is_finite() && p.total_ms > 0.0));
+    assert!(shipped.predict_size(200_000, &w).unwrap()[0].total_ms > p[0].total_ms, "more triangles cost more");
+    let e = refused(|v| v["structures"][0]["size"]["box_coef"][5] = serde_json::json!(0.3));
+    assert!(e.to_string().contains("triangle count"), "{e}");
+    let e = refused(|v| v["structures"][1]["size"]["view_prim_coef"] = serde_json::json!([0.1, 0.0, 0.0]));
+    assert!(e.to_string().contains("triangle count"), "{e}");
+    // Without size laws a file still reads, and predicts nothing by size.
+    let mut v: Value = serde_json::from_str(SHIPPED_CPU).unwrap();
+    for s in v["structures"].as_array_mut().unwrap() {
+        s.as_object_mut().unwrap().remove("size");
+    }
+    let m = CostModel::from_json(&v.to_string()).unwrap();
+    assert!(m.predict_size(20_000, &w).is_none());
+}

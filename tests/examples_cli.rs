@@ -353,9 +353,17 @@ fn flag_equals_value_and_plain_flags_work() {
     assert_eq!(report["class_rule"], "sturges");
     assert_eq!(report["backend"], "cpu");
     // The decision's cost against the chosen structure's predicted frame.
+    // A decision on the triangle count alone did not read the characterization: it costs the selection only.
     let c = &report["selection_cost"];
-    assert!(c["characterize_ms"].as_f64().unwrap() > 0.0 && c["select_ms"].as_f64().unwrap() >= 0.0, "{c}");
+    let by_size = report["reasons"][0].as_str().is_some_and(|r| r.contains("on the triangle count alone"));
+    let characterize_ms = c["characterize_ms"].as_f64().unwrap();
+    assert!(if by_size { characterize_ms == 0.0 } else { characterize_ms > 0.0 }, "{c}");
+    assert!(c["select_ms"].as_f64().unwrap() > 0.0, "{c}");
     assert!(c["predicted_frame_ms"].as_f64().unwrap() > 0.0 && c["within_goal"].is_boolean(), "{c}");
+    // A fixed level reads the characterization, and pays for it.
+    let out = run("characterize", &["--json", "--backend=cpu", "--level=0"]);
+    let report: serde_json::Value = serde_json::from_str(text(&out).0.trim()).expect("one JSON object");
+    assert!(report["selection_cost"]["characterize_ms"].as_f64().unwrap() > 0.0, "{report}");
     // A view: the calibrated policy says what it saw.
     let out = run("characterize", &["--json", "--backend=cpu", "--view", "inside", "family:city:3000:1"]);
     let (stdout, stderr) = text(&out);

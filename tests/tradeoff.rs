@@ -331,6 +331,7 @@ fn paper_model() -> meshchar::cost::CostModel {
         build_curvature: 0.0,
         build_ln_n_range: Vec::new(),
         prior: None,
+        size: None,
         fit: FitError::default(),
     };
     let m = CostModel {

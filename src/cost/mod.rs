@@ -580,6 +580,11 @@ pub struct StructureModel {
     /// features (no crossings, no probe); absent in files written before them (the laws above serve then).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub prior: Option<CountLaw>,
+    /// The count laws of the triangle count alone ([`CountLaw`] with every geometric coefficient 0), read before
+    /// the mesh is characterized: the selection's rung below level 0 ([`CostModel::predict_size`]); absent in files
+    /// written without them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub size: Option<CountLaw>,
     /// Fit errors on the calibration samples.
     pub fit: FitError,
 }
@@ -781,6 +786,10 @@ pub struct RefitModel {
 pub struct StructureUncertainty {
     /// The structure.
     pub structure: StructureName,
+    /// From the triangle count alone, before any characterization ([`StructureModel::size`]); absent in files
+    /// written without size laws.
+    #[serde(default)]
+    pub size: Option<f64>,
     /// From the features alone (level 0).
     #[serde(deserialize_with = "f64_or_null")]
     pub prior: f64,
@@ -1024,7 +1033,12 @@ impl CostModel {
             for (i, x) in u.structures.iter().enumerate() {
                 let at = |f: &str| format!("uncertainty.structures[{i}] ({}).{f}", x.structure.as_str());
                 let st = Some(x.structure);
-                let figures = [("prior", Some(x.prior)), ("crossings", Some(x.crossings)), ("probed", Some(x.probed))];
+                let figures = [
+                    ("size", x.size),
+                    ("prior", Some(x.prior)),
+                    ("crossings", Some(x.crossings)),
+                    ("probed", Some(x.probed)),
+                ];
                 let more = [("timed", x.timed), ("measured", x.measured)];
                 for (name, v) in figures.into_iter().chain(more) {
                     if let Some(v) = v {
@@ -1095,6 +1109,32 @@ impl CostModel {
     /// ([`ViewFeatures::framing`]), the oracle's default camera.
     pub fn predict(&self, f: &Features, w: &Workload) -> Vec<Prediction> {
         self.predict_floored(f, w, &|_| TestFloor::default())
+    }
+
+    /// Predicted costs from the triangle count `n` alone, before the mesh is characterized: each structure's size
+    /// law ([`StructureModel::size`]) with its build law and prices, the framing camera; `None` when the file has no
+    /// size laws.
+    pub fn predict_size(&self, n: u64, w: &Workload) -> Option<Vec<Prediction>> {
+        let d = Derived {
+            ln_n: (n.max(1) as f64).ln(),
+            fill_at_n: 0.0,
+            ln_tris_per_cell: 0.0,
+            empty_d3: 0.0,
+            size_mean: 0.0,
+            size_spread: 0.0,
+            aspect_log2: 0.0,
+        };
+        let w = Workload { view: None, ..*w };
+        let preds: Vec<Prediction> = self
+            .structures
+            .iter()
+            .filter_map(|m| {
+                let law = m.size.clone()?;
+                let sized = StructureModel { prior: Some(law), ..m.clone() };
+                Some(sized.predict(&d, n.max(1), &w))
+            })
+            .collect();
+        (!preds.is_empty() && preds.len() == self.structures.len()).then_some(preds)
     }
 
     /// [`CostModel::predict`] with each structure's tests per ray bounded by `floor(structure)`
@@ -1431,14 +1471,26 @@ fn check_structure(i: usize, s: &StructureModel) -> Result<(), CostError> {
             return Err(invalid(st, field, format!("[{lo}, {hi}]: the low bound exceeds the high one")));
         }
     }
-    if let Some(p) = &s.prior {
-        for (name, coef, want) in [
-            ("prior.box_coef", &p.box_coef, FEATURE_NAMES.len()),
-            ("prior.prim_coef", &p.prim_coef, FEATURE_NAMES.len()),
-            ("prior.view_box_coef", &p.view_box_coef, VIEW_FEATURE_NAMES.len()),
-            ("prior.view_prim_coef", &p.view_prim_coef, VIEW_FEATURE_NAMES.len()),
+    for (law, p) in [("prior", &s.prior), ("size", &s.size)] {
+        let Some(p) = p else { continue };
+        for (field, coef, want) in [
+            ("box_coef", &p.box_coef, FEATURE_NAMES.len()),
+            ("prim_coef", &p.prim_coef, FEATURE_NAMES.len()),
+            ("view_box_coef", &p.view_box_coef, VIEW_FEATURE_NAMES.len()),
+            ("view_prim_coef", &p.view_prim_coef, VIEW_FEATURE_NAMES.len()),
         ] {
+            let name = format!("{law}.{field}");
+            let name = name.as_str();
             let view = name.contains("view");
+            if law == "size"
+                && (view && !coef.is_empty() || coef.get(CLAMPED_FEATURES).is_some_and(|c| c.iter().any(|&x| x != 0.0)))
+            {
+                return Err(invalid(
+                    st,
+                    at(name),
+                    String::from("the triangle count's law reads no geometric feature and no view"),
+                ));
+            }
             if coef.len() != want && !(view && coef.is_empty()) {
                 return Err(invalid(st, at(name), format!("{} coefficients, expected {want}", coef.len())));
             }

@@ -41,6 +41,9 @@ pub struct E2eScore {
     /// Per level (0 to 3), how many samples the policy decided there (the ladder's; others report their fixed
     /// level).
     pub levels: [usize; 4],
+    /// Of those at level 0, how many the triangle count alone decided (the ladder's size rung: no
+    /// characterization, no features).
+    pub by_size: usize,
 }
 
 /// One policy scored end to end, overall and per workload kind.
@@ -62,6 +65,8 @@ struct Choice {
     structure: Option<StructureName>,
     decision_ms: f64,
     level: Level,
+    /// Decided on the triangle count alone, before any characterization ([`Selector::size_rung`]).
+    by_size: bool,
 }
 
 /// A record's knowledge as the ladder sees it: what the oracle's load computed for the record's camera (the
@@ -188,8 +193,12 @@ fn decide(model: &CostModel, smp: &Sample, inquiry: Inquiry, tie_margin: f64, de
     s.inquiry = inquiry;
     s.tie_margin = tie_margin;
     s.decision_budget = decision_budget;
-    let mut k = RecordKnowledge::new(model, smp);
     let t = std::time::Instant::now();
+    if let Some(rung) = s.size_rung(smp.features.scene_triangles()).filter(|r| !r.characterize) {
+        let own_ms = t.elapsed().as_secs_f64() * 1e3;
+        return Choice { structure: rung.structure, decision_ms: own_ms, level: Level::Prior, by_size: true };
+    }
+    let mut k = RecordKnowledge::new(model, smp);
     let c = climb(&s, &mut k);
     let preds = k.predictions();
     let structure = match c.measured.iter().min_by(|a, b| a.total_ms.total_cmp(&b.total_ms)) {
@@ -197,7 +206,7 @@ fn decide(model: &CostModel, smp: &Sample, inquiry: Inquiry, tie_margin: f64, de
         None => choose(&preds, tie_margin),
     };
     let own_ms = t.elapsed().as_secs_f64() * 1e3;
-    Choice { structure, decision_ms: base_ms(&smp.stage_ms) + k.spent_ms + own_ms, level: c.level }
+    Choice { structure, decision_ms: base_ms(&smp.stage_ms) + k.spent_ms + own_ms, level: c.level, by_size: false }
 }
 
 /// The score of `choices` over `samples` (all of one number of frames).
@@ -218,6 +227,7 @@ fn score(samples: &[&Sample], choices: &[Choice], frames: u64) -> E2eScore {
         ms.push(c.decision_ms);
         shares.push(c.decision_ms / best.total_ms);
         out.levels[c.level.number() as usize] += 1;
+        out.by_size += usize::from(c.by_size);
     }
     let mean = |v: &[f64]| if v.is_empty() { 0.0 } else { v.iter().sum::<f64>() / v.len() as f64 };
     let median = |mut v: Vec<f64>| {
@@ -258,7 +268,7 @@ pub fn compare_e2e(
     for g in &groups {
         let train: Vec<Sample> = samples.iter().zip(&keys).filter(|(_, k)| *k != g).map(|(s, _)| s.clone()).collect();
         let (ridge, _) = choose_prior_ridge(&train, device, tie_margin);
-        let fit_prior = |t: &[Sample]| fit(t)?.with_prior(t, ridge);
+        let fit_prior = |t: &[Sample]| fit(t)?.with_prior(t, ridge)?.with_size(t);
         let Ok(mut m) = fit_prior(&train) else { continue };
         m.uncertainty = fit_uncertainty(&train, &fit_prior);
         m.inquiry_costs = fit_inquiry_costs(&train);
@@ -303,7 +313,12 @@ pub fn compare_e2e(
     let has_timed = samples.iter().any(|s| !s.timed.is_empty());
     let has_measured = samples.iter().any(|s| !s.frame_timings.is_empty());
     type Rule<'r> = Box<dyn Fn(&Sample) -> Choice + 'r>;
-    let fixed = |c: Option<StructureName>, ms: f64, level: Level| Choice { structure: c, decision_ms: ms, level };
+    let fixed = |c: Option<StructureName>, ms: f64, level: Level| Choice {
+        structure: c,
+        decision_ms: ms,
+        level,
+        by_size: false,
+    };
     let mut rules: Vec<(&str, &str, Rule<'_>)> = vec![
         ("oracle", "hindsight", Box::new(|s: &Sample| fixed(s.best().map(|m| m.structure), 0.0, Level::Prior))),
         ("thesis", "recorded", Box::new(|s: &Sample| fixed(s.baseline, s.stage_ms.characterize_ms, Level::Prior))),

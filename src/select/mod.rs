@@ -29,7 +29,9 @@ pub use driver::{plan_driver_frames, DriverAction, DriverFrameDecision, DriverFr
 pub use report::{Bounds, Report, SelectionCost, Timings};
 #[cfg(feature = "eval")]
 pub(crate) use selector::{climb, Knowledge};
-pub use selector::{Decision, Inquiry, Level, Policy as PolicyKind, Scene, Selector, Step, DEFAULT_DECISION_BUDGET};
+pub use selector::{
+    Decision, Inquiry, Level, Policy as PolicyKind, Scene, Selector, SizeRung, Step, DEFAULT_DECISION_BUDGET,
+};
 pub use thesis::ThesisPolicy;
 
 use crate::characterize::{Characterization, Features};

@@ -174,7 +174,11 @@ impl<'m> Selector<'m> {
                 measured: Vec::new(),
                 steps: Vec::new(),
                 inquiry_ms: 0.0,
+                characterized: true,
             };
+        }
+        if let Some(decision) = self.decide_by_size(scene, kind) {
+            return decision;
         }
         let mut known = MeshKnowledge::new(self, scene);
         let climb = climb(self, &mut known);
@@ -197,7 +201,121 @@ impl<'m> Selector<'m> {
             measured: climb.measured,
             steps: climb.steps,
             inquiry_ms: known.spent_ms,
+            characterized: true,
         }
+    }
+
+    /// The rung below level 0, for a static scene of `n` triangles: the structures predicted by the triangle count
+    /// alone, and whether characterizing the mesh is worth its cost. The expected gain is the ladder's (`select::ladder`),
+    /// with each prediction off by the calibration's held-out error of the size laws and, after the inquiry, by
+    /// that of level 0, or of level 1 (the count probes the characterization opens), whichever nets more; the
+    /// cost is the characterization's and the features' (and the crossings' and probes') by the stage laws.
+    /// Characterizing pays when the gain exceeds the cost and the cost stays within [`Selector::decision_budget`]
+    /// of the least predicted total. `None` where the rung does not apply: a fixed level or the thesis policy, the
+    /// driver's structures weighed, a camera given ([`TargetWorkload::camera`]: the size laws know only the framing
+    /// one), or a calibration without size laws, their errors or the stage laws.
+    pub fn size_rung(&self, n: u64) -> Option<SizeRung> {
+        // The size laws are of the framing camera: an engine's own camera is a view they cannot read.
+        if self.policy != Policy::Calibrated
+            || self.inquiry != Inquiry::Auto
+            || self.workload.driver
+            || self.workload.camera.is_some()
+        {
+            return None;
+        }
+        let w = self.calibrated().workload(1);
+        let preds: Vec<Prediction> = self
+            .model
+            .predict_size(n, &w)?
+            .into_iter()
+            .filter(|p| self.structures.is_empty() || self.structures.contains(&p.structure))
+            .collect();
+        let u = self.model.uncertainty.as_ref()?;
+        let candidates: Vec<Candidate> = preds
+            .iter()
+            .map(|p| {
+                let e = u.of(p.structure);
+                Some(Candidate {
+                    total_ms: p.total_ms,
+                    sigma: e.and_then(|e| e.size)?,
+                    sigma_after: Some(e.map(|e| e.prior)?),
+                })
+            })
+            .collect::<Option<_>>()?;
+        let base_ms = self.stage_ms("characterize", n)? + self.stage_ms("features", n)?;
+        let least = preds.iter().map(|p| p.total_ms).fold(f64::INFINITY, f64::min);
+        let allowed_ms = self.decision_budget * least;
+        // Characterizing is worth it for what it tells (level 0) or for what it opens: the count probes (level
+        // 1), each weighed by its gain over the size laws less everything it costs from here.
+        let mut options = vec![(expected_gain(&candidates), base_ms)];
+        let probed: Vec<Candidate> = preds
+            .iter()
+            .zip(&candidates)
+            .map(|(p, c)| {
+                let e = u.of(p.structure);
+                let after = if PROBED.contains(&p.structure) { e.map(|e| e.probed) } else { e.map(|e| e.crossings) };
+                Candidate { sigma_after: after, ..*c }
+            })
+            .collect();
+        let probes: Option<f64> =
+            PROBED.iter().map(|s| self.stage_ms(&format!("probe:{}", s.as_str()), n)).sum::<Option<f64>>();
+        if let (Some(c), Some(p)) = (self.stage_ms("crossings", n), probes) {
+            options.push((expected_gain(&probed), base_ms + c + p));
+        }
+        let (gain_ms, cost_ms) =
+            options.into_iter().max_by(|a, b| (a.0 - a.1).total_cmp(&(b.0 - b.1))).unwrap_or((0.0, base_ms));
+        let structure = super::choose(&preds, self.tie_margin);
+        let characterize = gain_ms > cost_ms && cost_ms <= allowed_ms;
+        Some(SizeRung { predicted: preds, structure, gain_ms, cost_ms, allowed_ms, characterize })
+    }
+
+    /// The decision on the triangle count alone, where the size rung says characterizing does not pay (a static
+    /// scene under [`Inquiry::Auto`]); `None` otherwise.
+    fn decide_by_size(&self, scene: &Scene<'_>, kind: SceneKind) -> Option<Decision> {
+        if kind != SceneKind::Static {
+            return None;
+        }
+        let n = scene.features.first().map(|f| f.scene_triangles())?;
+        let rung = self.size_rung(n)?;
+        let structure = rung.structure.filter(|_| !rung.characterize)?;
+        let why = if rung.gain_ms <= rung.cost_ms {
+            format!("its expected gain {:.3} ms is below its predicted cost {:.3} ms", rung.gain_ms, rung.cost_ms)
+        } else {
+            format!(
+                "its predicted cost {:.3} ms is over the decision budget ({:.3} ms, {:.2}% of the least predicted total)",
+                rung.cost_ms,
+                rung.allowed_ms,
+                100.0 * self.decision_budget
+            )
+        };
+        let w = &self.workload;
+        let mut reasons = vec![format!(
+            "calibrated cost model ({}{}) on the triangle count alone for {} {} rays/frame x {} frame(s), n = {n}: \
+             {structure} has the smallest predicted total; characterizing the mesh does not pay here: {why}",
+            self.model.device,
+            self.model.chosen_as.as_ref().map(|c| format!("; {c}")).unwrap_or_default(),
+            w.rays_per_frame,
+            w.kind.as_str(),
+            w.frames.max(1),
+        )];
+        reasons.extend(super::margin_reason(self.model, &rung.predicted, structure));
+        for p in &rung.predicted {
+            reasons.push(format!(
+                "{}: predicted build {:.3} ms, trace {:.3} ms, total {:.3} ms (size laws)",
+                p.structure, p.build_ms, p.trace_ms, p.total_ms
+            ));
+        }
+        Some(Decision {
+            policy: Policy::Calibrated,
+            kind,
+            level: Level::Prior,
+            selection: super::Selection { structure, reasons, excluded: Vec::new(), driver: None },
+            predicted: Some(rung.predicted),
+            measured: Vec::new(),
+            steps: Vec::new(),
+            inquiry_ms: 0.0,
+            characterized: false,
+        })
     }
 
     /// The calibrated policy this selector runs.
@@ -267,6 +385,29 @@ pub struct Decision {
     pub steps: Vec<Step>,
     /// What the inquiry beyond the prior took, wall time, ms.
     pub inquiry_ms: f64,
+    /// Whether the decision read the characterization. `false`: the triangle count alone decided
+    /// ([`Selector::size_rung`]), and an engine that asks first need not characterize the mesh for it.
+    pub characterized: bool,
+}
+
+/// The rung below level 0 ([`Selector::size_rung`]): whether characterizing the mesh pays, judged from its
+/// triangle count alone.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct SizeRung {
+    /// Each structure's predicted costs by the size laws ([`crate::cost::CostModel::predict_size`]).
+    pub predicted: Vec<Prediction>,
+    /// The choice on these predictions.
+    pub structure: Option<Structure>,
+    /// Expected gain over the workload, ms (`select::ladder`), of the better of knowing the features (level 0) and
+    /// of the count probes that the characterization opens (level 1).
+    pub gain_ms: f64,
+    /// Predicted cost of that inquiry from here (the characterization and the features, and for the probes the
+    /// crossings and every probe too), ms (the calibration's `inquiry_costs`).
+    pub cost_ms: f64,
+    /// The decision budget over the predicted frames, ms.
+    pub allowed_ms: f64,
+    /// Whether characterizing pays: the gain exceeds the cost, within the budget.
+    pub characterize: bool,
 }
 
 impl Decision {

@@ -12,6 +12,7 @@ use crate::cost::{
 /// A sample's predictions at the levels of knowledge [`Uncertainty`] distinguishes (each `None` where the sample
 /// cannot say: no timed probes, no measured frames).
 struct Levels {
+    pub size: Option<Vec<Prediction>>,
     pub prior: Vec<Prediction>,
     pub crossings: Vec<Prediction>,
     pub probed: Vec<Prediction>,
@@ -33,7 +34,8 @@ fn levels(model: &CostModel, smp: &Sample) -> Levels {
         }
         _ => None,
     };
-    Levels { prior, crossings, probed, timed }
+    let size = model.predict_size(smp.features.scene_triangles(), &smp.workload);
+    Levels { size, prior, crossings, probed, timed }
 }
 
 /// `c` without any probe's counts or build work.
@@ -65,7 +67,7 @@ pub fn fit_uncertainty(
         return None;
     }
     // Per structure: the log errors at each level.
-    type Errors = [Vec<f64>; 5];
+    type Errors = [Vec<f64>; 6];
     let mut errors: Vec<(StructureName, Errors)> =
         StructureName::ALL.iter().map(|&s| (s, Default::default())).collect();
     let mut fitted = false;
@@ -92,6 +94,9 @@ pub fn fit_uncertainty(
                 if let Some(x) = measured.map(|t| (t.max(1e-12) / m.total_ms).ln()).filter(|x| x.is_finite()) {
                     e[4].push(x);
                 }
+                if let Some(x) = l.size.as_deref().and_then(err).filter(|x| x.is_finite()) {
+                    e[5].push(x);
+                }
             }
         }
     }
@@ -110,6 +115,7 @@ pub fn fit_uncertainty(
                 probed: rms(&e[2]),
                 timed: opt(&e[3]),
                 measured: opt(&e[4]),
+                size: opt(&e[5]),
                 samples: e[0].len(),
             }
         })

@@ -225,6 +225,7 @@ pub(super) fn fit_structure(
         feature_range,
         build_work_coef,
         prior: None,
+        size: None,
         fit: FitError::default(),
     };
     let (mut eb, mut ebox, mut eprim, mut etc, mut et, mut etot) = (vec![], vec![], vec![], vec![], vec![], vec![]);

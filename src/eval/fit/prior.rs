@@ -30,6 +30,21 @@ impl CostModel {
         }
         Ok(self)
     }
+
+    /// The model with each structure's size law ([`crate::cost::StructureModel::size`]) fitted on `samples`: the
+    /// count laws of the triangle count alone, as the size-only model has them.
+    pub fn with_size(mut self, samples: &[Sample]) -> Result<CostModel, CostError> {
+        for m in &mut self.structures {
+            let fitted = fit_structure(samples, m.structure, false, false, false, 0.05)?;
+            m.size = fitted.map(|f| CountLaw {
+                box_coef: f.box_coef,
+                prim_coef: f.prim_coef,
+                view_box_coef: Vec::new(),
+                view_prim_coef: Vec::new(),
+            });
+        }
+        Ok(self)
+    }
 }
 
 /// The prior's shrinkage chosen inside `samples`: each group (its family where the samples span at least three,
