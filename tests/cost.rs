@@ -1479,3 +1479,31 @@ fn a_repeated_oracle_run_is_scored_on_the_first_runs_records() {
 fn bounds() -> meshchar::cost::CountBounds {
     CostModel::shipped().expect("shipped model").count_bounds
 }
+
+/// Builds that time a larger scene faster (noise on small scenes, as on a device's tiny builds) fit a build law
+/// with its exponent held at 0, which the file accepts, instead of a negative exponent it would refuse.
+#[test]
+fn a_falling_build_time_fits_the_exponent_at_its_bound() {
+    let (mut samples, _) = known_samples(24);
+    for s in samples.iter_mut() {
+        let n = s.features.triangles as f64;
+        for m in s.measured.iter_mut().filter(|m| m.structure == StructureName::Grid) {
+            let t = 5.0 * n.powf(-0.3);
+            m.total_ms += t - m.build_ms_per_build;
+            m.build_ms_per_build = t;
+            m.build_ms = t;
+        }
+    }
+    let m = CostModel::fit(&samples, "test", "falling builds").expect("a model within range");
+    let grid = m.get(StructureName::Grid).unwrap();
+    assert_eq!(grid.build_exponent, 0.0, "{grid:?}");
+    // The intercept is the mean log build time at exponent 0.
+    let mean: f64 = samples
+        .iter()
+        .flat_map(|s| s.measured.iter().filter(|m| m.structure == StructureName::Grid))
+        .map(|m| m.build_ms_per_build.ln())
+        .sum::<f64>()
+        / samples.len() as f64;
+    assert!((grid.build_ln_a - mean).abs() < 1e-9, "{} vs {mean}", grid.build_ln_a);
+    assert!(CostModel::from_json(&m.to_json()).is_ok());
+}

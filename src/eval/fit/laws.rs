@@ -96,15 +96,23 @@ pub(super) fn fit_structure(
     let q = |ln_n: f64| range.map_or(0.0, |[lo, hi]| curvature_term(ln_n, lo, hi));
     let bx: Vec<Vec<f64>> = ln_ns.iter().map(|&x| vec![1.0, x, q(x)]).collect();
     let by: Vec<f64> = rows.iter().map(|(_, m)| m.build_ms_per_build.ln()).collect();
-    // No fit within the accepted ranges: the plain least squares, which the validation then refuses naming the
-    // constant out of range.
+    // No fit within the accepted ranges: the straight law with its exponent held in BUILD_EXPONENT_RANGE (the
+    // constrained least squares of one slope: the plain one, or at the bound it crosses with the intercept refitted;
+    // small, noisy builds can time a larger scene faster), which the validation refuses only for an intercept out
+    // of range.
     let in_range = |c: &[f64]| build_law_ok(c[0], c[1], c[2], range);
     let build = match fit_build_law(&bx, &by, &[2], &in_range) {
         Some(c) => c,
         None => {
             let x2: Vec<Vec<f64>> = bx.iter().map(|r| r[..2].to_vec()).collect();
             let c = linalg::weighted_ridge(&x2, &by, &vec![1.0; x2.len()], &[0.0, 1e-9]).ok_or_else(|| err("build"))?;
-            vec![c[0], c[1], 0.0]
+            let b = c[1].clamp(*BUILD_EXPONENT_RANGE.start(), *BUILD_EXPONENT_RANGE.end());
+            let a = if b == c[1] {
+                c[0]
+            } else {
+                bx.iter().zip(&by).map(|(r, y)| y - b * r[1]).sum::<f64>() / by.len().max(1) as f64
+            };
+            vec![a, b, 0.0]
         }
     };
     let build_work_coef = if PROBED.contains(&s) { fit_work_law(&rows, range) } else { Vec::new() };
