@@ -1761,7 +1761,8 @@ fn the_size_rung_characterizes_only_where_it_pays() {
     let mut model = CostModel::shipped().unwrap();
     let s = Selector::new(&model, w(1));
     let r = s.size_rung(n).expect("the shipped file has size laws, their errors and the stage laws");
-    assert_eq!(r.characterize, r.gain_ms > r.cost_ms && r.cost_ms <= r.allowed_ms, "{r:?}");
+    let budgeted = matches!(r.structure, Some(Structure::Grid | Structure::KdTree));
+    assert_eq!(r.characterize, budgeted || (r.gain_ms > r.cost_ms && r.cost_ms <= r.allowed_ms), "{r:?}");
     let d = s.select(&scene);
     assert_eq!(d.characterized, r.characterize);
     if !r.characterize {
@@ -1785,6 +1786,16 @@ fn the_size_rung_characterizes_only_where_it_pays() {
     let mut fixed = Selector::new(&model, w(1));
     fixed.inquiry = Inquiry::Fixed(Level::Prior);
     assert!(fixed.size_rung(n).is_none() && fixed.select(&scene).characterized);
+    // A size choice of the grid (its laws made far cheaper here) waits for the mesh's references: it characterizes.
+    let mut cheap_grid = CostModel::shipped().unwrap();
+    for m in cheap_grid.structures.iter_mut().filter(|m| m.structure == StructureName::Grid) {
+        m.build_ln_a -= 20.0;
+        let law = m.size.as_mut().expect("size laws");
+        law.box_coef[0] -= 10.0;
+        law.prim_coef[0] -= 10.0;
+    }
+    let r = Selector::new(&cheap_grid, w(1)).size_rung(n).unwrap();
+    assert!(r.structure == Some(StructureName::Grid) && r.characterize, "{r:?}");
     let camera = Camera::frame(&Aabb::new(feats[0].lo.into(), feats[0].hi.into()));
     assert!(Selector::new(&model, TargetWorkload { camera: Some(camera), ..w(1) }).size_rung(n).is_none());
 }

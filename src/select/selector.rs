@@ -265,7 +265,10 @@ impl<'m> Selector<'m> {
         let (gain_ms, cost_ms) =
             options.into_iter().max_by(|a, b| (a.0 - a.1).total_cmp(&(b.0 - b.1))).unwrap_or((0.0, base_ms));
         let structure = super::choose(&preds, self.tie_margin);
-        let characterize = gain_ms > cost_ms && cost_ms <= allowed_ms;
+        // The grid and the kd-tree are candidates only within the build budget (`budget`), which their references
+        // on the mesh decide: a size choice of either is no choice before they are known.
+        let budgeted = matches!(structure, Some(Structure::Grid | Structure::KdTree));
+        let characterize = budgeted || (gain_ms > cost_ms && cost_ms <= allowed_ms);
         Some(SizeRung { predicted: preds, structure, gain_ms, cost_ms, allowed_ms, characterize })
     }
 
@@ -406,7 +409,8 @@ pub struct SizeRung {
     pub cost_ms: f64,
     /// The decision budget over the predicted frames, ms.
     pub allowed_ms: f64,
-    /// Whether characterizing pays: the gain exceeds the cost, within the budget.
+    /// Whether to characterize: the gain exceeds the cost, within the budget, or the size laws chose the grid or
+    /// the kd-tree, which only the mesh's references can admit within the build budget.
     pub characterize: bool,
 }
 
