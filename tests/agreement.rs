@@ -199,3 +199,37 @@ fn the_bvh_keeps_one_copy_of_a_triangle_and_changes_no_hit() {
         assert!(want.hits.iter().chain(&got.hits).any(|h| h.is_some()) || rays.any_hit, "{kind:?}: no hit");
     }
 }
+
+/// `n` triangles with uniform random vertices in the unit square of the plane `z = 0`: their boxes overlap about a
+/// quarter of the square each.
+fn random_flat(n: usize, seed: u64) -> Mesh {
+    let mut g = meshchar::rng::SplitMix64::new(seed);
+    let positions: Vec<[f32; 3]> = (0..3 * n).map(|_| [g.next_f32(), g.next_f32(), 0.0]).collect();
+    let indices = (0..n as u32).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect();
+    Mesh::new(format!("random flat n={n}"), positions, indices).expect("mesh")
+}
+
+#[test]
+fn random_overlapping_triangles_in_one_plane_build_every_structure_and_agree() {
+    use meshchar::accel::kdtree::{KdOptions, KdTree};
+    // In a flat voxel the children's areas add up to their parent's, so the SAH keeps splitting however much it
+    // duplicates: before the kd-tree shared its budget down the tree, 1,000 of these needed over 2^25 references.
+    for (n, seed) in [(1000, 1), (300, 7)] {
+        let mesh = random_flat(n, seed);
+        let kd = KdTree::build(&mesh).expect("the kd-tree builds");
+        let stats = kd.validate().expect("valid kd-tree");
+        let budget = KdOptions::default().reference_budget(n);
+        assert!(stats.references <= budget, "{}: {stats:?} over {budget}", mesh.name);
+        let depth_limit = (8.0 + 1.3 * (n as f64).log2()).round() as usize;
+        assert!(stats.max_depth <= depth_limit, "{}: {stats:?}", mesh.name);
+        // A budget of its own is held too, however small.
+        let small = KdOptions { max_references_per_triangle: 4, min_reference_budget: 0, ..Default::default() };
+        let tight = KdTree::build_with(&mesh, &small).expect("a kd-tree under a small budget");
+        let s = tight.validate().expect("valid under a small budget");
+        assert!(s.references <= 4 * n && s.references >= n, "{}: {s:?}", mesh.name);
+        let brute = build_structure(StructureName::Brute, &mesh).expect("brute force");
+        let (bad, hits) = disagreements(&mesh, brute.as_ref(), 32);
+        assert!(hits > 0, "{}: no ray hits the plane", mesh.name);
+        assert!(bad.is_empty(), "{} disagreements:\n{}", bad.len(), bad.join("\n"));
+    }
+}

@@ -25,12 +25,13 @@
 //! * **Errors**: non-finite coordinates or out-of-range indices ([`AccelError::Mesh`]), more triangles than the node
 //!   encodings can address ([`AccelError::TooLarge`]), coordinates too far apart for f32 extents
 //!   ([`AccelError::CoordinateRange`]: the Morton keys of the LBVH and HLBVH, the grid's cells), centroid keys that
-//!   overflow f32 ([`AccelError::KeyOverflow`], LBVH and HLBVH), more references than the grid's or the kd-tree's
-//!   budget ([`AccelError::OverBudget`]). Building never panics on input.
+//!   overflow f32 ([`AccelError::KeyOverflow`], LBVH and HLBVH), more references than the grid's budget
+//!   ([`AccelError::OverBudget`]). Building never panics on input.
 //! * **Degenerate input** (coincident, collinear, coplanar triangles, fans of polygons over a few points): every
 //!   build stays within `O(n log n)` work, or, for the grid and the kd-tree, whose references can grow faster
-//!   than `n` on any input, within its reference budget ([`grid::GridOptions::reference_budget`],
-//!   [`kdtree::KdOptions::reference_budget`]); past it the build fails with [`AccelError::OverBudget`]. Tracing
+//!   than `n` on any input, within its reference budget: past [`grid::GridOptions::reference_budget`] the grid's
+//!   build fails with [`AccelError::OverBudget`]; the kd-tree stops splitting where a split would pass its share
+//!   of [`kdtree::KdOptions::reference_budget`], so it always builds. Tracing
 //!   is another matter: under the tie rule every ray that hits `k` coincident triangles tests all `k` of them.
 //! * **SAH cost** ([`sah_cost`]): `C = K_T * sum_internal SA(n)/SA(root) + K_I * sum_leaf SA(n)/SA(root) * refs(n)`
 //!   with `K_T = 1`, `K_I = 1` ([`SAH_TRAVERSAL_COST`], [`SAH_INTERSECTION_COST`]), the expected-cost model of

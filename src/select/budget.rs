@@ -575,7 +575,8 @@ pub fn grid_count_threshold(n: u64) -> u64 {
 }
 
 impl Budget {
-    /// The builders' own budgets (`GridOptions`, `KdOptions` defaults: 64 per triangle, at least `2^25`, 4 GiB):
+    /// The builders' own budgets (the `GridOptions` defaults: 64 per triangle, at least `2^25`, 4 GiB; the kd-tree,
+    /// which never fails, is held to the same):
     /// the loosest budget under which a kept grid never fails its build with `OverBudget`.
     pub const BUILDERS: Budget = Budget {
         references_per_triangle: 64.0,
