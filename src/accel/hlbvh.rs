@@ -2,7 +2,7 @@
 //! SAH over the clusters at the top), with the SAH leaf collapse of the [`super::lbvh`] step 7.
 //!
 //! The default options reach an SAH cost within 1.15 x the binned-SAH BVH's ([`super::bvh`]) on the shared static
-//! meshes (measured in `tests/gpu_lbvh.rs` and `benches/bvh_build.rs`; `docs/bvh-builders.md` has the table):
+//! meshes (measured in `tests/gpu/gpu_lbvh.rs` and `benches/bvh_build.rs`; `docs/bvh-builders.md` has the table):
 //! 21 cluster bits (7 of the 10 Morton bits per axis, up to 2^21 clusters; pbrt's 12 bits left 1.2 to 1.4 x, the
 //! Morton splits below the clusters being the expensive part) and leaves of up to 8 triangles where the SAH
 //! prefers them. Garanzha et al. 2011 ("Simpler and faster HLBVH with work queues", HPG) likewise build the SAH

@@ -94,7 +94,7 @@ pub(crate) fn central_moments(s: &CodeStats) -> (BigUint, BigInt) {
 ///   quotient, the f64 of `M2n` correctly rounded, a square root and one division (within a few ulp).
 ///
 /// So each figure is within a few units in the last place of the exact real value: the relative errors add up to
-/// below `1.5 * 2^-53` for `std_dev` (1 ulp) and `3.5 * 2^-53` for `skewness` (4 ulp); `tests/host_math.rs` checks
+/// below `1.5 * 2^-53` for `std_dev` (1 ulp) and `3.5 * 2^-53` for `skewness` (4 ulp); `src/characterize/tests/host_math.rs` checks
 /// all three against exact rationals. `n == 0` gives all zeros;
 /// `M2n == 0` (all codes equal, `n == 1`) gives `std_dev = skewness = 0`. Never NaN or infinite.
 pub(crate) fn moments(s: &CodeStats) -> Moments {

@@ -4,7 +4,7 @@
 //! Everything here except the oracle's timings is deterministic: the scenes come from seeded generators, the
 //! statistics are exact (identical on every backend, see `docs/spec.md`), and SAH costs, hit counts and traversal
 //! counters do not depend on timing or thread count. `examples/failure_study.rs` prints the tables of the study from
-//! these functions, and `tests/failure_study.rs` pins every claim of the study on them.
+//! these functions, and `tests/core/failure_study.rs` pins every claim of the study on them.
 
 use crate::accel::bvh::Bvh;
 use crate::accel::lbvh::Lbvh;

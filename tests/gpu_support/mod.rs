@@ -82,7 +82,7 @@ pub fn in_caller_command_buffer<T>(ctx: &Context, record: impl FnOnce(&mut meshc
 /// context from [`context`] or [`capped_context`] holds one while the context lives, and tests that create devices
 /// themselves take one for their whole run. The Khronos validation layer of Debian 12 (1.3.239) can crash when one
 /// thread creates a device while another calls into a different device: two core dumps of
-/// `tests/gpu_pipeline_cache.rs` (2 crashes in 1,575 runs) show one thread in `vkCreateDevice` and the other inside
+/// `tests/gpu/gpu_pipeline_cache.rs` (2 crashes in 1,575 runs) show one thread in `vkCreateDevice` and the other inside
 /// the layer, called from a command being recorded or from a pipeline being destroyed, jumping to a small address.
 /// A thread may hold several turns at once (a test that creates a second context while holding the first); other
 /// threads wait until it has dropped them all.

@@ -1,4 +1,4 @@
-//! The device builders' hooks into their own kernels, checked on the device (moved from `tests/gpu_lbvh.rs` when
+//! The device builders' hooks into their own kernels, checked on the device (moved from `tests/gpu/gpu_lbvh.rs` when
 //! the hooks became crate-private).
 
 use super::BvhBuilder;

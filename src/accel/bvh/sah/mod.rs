@@ -550,7 +550,7 @@ mod tests {
                 lowered += usize::from(a < b);
             }
         }
-        // The pass does something (on these scenes a little; tests/accel.rs checks Sponza, its case).
+        // The pass does something (on these scenes a little; tests/core/accel.rs checks Sponza, its case).
         assert!(lowered >= 4, "reinsertion lowered the SAH cost of {lowered} builds");
     }
 

@@ -1,6 +1,6 @@
 //! The Vulkan context: device choice, capability reporting, and a validation layer that really reports misuse.
 
-mod gpu_support;
+use crate::gpu_support;
 
 use meshchar::gpu::{enumerate_devices, Context, ContextDesc, GpuError, MemoryKind};
 

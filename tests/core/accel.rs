@@ -5,7 +5,7 @@
 //! * shared real meshes: every structure agrees with the BVH on primary, shadow and diffuse workloads, and the BVH
 //!   agrees with brute force on a sample.
 
-mod common;
+use crate::common;
 
 use common::shared_mesh;
 

@@ -3,8 +3,8 @@
 //! against the CPU reference. With the validation layer on; under `REQUIRE_GPU=1` a device without ray queries is
 //! a failure (CI installs lavapipe from Mesa 25, which has them).
 
-mod common;
-mod gpu_support;
+use crate::common;
+use crate::gpu_support;
 
 use meshchar::accel::device_trace::TraceRay;
 use meshchar::accel::driver::{hit_agrees, DriverBuilder, DriverFlags};

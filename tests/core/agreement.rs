@@ -3,7 +3,7 @@
 //! (flat, collinear, all equal, huge, tiny, slivers, overlapping, zero-area, duplicated), and the same as the
 //! binned-SAH BVH on every shared static mesh and a BART frame, for primary, shadow and diffuse rays; and on the flat
 //! lattice with zero-area triangles along its diagonal, where the grid's cells and budget are put to the test.
-mod common;
+use crate::common;
 
 use meshchar::accel::{build_structure, AccelStructure, StructureName};
 use meshchar::eval::failure_study::generated_cases;

@@ -9,7 +9,7 @@
 //! them first with `cargo build --release --examples` (as `scripts/test` does; `cargo test --examples` builds
 //! test harnesses instead). A missing binary, or one older than the sources, fails the test.
 
-mod example_binary;
+use crate::example_binary;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};

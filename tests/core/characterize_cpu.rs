@@ -1,7 +1,7 @@
 //! The CPU characterization: the naive reference and the rayon path agree bit for bit; moments agree with an f64
 //! two-pass; docs/spec.md's degenerate cases; sampling; 63-bit codes; the JSON report.
 
-mod common;
+use crate::common;
 
 use meshchar::characterize::{cpu, run, Backend, CharError, Characterization, ClassRule, MortonBits, Params};
 use meshchar::mesh::{Mesh, MeshError};

@@ -3,10 +3,9 @@
 //! Oracle claims are pinned through deterministic quantities (hit counts, traversal counters, SAH costs, grid
 //! references), never through timings.
 
-mod common;
-#[path = "../src/characterize/tests/exact.rs"]
-mod exact;
-mod gpu_support;
+use crate::common;
+use crate::exact;
+use crate::gpu_support;
 
 use meshchar::accel::bvh::Bvh;
 use meshchar::accel::grid::Grid;

@@ -4,7 +4,7 @@
 //! Runs on lavapipe with the validation layer on, one test at a time (`gpu_support::one_at_a_time`: these tests
 //! create devices back to back, and the validation layer can crash when a device is created beside work on another).
 
-mod gpu_support;
+use crate::gpu_support;
 
 use ash::vk;
 use meshchar::characterize::vulkan::VulkanBackend;

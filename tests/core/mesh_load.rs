@@ -1,6 +1,6 @@
 //! Loaders (OBJ, PLY, animations), their errors, the embedded scenes and the generators.
 
-mod common;
+use crate::common;
 
 use common::{shared_mesh, shared_meshes, temp_dir, temp_file};
 use meshchar::mesh::generate;

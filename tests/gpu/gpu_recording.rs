@@ -7,7 +7,7 @@
 //! CPU LBVH node for node; the refit equals a fresh build's boxes. No host wait happens inside the recording and
 //! the validation layer stays silent.
 
-mod gpu_support;
+use crate::gpu_support;
 
 use meshchar::accel::bvh::BvhTree;
 use meshchar::accel::gpu::BvhBuilder;

@@ -2,8 +2,8 @@
 //! extents, vertex bounds bit for bit) on real meshes, generated and degenerate ones, for 30- and 63-bit codes and
 //! sampled runs, with the validation layer silent.
 
-mod common;
-mod gpu_support;
+use crate::common;
+use crate::gpu_support;
 
 use meshchar::characterize::vulkan::VulkanBackend;
 use meshchar::characterize::{features_cpu, Features, MortonBits, Params};

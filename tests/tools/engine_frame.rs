@@ -8,10 +8,10 @@
 //! the examples first (`cargo build --release --examples`, as `scripts/test` does). A missing binary, or one older
 //! than the sources, fails the test.
 
-mod gpu_support;
+use crate::gpu_support;
 
+use crate::example_binary;
 use serde_json::Value;
-mod example_binary;
 
 use std::path::PathBuf;
 use std::process::{Command, Output, Stdio};

@@ -5,8 +5,8 @@
 //! origins inside and outside).
 //! With the validation layer on; every GPU test fails (never skips) under `REQUIRE_GPU=1`.
 
-mod common;
-mod gpu_support;
+use crate::common;
+use crate::gpu_support;
 
 use glam::Vec3;
 use meshchar::accel::device_trace::{DeviceLayout, DeviceStructure, DeviceTracer, TraceRay};

@@ -2,8 +2,8 @@
 //! exact code sums and therefore every reported float bit for bit, on every shared mesh (every stored BART frame
 //! included) and on generated meshes, degenerate ones included. Runs on lavapipe with the validation layer on.
 
-mod common;
-mod gpu_support;
+use crate::common;
+use crate::gpu_support;
 
 use meshchar::characterize::vulkan::VulkanBackend;
 use meshchar::characterize::{cpu, CharError, Characterization, ClassRule, MortonBits, Params};

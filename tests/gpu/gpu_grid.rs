@@ -4,8 +4,8 @@
 //! build with too small a reference array says how many it needs; the device-built grid traces like the host
 //! grid, ray by ray and count by count. With the validation layer on; fails (never skips) under `REQUIRE_GPU=1`.
 
-mod common;
-mod gpu_support;
+use crate::common;
+use crate::gpu_support;
 
 use meshchar::accel::device_trace::{DeviceLayout, DeviceTracer, TraceRay};
 use meshchar::accel::gpu::grid::{triangle_bounds, GridBuildError, GridBuilder, GridPlan};

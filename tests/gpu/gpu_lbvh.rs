@@ -8,8 +8,8 @@
 //! both sides compute with the same operations in the same order (see `accel::lbvh`, step 7), so they are compared
 //! exactly too.
 
-mod common;
-mod gpu_support;
+use crate::common;
+use crate::gpu_support;
 
 use ash::vk;
 use glam::Vec3;
