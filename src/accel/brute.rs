@@ -54,6 +54,7 @@ impl AccelStructure for BruteForce {
             references: n,
             bytes: self.memory_bytes(),
             reference_levels: n,
+            copies: 0,
         })
     }
     fn memory_bytes(&self) -> usize {

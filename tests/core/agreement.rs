@@ -233,3 +233,57 @@ fn random_overlapping_triangles_in_one_plane_build_every_structure_and_agree() {
         assert!(bad.is_empty(), "{} disagreements:\n{}", bad.len(), bad.join("\n"));
     }
 }
+
+#[test]
+fn copies_over_their_own_vertices_are_one_triangle_to_the_bvh_and_the_oracle() {
+    use meshchar::accel::bvh::Bvh;
+    use meshchar::eval::{evaluate_scene, OracleConfig};
+    use meshchar::mesh::Animation;
+    // 50,000 OBJ groups, each `f 1 2 3` over the same three vertices: the loader gives every group vertices of its
+    // own, so the copies share positions, not indices.
+    let dir = common::temp_dir("copies");
+    let path = dir.join("copies.obj");
+    let mut obj = String::from("v 0 0 0\nv 1 0 0\nv 0 1 0\n");
+    for g in 0..50_000 {
+        obj.push_str(&format!("g g{g}\nf 1 2 3\n"));
+    }
+    std::fs::write(&path, obj).expect("write the OBJ");
+    let mesh = meshchar::mesh::load_mesh(&path).expect("load");
+    assert_eq!(mesh.triangle_count(), 50_000);
+    assert!(mesh.indices[1] != mesh.indices[0], "the loader shared the vertices; the test needs copies");
+    let bvh = Bvh::build(&mesh).expect("bvh");
+    assert_eq!(bvh.tree().copies().len(), 49_999);
+    let stats = bvh.validate().expect("valid");
+    assert_eq!((stats.triangles, stats.references), (50_000, 1));
+    // Hits under the tie rule: triangle 0, as brute force finds it among the 50,000.
+    let brute = build_structure(StructureName::Brute, &mesh).expect("brute force");
+    let camera = Camera::frame(&mesh_bounds(&mesh));
+    for kind in [WorkloadKind::Primary, WorkloadKind::Shadow] {
+        let rays = build_workload(kind, &mesh, &camera, 24, brute.as_ref());
+        let (want, got) = (trace(brute.as_ref(), &rays), trace(&bvh, &rays));
+        assert_eq!(want.occluded, got.occluded, "{kind:?}");
+        assert!(want.hits.iter().zip(&got.hits).all(|(a, b)| hits_agree(a, b)), "{kind:?}");
+        assert!(got.hits.iter().flatten().all(|h| h.triangle == 0), "{kind:?}: a hit on a later copy");
+        assert!(rays.any_hit || got.hits.iter().any(|h| h.is_some()), "{kind:?}: no hit");
+    }
+    // The oracle's reference is this BVH: the scene is measured, not refused over its trace budget.
+    let scene = Animation::new("copies", vec![mesh.clone()]).expect("scene");
+    let config =
+        OracleConfig { resolution: 24, repeats: 1, structures: vec![StructureName::Bvh], ..Default::default() };
+    let e = evaluate_scene(&scene, &config, None, &|_| {}).expect("the oracle measures the copies");
+    let s = e.get(StructureName::Bvh).expect("bvh measured");
+    assert!(s.valid && s.hits_agree, "{:?}", s.error);
+    // A refit that moves one copy off the others fails, asking for a rebuild; one that moves all alike holds.
+    let mut moved = mesh.clone();
+    let v = moved.indices[7][1] as usize;
+    moved.positions[v][0] += 0.25;
+    let mut refitted = Bvh::build(&mesh).expect("bvh");
+    let err = refitted.refit(&moved).expect_err("a refit past a separated copy");
+    assert!(err.to_string().contains("rebuild"), "{err}");
+    let mut shifted = mesh.clone();
+    shifted.positions.iter_mut().for_each(|p| p[2] += 1.0);
+    refitted = Bvh::build(&mesh).expect("bvh");
+    refitted.refit(&shifted).expect("a refit that keeps the copies copies");
+    refitted.validate().expect("valid after the refit");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -180,17 +180,17 @@ pub struct BvhTree {
     pub(crate) nodes: Vec<BvhNode>,
     pub(crate) tris: Vec<Triangle>,
     pub(crate) ids: Vec<u32>,
-    /// Records in no leaf: copies of the triangle of another record (same vertex indices, larger triangle index),
+    /// Records in no leaf: copies of the triangle of another record (same positions, larger triangle index),
     /// as `(record, record kept)`; see [`BvhTree::copies`].
     pub(crate) copies: Vec<(u32, u32)>,
 }
 
 impl BvhTree {
     /// The triangle records that no leaf holds, each with the record that stands for it: copies of one triangle
-    /// (the same three vertex indices in the same order) that the binned-SAH builder found in a node of coincident
+    /// (the same three vertex positions, bit for bit, in the same order) that the binned-SAH builder found in a node of coincident
     /// centroids, where it keeps the copy of the smallest triangle index. Under the tie rule (equal `t`: the
     /// smallest triangle index) a copy never changes a hit, so the tree answers every ray as if all were there,
-    /// with fewer tests. The copies remain copies after [`BvhTree::refit`] (same vertex indices). Empty for the
+    /// with fewer tests. A [`BvhTree::refit`] that moves a copy off its kept triangle fails. Empty for the
     /// LBVH and HLBVH, whose trees equal the device builders' node for node.
     pub fn copies(&self) -> &[(u32, u32)] {
         &self.copies
@@ -297,7 +297,9 @@ impl BvhTree {
     /// # Errors
     ///
     /// [`AccelError::Invalid`] when `mesh` has another triangle count or the tree is malformed (an index out of
-    /// range, nodes that do not form one tree rooted at node 0), [`AccelError::Mesh`] for an invalid mesh.
+    /// range, nodes that do not form one tree rooted at node 0) or when a copy ([`BvhTree::copies`]) no longer has
+    /// its kept triangle's record bits (copies over their own vertices that moved apart: rebuild instead),
+    /// [`AccelError::Mesh`] for an invalid mesh.
     pub fn refit(&mut self, mesh: &Mesh) -> Result<(), AccelError> {
         mesh.validate()?;
         let bad = |reason: String| AccelError::Invalid { structure: "refit", reason };
@@ -309,6 +311,17 @@ impl BvhTree {
         }
         for (t, &id) in self.tris.iter_mut().zip(&self.ids) {
             *t = Triangle::new(&mesh.triangle(id as usize));
+        }
+        if let Some(&(copy, kept)) = self.copies.iter().find(|&&(c, k)| {
+            let bits =
+                |r: u32| self.tris.get(r as usize).map(|t| [t.v0, t.e1, t.e2].map(|x| x.to_array().map(f32::to_bits)));
+            bits(c) != bits(k)
+        }) {
+            return Err(bad(format!(
+                "triangle {} no longer coincides with triangle {}, whose copy the tree keeps: rebuild",
+                self.ids.get(copy as usize).copied().unwrap_or(copy),
+                self.ids.get(kept as usize).copied().unwrap_or(kept)
+            )));
         }
         let ids = &self.ids;
         fit_boxes(&mut self.nodes, |leaf| {

@@ -4,11 +4,13 @@
 //! all three axes evaluated, the plane of least `K_T * A + K_I * (A_L N_L + A_R N_R)` taken when it beats a leaf
 //! (`K_I * A * N`) or when the node holds more than [`BvhOptions::max_leaf`] triangles. Nodes whose centroids
 //! coincide, or deeper than 64 levels, are split at the object median. A node whose centroids coincide and that
-//! holds copies of one triangle (the same three vertex indices in the same order, as a polygon face over few
-//! points loads to) keeps only the copy of the smallest index: under the tie rule no other copy can be the closest
-//! hit (its record, `t`, `u` and `v` are the same bits) nor change an any-hit answer, and every ray that reaches them
-//! would otherwise test them all. The copies stay among the triangle records (so a refit, which keeps the vertex
-//! indices, keeps them copies) in no leaf; [`super::BvhTree::copies`] lists them. Subtrees above
+//! holds copies of one triangle (the same three vertex positions, bit for bit and in the same order, as a polygon
+//! face over few points loads to, or an OBJ whose groups repeat a face with vertices of their own) keeps only the
+//! copy of the smallest index: under the tie rule no other copy can be the closest hit (its record, `t`, `u` and `v`
+//! are the same bits) nor change an any-hit answer, and every ray that reaches them would otherwise test them all.
+//! The copies stay among the triangle records in no leaf; [`super::BvhTree::copies`] lists them, and a refit that
+//! moves a copy off its kept triangle fails (rebuild).  Copies in another vertex order are left alone: their `t`
+//! may differ in the last bit. Subtrees above
 //! [`BvhOptions::parallel_threshold`] triangles are built in parallel (`rayon::join`), and the binning of large
 //! nodes is parallel too; every subtree writes into its own slice of a preallocated array (a subtree of `k`
 //! triangles owns `2k - 1` slots), which a final pass compacts with siblings adjacent. Subtrees of at most 8
@@ -192,11 +194,24 @@ fn ranks_into(keys: &[u64], order: &mut [usize; EXACT_MAX]) {
     }
 }
 
-/// Sorts `refs` (whose centroids coincide) by vertex indices `same` and moves every copy of a triangle (equal
-/// vertex indices, larger triangle index) to the end, adding (copy, kept) triangle indices to `pairs`; returns the
-/// number of triangles kept (they come first, in vertex-index order).
-fn dedup_copies(refs: &mut [Ref], same: &[[u32; 3]], pairs: &mut Vec<(u32, u32)>) -> usize {
-    let key = |r: &Ref| same.get(r.idx() as usize).copied().unwrap_or([u32::MAX; 3]);
+/// The bits of triangle `i`'s three vertex positions in order (all ones past the mesh).
+fn position_bits(mesh: &Mesh, i: u32) -> [u32; 9] {
+    let mut out = [u32::MAX; 9];
+    if let Some(t) = mesh.indices.get(i as usize) {
+        for (k, &v) in t.iter().enumerate() {
+            if let Some(p) = mesh.positions.get(v as usize) {
+                out[3 * k..3 * k + 3].copy_from_slice(&p.map(f32::to_bits));
+            }
+        }
+    }
+    out
+}
+
+/// Sorts `refs` (whose centroids coincide) by the vertex positions of `same`'s triangles and moves every copy of a
+/// triangle (bit-identical positions in the same order, larger triangle index) to the end, adding (copy, kept)
+/// triangle indices to `pairs`; returns the number of triangles kept (they come first, in position order).
+fn dedup_copies(refs: &mut [Ref], same: &Mesh, pairs: &mut Vec<(u32, u32)>) -> usize {
+    let key = |r: &Ref| position_bits(same, r.idx());
     refs.sort_unstable_by(|a, b| key(a).cmp(&key(b)).then(a.idx().cmp(&b.idx())));
     let mut kept: Vec<Ref> = Vec::with_capacity(refs.len());
     let mut copies: Vec<Ref> = Vec::new();
@@ -271,7 +286,7 @@ fn build_small(refs: &mut [Ref], nodes: &mut [BvhNode], base: u32, first: u32, b
 /// What every node of one build reads.
 struct Ctx<'a> {
     o: BvhOptions,
-    same: Option<&'a [[u32; 3]]>,
+    same: Option<&'a Mesh>,
     /// (copy, kept) triangle indices of the copies dropped ([`dedup_copies`]).
     copies: &'a std::sync::Mutex<Vec<(u32, u32)>>,
 }
@@ -279,7 +294,7 @@ struct Ctx<'a> {
 impl Ctx<'_> {
     /// [`dedup_copies`] of `refs` (whose centroids coincide), the pairs added to the build's list; returns the
     /// number of triangles kept.
-    fn keep_one_copy(&self, refs: &mut [Ref], same: &[[u32; 3]]) -> usize {
+    fn keep_one_copy(&self, refs: &mut [Ref], same: &Mesh) -> usize {
         let mut pairs = Vec::new();
         let u = dedup_copies(refs, same, &mut pairs);
         // A poisoned lock only means another subtree panicked; its list is still whole.
@@ -409,14 +424,14 @@ pub(crate) fn compact_sibling_pairs_from(sparse: &[BvhNode], root: u32) -> Vec<B
     out
 }
 
-/// Builds a binned-SAH tree over triangle boxes; `same`, the triangles' vertex indices, lets it keep one of the
+/// Builds a binned-SAH tree over triangle boxes; `same`, the mesh of the boxes, lets it keep one of the
 /// copies of a triangle ([`dedup_copies`]). Returns the compact nodes, the order of the input boxes (the leaves'
 /// entries, and the dropped copies at the places their nodes had) and, per dropped copy, its position in that
 /// order and the position of the copy kept.
 pub(crate) fn build_sah_tree(
     boxes: &[Aabb],
     o: &BvhOptions,
-    same: Option<&[[u32; 3]]>,
+    same: Option<&Mesh>,
 ) -> (Vec<BvhNode>, Vec<u32>, Vec<(u32, u32)>) {
     let n = boxes.len();
     if n == 0 {
@@ -459,7 +474,7 @@ impl Bvh {
 
     fn build_here(mesh: &Mesh, options: &BvhOptions) -> Result<Self, AccelError> {
         let (tris, boxes) = prepare(mesh, "bvh")?;
-        let (mut nodes, order, copies) = build_sah_tree(&boxes, options, Some(&mesh.indices));
+        let (mut nodes, order, copies) = build_sah_tree(&boxes, options, Some(mesh));
         super::reinsert::reinsert(&mut nodes, options.reinsertion, REINSERTION_ROUNDS);
         let tris = order.par_iter().map(|&i| tris[i as usize]).collect();
         Ok(Bvh { tree: BvhTree { nodes, tris, ids: order, copies } })
