@@ -20,7 +20,7 @@ pub enum MortonBits {
 
 impl MortonBits {
     /// Bits per axis `b`.
-    pub fn per_axis(self) -> u32 {
+    pub(crate) fn per_axis(self) -> u32 {
         match self {
             MortonBits::Bits30 => 10,
             MortonBits::Bits63 => 21,
@@ -180,7 +180,7 @@ impl KeyBounds {
     pub const EMPTY: KeyBounds = KeyBounds { lo: [u32::MAX; 3], hi: [0; 3] };
 
     /// Bounds as the device reduces them: `[lo_x, lo_y, lo_z, hi_x, hi_y, hi_z]` in `ordered_bits` form.
-    pub fn from_ordered_bits(u: [u32; 6]) -> KeyBounds {
+    pub(crate) fn from_ordered_bits(u: [u32; 6]) -> KeyBounds {
         KeyBounds { lo: [u[0], u[1], u[2]], hi: [u[3], u[4], u[5]] }
     }
 
@@ -233,7 +233,7 @@ impl Quantizer {
     ///
     /// Errors: [`KeyError::Empty`] for empty bounds, [`KeyError::Extent`] when the bounds cannot be quantized in
     /// f32 (which includes bounds that are not finite: a caller that can name the overflowing key reports
-    /// [`KeyError::Overflow`] instead, as [`Quantizer::of_keys`] does).
+    /// [`KeyError::Overflow`] instead, as `Quantizer::of_keys` does).
     pub fn new(bounds: &KeyBounds, bits: MortonBits) -> Result<Quantizer, KeyError> {
         if bounds.is_empty() {
             return Err(KeyError::Empty);
@@ -246,7 +246,11 @@ impl Quantizer {
     /// Steps 1 to 3 over `key(j)` for `j` in `0 .. n`, in parallel: the bounds and the quantizer. When a key is
     /// not finite the error is [`KeyError::Overflow`] naming the first such `j`; a set of finite keys whose bounds
     /// cannot be quantized gives [`KeyError::Extent`].
-    pub fn of_keys(n: usize, key: impl Fn(usize) -> [f32; 3] + Sync, bits: MortonBits) -> Result<Quantizer, KeyError> {
+    pub(crate) fn of_keys(
+        n: usize,
+        key: impl Fn(usize) -> [f32; 3] + Sync,
+        bits: MortonBits,
+    ) -> Result<Quantizer, KeyError> {
         use rayon::prelude::*;
         let bounds = (0..n)
             .into_par_iter()
@@ -262,7 +266,7 @@ impl Quantizer {
     }
 
     /// [`Quantizer::of_keys`] over a slice of keys, one key at a time on the calling thread.
-    pub fn of_slice(keys: &[[f32; 3]], bits: MortonBits) -> Result<Quantizer, KeyError> {
+    pub(crate) fn of_slice(keys: &[[f32; 3]], bits: MortonBits) -> Result<Quantizer, KeyError> {
         let mut bounds = KeyBounds::EMPTY;
         for &k in keys {
             bounds.add(k);

@@ -27,7 +27,7 @@ impl SplitMix64 {
     }
 
     /// Uniform in `[0, 1)`, 53 random bits.
-    pub fn next_f64(&mut self) -> f64 {
+    pub(crate) fn next_f64(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
     }
 
@@ -37,7 +37,7 @@ impl SplitMix64 {
     }
 
     /// Standard normal (Box-Muller); always finite, since the logarithm's argument is in `(0, 1]`.
-    pub fn gaussian(&mut self) -> f64 {
+    pub(crate) fn gaussian(&mut self) -> f64 {
         let u1 = 1.0 - self.next_f64();
         let u2 = self.next_f64();
         (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()

@@ -8,7 +8,7 @@ use glam::Vec3;
 /// reproduces it to the bit (`turn_sin_cos` of `glsl/include/trace.glsl`, with the same constants): the quadrant
 /// from `4u`, then Taylor polynomials of degree 11 and 12 in Horner form on `[0, pi / 2)` (error below `1e-7`).
 /// The library `sin` and `cos` differ between platforms in the last bit.
-pub fn turn_sin_cos(u: f32) -> (f32, f32) {
+pub(crate) fn turn_sin_cos(u: f32) -> (f32, f32) {
     use crate::gpu::shaders::layout as l;
     let c = f32::from_bits;
     let t = u * 4.0;
@@ -35,7 +35,7 @@ pub fn turn_sin_cos(u: f32) -> (f32, f32) {
 
 /// Cosine-distributed unit direction about the unit normal `n`: the diffuse workload's (`trace::workload`) and
 /// [`crate::cost::probe()`]'s, two draws of `rng` each.
-pub fn cosine_direction(n: Vec3, rng: &mut crate::rng::SplitMix64) -> Vec3 {
+pub(crate) fn cosine_direction(n: Vec3, rng: &mut crate::rng::SplitMix64) -> Vec3 {
     let u1 = rng.next_f32();
     let u2 = rng.next_f32();
     let r = u1.sqrt();
@@ -49,7 +49,7 @@ pub fn cosine_direction(n: Vec3, rng: &mut crate::rng::SplitMix64) -> Vec3 {
 /// The diffuse bounce of the `index`-th primary ray of a sample seeded with `seed`: [`cosine_direction`] about `n`
 /// from a generator mixed from the two, as the diffuse workload (`trace::workload`) and the probes
 /// ([`crate::cost::probe()`]) both draw it.
-pub fn diffuse_direction(n: Vec3, seed: u64, index: usize) -> Vec3 {
+pub(crate) fn diffuse_direction(n: Vec3, seed: u64, index: usize) -> Vec3 {
     let mut rng = crate::rng::SplitMix64(seed ^ (index as u64).wrapping_mul(0x2545_f491_4f6c_dd1d));
     cosine_direction(n, &mut rng)
 }

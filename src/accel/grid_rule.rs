@@ -189,13 +189,9 @@ impl CellRun {
         u64::from(self.to - self.from) + 1
     }
 
-    /// Never empty: a run holds at least one cell.
-    pub fn is_empty(&self) -> bool {
-        false
-    }
-
     /// The cell (x, y, z) of the run's `k`-th cell along `axes[2]` (`from <= k <= to`).
-    pub fn cell(&self, k: u32) -> [u32; 3] {
+    #[cfg(feature = "eval")]
+    pub(crate) fn cell(&self, k: u32) -> [u32; 3] {
         let mut c = [0u32; 3];
         (c[self.axes[0]], c[self.axes[1]], c[self.axes[2]]) = (self.slab, self.row, k);
         c
@@ -251,7 +247,7 @@ impl Clipper {
 
 impl GridFrame {
     /// The cells of box `b` widened by `WIDEN` of a cell (f32): inclusive index ranges per axis.
-    pub fn box_cells(&self, b: &Aabb) -> ([u32; 3], [u32; 3]) {
+    pub(crate) fn box_cells(&self, b: &Aabb) -> ([u32; 3], [u32; 3]) {
         let lo = ((b.min - self.bounds.min) * self.inv_cell - WIDEN).floor();
         let hi = ((b.max - self.bounds.min) * self.inv_cell + WIDEN).floor();
         let cl = |v: f32, a: usize| v.clamp(0.0, (self.res[a] - 1) as f32) as u32;
@@ -298,7 +294,7 @@ impl GridFrame {
     /// shortest side and row by row across the next, until `f` returns `false` (the rule of `accel::grid`'s module
     /// docs: one clip per slab and one per row, the runs as long as they can be). A zero-area triangle, and one
     /// whose clipping misses every cell through rounding, is stored in the cell of its box's centre.
-    pub fn for_each_run(&self, t: &Triangle, b: &Aabb, mut f: impl FnMut(CellRun) -> bool) {
+    pub(crate) fn for_each_run(&self, t: &Triangle, b: &Aabb, mut f: impl FnMut(CellRun) -> bool) {
         let (lo, hi) = self.box_cells(b);
         if lo == hi {
             // A box in one cell: every path below stores the triangle there and only there (the runs lie in the
@@ -337,7 +333,7 @@ impl GridFrame {
 
     /// The number of cells triangle `t` (box `b`) is stored in ([`GridFrame::for_each_run`]), counted up to `cap`
     /// (a count that reaches `cap` stops there): one clip per row.
-    pub fn cell_count(&self, t: &Triangle, b: &Aabb, cap: u64) -> u64 {
+    pub(crate) fn cell_count(&self, t: &Triangle, b: &Aabb, cap: u64) -> u64 {
         let mut c = 0u64;
         self.for_each_run(t, b, |r| {
             c = c.saturating_add(r.len());
@@ -349,7 +345,7 @@ impl GridFrame {
     /// An upper bound of [`GridFrame::cell_count`] at one clip per slab: per slab, the product of the slab's
     /// cells along the two other axes (the rows within a slab are parts of it, so their runs lie within that
     /// product); exact for a triangle one slab thick and one row wide.
-    pub fn slab_bound(&self, t: &Triangle, b: &Aabb) -> u64 {
+    pub(crate) fn slab_bound(&self, t: &Triangle, b: &Aabb) -> u64 {
         let (lo, hi) = self.box_cells(b);
         let boxed: u64 = (0..3).map(|a| u64::from(hi[a].saturating_sub(lo[a])) + 1).product();
         let Some(cl) = self.clipper(t, lo, hi) else { return 1 };

@@ -92,7 +92,7 @@ pub struct Derived {
 impl Features {
     /// The scene's triangle count, `n` in every law of the cost model and the selection: the larger of the mesh's
     /// ([`Features::total_triangles`]) and the count characterized ([`Features::triangles`]).
-    pub fn scene_triangles(&self) -> u64 {
+    pub(crate) fn scene_triangles(&self) -> u64 {
         self.total_triangles.max(self.triangles)
     }
 

@@ -41,13 +41,13 @@ pub const CLOSE_CALL_MARGIN: f64 = 0.2;
 /// can take 1.5x a warm one); five chose no better than three in one run.
 pub const MEASURED_REPEATS: usize = 3;
 
-/// The most rays one measured frame may hold (`resolution^2`, 4096 x 4096): [`measure_frames`] measures nothing
+/// The most rays one measured frame may hold (`resolution^2`, 4096 x 4096): `measure_frames` measures nothing
 /// beyond, so that a caller's resolution never sizes an unbounded allocation (at the cap, shadow or diffuse rays
 /// hold the primary rays and their own, 512 MiB each, and each trace writes 320 MiB of hits, beside the structure).
 pub const MAX_MEASURED_RAYS: u64 = 1 << 24;
 
 /// The most a measured close call may take by the predictions unless the caller says otherwise, ms
-/// ([`measuring_cost_ms`]; `select::MeasureBudget::DEFAULT_MAX_MS`, `--measure-max-ms`): 2 s.
+/// (`measuring_cost_ms`; `select::MeasureBudget::DEFAULT_MAX_MS`, `--measure-max-ms`): 2 s.
 pub const DEFAULT_MAX_MS: f64 = 2000.0;
 
 /// The structures of `preds` whose predicted total is finite and within [`CLOSE_CALL_MARGIN`] of the least, the
@@ -110,7 +110,7 @@ impl FrameTiming {
 /// caller's budget has already excluded what it would not build); a structure that does not build has no timing,
 /// and nothing is measured beyond [`MAX_MEASURED_RAYS`] primary rays. The rays are made once, from the first structure built (not timed); every
 /// structure traces the same rays.
-pub fn measure_frames(
+pub(crate) fn measure_frames(
     mesh: &Mesh,
     camera: &Camera,
     resolution: u32,
@@ -185,7 +185,7 @@ fn trace_frame(accel: &dyn AccelStructure, rays: &[Ray], any_hit: bool) -> f64 {
 /// What measuring `close` (a close call of `preds`) would take by the predictions, ms: [`MEASURED_WARMUP`] +
 /// [`MEASURED_REPEATS`] builds and traced frames of each (a frame's trace is the predicted trace over `frames` frames
 /// divided by them). An estimate: the untimed primary frame that makes shadow and diffuse rays is not counted.
-pub fn measuring_cost_ms(preds: &[super::Prediction], close: &[StructureName], frames: u64) -> f64 {
+pub(crate) fn measuring_cost_ms(preds: &[super::Prediction], close: &[StructureName], frames: u64) -> f64 {
     preds
         .iter()
         .filter(|p| close.contains(&p.structure))
@@ -198,7 +198,7 @@ pub fn measuring_cost_ms(preds: &[super::Prediction], close: &[StructureName], f
 /// The choice a measured close call makes from predictions `preds` for a workload of `builds` builds and `frames`
 /// frames, given the frames measured (`timings`, at least those of the close call): the close call's structure
 /// with the least measured total; `None` when there is no close call ([`close_calls`]), when measuring it would
-/// take more than `max_ms` by the predictions ([`measuring_cost_ms`]), or when none of it was measured.
+/// take more than `max_ms` by the predictions (`measuring_cost_ms`), or when none of it was measured.
 pub fn settle(
     preds: &[super::Prediction],
     timings: &[FrameTiming],

@@ -106,7 +106,7 @@
 //!   curvature (of either law), `build_ln_n_range` is `[lo, hi]`, both finite in `[0, BUILD_LN_N_LIMIT]`
 //!   ([`BUILD_LN_N_LIMIT`], `ln 2^40`, so that the term stays finite) and `lo <= hi` (the sizes the law was fitted
 //!   on); without one it may be absent. Each curved law's slopes in `ln n` at `lo` and `hi`
-//!   ([`build_law_slopes`]), which it keeps beyond them, lie in [`BUILD_EXPONENT_RANGE`], for the reasons of `b`.
+//!   (`build_law_slopes`), which it keeps beyond them, lie in [`BUILD_EXPONENT_RANGE`], for the reasons of `b`.
 //! * Each of `box_coef` and `prim_coef` has one coefficient per [`FEATURE_NAMES`], each of magnitude at most
 //!   [`COEF_LIMIT`] (1000): a coefficient is the change of `ln` tests per ray per unit of a feature, and
 //!   [`StructureModel::predict`] clamps `theta . phi` to `±30`; with every `|phi_j| <= 45` (`ln n <= ln 2^64`, the
@@ -143,10 +143,11 @@ pub mod registry;
 pub mod view;
 
 pub mod overlap;
+pub(crate) use overlap::priced_floor;
 pub mod probe;
 pub mod timed;
 pub use overlap::{
-    crossings_feature, near_crossings, near_sample_side, overlap_floor, priced_floor, screen_crossings,
+    crossings_feature, near_crossings, near_sample_side, overlap_floor, screen_crossings,
     secondary_rays_leave_the_plane, CountBounds, Crossings, NearCrossings, RayCrossings, SampledMean,
     StructureCountBounds, TestFloor, ViewCrossings, NEAR_SAMPLES,
 };
@@ -286,7 +287,7 @@ pub const BUILD_CURVATURE_RANGE: RangeInclusive<f64> = 0.0..=1.0;
 
 /// The `ln n` about which the curvature terms are centred: `ln 22026`, mid-way through the calibration sizes. The
 /// centre re-parametrizes `a` and `b` (`b` is the law's slope in `ln n` there); the slopes at the edges of the
-/// fitted sizes, which the law keeps beyond them, are checked apart ([`build_law_slopes`]).
+/// fitted sizes, which the law keeps beyond them, are checked apart (`build_law_slopes`).
 pub const BUILD_CURVATURE_CENTER: f64 = 10.0;
 
 /// The least span of `ln n` over a structure's calibration builds for a curvature to be fitted: `ln 30` (3.4012),
@@ -320,7 +321,7 @@ pub fn curvature_term(x: f64, lo: f64, hi: f64) -> f64 {
 /// (its slope at the centre) and curvature `d`: `b + 2 d (edge - BUILD_CURVATURE_CENTER)`. Beyond the edges the law
 /// keeps them; both must lie in [`BUILD_EXPONENT_RANGE`] (no build gets faster with more triangles, none is worse
 /// than quadratic), which the fit holds and the validation checks.
-pub fn build_law_slopes(b: f64, d: f64, lo: f64, hi: f64) -> [f64; 2] {
+pub(crate) fn build_law_slopes(b: f64, d: f64, lo: f64, hi: f64) -> [f64; 2] {
     [lo, hi].map(|e| b + 2.0 * d * (e - BUILD_CURVATURE_CENTER))
 }
 
@@ -850,7 +851,7 @@ pub struct InquiryCost {
 
 impl InquiryCost {
     /// The stage's name for a probe of `structure`.
-    pub fn probe_stage(structure: StructureName) -> String {
+    pub(crate) fn probe_stage(structure: StructureName) -> String {
         format!("probe:{structure}")
     }
 
@@ -1094,7 +1095,7 @@ impl CostModel {
     }
 
     /// The predicted ms of decision stage `stage` ([`InquiryCost`]) for `n` triangles; `None` without its law.
-    pub fn inquiry_ms(&self, stage: &str, n: u64) -> Option<f64> {
+    pub(crate) fn inquiry_ms(&self, stage: &str, n: u64) -> Option<f64> {
         self.inquiry_costs.iter().find(|c| c.stage == stage).map(|c| c.ms(n))
     }
 

@@ -6,7 +6,7 @@
 //! (`docs/results/2026-12-04-cost-model-degenerate-overlap-floor.md`). [`Crossings`] measures the overlap exactly from the mesh,
 //! [`Crossings::for_workload`] turns it into the boxes a ray of a workload crosses on average ([`RayCrossings`]),
 //! and [`overlap_floor`] bounds the hierarchies' box and triangle tests per ray, and the grid's triangle tests per
-//! primary ray, from below with it. Where the view was probed ([`Crossings::with_probes`]), [`overlap_floor`] also
+//! primary ray, from below with it. Where the view was probed (`Crossings::with_probes_but`), [`overlap_floor`] also
 //! carries each probed structure's sampled counts and build work, and bounds the one unprobed hierarchy, the
 //! kd-tree, from below by the probed hierarchies' fewest triangle tests ([`CountBounds::kd_tree_prim_floor`]).
 //!
@@ -21,7 +21,7 @@
 //!
 //! That parallel estimate misses perspective: a camera close to dense geometry sees it magnified. So a camera's
 //! crossings are counted on its image ([`screen_crossings`]: per triangle box, the share of the image its screen
-//! rectangle covers, summed; one more pass over the boxes) and kept with the crossings ([`Crossings::with_view`],
+//! rectangle covers, summed; one more pass over the boxes) and kept with the crossings (`Crossings::with_view`,
 //! [`crate::select::BuildBounds::of_mesh_viewed`] for the camera the policy is given, the framing one without);
 //! [`Crossings::per_ray`] takes that count for that camera and the parallel estimate for any other. On the
 //! engineering family at 200K triangles seen close up the count is 2,163 boxes per ray, the parallel estimate 150.
@@ -88,7 +88,7 @@ pub struct Crossings {
     /// The scene box's face areas.
     pub scene: [f64; 3],
     /// The crossings of one camera counted on its image ([`screen_crossings`]), when computed
-    /// ([`Crossings::with_view`]): [`Crossings::per_ray`] takes them for that camera.
+    /// (`Crossings::with_view`): [`Crossings::per_ray`] takes them for that camera.
     pub view: Option<ViewCrossings>,
     /// Per face of the scene's box (`-x, +x, -y, +y, -z, +z`), the share of it covered by triangles lying in its
     /// plane: their areas summed over the face's, at most 1 (overlapping triangles in the plane count twice, up to
@@ -121,7 +121,7 @@ pub struct ViewCrossings {
     pub near: Option<NearCrossings>,
     /// On a sample of its primary rays (that of [`ViewCrossings::near`] where it is counted) and the shadow and
     /// diffuse rays their hits start, the own tests per ray of each structure of [`super::PROBED`], in that order
-    /// ([`super::probe()`]): counted where the caller has the mesh of a static scene ([`Crossings::with_probes`]);
+    /// ([`super::probe()`]): counted where the caller has the mesh of a static scene (`Crossings::with_probes_but`);
     /// `None` for a structure that did not build.
     pub probes: [Option<super::Probe>; super::probe::PROBES],
 }
@@ -239,7 +239,7 @@ impl Crossings {
     }
 
     /// The crossings of a mesh, its triangles' boxes computed here, with the view of `camera` counted on its image
-    /// ([`Crossings::with_view`]; `None`: the framing camera of the mesh's box, what the policy assumes without a
+    /// (`Crossings::with_view`; `None`: the framing camera of the mesh's box, what the policy assumes without a
     /// camera). [`crate::select::BuildBounds::of_mesh_viewed`] records the same.
     pub fn of_mesh_viewed(mesh: &Mesh, camera: Option<&Camera>) -> Crossings {
         Crossings::of_first_frame_viewed(mesh, camera, 1)
@@ -255,7 +255,7 @@ impl Crossings {
     /// [`Crossings::of_first_frame_viewed`], and what its parts took on this machine (wall time, ms): the
     /// crossings (the boxes, their sums, the view's count on its image and the boxes entered before the hits) and
     /// each probe of [`super::PROBED`] (0 for a structure not probed).
-    pub fn of_first_frame_timed(
+    pub(crate) fn of_first_frame_timed(
         mesh: &Mesh,
         camera: Option<&Camera>,
         frames: usize,
@@ -294,7 +294,7 @@ impl Crossings {
 
     /// [`Crossings::with_view`] of `camera`, or of the framing camera of `scene` (the triangles' union) when `None`;
     /// no view for an empty or non-finite scene. With no triangles in `tris`, no boxes entered before the hits.
-    pub fn viewed_from(
+    pub(crate) fn viewed_from(
         self,
         boxes: &[Aabb],
         tris: &[crate::geom::Triangle],
@@ -477,7 +477,7 @@ impl Crossings {
     /// and, on a sample of its rays, in front of their first hits ([`near_crossings`] of `boxes` and `tris`, the
     /// triangles, in the same order; not with no triangles, nor below [`Crossings::NEAR_FROM`]); `framing`: it is the
     /// framing camera of the scene's box, [`super::view::framing_camera`].
-    pub fn with_view(
+    pub(crate) fn with_view(
         mut self,
         boxes: &[Aabb],
         tris: &[crate::geom::Triangle],
@@ -495,13 +495,9 @@ impl Crossings {
     /// ([`super::probe()`], [`ViewCrossings::probes`]): the primary sample [`ViewCrossings::near`] is counted on where
     /// the view is dense enough for it ([`near_sample_side`]), 32 x 32 rays otherwise; unchanged without a view. For
     /// a static scene: an animation's later frames are not what the probes built.
-    pub fn with_probes(self, mesh: &Mesh, scene: &Aabb) -> Crossings {
-        self.with_probes_but(mesh, scene, &[])
-    }
-
-    /// [`Crossings::with_probes`] without probing the structures of `skip` (no probe for them): a caller that
-    /// already knows a structure is out of its budget (the selection's bounds, for a grid over it) spares its build.
-    pub fn with_probes_but(mut self, mesh: &Mesh, scene: &Aabb, skip: &[StructureName]) -> Crossings {
+    /// Structures of `skip` get no probe: a caller that already knows a structure is out of its budget (the
+    /// selection's bounds, for a grid over it) spares its build.
+    pub(crate) fn with_probes_but(mut self, mesh: &Mesh, scene: &Aabb, skip: &[StructureName]) -> Crossings {
         if let Some(v) = self.view.as_mut() {
             let side = near_sample_side(v.all);
             v.probes = super::PROBED.map(|s| {
@@ -515,7 +511,7 @@ impl Crossings {
         self
     }
 
-    /// Per primary ray of `camera` (`None`: the framing camera of the box, [`super::view::framing_camera`]) over
+    /// Per primary ray of `camera` (`None`: the framing camera of the box, `super::view::framing_camera`) over
     /// the box `lo`..`hi` (the one [`ViewFeatures::of`] reads). With [`Crossings::view`] of that camera (`None`
     /// matches a view of the framing camera): its count on the image, the distinct and non-degenerate shares
     /// taken from the face sums along its forward direction. Otherwise the crossings along its forward direction
@@ -1279,7 +1275,7 @@ pub fn overlap_floor(
 /// from the mesh (`select::BuildBounds::grid_build_work`), which prices its build by the work law
 /// ([`super::StructureModel::build_work_coef`]) in place of the probe's work or the law in `n`; 0 leaves the floor
 /// as [`overlap_floor`] gives it.
-pub fn priced_floor(
+pub(crate) fn priced_floor(
     bounds: &CountBounds,
     structure: StructureName,
     kind: WorkloadKind,

@@ -10,7 +10,7 @@
 //! law says). For every view of a static scene it is given, the policy builds the LBVH (the cheapest hierarchy to
 //! build), the binned-SAH BVH (the one it picks most), the BIH, the grid and the HLBVH ([`PROBED`]) and counts what
 //! they do
-//! ([`super::Crossings::with_probes`]): the same builders with the same options the oracle and the engine use (the
+//! (`Crossings::with_probes_but`): the same builders with the same options the oracle and the engine use (the
 //! grid within the default selection budget), so that the counts are the structures' own on the sampled rays. The
 //! primary sample is [`super::near_crossings`]'s where that pass runs (the rays through the pixel centres of a square
 //! image of the camera, at most 32 x 32), the full 32 x 32 otherwise; on request, shadow and diffuse rays start at
@@ -55,7 +55,7 @@ impl ProbeCounts {
     }
 }
 
-/// The structures the policy probes ([`super::Crossings::with_probes`]): the LBVH, the binned-SAH BVH, the BIH, the
+/// The structures the policy probes (`Crossings::with_probes_but`): the LBVH, the binned-SAH BVH, the BIH, the
 /// grid and the HLBVH. The BIH and the grid were added on 2026-12-05, once the band read
 /// counts on `ln(1 + count)`: held out by family on the scene families, `calibrated_cv` 4.0% -> 2.8% (the engineering
 /// family 11.5% -> 5.6%); without the BIH 4.8% (its sliver error is its own: 21% on the engineering family). The
@@ -130,7 +130,7 @@ const PROBE_SEED: u64 = 0x7072_6f62_655f_6c62;
 /// `side x side` rays of `camera` through the pixel centres, then, with `secondary`, a shadow and a diffuse ray from
 /// each hit, counting the tests of each ray ([`Probe`]; without `secondary` its shadow and diffuse counts are empty,
 /// no ray); `bounds` is the box of the mesh's triangles (where the secondary rays' offsets and the light come from).
-/// The policy traces all three ([`super::Crossings::with_probes`]). `None` when the structure cannot be built (an
+/// The policy traces all three (`Crossings::with_probes_but`). `None` when the structure cannot be built (an
 /// invalid mesh, too many triangles, a structure this build lacks) or for `side` 0. Deterministic: the counts are
 /// integers and each ray is traced alone.
 pub fn probe(

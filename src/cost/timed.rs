@@ -118,7 +118,7 @@ pub fn kind_index(kind: WorkloadKind) -> usize {
 /// fastest of up to [`TIMED_REPEATS`] traces per kind. A structure that does not build (or a grid past the
 /// probes' budget, [`super::probe::PROBE_GRID_BUDGET`]) has no probe. Every structure traces the same rays: the
 /// secondary rays start at the first built structure's hits.
-pub fn time_probes(
+pub(crate) fn time_probes(
     mesh: &Mesh,
     camera: &Camera,
     structures: &[StructureName],

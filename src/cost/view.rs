@@ -39,7 +39,7 @@ pub struct ViewFeatures {
 }
 
 /// The camera the policy assumes without a view: [`Camera::frame`] of the box `lo`..`hi`.
-pub fn framing_camera(lo: [f32; 3], hi: [f32; 3]) -> Camera {
+pub(crate) fn framing_camera(lo: [f32; 3], hi: [f32; 3]) -> Camera {
     Camera::frame(&Aabb { min: Vec3::from_array(lo), max: Vec3::from_array(hi) })
 }
 

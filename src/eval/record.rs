@@ -606,13 +606,13 @@ fn record_camera(camera: Option<crate::geom::Camera>, mesh: &crate::mesh::Mesh) 
 /// What [`load_samples_admitted`] measures anew on this machine, beside the records.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SampleProbes {
-    /// The timed probes of every static scene's camera ([`crate::cost::timed::time_probes`] of every structure this
+    /// The timed probes of every static scene's camera (`crate::cost::timed::time_probes` of every structure this
     /// build has, every kind of ray; taken once per scene and camera, on this machine, now) in [`Sample::timed`]:
     /// what the timed policy's ratios are fitted on ([`crate::cost::timed::TimedRatios::fit`]) and what it blends
     /// in. Records of animations get none.
     pub timed: bool,
     /// Whole frames of every static record's workload at its resolution, through every structure this build has
-    /// ([`crate::cost::measured::measure_frames`], [`crate::cost::measured::MEASURED_REPEATS`] times each after
+    /// (`crate::cost::measured::measure_frames`, [`crate::cost::measured::MEASURED_REPEATS`] times each after
     /// [`crate::cost::measured::MEASURED_WARMUP`] untimed rounds):
     /// [`Sample::frame_timings`], what a measured close call reads ([`crate::cost::measured::settle`]). Records of
     /// animations, or of several frames measured, or rebuilt every frame, get none.

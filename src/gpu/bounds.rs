@@ -21,7 +21,7 @@ impl PointBounds {
     }
 
     /// Builds the pipeline with a given workgroup size (`None`: the device's default) and items per invocation.
-    pub fn with_tuning(ctx: &Context, workgroup_size: Option<u32>, items: u32) -> Result<Self> {
+    pub(crate) fn with_tuning(ctx: &Context, workgroup_size: Option<u32>, items: u32) -> Result<Self> {
         let items = items.max(1);
         let mut desc = KernelDesc::new(&shaders::bounds::INFO).constant("ITEMS", items);
         desc.workgroup_size = workgroup_size;

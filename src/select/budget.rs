@@ -21,7 +21,7 @@
 //! (or the smaller grid budget a caller passes to [`BuildBounds::of_frames_viewed_within`]), the budget's verdict
 //! and the grid's priced build rest on it, and it can be several times the grid's count (large triangles cross many rows of a slab:
 //! 39.3 million against 9.8 million for 20,000 large overlapping triangles), so the references are then **counted
-//! exactly**, by the grid's own rule ([`GridFrame::for_each_run`]: one clip per row, the same code the grid builds
+//! exactly**, by the grid's own rule (`GridFrame::for_each_run`: one clip per row, the same code the grid builds
 //! with), in index order until the count passes the grid builder's own budget ([`Budget::BUILDERS`]; past it the
 //! figure stays an upper bound, [`Bound::Upper`], and no budget keeps a grid that builds); 77 ms against the slab
 //! bound's 9 ms there, 3 ms for a fan of 2,000 triangles over one polygon, and nothing on a scene within the
@@ -229,7 +229,7 @@ impl BuildBounds {
             .then_some(self.grid_references as f64)
     }
 
-    /// These bounds with the timed probes ([`crate::cost::timed::time_probes`]) of `mesh` (a static scene) seen
+    /// These bounds with the timed probes (`crate::cost::timed::time_probes`) of `mesh` (a static scene) seen
     /// from `camera` (`None`: the framing camera of its box) for rays of `kind`: each of `structures` that `budget`
     /// does not exclude ([`Budget::check`]) built once and traced on a sample of the view
     /// ([`super::Selector`] at level 2 probes the contenders of a first selection only).
@@ -269,8 +269,8 @@ impl BuildBounds {
         BuildBounds::of_mesh_viewed(mesh, None)
     }
 
-    /// [`BuildBounds::of_mesh_with`] under the grid's default rule, with the crossings of `camera`'s primary rays
-    /// counted on its image ([`Crossings::viewed_from`]; `None`: the framing camera, what the policy assumes
+    /// `BuildBounds::of_mesh_with` under the grid's default rule, with the crossings of `camera`'s primary rays
+    /// counted on its image (`Crossings::viewed_from`; `None`: the framing camera, what the policy assumes
     /// without one), from the same triangle boxes ([`crate::cost::screen_crossings`]: 4.9 ms of this pass's 24
     /// ms for 200,000 triangles on the 2-core VM, `cargo bench --bench accel -- screen_crossings`).
     pub fn of_mesh_viewed(mesh: &Mesh, camera: Option<&crate::geom::Camera>) -> Result<BuildBounds, MeshError> {
@@ -308,7 +308,7 @@ impl BuildBounds {
 
     /// [`BuildBounds::of_frames_viewed_within`] with count probes of `probes` only (of those [`crate::cost::PROBED`]
     /// holds; none for an animation): what the selection's first level of inquiry learns.
-    pub fn of_frames_probed(
+    pub(crate) fn of_frames_probed(
         frames: &[Mesh],
         camera: Option<&crate::geom::Camera>,
         budget: &Budget,
@@ -330,7 +330,8 @@ impl BuildBounds {
     }
 
     /// [`BuildBounds::of_mesh`] under a given grid rule, without a camera's view of the crossings.
-    pub fn of_mesh_with(mesh: &Mesh, rule: &GridRule) -> Result<BuildBounds, MeshError> {
+    #[cfg(feature = "eval")]
+    pub(crate) fn of_mesh_with(mesh: &Mesh, rule: &GridRule) -> Result<BuildBounds, MeshError> {
         BuildBounds::of_mesh_counted(mesh, rule, None, &Budget::default())
     }
 
@@ -413,7 +414,7 @@ impl BuildBounds {
     }
 
     /// [`BuildBounds::of_features`] under a given grid rule.
-    pub fn of_features_with(f: &Features, rule: &GridRule) -> BuildBounds {
+    pub(crate) fn of_features_with(f: &Features, rule: &GridRule) -> BuildBounds {
         let n = f.scene_triangles();
         let scene = Aabb::new(Vec3::from_array(f.lo), Vec3::from_array(f.hi));
         if n == 0 || f.triangles == 0 || scene.is_empty() || !(scene.max - scene.min).is_finite() {

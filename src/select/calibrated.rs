@@ -513,7 +513,7 @@ impl Policy for CalibratedPolicy {
 /// structures' fit errors of the total ([`crate::cost::FitError::total`], RMS of `ln(predicted / measured)` on the
 /// calibration records, in sample, so a lower bound of the error on an unseen scene): a close call where the log of
 /// the ratio is below the two errors combined (`sqrt(e1^2 + e2^2)`). `None` with a single candidate.
-pub fn margin_reason(model: &CostModel, preds: &[Prediction], choice: StructureName) -> Option<String> {
+pub(crate) fn margin_reason(model: &CostModel, preds: &[Prediction], choice: StructureName) -> Option<String> {
     let chosen = preds.iter().find(|p| p.structure == choice)?;
     let next = preds
         .iter()

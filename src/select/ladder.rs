@@ -61,7 +61,7 @@ pub struct Candidate {
 
 /// Expected regret (ms) of choosing the least prediction now, and after the inquiry the candidates describe.
 /// Candidates past [`WIDTH`] are ignored, as are those with a total that is not finite and positive.
-pub fn expected_regret(candidates: &[Candidate]) -> (f64, f64) {
+pub(crate) fn expected_regret(candidates: &[Candidate]) -> (f64, f64) {
     let c: Vec<&Candidate> =
         candidates.iter().filter(|c| c.total_ms.is_finite() && c.total_ms > 0.0).take(WIDTH).collect();
     if c.len() < 2 {
@@ -85,14 +85,14 @@ pub fn expected_regret(candidates: &[Candidate]) -> (f64, f64) {
 }
 
 /// The expected gain of an inquiry (ms, `>= 0`): [`expected_regret`] now less after.
-pub fn expected_gain(candidates: &[Candidate]) -> f64 {
+pub(crate) fn expected_gain(candidates: &[Candidate]) -> f64 {
     let (before, after) = expected_regret(candidates);
     (before - after).max(0.0)
 }
 
 /// Per candidate, the share of draws in which it is truly the cheapest (its chance of being the best, by the
 /// errors now): the order in which an inquiry of a few candidates takes them.
-pub fn chance_best(candidates: &[Candidate]) -> Vec<f64> {
+pub(crate) fn chance_best(candidates: &[Candidate]) -> Vec<f64> {
     let n = candidates.len().min(WIDTH);
     let mut wins = vec![0usize; candidates.len()];
     for draw in table().iter() {

@@ -24,7 +24,7 @@ pub use crate::cost::Crossings;
 pub use budget::{Budget, BuildBounds, Exclusion};
 #[cfg(feature = "eval")]
 pub(crate) use calibrated::planned_total;
-pub use calibrated::{choose, margin_reason, plan_frames, CalibratedPolicy, FrameAction, FrameDecision, FrameRule};
+pub use calibrated::{choose, plan_frames, CalibratedPolicy, FrameAction, FrameDecision, FrameRule};
 pub use driver::{plan_driver_frames, DriverAction, DriverFrameDecision, DriverFrameRule, DriverSelection};
 pub use report::{Bounds, Report, SelectionCost, Timings};
 #[cfg(feature = "eval")]
@@ -96,11 +96,11 @@ pub struct SceneSummary<'a> {
     /// [`SceneSummary::with_features`]. [`ThesisPolicy`] ignores them; the calibrated policy needs them.
     pub features: &'a [Features],
     /// Bounds on the grid's and the kd-tree's references, from the mesh ([`BuildBounds::of_mesh`], set with
-    /// [`SceneSummary::with_build_bounds`]); `None`: the policies bound them from [`SceneSummary::features`] (the
+    /// `SceneSummary::with_build_bounds`); `None`: the policies bound them from [`SceneSummary::features`] (the
     /// largest over the frames), or exclude nothing without features.
     pub build_bounds: Option<BuildBounds>,
     /// The budget a structure's bound must fit to be a candidate ([`Budget::default`] unless set with
-    /// [`SceneSummary::with_budget`]).
+    /// `SceneSummary::with_budget`).
     pub budget: Budget,
 }
 
@@ -109,7 +109,7 @@ fn diagonal(lo: [f32; 3], hi: [f32; 3]) -> f64 {
 }
 
 /// Share of empty classes in a characterization.
-pub fn empty_share(c: &Characterization) -> f64 {
+pub(crate) fn empty_share(c: &Characterization) -> f64 {
     c.stats.empty_classes as f64 / c.classes.max(1) as f64
 }
 
@@ -161,13 +161,13 @@ impl<'a> SceneSummary<'a> {
     }
 
     /// The summary with bounds computed from the mesh (exact box-cell counts, tighter than the features').
-    pub fn with_build_bounds(mut self, bounds: BuildBounds) -> Self {
+    pub(crate) fn with_build_bounds(mut self, bounds: BuildBounds) -> Self {
         self.build_bounds = Some(bounds);
         self
     }
 
     /// The summary with another budget ([`Budget::UNLIMITED`] turns the exclusions off).
-    pub fn with_budget(mut self, budget: Budget) -> Self {
+    pub(crate) fn with_budget(mut self, budget: Budget) -> Self {
         self.budget = budget;
         self
     }
@@ -182,12 +182,12 @@ impl<'a> SceneSummary<'a> {
 
     /// The structures whose bound exceeds the budget ([`Budget::check`] on [`SceneSummary::bounds`]): the policies
     /// never select them.
-    pub fn exclusions(&self) -> Vec<Exclusion> {
+    pub(crate) fn exclusions(&self) -> Vec<Exclusion> {
         self.bounds().map(|b| self.budget.check(&b)).unwrap_or_default()
     }
 
     /// [`SceneSummary::exclusions`] for a policy that prices no build ([`Budget::check_unpriced`]).
-    pub fn exclusions_unpriced(&self) -> Vec<Exclusion> {
+    pub(crate) fn exclusions_unpriced(&self) -> Vec<Exclusion> {
         self.bounds().map(|b| self.budget.check_unpriced(&b)).unwrap_or_default()
     }
 

@@ -301,7 +301,7 @@ impl<'m> Selector<'m> {
             w.kind.as_str(),
             w.frames.max(1),
         )];
-        reasons.extend(super::margin_reason(self.model, &rung.predicted, structure));
+        reasons.extend(super::calibrated::margin_reason(self.model, &rung.predicted, structure));
         for p in &rung.predicted {
             reasons.push(format!(
                 "{}: predicted build {:.3} ms, trace {:.3} ms, total {:.3} ms (size laws)",

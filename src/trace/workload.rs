@@ -48,7 +48,6 @@ pub fn primary_rays(camera: &Camera, width: u32, height: u32) -> Vec<Ray> {
 
 pub use crate::geom::camera::default_light;
 
-pub use crate::accel::bounce::{cosine_direction, diffuse_direction, turn_sin_cos};
 pub use crate::geom::camera::{secondary_start, shadow_ray, surface_offset};
 
 pub use crate::rng::SplitMix64;
@@ -181,7 +180,7 @@ pub fn estimate_secondary_rays(
 
 #[cfg(test)]
 mod tests {
-    use super::turn_sin_cos;
+    use crate::accel::bounce::turn_sin_cos;
 
     #[test]
     fn turn_sin_cos_is_close_to_the_library() {

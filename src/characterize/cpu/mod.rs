@@ -58,7 +58,7 @@ fn pass(name: &str, t: Instant) -> PassTime {
 }
 
 /// The single-threaded reference: docs/spec.md steps 1 to 10 written out one element at a time on the calling thread
-/// (keys, bounds and codes by the scalar definitions of `crate::keys`, [`Quantizer::of_slice`]), power sums in
+/// (keys, bounds and codes by the scalar definitions of `crate::keys`, `Quantizer::of_slice`), power sums in
 /// `BigUint`.
 ///
 /// Errors: invalid parameters, an invalid mesh (the error names the vertex), no (sampled) triangles, a centroid key

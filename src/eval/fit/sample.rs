@@ -82,10 +82,10 @@ pub struct Sample {
     /// The triangle boxes the record's rays cross on average (the first frame's [`crate::cost::Crossings`] for its
     /// workload and camera, [`crate::cost::Crossings::for_workload`]; `None` when not computed): the policies' overlap floor ([`crate::cost::overlap_floor`]) reads them.
     pub crossings: Option<crate::cost::RayCrossings>,
-    /// The timed probes of the record's scene and camera ([`crate::cost::timed::time_probes`]), when taken (empty
+    /// The timed probes of the record's scene and camera (`crate::cost::timed::time_probes`), when taken (empty
     /// otherwise): what [`crate::cost::timed::TimedRatios::fit`] reads and the timed policy blends in.
     pub timed: Vec<crate::cost::timed::TimedProbe>,
-    /// Whole frames of the record's workload measured anew per structure ([`crate::cost::measured::measure_frames`]),
+    /// Whole frames of the record's workload measured anew per structure (`crate::cost::measured::measure_frames`),
     /// when taken (empty otherwise): what a measured close call ([`crate::cost::measured::settle`]) reads.
     pub frame_timings: Vec<crate::cost::measured::FrameTiming>,
     /// The grid's references counted exactly from the record's static scene where the selection's bound pass counts

@@ -19,7 +19,7 @@ pub enum MeshFormat {
 /// Loads one mesh from an `.obj` or `.ply` file.
 ///
 /// The format comes from the extension (case-insensitive); for any other extension the first bytes decide (see
-/// [`detect_format`]). The mesh is named after the path. Every error names the file and, where there is one, the
+/// `detect_format`). The mesh is named after the path. Every error names the file and, where there is one, the
 /// place in it; anything but a regular file is refused before it is opened (see the module documentation).
 pub fn load_mesh(path: &Path) -> Result<Mesh, MeshError> {
     let bytes = read_regular_file(path)?;
@@ -39,7 +39,7 @@ pub fn parse_mesh(name: &str, bytes: &[u8], format: MeshFormat) -> Result<Mesh, 
 /// Decides the format of a file: by extension (`.obj`, `.ply`, case-insensitive), otherwise by content: a PLY file
 /// starts with the line `ply`; OBJ text is recognised when its first statements (up to 16, blank lines skipped) all
 /// start with an OBJ keyword or `#` and at least one of them is not a comment. `None` when neither applies.
-pub fn detect_format(path: &Path, bytes: &[u8]) -> Option<MeshFormat> {
+pub(crate) fn detect_format(path: &Path, bytes: &[u8]) -> Option<MeshFormat> {
     if let Some(ext) = path.extension().and_then(|e| e.to_str()) {
         if ext.eq_ignore_ascii_case("obj") {
             return Some(MeshFormat::Obj);
@@ -51,7 +51,7 @@ pub fn detect_format(path: &Path, bytes: &[u8]) -> Option<MeshFormat> {
     sniff_format(bytes)
 }
 
-/// Content-based half of [`detect_format`].
+/// Content-based half of `detect_format`.
 pub fn sniff_format(bytes: &[u8]) -> Option<MeshFormat> {
     if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n") {
         return Some(MeshFormat::Ply);
