@@ -37,6 +37,7 @@ impl SplitMix64 {
     }
 
     /// Standard normal (Box-Muller); always finite, since the logarithm's argument is in `(0, 1]`.
+    #[cfg(any(test, feature = "eval"))]
     pub(crate) fn gaussian(&mut self) -> f64 {
         let u1 = 1.0 - self.next_f64();
         let u2 = self.next_f64();

@@ -2,14 +2,18 @@
 //!
 //! A [`Mesh`] is a list of f32 vertex positions and a list of `u32` index triples, with an optional object id per
 //! triangle (kept when an OBJ file with several objects is merged). An [`Animation`] is an ordered list of frames that
-//! share one topology. Loaders live in [`load`]; synthetic scenes in [`generate`], whole scenes of a kind
-//! (interiors, cities, ...) in [`families`] (re-exported by [`generate`]), degenerate scenes by name in [`degenerate`]; [`default_scene`] and [`default_teapot`]
-//! are compiled into the crate.
+//! share one topology. Loaders live in [`load`]; [`default_scene`] and [`default_teapot`] are compiled into the
+//! crate. The test-scene generators, part of the evaluation tools (feature `eval`), are `generate` (synthetic
+//! scenes), `families` (whole scenes of a kind: interiors, cities, ...) and `degenerate` (degenerate scenes by
+//! name).
 
+#[cfg(any(test, feature = "eval"))]
 pub mod degenerate;
 mod embedded;
 mod error;
+#[cfg(any(test, feature = "eval"))]
 pub mod families;
+#[cfg(any(test, feature = "eval"))]
 pub mod generate;
 pub mod load;
 #[cfg(test)]
