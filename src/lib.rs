@@ -41,6 +41,10 @@
 /// ([`gpu::Context::from_raw`]), so it uses this re-export, or the same `ash` version, to make them.
 pub use ash;
 
+// The crate's own tests of its internals (`eval/tests/`) name it as a user does.
+#[cfg(test)]
+extern crate self as meshchar;
+
 pub mod accel;
 pub mod characterize;
 pub mod cost;

@@ -77,7 +77,7 @@ pub const PROBES: usize = 5;
 
 /// The grid's cell-reference budget in a probe, `[per triangle, at least]`: 16 and `2^22`, the threshold past which
 /// the selection's bound pass counts the grid's references exactly and prices its build by them instead
-/// (`select::budget::grid_count_threshold`; also the kd-tree's default budget, `tests/core/budget.rs` checks that they
+/// (`select::budget::grid_count_threshold`; also the kd-tree's default budget, `src/eval/tests/budget.rs` checks that they
 /// agree), instead of the grid builder's own (64, at least `2^25`), so that a probe never spends the seconds a grid
 /// of many large overlapping triangles can take: such a build fails at the budget after counting, and the grid gets
 /// no probe.

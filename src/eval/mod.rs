@@ -18,3 +18,6 @@ pub mod tradeoff;
 pub use oracle::{evaluate_scene, EvalError, Measurement, OracleConfig, Rebuild, SceneEvaluation, StructureResult};
 pub use record::{OracleRecord, StructureRecord};
 pub use scene::load_scene;
+
+#[cfg(test)]
+mod tests;

@@ -40,7 +40,7 @@
 //! The kd-tree's duplication depends on the SAH's choices and has no cheap exact bound; the **estimate** is
 //! [`KD_FACTOR`] (2) times the grid's bound over the triangles of non-zero area, plus one per zero-area triangle
 //! (the kd-tree carries them as points). Where the SAH keeps splitting, its leaves are smaller than the grid's cells
-//! and it duplicates more than the grid: on the generated scenes of `tests/core/budget.rs` (4,000 triangles) the actual
+//! and it duplicates more than the grid: on the generated scenes of `src/eval/tests/budget.rs` (4,000 triangles) the actual
 //! references are 0.9 to 1.0 times the estimate on the flat lattice and the terrain, 0.3 to 0.5 on interiors,
 //! cities and vegetation, but **3.2 times** on the engineering model (fans of slivers: 51 references per triangle
 //! against an estimate of 16), so the estimate is no bound and the kd-tree's own budget stays the backstop. Where

@@ -1,5 +1,5 @@
 //! The engine's CPU layers: mesh loading and generators, the characterization, the structures and their
-//! agreement, the build budget, the failure study, and the source tree's layering.
+//! agreement, the failure study, and the source tree's layering.
 //!
 //! One binary for the layer (each module was its own test binary, linked once per file).
 #[path = "../common/mod.rs"]
@@ -11,7 +11,6 @@ mod gpu_support;
 
 mod accel;
 mod agreement;
-mod budget;
 mod characterize_cpu;
 mod failure_study;
 mod families;

@@ -2,7 +2,7 @@
 //! constants, calibration files with driver models round-trip and are validated field by field, and the policy
 //! weighs the driver structures (which flag, and for an animation when to update) only when asked to.
 
-use crate::common;
+use super::common;
 
 use meshchar::accel::device::{DeviceRecord, TraceBackend};
 use meshchar::accel::driver::DriverFlags;

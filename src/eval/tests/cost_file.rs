@@ -2,7 +2,7 @@
 //! (never the shipped model in its place), and every rule of `CostModel::validate` refuses what it should, naming
 //! the field and the structure.
 
-use crate::common;
+use super::common;
 
 use meshchar::accel::StructureName;
 use meshchar::cost::{

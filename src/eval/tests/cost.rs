@@ -1,6 +1,6 @@
 //! Features, the cost model's fit and files, the calibrated policy, leave-one-out, and the BVH refit.
 
-use crate::common;
+use super::common;
 
 use meshchar::accel::lbvh::Lbvh;
 use meshchar::accel::{AccelStructure, StructureName};
@@ -405,7 +405,7 @@ fn calibration_files_round_trip() {
     m.save(&path).unwrap();
     // Every constant comes back (the JSON numbers are shortest round-trip forms): the whole model is equal.
     assert_eq!(CostModel::load(Some(&path)).unwrap(), m);
-    // Files that cannot be used are errors, never the shipped model: tests/select/cost_file.rs.
+    // Files that cannot be used are errors, never the shipped model: src/eval/tests/cost_file.rs.
 }
 
 #[test]

@@ -2,8 +2,8 @@
 //! within noise of the best and the cheapest of them, a sweep with a pluggable policy and its least-work table, and
 //! sampled / 63-bit / other-rule characterizations identical on the CPU and on Vulkan (lavapipe).
 
-use crate::common;
-use crate::gpu_support;
+use super::common;
+use super::gpu_support;
 
 use meshchar::accel::StructureName;
 use meshchar::characterize::{cpu, Backend, Characterization, Characterizer, ClassRule, MortonBits, Params};
@@ -337,7 +337,7 @@ fn paper_model() -> meshchar::cost::CostModel {
     let m = CostModel {
         version: COST_MODEL_VERSION,
         device: "paper".into(),
-        source: "tests/select/tradeoff.rs".into(),
+        source: "src/eval/tests/tradeoff.rs".into(),
         scenes: Vec::new(),
         feature_names: FEATURE_NAMES.iter().map(|s| s.to_string()).collect(),
         price_names: PRICE_NAMES.iter().map(|s| s.to_string()).collect(),
