@@ -196,7 +196,7 @@ impl KeyBounds {
 
     /// The bounds of both sets of keys.
     #[inline]
-    pub fn merge(self, o: KeyBounds) -> KeyBounds {
+    pub(crate) fn merge(self, o: KeyBounds) -> KeyBounds {
         KeyBounds {
             lo: std::array::from_fn(|a| self.lo[a].min(o.lo[a])),
             hi: std::array::from_fn(|a| self.hi[a].max(o.hi[a])),

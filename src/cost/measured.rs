@@ -31,7 +31,7 @@ use std::time::Instant;
 pub const MEASURED_WARMUP: usize = 1;
 
 /// Structures whose predicted total lies within this fraction above the least predicted total are a close call
-/// and measured ([`close_calls`]). Chosen on the scene families (held out by family, one-shot measurements of
+/// and measured (`close_calls`). Chosen on the scene families (held out by family, one-shot measurements of
 /// three repeats against the precise oracle's records): 0.1 measured 33 of 252 records, 0.2 measured 75 and
 /// lowered the mean regret most, 0.3 and above measured more and chose no better (`docs/cost-model.md`).
 pub const CLOSE_CALL_MARGIN: f64 = 0.2;
@@ -52,7 +52,7 @@ pub const DEFAULT_MAX_MS: f64 = 2000.0;
 
 /// The structures of `preds` whose predicted total is finite and within [`CLOSE_CALL_MARGIN`] of the least, the
 /// least first and then in `preds`'s order; empty unless there are at least two (nothing to settle).
-pub fn close_calls(preds: &[super::Prediction]) -> Vec<StructureName> {
+pub(crate) fn close_calls(preds: &[super::Prediction]) -> Vec<StructureName> {
     let Some(least) = preds.iter().filter(|p| p.total_ms.is_finite()).min_by(|a, b| a.total_ms.total_cmp(&b.total_ms))
     else {
         return Vec::new();
@@ -197,7 +197,7 @@ pub(crate) fn measuring_cost_ms(preds: &[super::Prediction], close: &[StructureN
 
 /// The choice a measured close call makes from predictions `preds` for a workload of `builds` builds and `frames`
 /// frames, given the frames measured (`timings`, at least those of the close call): the close call's structure
-/// with the least measured total; `None` when there is no close call ([`close_calls`]), when measuring it would
+/// with the least measured total; `None` when there is no close call (`close_calls`), when measuring it would
 /// take more than `max_ms` by the predictions (`measuring_cost_ms`), or when none of it was measured.
 pub fn settle(
     preds: &[super::Prediction],

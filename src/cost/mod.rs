@@ -26,11 +26,11 @@
 //! grow with `ln n` for hierarchies and with triangles per cell for a grid, and shrink where space is empty.
 //! Where the selection's probe built a structure ([`probe()`], [`PROBED`]), its build is priced by the work that
 //! build did, `work` = [`crate::accel::AccelStats::build_work`] (its references times the levels they were handled
-//! on; the grid's references), with a law of its own ([`StructureModel::build_work_coef`], [`TestFloor::build_work`]).
+//! on; the grid's references), with a law of its own ([`StructureModel::build_work_coef`], `TestFloor::build_work`).
 //! A calibration fitted with views adds the camera's features to `phi` ([`ViewFeatures`]); one fitted with the
 //! crossings ([`CostModel::fit_with`]) adds `ln(1 + crossings)` ([`crossings_feature`]: the triangle boxes a ray
 //! crosses) with coefficients of its own; and the predictions take each count at least at its overlap floor
-//! ([`overlap_floor`]) when the caller gives one. A fitted calibration clamps the geometric features into the range
+//! (`overlap_floor`) when the caller gives one. A fitted calibration clamps the geometric features into the range
 //! it was fitted on ([`StructureModel::feature_range`]).
 //!
 //! Two terms bend the straight laws where measurement showed they must (`docs/results/2026-12-06-cost-model-curved-builds-incoherent-price.md`).
@@ -43,7 +43,7 @@
 //! engineering models pay 5.2 ns per test at 1,080 tests per ray, 3.1 ns at 430, against 2.2 to 2.5 ns for primary
 //! rays). Two more prices per test follow the rays and the view (`docs/results/2026-12-06-cost-model-diffuse-view-prices.md`): `test_diffuse`, the extra of
 //! a diffuse ray's test over a shadow ray's (a closest hit among scattered rays against a first hit), and
-//! `test_outside_log_n`, an extra per unit of `ln n` when the eye is outside the bounds ([`price_outside_ln_n`]:
+//! `test_outside_log_n`, an extra per unit of `ln n` when the eye is outside the bounds (`price_outside_ln_n`:
 //! seen from outside, neighbouring rays land far apart and share less of the structure: on the first family set's
 //! 200K-triangle scenes a BVH's primary rays took a median 2.3 ns per test from the inside and close-up views and
 //! 4.9 ns from the framing and grazing ones). The latter is fitted only on records that hold both kinds of eye.
@@ -142,27 +142,27 @@ pub mod measured;
 pub mod registry;
 pub mod view;
 
-pub mod overlap;
-pub(crate) use overlap::priced_floor;
+pub(crate) mod overlap;
+pub(crate) use overlap::{overlap_floor, priced_floor};
 pub mod probe;
 pub mod timed;
 pub use overlap::{
-    crossings_feature, near_crossings, near_sample_side, overlap_floor, screen_crossings,
-    secondary_rays_leave_the_plane, CountBounds, Crossings, NearCrossings, RayCrossings, SampledMean,
-    StructureCountBounds, TestFloor, ViewCrossings, NEAR_SAMPLES,
+    crossings_feature, near_crossings, near_sample_side, screen_crossings, CountBounds, NearCrossings, RayCrossings,
+    SampledMean, StructureCountBounds,
 };
+pub(crate) use overlap::{Crossings, TestFloor};
 pub use probe::{probe, Probe, ProbeCounts, PROBED};
 
 /// The half-width of a law's band about a probe's sampled mean, in the fit's RMS errors of `ln(1 + count)`
 /// ([`FitError::box_tests`]): a probed count whose law `c` lies outside `(1 + c) / (1 + mean)` in
 /// `exp(+-PROBE_BAND * rms)` is held to the sample
-/// ([`StructureModel::predict_floored`]). One RMS: of 0 (always held), 1 and 2, measured held
+/// (`StructureModel::predict_floored`). One RMS: of 0 (always held), 1 and 2, measured held
 /// out on the scene families (by family 6.9%, 3.9%, 4.2%; by scene 6.1%, 4.2%, 3.8%) and checked on the other record
 /// sets (`docs/results/2026-12-05-cost-model-probes.md`).
 pub const PROBE_BAND: f64 = 1.0;
 
 /// The band ([`PROBE_BAND`]'s unit) within which a model traced on the CPU keeps a probed structure's own law
-/// ([`CostModel::own_probe_band`]): 0, every probed count is held to its sample. On the CPU tracer the probe traces
+/// (`CostModel::own_probe_band`): 0, every probed count is held to its sample. On the CPU tracer the probe traces
 /// the very tree the frame would trace, with a sample of the frame's rays, so its mean is that structure's count up
 /// to the sample's error, and a law that differs from it has nothing to add. The probed structures' shared
 /// correction of the unprobed kd-tree still reads its counts held at [`PROBE_BAND`] (a correction from counts held
@@ -173,7 +173,7 @@ pub const PROBE_BAND: f64 = 1.0;
 pub const OWN_PROBE_BAND_CPU: f64 = 0.0;
 
 /// The hierarchy that is not probed but takes the probed hierarchies' correction of its counts
-/// ([`CostModel::predict_floored`]): the kd-tree, whose laws' errors on the scene families follow the LBVH's
+/// (`CostModel::predict_floored`): the kd-tree, whose laws' errors on the scene families follow the LBVH's
 /// (residual correlation 0.83). The HLBVH shared it too until it was probed ([`PROBED`]). The
 /// grid's errors (0.58) are its own: it is probed, and its correction is not shared (taking it into the shared mean
 /// sent particle soups and cities to the HLBVH: held out by family 2.8% -> 3.6%).
@@ -228,7 +228,7 @@ pub const SIZE_FEATURES: usize = 4;
 /// diffuse ray (`test_diffuse`: a closest hit among scattered rays, where a shadow ray stops at its first hit), and
 /// the extra ns per test per unit of `ln n` when the eye is outside the scene's bounds (`test_outside_log_n`:
 /// seen from outside, neighbouring rays land far apart on the scene and their traversals share less of a
-/// structure that grows with `n`; [`price_outside_ln_n`]).
+/// structure that grows with `n`; `price_outside_ln_n`).
 pub const PRICE_NAMES: [&str; 10] = [
     "ray_primary",
     "ray_shadow",
@@ -245,7 +245,7 @@ pub const PRICE_NAMES: [&str; 10] = [
 /// The view's term of the price row ([`PRICE_NAMES`]' `test_outside_log_n` per test): `ln n` for `n` triangles
 /// when the eye lies outside the scene's bounds, 0 when inside. A workload without a view is priced as the framing
 /// camera's, whose eye is outside (what [`CostModel::predict`] assumes without one).
-pub fn price_outside_ln_n(w: &Workload, n: u64) -> f64 {
+pub(crate) fn price_outside_ln_n(w: &Workload, n: u64) -> f64 {
     if w.view.is_some_and(|v| v.eye_inside) {
         0.0
     } else {
@@ -253,7 +253,7 @@ pub fn price_outside_ln_n(w: &Workload, n: u64) -> f64 {
     }
 }
 
-/// The price row of [`PRICE_NAMES`] for a kind, test counts and the view's term ([`price_outside_ln_n`]).
+/// The price row of [`PRICE_NAMES`] for a kind, test counts and the view's term (`price_outside_ln_n`).
 pub fn price_row(kind: WorkloadKind, box_tests: f64, prim_tests: f64, outside_ln_n: f64) -> Vec<f64> {
     let inc = (kind != WorkloadKind::Primary) as u8 as f64;
     let diffuse = (kind == WorkloadKind::Diffuse) as u8 as f64;
@@ -536,14 +536,14 @@ pub struct StructureModel {
     /// The view's coefficients in the triangle-test law, as `view_box_coef`.
     #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
     pub view_prim_coef: Vec<f64>,
-    /// The coefficients of `ln(1 + crossings)` ([`TestFloor::crossings`]: the triangle boxes a ray of the workload
+    /// The coefficients of `ln(1 + crossings)` (`TestFloor::crossings`: the triangle boxes a ray of the workload
     /// crosses) in the box-test and the triangle-test laws, `[box, prim]`, each of magnitude at most
     /// [`COEF_LIMIT`]; or none (a calibration fitted without them, [`CostModel::fit_with`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
     pub crossing_coef: Vec<f64>,
     /// With [`StructureModel::crossing_coef`]: per workload kind (primary, shadow, diffuse), the mean of
     /// `ln(1 + crossings)` over the calibration's samples of that kind (a sample without a count counting 0, as in
-    /// the fit), in `[0, 45]`; what a prediction reads when the caller has no count ([`TestFloor::crossings`] NaN:
+    /// the fit), in `[0, 45]`; what a prediction reads when the caller has no count (`TestFloor::crossings` NaN:
     /// features alone, no mesh), so that it predicts for the calibration's typical scene instead of one whose rays
     /// cross nothing. Absent in files written before it (such a file reads an unknown count as 0).
     #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
@@ -556,7 +556,7 @@ pub struct StructureModel {
     pub feature_range: Vec<[f64; 2]>,
     /// The build law a probe's build work reads, `[a', b', c']`: `build_ms = exp(a') * n^b' * (work / n)^c'`, with
     /// `work` the built structure's [`crate::accel::AccelStats::build_work`] (its references times their levels)
-    /// where a probe built it ([`TestFloor::build_work`]); the plain law
+    /// where a probe built it (`TestFloor::build_work`); the plain law
     /// ([`StructureModel::build_ln_a`], [`StructureModel::build_exponent`]) otherwise. `a'` in [`BUILD_LN_A_RANGE`],
     /// `b'` in [`BUILD_EXPONENT_RANGE`], `c'` in [`BUILD_WORK_EXPONENT_RANGE`]. Fitted for the probed structures
     /// ([`PROBED`]) on samples whose records counted the work; absent in files written before it (and for the other
@@ -646,7 +646,7 @@ impl StructureModel {
     /// triangle test); the trace time follows from the bounded counts. A law within [`PROBE_BAND`] of a sampled
     /// count ([`TestFloor::sampled`]) stands; [`CostModel::predict_floored`] applies the calibration's own band
     /// ([`CostModel::own_probe_band`]).
-    pub fn predict_floored(&self, d: &Derived, n: u64, w: &Workload, floor: TestFloor) -> Prediction {
+    pub(crate) fn predict_floored(&self, d: &Derived, n: u64, w: &Workload, floor: TestFloor) -> Prediction {
         self.predict_corrected(d, n, w, floor, [1.0, 1.0], PROBE_BAND)
     }
 
@@ -1141,7 +1141,7 @@ impl CostModel {
     /// [`CostModel::predict`] with each structure's tests per ray bounded by `floor(structure)`
     /// ([`StructureModel::predict_floored`]); where a probed structure's counts are held to its sample, the
     /// structures of [`SHARES_PROBES`] that were not probed take the same correction.
-    pub fn predict_floored(
+    pub(crate) fn predict_floored(
         &self,
         f: &Features,
         w: &Workload,
@@ -1168,7 +1168,7 @@ impl CostModel {
     /// The band within which a probed structure keeps its own law instead of its sample's count
     /// ([`StructureModel::predict_floored`]): [`OWN_PROBE_BAND_CPU`] for a calibration traced on the CPU, where the
     /// probe traces the frame's own tree; [`PROBE_BAND`] for a device calibration.
-    pub fn own_probe_band(&self) -> f64 {
+    pub(crate) fn own_probe_band(&self) -> f64 {
         match self.trace_backend {
             TraceBackend::Cpu => OWN_PROBE_BAND_CPU,
             TraceBackend::Vulkan => PROBE_BAND,
@@ -1224,7 +1224,7 @@ impl CostModel {
     }
 
     /// Predicted costs of every calibrated driver structure ([`driver`]) for a scene and a workload.
-    pub fn predict_driver(&self, f: &Features, w: &Workload) -> Vec<DriverPrediction> {
+    pub(crate) fn predict_driver(&self, f: &Features, w: &Workload) -> Vec<DriverPrediction> {
         let d = f.derived();
         self.driver.iter().filter_map(|m| m.predict(&d, f.scene_triangles(), w)).collect()
     }

@@ -74,7 +74,7 @@ use glam::Vec3;
 /// A scene's triangle boxes as projected areas (see the module docs): the sums, over the triangles' boxes, of their
 /// face areas `[e_y e_z, e_x e_z, e_x e_y]`, the same over the distinct vertex-index triples, and the scene box's.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
-pub struct Crossings {
+pub(crate) struct Crossings {
     /// Face areas summed over every triangle's box.
     pub faces: [f64; 3],
     /// The same over the distinct vertex-index triples (in order): the binned-SAH BVH keeps one of coincident
@@ -106,7 +106,7 @@ pub struct Crossings {
 
 /// The triangle boxes crossed by one camera's primary rays, counted on its image ([`screen_crossings`]).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
-pub struct ViewCrossings {
+pub(crate) struct ViewCrossings {
     /// The camera.
     #[serde(skip)]
     pub camera: Camera,
@@ -126,8 +126,8 @@ pub struct ViewCrossings {
     pub probes: [Option<super::Probe>; super::probe::PROBES],
 }
 
-/// The triangle boxes a ray crosses on average ([`Crossings::per_ray`] for a camera's primary rays,
-/// [`Crossings::isotropic`] for secondary rays): over every triangle, over the distinct vertex-index triples (what
+/// The triangle boxes a ray crosses on average (`Crossings::per_ray` for a camera's primary rays,
+/// `Crossings::isotropic` for secondary rays): over every triangle, over the distinct vertex-index triples (what
 /// the binned-SAH BVH holds), and over the triangles of non-zero area (what the kd-tree holds as boxes).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct RayCrossings {
@@ -137,29 +137,29 @@ pub struct RayCrossings {
     pub distinct: f64,
     /// Over the triangles of non-zero area.
     pub nondegenerate: f64,
-    /// Secondary rays only ([`Crossings::for_workload`]): the camera's primary-ray crossings counted on its image
+    /// Secondary rays only (`Crossings::for_workload`): the camera's primary-ray crossings counted on its image
     /// ([`screen_crossings`], over every triangle), when counted; 0 otherwise. The secondary rays start where those
     /// rays hit, so a close camera looking into dense geometry sends them into it too.
     pub image: f64,
-    /// When counted ([`Crossings::view`] of that camera, [`near_crossings`] on a sample of its rays): for primary
+    /// When counted (`Crossings::view` of that camera, [`near_crossings`] on a sample of its rays): for primary
     /// rays the triangle boxes a ray enters no later than its first hit, for diffuse rays those holding the ray's
     /// origin (entered at once), for shadow rays those an unoccluded ray crosses (0 for an occluded one); over every
     /// triangle. Each is a lower bound on the triangle tests of a hierarchy whose nodes bound whole triangles.
     pub near: Option<f64>,
     /// Secondary rays only: every ray leaves a flat scene without meeting it again
-    /// ([`secondary_rays_leave_the_plane`]), so it crosses no box (the counts above are then 0) and every
-    /// hierarchy tests its root box once and no triangle ([`overlap_floor`] gives those counts exactly).
+    /// (`secondary_rays_leave_the_plane`), so it crosses no box (the counts above are then 0) and every
+    /// hierarchy tests its root box once and no triangle (`overlap_floor` gives those counts exactly).
     pub leave_flat_scene: bool,
-    /// When counted ([`ViewCrossings::probes`]): the own tests per ray of each structure of [`super::PROBED`] on the
+    /// When counted (`ViewCrossings::probes`): the own tests per ray of each structure of [`super::PROBED`] on the
     /// sample of the camera's rays of the workload's kind ([`RayCrossings::probe`]): its primary rays, or the shadow
     /// or diffuse rays their hits start.
     pub probes: [Option<super::ProbeCounts>; super::probe::PROBES],
-    /// When probed ([`ViewCrossings::probes`]): the work of each probed structure's build, in the order of
+    /// When probed (`ViewCrossings::probes`): the work of each probed structure's build, in the order of
     /// [`super::PROBED`] ([`super::Probe::build_work`]; 0 where unknown), whatever rays were traced: what the build
     /// laws read ([`RayCrossings::build_work`]).
     pub probe_work: [f64; super::probe::PROBES],
     /// Secondary rays only: the share of them that start on the scene's outer boundary and leave it at once
-    /// ([`Crossings::leave_share`]): each tests the root box once and no triangle, in every structure.
+    /// (`Crossings::leave_share`): each tests the root box once and no triangle, in every structure.
     pub leave_share: f64,
 }
 
@@ -241,6 +241,7 @@ impl Crossings {
     /// The crossings of a mesh, its triangles' boxes computed here, with the view of `camera` counted on its image
     /// (`Crossings::with_view`; `None`: the framing camera of the mesh's box, what the policy assumes without a
     /// camera). [`crate::select::BuildBounds::of_mesh_viewed`] records the same.
+    #[cfg(test)]
     pub fn of_mesh_viewed(mesh: &Mesh, camera: Option<&Camera>) -> Crossings {
         Crossings::of_first_frame_viewed(mesh, camera, 1)
     }
@@ -248,13 +249,15 @@ impl Crossings {
     /// [`Crossings::of_mesh_viewed`] of the first of `frames` frames of a scene: for an animation (more than one
     /// frame) without the boxes entered before the hits ([`ViewCrossings::near`]), which bound that frame's rays only
     /// (the pass is skipped, not run and dropped).
-    pub fn of_first_frame_viewed(mesh: &Mesh, camera: Option<&Camera>, frames: usize) -> Crossings {
+    #[cfg(test)]
+    pub(crate) fn of_first_frame_viewed(mesh: &Mesh, camera: Option<&Camera>, frames: usize) -> Crossings {
         Crossings::of_first_frame_timed(mesh, camera, frames).0
     }
 
     /// [`Crossings::of_first_frame_viewed`], and what its parts took on this machine (wall time, ms): the
     /// crossings (the boxes, their sums, the view's count on its image and the boxes entered before the hits) and
     /// each probe of [`super::PROBED`] (0 for a structure not probed).
+    #[cfg(feature = "eval")]
     pub(crate) fn of_first_frame_timed(
         mesh: &Mesh,
         camera: Option<&Camera>,
@@ -288,6 +291,7 @@ impl Crossings {
     }
 
     /// [`Crossings::of_mesh_viewed`] from the framing camera.
+    #[cfg(test)]
     pub fn of_mesh(mesh: &Mesh) -> Crossings {
         Crossings::of_mesh_viewed(mesh, None)
     }
@@ -324,18 +328,20 @@ impl Crossings {
     /// Over every direction: `sum_i S(box_i) / S(scene)` (Cauchy-Crofton), 0 for a scene box of no area. 0 to 169
     /// on every shared mesh and generated family (3.5 on the bunny, 16.4 on Sponza, 169 on the engineering family
     /// at 200K triangles); hundreds to thousands where triangles overlap heavily or coincide.
+    #[cfg(test)]
     pub fn mean(&self) -> f64 {
         ratio(self.faces, self.scene, [1.0; 3])
     }
 
     /// Along the direction `d`, for lines that meet the scene's box: `(all, distinct)`.
+    #[cfg(test)]
     pub fn along(&self, d: Vec3) -> (f64, f64) {
         let w = d.abs().as_dvec3().to_array();
         (ratio(self.faces, self.scene, w), ratio(self.distinct_faces, self.scene, w))
     }
 
     /// Over every direction ([`Crossings::mean`]), for all three kinds of triangle: what a secondary ray is given.
-    pub fn isotropic(&self) -> RayCrossings {
+    pub(crate) fn isotropic(&self) -> RayCrossings {
         RayCrossings {
             all: ratio(self.faces, self.scene, [1.0; 3]),
             distinct: ratio(self.distinct_faces, self.scene, [1.0; 3]),
@@ -354,7 +360,7 @@ impl Crossings {
     /// [`RayCrossings::image`] the camera's count on its image when [`Crossings::view`] is of that camera, and
     /// [`RayCrossings::near`] its sampled counts for the workload ([`near_crossings`], their lower bounds) when
     /// counted; none for secondary rays that leave a flat scene ([`secondary_rays_leave_the_plane`]).
-    pub fn for_workload(
+    pub(crate) fn for_workload(
         &self,
         kind: WorkloadKind,
         camera: Option<&Camera>,
@@ -393,7 +399,7 @@ impl Crossings {
     /// These crossings (an animation's first frame's, which the policy floors every frame with) combined with
     /// another frame's: where the scene's box is the same, the least boundary fill of the two; where it moves,
     /// [`Crossings::box_moves`] (no ray is then taken to leave at once, in any frame).
-    pub fn over_frames(mut self, other: &Crossings) -> Crossings {
+    pub(crate) fn over_frames(mut self, other: &Crossings) -> Crossings {
         // The boxes a ray enters before its hit are counted on the first frame's geometry: no bound for the others.
         if let Some(v) = self.view.as_mut() {
             v.near = None;
@@ -422,7 +428,7 @@ impl Crossings {
     /// the box, or a scene with nothing on its faces. Measured on the 252 family records: closed rooms and the
     /// stadium seen from outside (framing and grazing views) make exactly 1 box test and no triangle test per
     /// diffuse ray in every hierarchy.
-    pub fn leave_share(&self, kind: WorkloadKind, camera: Option<&Camera>) -> f64 {
+    pub(crate) fn leave_share(&self, kind: WorkloadKind, camera: Option<&Camera>) -> f64 {
         let (lo, hi) = (self.lo, self.hi);
         let b = Aabb { min: Vec3::from_array(lo), max: Vec3::from_array(hi) };
         if kind == WorkloadKind::Primary || self.box_moves || b.is_empty() || !(b.min.is_finite() && b.max.is_finite())
@@ -516,7 +522,7 @@ impl Crossings {
     /// matches a view of the framing camera): its count on the image, the distinct and non-degenerate shares
     /// taken from the face sums along its forward direction. Otherwise the crossings along its forward direction
     /// times the share of its rays that meet the box (parallel rays: a close camera's perspective is not seen).
-    pub fn per_ray(&self, camera: Option<&Camera>, lo: [f32; 3], hi: [f32; 3]) -> RayCrossings {
+    pub(crate) fn per_ray(&self, camera: Option<&Camera>, lo: [f32; 3], hi: [f32; 3]) -> RayCrossings {
         let cam = &camera_or_framing(camera, lo, hi);
         let w = cam.forward.abs().as_dvec3().to_array();
         let along = ratio(self.faces, self.scene, w);
@@ -589,7 +595,12 @@ fn camera_or_framing(camera: Option<&Camera>, lo: [f32; 3], hi: [f32; 3]) -> Cam
 /// ([`Crossings::isotropic`]) would have it cross every box stacked at a point of the plane: 2,000 on 2,000
 /// coincident triangles. False for primary rays, a box of extent along every axis, an empty or non-finite box,
 /// or a camera in the plane.
-pub fn secondary_rays_leave_the_plane(kind: WorkloadKind, camera: Option<&Camera>, lo: [f32; 3], hi: [f32; 3]) -> bool {
+pub(crate) fn secondary_rays_leave_the_plane(
+    kind: WorkloadKind,
+    camera: Option<&Camera>,
+    lo: [f32; 3],
+    hi: [f32; 3],
+) -> bool {
     if kind == WorkloadKind::Primary || !(0..3).all(|a| lo[a].is_finite() && hi[a].is_finite() && lo[a] <= hi[a]) {
         return false;
     }
@@ -614,7 +625,7 @@ pub fn secondary_rays_leave_the_plane(kind: WorkloadKind, camera: Option<&Camera
 /// its screen rectangle covers (the rectangle of its corners' projections, clipped at a near plane a millionth of
 /// the boxes' extent in front of the eye and to the image), 1 for a box holding the eye, summed. What a primary ray
 /// crosses on average, perspective included: a close camera looking into dense geometry sees far more than the
-/// parallel estimate of [`Crossings::per_ray`] without a view (the engineering family close up: 2,163 against 150).
+/// parallel estimate of `Crossings::per_ray` without a view (the engineering family close up: 2,163 against 150).
 /// One pass over the boxes, in parallel chunks summed in order (deterministic): 4.9 ms for 200,000 boxes and 24 ms
 /// for the dragon's 871,414 on the 2-core VM (two threads, warm; `cargo bench --bench accel -- screen_crossings`,
 /// 2026-12-05).
@@ -709,7 +720,7 @@ pub const NEAR_SAMPLES: u32 = 32;
 const NEAR_WORK: f64 = 16.0 * 1024.0 * 1024.0;
 
 /// The side of the square sample of primary rays of [`near_crossings`] (and [`super::probe()`]) for a camera whose
-/// image count ([`screen_crossings`]) is `image`: [`NEAR_SAMPLES`], less (8 at least) where `image` times the
+/// image count ([`screen_crossings`]) is `image`: `NEAR_SAMPLES`, less (8 at least) where `image` times the
 /// sample's rays would exceed about 16 million box-ray pairs.
 pub fn near_sample_side(image: f64) -> u32 {
     let mut side = NEAR_SAMPLES;
@@ -721,7 +732,7 @@ pub fn near_sample_side(image: f64) -> u32 {
 
 /// The mean number of triangle boxes a primary ray of `camera` enters no later than its first hit (or at all, for
 /// a ray that hits nothing), over a square sample of its rays: the rays through the pixel centres of a
-/// [`NEAR_SAMPLES`]-square image (fewer where `image`, the count of [`screen_crossings`], times their number would
+/// `NEAR_SAMPLES`-square image (fewer where `image`, the count of [`screen_crossings`], times their number would
 /// exceed about 16 million box-ray pairs), `boxes[i]` the box of `tris[i]`. Two passes over the triangles, each
 /// visiting only the sample rays inside the triangle box's screen rectangle (the rectangle of
 /// [`screen_crossings`]): the first finds each ray's closest hit, the second counts the boxes each ray enters no
@@ -729,7 +740,7 @@ pub fn near_sample_side(image: f64) -> u32 {
 /// boxes holding the origin of the secondary ray each hit starts; then the shadow rays from those origins, sorted by
 /// direction into the faces of a cube around the light, are tested for occlusion and their crossings counted the
 /// same way, in two more passes ([`NearCrossings`]). Each count is kept per ray, as a mean with its standard
-/// error ([`SampledMean`]); the floors take the mean less two standard errors ([`SampledMean::lower_bound`]).
+/// error ([`SampledMean`]); the floors take the mean less two standard errors (`SampledMean::lower_bound`).
 /// Counted only on the triangles' boxes as screen rectangles: a box of no area on the image (seen edge-on) and a
 /// box that holds a secondary ray's origin without covering its pixel's centre (within the surface offset of its
 /// edge) are missed, which errs on the low side.
@@ -737,7 +748,7 @@ pub fn near_sample_side(image: f64) -> u32 {
 /// Why it matters: a hierarchy whose every node bounds whole triangles (the binned-SAH BVH, the LBVH, the HLBVH and
 /// the BIH) visits, in front-to-back closest-hit traversal, every leaf whose box the ray enters before the closest
 /// hit found so far, so it tests at least every triangle whose own box the ray enters before its first hit: this
-/// count, per ray, is a lower bound on their triangle tests ([`overlap_floor`]). The image count of
+/// count, per ray, is a lower bound on their triangle tests (`overlap_floor`). The image count of
 /// [`screen_crossings`] also counts the boxes behind the first hit, which the traversal never reaches. A kd-tree
 /// and a grid store a triangle only in the cells it overlaps, not in every cell its box does, so the bound does not
 /// hold for them (long thin triangles across a grid's cells: the engineering family).
@@ -898,14 +909,14 @@ impl SampledMean {
     /// What the floor takes ([`overlap_floor`]): the mean less twice its standard error, at least 0. The count is a
     /// lower bound per ray, but its sampled mean can exceed the mean over a workload's every ray by its sampling
     /// error; two standard errors below it, it does so for about 1 in 40 samples.
-    pub fn lower_bound(&self) -> f64 {
+    pub(crate) fn lower_bound(&self) -> f64 {
         (self.mean - 2.0 * self.standard_error).max(0.0)
     }
 
     /// The mean plus twice its standard error: with [`SampledMean::lower_bound`], the band that holds the mean over
     /// every ray of the workload for about 19 samples in 20 ([`overlap_floor`] holds a probed structure's predicted
     /// counts in it, [`super::probe()`]).
-    pub fn upper_bound(&self) -> f64 {
+    pub(crate) fn upper_bound(&self) -> f64 {
         (self.mean + 2.0 * self.standard_error).max(self.lower_bound())
     }
 }
@@ -1080,7 +1091,7 @@ fn ratio(f: [f64; 3], s: [f64; 3], w: [f64; 3]) -> f64 {
 
 /// The least tests per crossed triangle box of each structure and kind of ray, read off the calibration's records
 /// by `calibrate` (the lower envelope of the measured ratio, rounded down to two significant digits): the overlap
-/// floor's factors ([`overlap_floor`]). Per crossing ([`RayCrossings`]: counted on the camera's image for primary
+/// floor's factors (`overlap_floor`). Per crossing ([`RayCrossings`]: counted on the camera's image for primary
 /// rays, over every direction for shadow and diffuse rays), over the records whose rays cross at least
 /// [`CountBounds::FROM`] boxes; per crossing of the camera's primary rays counted on its image
 /// ([`RayCrossings::image`]), for shadow and diffuse rays, over the records whose image count is at least that.
@@ -1120,7 +1131,7 @@ impl CountBounds {
     }
 
     /// Least `(box, triangle)` tests per crossed box of `structure` for rays of `kind`; `(0, 0)` without a floor.
-    pub fn tests_per_crossing(&self, structure: StructureName, kind: WorkloadKind) -> (f64, f64) {
+    pub(crate) fn tests_per_crossing(&self, structure: StructureName, kind: WorkloadKind) -> (f64, f64) {
         self.of(structure).map_or((0.0, 0.0), |s| {
             let [b, p] = s.per_crossing[super::timed::kind_index(kind)];
             (b, p)
@@ -1129,7 +1140,7 @@ impl CountBounds {
 
     /// Least `(box, triangle)` tests per secondary ray per box crossed by the camera's primary rays on its image;
     /// `(0, 0)` for primary rays and without a floor.
-    pub fn tests_per_image_crossing(&self, structure: StructureName, kind: WorkloadKind) -> (f64, f64) {
+    pub(crate) fn tests_per_image_crossing(&self, structure: StructureName, kind: WorkloadKind) -> (f64, f64) {
         match (kind, self.of(structure)) {
             (WorkloadKind::Primary, _) | (_, None) => (0.0, 0.0),
             (k, Some(s)) => {
@@ -1180,7 +1191,7 @@ fn near_leaf(structure: StructureName) -> Option<f64> {
 /// [`crate::cost::StructureModel::predict_floored`], and the crossings they come from. The default bounds nothing
 /// and knows no crossings (`crossings` NaN; two unknown counts are equal).
 #[derive(Clone, Copy, Debug)]
-pub struct TestFloor {
+pub(crate) struct TestFloor {
     /// Box tests (node visits) per ray: at least this many.
     pub box_tests: f64,
     /// Triangle tests per ray: at least this many.
@@ -1262,7 +1273,7 @@ pub fn crossings_feature(kind: WorkloadKind, c: Option<RayCrossings>) -> f64 {
 /// that count (the BVH's scaled by its distinct share) and their box tests at least it over their largest leaf.
 /// With [`RayCrossings::probes`], a probed structure's floor carries its counts sampled on rays of this kind
 /// ([`TestFloor::sampled`]).
-pub fn overlap_floor(
+pub(crate) fn overlap_floor(
     bounds: &CountBounds,
     structure: StructureName,
     kind: WorkloadKind,

@@ -19,14 +19,14 @@
 //! build did ([`Probe::build_work`], [`crate::accel::AccelStructure::build_work`]), which prices the structure's
 //! build ([`super::StructureModel::build_work_coef`]).
 //!
-//! How the policy uses them ([`super::overlap_floor`], [`super::TestFloor::sampled`],
-//! [`super::StructureModel::predict_floored`]): for each kind of ray, where a structure's law misses its sampled
+//! How the policy uses them (`super::overlap_floor`, `super::TestFloor::sampled`,
+//! `super::StructureModel::predict_floored`): for each kind of ray, where a structure's law misses its sampled
 //! mean by more than its own error band (for a calibration traced on the CPU none, [`super::OWN_PROBE_BAND_CPU`]:
 //! the probe traced the frame's own tree; for a device calibration [`super::PROBE_BAND`] times the fit's RMS error
 //! either way, both read on `ln(1 + count)`), the count is held within two standard errors of that mean; within the
 //! band the law stands. The
 //! hierarchy that is not probed (the kd-tree) takes the probed hierarchies' correction
-//! ([`super::SHARES_PROBES`], [`super::CostModel::predict_floored`]): exact counts for some structures beside others
+//! ([`super::SHARES_PROBES`], `super::CostModel::predict_floored`): exact counts for some structures beside others
 //! whose laws miss in the same direction made the choices worse on the family records (`docs/cost-model.md`,
 //! "Probes"). The grid's correction is its own and is not shared.
 
@@ -113,7 +113,7 @@ pub struct Probe {
 
 impl Probe {
     /// The counts of one kind of ray.
-    pub fn of_kind(&self, kind: WorkloadKind) -> &ProbeCounts {
+    pub(crate) fn of_kind(&self, kind: WorkloadKind) -> &ProbeCounts {
         match kind {
             WorkloadKind::Primary => &self.primary,
             WorkloadKind::Shadow => &self.shadow,

@@ -125,7 +125,7 @@ pub fn choose(candidates: &[CostModel], target: TraceTarget<'_>) -> Option<Chose
 
 impl CostModel {
     /// The shipped calibrations ([`SHIPPED_MODELS`]), parsed and validated, in that order.
-    pub fn shipped_models() -> Result<Vec<CostModel>, CostError> {
+    pub(crate) fn shipped_models() -> Result<Vec<CostModel>, CostError> {
         SHIPPED_MODELS
             .iter()
             .map(|s| {

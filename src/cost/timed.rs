@@ -5,7 +5,7 @@
 //! the time per build and per test, and those are where the held-out errors were left (on the scene families,
 //! replacing the predicted builds of every structure by the measured ones took the mean regret of primary rays from
 //! 3.1% to 1.8%, and the traces from 3.1% to 1.4%, `docs/results/2026-12-06-cost-model-curved-builds-incoherent-price.md`). A timed probe measures
-//! them directly, at a price: every contender ([`contenders`]) is built once (the count probes already build five of
+//! them directly, at a price: every contender (`contenders`) is built once (the count probes already build five of
 //! the six structures) and [`TIMED_SIDE`]`^2` rays of the workload's kind are traced through each, on one thread, a
 //! few times ([`TIMED_REPEATS`], the fastest kept: interruptions only ever add time).
 //!
@@ -18,7 +18,7 @@
 //!
 //! Timed probes are not deterministic: two runs may choose differently where two structures are close. They are
 //! off by default: a caller asks for them with [`crate::select::Selector`], level 2 (or
-//! [`crate::select::BuildBounds::with_timed_probes`], which [`crate::select::CalibratedPolicy::timed_probes`]
+//! `crate::select::BuildBounds::with_timed_probes`, which [`crate::select::CalibratedPolicy::timed_probes`]
 //! reads); `evaluate --compare-policies --timed-probes` scores them against the deterministic policy on the same
 //! records (`docs/results/2026-12-06-cost-model-timed-probes.md`).
 
@@ -44,14 +44,14 @@ pub const TIMED_TRACE_CAP_MS: f64 = 100.0;
 pub const TIMED_MIN_RAYS: usize = 64;
 
 /// A structure is worth a timed probe when the model predicts its total within this factor of the least predicted
-/// total ([`contenders`]): on the scene families (held out by family) probing only those gave the same choices as
+/// total (`contenders`): on the scene families (held out by family) probing only those gave the same choices as
 /// probing all six, with 3.4 structures probed on average instead of 6 (1.5: 2.2 probed, primary rays' mean regret
 /// 0.65% -> 0.83%); the factor was chosen on those records.
 pub const CONTENDER_FACTOR: f64 = 2.0;
 
 /// The structures of `preds` whose predicted total is finite and within [`CONTENDER_FACTOR`] of the least: the
 /// ones a timed probe could make the cheapest.
-pub fn contenders(preds: &[super::Prediction]) -> Vec<StructureName> {
+pub(crate) fn contenders(preds: &[super::Prediction]) -> Vec<StructureName> {
     let least = preds.iter().map(|p| p.total_ms).filter(|t| t.is_finite()).fold(f64::INFINITY, f64::min);
     preds
         .iter()
@@ -60,7 +60,7 @@ pub fn contenders(preds: &[super::Prediction]) -> Vec<StructureName> {
         .collect()
 }
 
-/// [`blend`] with only the probes of `preds`'s [`contenders`] (what the policy probes,
+/// [`blend`] with only the probes of `preds`'s `contenders` (what the policy probes,
 /// [`crate::select::Selector`], level 2): the one blend of the evaluations, which are given every structure's
 /// probe.
 pub fn blend_contenders(
@@ -81,7 +81,7 @@ pub struct TimedProbe {
     pub structure: StructureName,
     /// Wall time of its one build, ms.
     pub build_ms: f64,
-    /// Per kind of ray (primary, shadow, diffuse: [`kind_index`]), the fastest time per ray over the repeats, ns,
+    /// Per kind of ray (primary, shadow, diffuse: `kind_index`), the fastest time per ray over the repeats, ns,
     /// on one thread; NaN where fewer than [`TIMED_MIN_RAYS`] rays of that kind were traced.
     pub trace_ns_per_ray: [f64; 3],
     /// Per kind of ray, how many were traced.
@@ -90,7 +90,7 @@ pub struct TimedProbe {
 
 impl TimedProbe {
     /// The time per ray of `kind`, when measured on enough rays.
-    pub fn ns_per_ray(&self, kind: WorkloadKind) -> Option<f64> {
+    pub(crate) fn ns_per_ray(&self, kind: WorkloadKind) -> Option<f64> {
         let i = kind_index(kind);
         let t = self.trace_ns_per_ray[i];
         (self.rays[i] >= TIMED_MIN_RAYS && t.is_finite() && t > 0.0).then_some(t)
@@ -104,7 +104,7 @@ impl TimedProbe {
 
 /// The index of a kind of ray in [`TimedProbe::trace_ns_per_ray`] and [`StructureRatios::trace`]: primary 0, shadow 1,
 /// diffuse 2.
-pub fn kind_index(kind: WorkloadKind) -> usize {
+pub(crate) fn kind_index(kind: WorkloadKind) -> usize {
     match kind {
         WorkloadKind::Primary => 0,
         WorkloadKind::Shadow => 1,
@@ -235,7 +235,7 @@ pub struct StructureRatios {
     pub structure: StructureName,
     /// Of one build.
     pub build: Option<f64>,
-    /// Of the time per ray, per kind of ray (primary, shadow, diffuse: [`kind_index`]).
+    /// Of the time per ray, per kind of ray (primary, shadow, diffuse: `kind_index`).
     pub trace: [Option<f64>; 3],
 }
 

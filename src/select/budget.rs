@@ -17,8 +17,8 @@
 //! cell, as the grid stores it. Per slab the bound is the product of the clipped polygon's cells along the two
 //! other axes, where the grid clips once more per row, so the sum is an **upper bound** of the grid's references,
 //! exact for a triangle one slab thick and one row wide; it costs one clip per slab a triangle meets (one or two for
-//! a small triangle), not one per row and cell as the build's count does. Where that bound exceeds [`grid_count_threshold`]
-//! (or the smaller grid budget a caller passes to [`BuildBounds::of_frames_viewed_within`]), the budget's verdict
+//! a small triangle), not one per row and cell as the build's count does. Where that bound exceeds `grid_count_threshold`
+//! (or the smaller grid budget a caller passes to `BuildBounds::of_frames_viewed_within`), the budget's verdict
 //! and the grid's priced build rest on it, and it can be several times the grid's count (large triangles cross many rows of a slab:
 //! 39.3 million against 9.8 million for 20,000 large overlapping triangles), so the references are then **counted
 //! exactly**, by the grid's own rule (`GridFrame::for_each_run`: one clip per row, the same code the grid builds
@@ -27,7 +27,7 @@
 //! bound's 9 ms there, 3 ms for a fan of 2,000 triangles over one polygon, and nothing on a scene within the
 //! threshold. The bytes follow as the grid counts them (cell starts, references, triangle records).
 //!
-//! [`BuildBounds::of_features`] bounds the same from the [`Features`] alone (when no mesh is at hand): a triangle
+//! `BuildBounds::of_features` bounds the same from the [`Features`] alone (when no mesh is at hand): a triangle
 //! of size bin `k` has a largest extent below `2^(e(S) - k + 1)`, so at most that many cells (plus two) along each
 //! axis; triangles of zero or subnormal extent count 8 cells. The size histogram tells neither zero-area triangles
 //! nor slivers from others, so this bound is far larger than the mesh's where zero-area triangles or long slivers
@@ -54,13 +54,13 @@
 //! gives the kd-tree 16 references per triangle (three times the most the grid needs on a shared mesh, 5.0 on the
 //! teapot, and a quarter of the builders' 64), at least `2^22`, and the grid its builder's own limit (64 per
 //! triangle, at least `2^25`); both 4 GiB. The grid's is the looser because its count is exact where it matters:
-//! past [`grid_count_threshold`] (the kd-tree's default, `max(16 n, 2^22)`) the bound pass counts the grid's
+//! past `grid_count_threshold` (the kd-tree's default, `max(16 n, 2^22)`) the bound pass counts the grid's
 //! references exactly, and the calibrated policy prices the grid's build by them ([`BuildBounds::grid_build_work`],
 //! the work law of `cost::StructureModel::build_work_coef`): 20,000 large overlapping triangles need 9.7 million
 //! references, a build of 265 ms that the law in `n` alone put at 3.2 ms and the work law at 170 ms. A slow grid is
 //! then left out by its predicted total, and a fast one (the best there for primary rays, at a third of the BVH's
 //! total) stays a candidate. Where nothing prices the build (an upper bound, bounds from features alone, or the
-//! thesis policy, [`Budget::check_unpriced`]) the grid is held to the kd-tree's limits too, as before (by default
+//! thesis policy, `Budget::check_unpriced`) the grid is held to the kd-tree's limits too, as before (by default
 //! the threshold). The kd-tree's figure is an estimate with no exact count, so its budget stays the
 //! guard. Both are below the builders' own budgets ([`Budget::BUILDERS`]), so a structure the policy keeps never
 //! fails its build with `OverBudget` (the kd-tree's estimate permitting). [`Budget::check`] lists the structures
@@ -192,7 +192,7 @@ pub enum Bound {
 pub struct BuildBounds {
     /// Triangles of the scene.
     pub triangles: u64,
-    /// Where the bounds come from: `mesh` ([`BuildBounds::of_mesh`]) or `features` ([`BuildBounds::of_features`]).
+    /// Where the bounds come from: `mesh` ([`BuildBounds::of_mesh`]) or `features` (`BuildBounds::of_features`).
     pub source: &'static str,
     /// The grid's resolution (cells along x, y, z).
     pub grid_resolution: [u32; 3],
@@ -210,8 +210,8 @@ pub struct BuildBounds {
     /// Overlap: the triangle boxes' projected areas against the scene box's, and a camera's count on its image
     /// ([`Crossings`], `crate::cost::overlap`), from which the calibrated policy floors its test counts; `None`
     /// from features alone. Of the first frame when bounds of several frames are merged ([`BuildBounds::max`]).
-    pub box_crossings: Option<Crossings>,
-    /// The timed probes of a static scene's view ([`crate::cost::timed`], [`BuildBounds::with_timed_probes`]),
+    pub(crate) box_crossings: Option<Crossings>,
+    /// The timed probes of a static scene's view ([`crate::cost::timed`], `BuildBounds::with_timed_probes`),
     /// which the calibrated policy blends into its predictions when its model has their ratios; empty unless
     /// asked for (they are not deterministic).
     pub timed: Vec<crate::cost::timed::TimedProbe>,
@@ -220,7 +220,7 @@ pub struct BuildBounds {
 impl BuildBounds {
     /// The grid's build work ([`crate::accel::AccelStats::build_work`]: its references) where it is known without
     /// building the grid: the references counted exactly from the mesh ([`Bound::Exact`]; the bound pass counts them
-    /// where their slab bound exceeds [`grid_count_threshold`] or the budget). The calibrated policy prices the
+    /// where their slab bound exceeds `grid_count_threshold` or the budget). The calibrated policy prices the
     /// grid's build by it ([`crate::cost::StructureModel::build_work_coef`]) instead of by its law in `n` alone, which
     /// was fitted on grids of a few references per triangle. `None` otherwise: an upper bound would overprice the
     /// build (1.1 to 1.9 times the count on the generated families, 2.5 on large overlapping triangles).
@@ -233,7 +233,7 @@ impl BuildBounds {
     /// from `camera` (`None`: the framing camera of its box) for rays of `kind`: each of `structures` that `budget`
     /// does not exclude ([`Budget::check`]) built once and traced on a sample of the view
     /// ([`super::Selector`] at level 2 probes the contenders of a first selection only).
-    pub fn with_timed_probes(
+    pub(crate) fn with_timed_probes(
         mut self,
         mesh: &Mesh,
         camera: Option<&crate::geom::Camera>,
@@ -280,13 +280,15 @@ impl BuildBounds {
 
     /// The largest bounds over the frames of a scene ([`BuildBounds::of_mesh`] of each, [`BuildBounds::max`]);
     /// `None` for no frame.
-    pub fn of_frames(frames: &[Mesh]) -> Result<Option<BuildBounds>, MeshError> {
+    #[cfg(test)]
+    pub(crate) fn of_frames(frames: &[Mesh]) -> Result<Option<BuildBounds>, MeshError> {
         BuildBounds::of_frames_viewed(frames, None)
     }
 
     /// [`BuildBounds::of_frames`] with the first frame's crossings viewed from `camera` (the frame the policy
     /// floors; [`BuildBounds::of_mesh_viewed`]).
-    pub fn of_frames_viewed(
+    #[cfg(test)]
+    pub(crate) fn of_frames_viewed(
         frames: &[Mesh],
         camera: Option<&crate::geom::Camera>,
     ) -> Result<Option<BuildBounds>, MeshError> {
@@ -298,7 +300,8 @@ impl BuildBounds {
     /// `budget`'s grid limits and [`grid_count_threshold`] (see the module docs), so that neither the budget's verdict
     /// nor the grid's priced build rests on the looser
     /// bound (up to the builders' own budget, [`Budget::BUILDERS`], past which no grid builds).
-    pub fn of_frames_viewed_within(
+    #[cfg(test)]
+    pub(crate) fn of_frames_viewed_within(
         frames: &[Mesh],
         camera: Option<&crate::geom::Camera>,
         budget: &Budget,
@@ -409,7 +412,7 @@ impl BuildBounds {
     }
 
     /// The bounds from a scene's features alone (see the module docs), with the grid's default rule.
-    pub fn of_features(f: &Features) -> BuildBounds {
+    pub(crate) fn of_features(f: &Features) -> BuildBounds {
         BuildBounds::of_features_with(f, &GridRule::default())
     }
 
@@ -546,7 +549,7 @@ pub struct Budget {
     /// Bytes allowed per structure.
     pub max_bytes: u64,
     /// The grid's references allowed per triangle. The bound pass counts the grid's references exactly wherever
-    /// they may exceed [`grid_count_threshold`], and the calibrated policy then prices the grid's build by them, so
+    /// they may exceed `grid_count_threshold`, and the calibrated policy then prices the grid's build by them, so
     /// the default is the builder's own limit: a slow grid is left out by its predicted time, not by a guess at it.
     pub grid_references_per_triangle: f64,
     /// The grid's references always allowed, however few the triangles.
@@ -570,7 +573,7 @@ impl Default for Budget {
 /// (5.0 per triangle, the teapot) and far beyond the grids the build laws were fitted on (at most 5.25 per triangle).
 /// It is the probes' own grid budget ([`crate::cost::probe::PROBE_GRID_BUDGET`]): a grid past it is neither built
 /// for a probe nor left to the law in `n`.
-pub fn grid_count_threshold(n: u64) -> u64 {
+pub(crate) fn grid_count_threshold(n: u64) -> u64 {
     let [per, least] = crate::cost::probe::PROBE_GRID_BUDGET;
     allowed(per as f64, least as u64, n)
 }
@@ -597,7 +600,8 @@ impl Budget {
     };
 
     /// This budget with the kd-tree's reference limits for the grid too.
-    pub fn same_for_the_grid(self) -> Budget {
+    #[cfg(test)]
+    pub(crate) fn same_for_the_grid(self) -> Budget {
         Budget {
             grid_references_per_triangle: self.references_per_triangle,
             grid_min_references: self.min_references,
@@ -612,7 +616,7 @@ impl Budget {
 
     /// The grid's references allowed for `n` triangles: `max(grid_references_per_triangle * n,
     /// grid_min_references)`.
-    pub fn grid_references(&self, n: u64) -> u64 {
+    pub(crate) fn grid_references(&self, n: u64) -> u64 {
         allowed(self.grid_references_per_triangle, self.grid_min_references, n)
     }
 
@@ -620,14 +624,14 @@ impl Budget {
     ///
     /// The grid's own limits hold where its build is priced by its references ([`BuildBounds::grid_build_work`]);
     /// elsewhere (an upper bound, or bounds from features) the grid is held to the kd-tree's limits too, as before
-    /// the grid had its own (by default [`grid_count_threshold`]), since nothing would price a larger grid's build.
+    /// the grid had its own (by default `grid_count_threshold`), since nothing would price a larger grid's build.
     pub fn check(&self, bounds: &BuildBounds) -> Vec<Exclusion> {
         self.check_priced(bounds, bounds.grid_build_work().is_some())
     }
 
     /// [`Budget::check`] for a policy that prices no build (the thesis policy): the grid held to the kd-tree's
     /// limits too (by default [`grid_count_threshold`]), whatever its count.
-    pub fn check_unpriced(&self, bounds: &BuildBounds) -> Vec<Exclusion> {
+    pub(crate) fn check_unpriced(&self, bounds: &BuildBounds) -> Vec<Exclusion> {
         self.check_priced(bounds, false)
     }
 

@@ -126,9 +126,9 @@ pub struct FrameRule<'a> {
     pub tie_margin: f64,
     /// The structures a rebuild may choose from (the builders the caller has); empty: every calibrated structure.
     pub structures: &'a [StructureName],
-    /// The triangle boxes a ray of the workload crosses in the scene ([`crate::cost::Crossings::for_workload`] of
+    /// The triangle boxes a ray of the workload crosses in the scene (`crate::cost::Crossings::for_workload` of
     /// the first frame, as the static choice takes them): every frame's predictions are floored by them
-    /// ([`overlap_floor`]). `None`: no floor (a caller without the mesh's boxes), and a calibration fitted with the
+    /// (`overlap_floor`). `None`: no floor (a caller without the mesh's boxes), and a calibration fitted with the
     /// crossings reads its mean count ([`crate::cost::StructureModel::crossing_mean`]).
     pub crossings: Option<RayCrossings>,
 }
@@ -270,7 +270,7 @@ impl CalibratedPolicy {
 
     /// Predictions for a scene (first frame's features), `None` without features; with the mesh's
     /// [`crate::select::BuildBounds`], the hierarchies' tests per ray are floored by the overlap
-    /// ([`crate::cost::overlap_floor`]).
+    /// (`crate::cost::overlap_floor`).
     pub fn predictions(&self, scene: &SceneSummary<'_>) -> Option<Vec<Prediction>> {
         let f = scene.features.first()?;
         let mut w = self.workload(scene.features.len());
@@ -307,7 +307,7 @@ impl CalibratedPolicy {
     }
 
     /// The triangle boxes a ray of the workload crosses in the scene's first frame
-    /// ([`crate::cost::Crossings::for_workload`] with [`CalibratedPolicy::camera`]), `None` without the mesh's
+    /// (`crate::cost::Crossings::for_workload` with [`CalibratedPolicy::camera`]), `None` without the mesh's
     /// [`crate::select::BuildBounds`] or features.
     pub fn crossings(&self, scene: &SceneSummary<'_>) -> Option<RayCrossings> {
         let f = scene.features.first()?;

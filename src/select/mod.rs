@@ -20,7 +20,6 @@ mod report;
 mod selector;
 mod thesis;
 
-pub use crate::cost::Crossings;
 pub use budget::{Budget, BuildBounds, Exclusion};
 #[cfg(feature = "eval")]
 pub(crate) use calibrated::planned_total;

@@ -65,9 +65,9 @@ impl CostModel {
 
     /// [`CostModel::fit_with_ridge`], and with `crossings` the test-count laws also take `ln(1 + crossings)`
     /// ([`crate::cost::StructureModel::crossing_coef`]) from each sample's [`Sample::crossings`] (none counts as 0): the
-    /// triangle boxes a ray of the workload crosses ([`crate::cost::TestFloor::crossings`]), which the predictions then read
-    /// from the floor they are given ([`CostModel::predict_floored`]). A caller without a count ([`CostModel::predict`],
-    /// a floor of [`crate::cost::TestFloor::default`]) gets the samples' mean per workload kind
+    /// triangle boxes a ray of the workload crosses (`crate::cost::TestFloor::crossings`), which the predictions then read
+    /// from the floor they are given (`CostModel::predict_floored`). A caller without a count ([`CostModel::predict`],
+    /// a floor of `crate::cost::TestFloor::default`) gets the samples' mean per workload kind
     /// ([`crate::cost::StructureModel::crossing_mean`]).
     pub fn fit_with(
         samples: &[Sample],

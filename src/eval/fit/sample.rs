@@ -79,8 +79,8 @@ pub struct Sample {
     /// Features of every measured frame of an animation (empty for one frame, or when not computed): the drift of
     /// an updated driver structure is measured against them.
     pub frame_features: Vec<Features>,
-    /// The triangle boxes the record's rays cross on average (the first frame's [`crate::cost::Crossings`] for its
-    /// workload and camera, [`crate::cost::Crossings::for_workload`]; `None` when not computed): the policies' overlap floor ([`crate::cost::overlap_floor`]) reads them.
+    /// The triangle boxes the record's rays cross on average (the first frame's `crate::cost::Crossings` for its
+    /// workload and camera, `crate::cost::Crossings::for_workload`; `None` when not computed): the policies' overlap floor (`crate::cost::overlap_floor`) reads them.
     pub crossings: Option<crate::cost::RayCrossings>,
     /// The timed probes of the record's scene and camera (`crate::cost::timed::time_probes`), when taken (empty
     /// otherwise): what [`crate::cost::timed::TimedRatios::fit`] reads and the timed policy blends in.

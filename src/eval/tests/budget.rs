@@ -818,7 +818,8 @@ fn counts_per_ray(s: StructureName, m: &Mesh, kind: WorkloadKind) -> (f64, f64, 
 
 #[test]
 fn secondary_rays_leaving_a_flat_scene_test_each_hierarchys_root_once_as_predicted() {
-    use meshchar::cost::{overlap_floor, secondary_rays_leave_the_plane, Crossings};
+    use meshchar::cost::overlap::{overlap_floor, secondary_rays_leave_the_plane};
+    use meshchar::cost::Crossings;
     let hierarchies =
         [StructureName::Bvh, StructureName::KdTree, StructureName::Bih, StructureName::Lbvh, StructureName::Hlbvh];
     for m in [
@@ -917,7 +918,8 @@ fn secondary_rays_from_a_closed_scene_seen_from_outside_leave_it_at_once_as_pred
 
 #[test]
 fn the_rays_leaving_at_once_follow_the_box_of_every_frame_and_any_axis() {
-    use meshchar::cost::{secondary_rays_leave_the_plane, Crossings};
+    use meshchar::cost::overlap::secondary_rays_leave_the_plane;
+    use meshchar::cost::Crossings;
     use meshchar::mesh::families::{generate as family, Family};
     // A flat scene in the plane y = 5 (a floor away from the origin), seen from the framing camera.
     let mut floor = generate::flat(2000, 1);
@@ -1036,7 +1038,8 @@ fn every_hierarchy_tests_at_least_the_triangles_whose_boxes_a_ray_enters_before_
     // close up, 2,000 overlapping triangles), small (a closed interior from inside) and random. The argument does
     // not hold for the kd-tree and the grid, which store a triangle only in the cells it overlaps: the grid makes far
     // fewer on the engineering slivers, and neither takes this floor.
-    use meshchar::cost::{near_crossings, screen_crossings, NEAR_SAMPLES};
+    use meshchar::cost::overlap::NEAR_SAMPLES;
+    use meshchar::cost::{near_crossings, screen_crossings};
     use meshchar::mesh::families::{generate as family, Family};
     use meshchar::trace::trace;
     use meshchar::trace::views::View;
@@ -1181,7 +1184,8 @@ fn a_probe_counts_the_structures_own_tests_on_its_sample() {
     // shadow and diffuse rays it starts, from the reference BVH's hits, with the workload's own seed) the structure's
     // counts lie within four standard errors of the probe's means (plus 2%): the sample stands for the workload.
     // Checked for each structure the policy probes.
-    use meshchar::cost::{near_sample_side, probe, NEAR_SAMPLES, PROBED};
+    use meshchar::cost::overlap::NEAR_SAMPLES;
+    use meshchar::cost::{near_sample_side, probe, PROBED};
     use meshchar::mesh::families::{generate as family, Family};
     use meshchar::trace::trace;
     use meshchar::trace::views::View;
