@@ -191,6 +191,12 @@ impl FeatureChange {
 /// [`CharError`] for invalid parameters, an empty sample, or bounds that cannot be quantized (as the
 /// characterization).
 pub fn features_cpu(mesh: &Mesh, params: &Params) -> Result<Features, CharError> {
+    features_with(mesh, params, None)
+}
+
+/// [`features_cpu`] with the codes of `quantizer` where one is given (a planned run's feature pass counts the cells
+/// of the plan's codes), else of the sample's own quantizer.
+pub(crate) fn features_with(mesh: &Mesh, params: &Params, quantizer: Option<Quantizer>) -> Result<Features, CharError> {
     params.validate()?;
     mesh.validate()?;
     let stride = params.sample_stride.max(1) as usize;
@@ -210,8 +216,11 @@ pub fn features_cpu(mesh: &Mesh, params: &Params) -> Result<Features, CharError>
         let [v0, v1, v2] = tri(i);
         keys::centroid_key(v0, v1, v2)
     };
-    let q =
-        Quantizer::of_keys(ids.len(), |j| key(ids[j]), bits).map_err(|e| CharError::of_keys(&mesh.name, stride, e))?;
+    let q = match quantizer {
+        Some(q) => q,
+        None => Quantizer::of_keys(ids.len(), |j| key(ids[j]), bits)
+            .map_err(|e| CharError::of_keys(&mesh.name, stride, e))?,
+    };
     // Vertex bounds in the IEEE total order (min/max of the total order are associative and commutative: any
     // split of the work gives the same bits).
     let (vlo, vhi) = crate::in_pool(|| {

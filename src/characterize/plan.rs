@@ -12,7 +12,7 @@
 //! planned run equals the staged one.
 
 use super::finalize::{class_count_of, class_of, histogram_stats};
-use super::{Backend, CharError, Characterization, CodeStats, Exact, Params, PassTime, PerTriangle};
+use super::{Backend, CharError, Characterization, CodeStats, Exact, Features, Params, PassTime, PerTriangle};
 use crate::characterize::cpu::cpu_device_name;
 use crate::keys::{centroid_key, morton, quantize, KeyBounds, MortonBits, Quantizer};
 use crate::mesh::Mesh;
@@ -99,6 +99,27 @@ pub struct PlannedCharacterization {
     pub report: Characterization,
     /// The plan it ran with.
     pub plan: Plan,
+}
+
+/// The CPU reference of a planned run's scene features (docs/spec.md, "Planned characterization"): those of
+/// [`crate::characterize::features_cpu`], except that the occupied cells are counted on the plan's codes
+/// (`morton(quantize(key, plan.lo, plan.scale))`, clamped as in [`reference`]), as the device's feature pass of a
+/// planned run counts them. With the mesh's own plan ([`Plan::exact`]) it equals `features_cpu`; with a stale plan
+/// the occupied cells may differ from it, the other features never.
+///
+/// Errors: as [`reference`] for the plan and the parameters, as `features_cpu` for the mesh.
+pub fn features_reference(mesh: &Mesh, params: &Params, plan: &Plan) -> Result<Features, CharError> {
+    if plan.bits != params.morton_bits {
+        return Err(CharError::Input {
+            mesh: mesh.name.clone(),
+            reason: format!(
+                "plan of {}-bit codes for {}-bit parameters",
+                plan.bits.total(),
+                params.morton_bits.total()
+            ),
+        });
+    }
+    crate::characterize::features::features_with(mesh, params, Some(plan.quantizer()))
 }
 
 /// The CPU reference of a planned run (docs/spec.md, "Planned characterization"), one element at a time: keys and

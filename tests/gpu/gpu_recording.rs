@@ -176,6 +176,8 @@ fn characterization_features_lbvh_and_refit_in_one_caller_command_buffer_over_in
     let want_a = cpu::fast(&a, &params).unwrap();
     assert_eq!(comparable(got_a.report), comparable(want_a), "planned run with its own plan = staged CPU report");
     assert_eq!(features_a.expect("features recorded"), features_cpu(&a, &params).unwrap());
+    let own = meshchar::characterize::plan::features_reference(&a, &params, &plan_a).unwrap();
+    assert_eq!(own, features_cpu(&a, &params).unwrap(), "with its own plan the planned features are the staged ones");
 
     let (got_b, features_b) = backend.finish_planned(1).unwrap();
     assert!(features_b.is_none());
@@ -208,10 +210,17 @@ fn planned_runs_clamp_keys_outside_the_plan_exactly_as_the_reference() {
     let plan = Plan::exact(&small, &params, max_k).unwrap();
     let buffers = meshchar::gpu::MeshBuffers::upload(&ctx, &big.positions, &big.indices).unwrap();
     gpu_support::in_caller_command_buffer(&ctx, |rec| {
-        backend.record_planned(rec, 0, &buffers.view(), "big", &params, &plan, false).unwrap();
+        backend.record_planned(rec, 0, &buffers.view(), "big", &params, &plan, true).unwrap();
     });
-    let (got, _) = backend.finish_planned(0).unwrap();
+    let (got, features) = backend.finish_planned(0).unwrap();
     let want = reference(&big, &params, &plan).unwrap();
+    // The feature pass counts the cells of the plan's codes: the planned reference, not the staged features.
+    let features = features.expect("features recorded");
+    let planned = meshchar::characterize::plan::features_reference(&big, &params, &plan).unwrap();
+    let staged = features_cpu(&big, &params).unwrap();
+    assert_eq!(features, planned, "planned features = plan::features_reference");
+    assert_ne!(planned.occupied_cells, staged.occupied_cells, "the stale plan must change the counted cells");
+    assert_eq!((planned.size_histogram, planned.lo, planned.hi), (staged.size_histogram, staged.lo, staged.hi));
     let top = (1u64 << 63) - 1;
     assert!(got.report.code_stats.code_min == 0 && got.report.code_stats.code_max == top, "keys must clamp");
     assert_eq!(comparable(got.report), comparable(want.report));
