@@ -103,11 +103,11 @@ pub struct PlannedCharacterization {
 
 /// The CPU reference of a planned run's scene features (docs/spec.md, "Planned characterization"): those of
 /// [`crate::characterize::features_cpu`], except that the occupied cells are counted on the plan's codes
-/// (`morton(quantize(key, plan.lo, plan.scale))`, clamped as in [`reference`]), as the device's feature pass of a
+/// (`morton(quantize(key, plan.lo, plan.scale))`, clamped as in [`reference()`]), as the device's feature pass of a
 /// planned run counts them. With the mesh's own plan ([`Plan::exact`]) it equals `features_cpu`; with a stale plan
 /// the occupied cells may differ from it, the other features never.
 ///
-/// Errors: as [`reference`] for the plan and the parameters, as `features_cpu` for the mesh.
+/// Errors: as [`reference()`] for the plan and the parameters, as `features_cpu` for the mesh.
 pub fn features_reference(mesh: &Mesh, params: &Params, plan: &Plan) -> Result<Features, CharError> {
     if plan.bits != params.morton_bits {
         return Err(CharError::Input {
