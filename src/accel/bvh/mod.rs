@@ -313,8 +313,7 @@ impl BvhTree {
             *t = Triangle::new(&mesh.triangle(id as usize));
         }
         if let Some(&(copy, kept)) = self.copies.iter().find(|&&(c, k)| {
-            let bits =
-                |r: u32| self.tris.get(r as usize).map(|t| [t.v0, t.e1, t.e2].map(|x| x.to_array().map(f32::to_bits)));
+            let bits = |r: u32| self.tris.get(r as usize).map(record_bits);
             bits(c) != bits(k)
         }) {
             return Err(bad(format!(
@@ -409,8 +408,7 @@ impl BvhTree {
             let (Some(tc), Some(tk)) = (self.tris.get(c), self.tris.get(k)) else {
                 return Err(v.invalid(format!("copy {copy} of {kept}: out of range")));
             };
-            let bits = |t: &Triangle| [t.v0, t.e1, t.e2].map(|x| x.to_array().map(f32::to_bits));
-            if bits(tc) != bits(tk) || self.ids[k] >= self.ids[c] {
+            if record_bits(tc) != record_bits(tk) || self.ids[k] >= self.ids[c] {
                 return Err(v.invalid(format!(
                     "record {copy} (triangle {}) is no later copy of record {kept} (triangle {})",
                     self.ids[c], self.ids[k]
@@ -420,6 +418,11 @@ impl BvhTree {
         }
         v.finish()
     }
+}
+
+/// The bits of a triangle record (`v0`, `e1`, `e2`): equal bits give equal hits, to the bit, under the tie rule.
+fn record_bits(t: &Triangle) -> [[u32; 3]; 3] {
+    [t.v0, t.e1, t.e2].map(|x| x.to_array().map(f32::to_bits))
 }
 
 #[cfg(test)]
