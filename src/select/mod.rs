@@ -14,6 +14,7 @@
 
 pub mod budget;
 mod calibrated;
+mod climb;
 pub mod driver;
 pub(crate) mod ladder;
 mod report;
@@ -24,10 +25,10 @@ pub use budget::{Budget, BuildBounds, Exclusion};
 #[cfg(feature = "eval")]
 pub(crate) use calibrated::planned_total;
 pub use calibrated::{choose, plan_frames, CalibratedPolicy, FrameAction, FrameDecision, FrameRule};
+#[cfg(feature = "eval")]
+pub(crate) use climb::{climb, Knowledge};
 pub use driver::{plan_driver_frames, DriverAction, DriverFrameDecision, DriverFrameRule, DriverSelection};
 pub use report::{Bounds, Report, SelectionCost, Timings};
-#[cfg(feature = "eval")]
-pub(crate) use selector::{climb, Knowledge};
 pub use selector::{
     Decision, Inquiry, Level, Policy as PolicyKind, Scene, Selector, SizeRung, Step, DEFAULT_DECISION_BUDGET,
 };

@@ -7,8 +7,12 @@ mod common;
 mod gpu_support;
 
 mod budget;
+mod budget_floor;
+mod budget_probes;
 mod cost;
 mod cost_driver;
+mod cost_families;
 mod cost_file;
+mod cost_policy;
 mod eval;
 mod tradeoff;
