@@ -34,6 +34,50 @@
 //! # Ok(())
 //! # }
 //! ```
+//!
+//! In an engine, on its device, inside its frame (the same calls as `examples/engine_frame.rs`, one mesh):
+//!
+//! ```no_run
+//! # use meshchar::ash::{self, vk};
+//! use meshchar::accel::{gpu::BvhBuilder, lbvh::LbvhOptions};
+//! use meshchar::characterize::{plan::Plan, vulkan::VulkanBackend, Params};
+//! use meshchar::cost::CostModel;
+//! use meshchar::gpu::{Context, GeometryView, IndexType, RawDevice, Recorder};
+//! use meshchar::select::{Scene, Selector, Structure, TargetWorkload};
+//! # #[allow(clippy::too_many_arguments)]
+//! # fn frame(instance: ash::Instance, device: ash::Device, physical_device: vk::PhysicalDevice, queue_family: u32,
+//! #     cmd: vk::CommandBuffer, mesh: &meshchar::mesh::Mesh, vertices: u64, indices: u64, vertex_count: u64,
+//! #     triangles: u64, slot: usize) -> Result<(), Box<dyn std::error::Error>> {
+//!
+//! // At load: the engine's device (created with gpu::required_device_features), handed over, never destroyed.
+//! let ctx = unsafe { Context::from_raw(RawDevice::new(instance, device, physical_device, queue_family, 0)) }?;
+//! let params = Params::default();
+//! let mut backend = VulkanBackend::with_slots(&ctx, 2)?; // one slot per frame in flight
+//! let mut builder = BvhBuilder::new(&ctx)?;
+//! let model = CostModel::shipped()?; // or the file `calibrate` wrote on this device
+//! let mut plan = Plan::exact(&mesh, &params, backend.max_classes())?; // from the host copy, once
+//!
+//! // Each frame: the engine's own vertex (32-byte stride) and index buffers, its own command buffer, begun.
+//! let view = unsafe {
+//!     GeometryView::from_addresses(vertices, 32, vertex_count, Some((indices, IndexType::U32, 0)), triangles)
+//! }?;
+//! let mut rec = unsafe { Recorder::new(&ctx, cmd) };
+//! backend.record_planned(&mut rec, slot, &view, "mesh", &params, &plan, true)?; // characterization + features
+//! let mut bvh = builder.record_lbvh(&mut rec, &view, &plan.quantizer(), &LbvhOptions::default())?;
+//! // ... the engine ends `cmd`, submits it, and (a frame or more later) sees its fence signalled ...
+//!
+//! let (planned, features) = backend.finish_planned(slot)?;
+//! bvh.finish()?; // the tree is ready on the device for the engine's trace
+//! plan = Plan::after(&planned.report, &params, backend.max_classes())?; // the next frame's plan
+//! let mut selector = Selector::new(&model, TargetWorkload::default()); // 1024 x 1024 primary rays
+//! selector.structures = vec![Structure::Lbvh, Structure::Hlbvh]; // what this engine builds on its device
+//! let (reports, features) = ([planned.report], [features.ok_or("recorded with features")?]);
+//! let scene = Scene { name: "mesh", characterizations: &reports, features: &features, meshes: &[] };
+//! let decision = selector.select(&scene); // level 0: microseconds on the host, no wait
+//! println!("{}: {}", decision.structure(), decision.selection.reasons.join("; "));
+//! # Ok(())
+//! # }
+//! ```
 #![deny(missing_docs)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used))]
 

@@ -17,3 +17,4 @@ mod families;
 mod fuzz_seeds;
 mod layers;
 mod mesh_load;
+mod readme;
