@@ -36,6 +36,7 @@ use super::{
     bytes_of, check_permutation, prepare, sah_cost, triangle_in_box, AccelError, AccelStats, AccelStructure,
     StructureName, TraversalStack, Validation,
 };
+use crate::accel::copies::record_bits;
 use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCounters};
 use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
@@ -84,6 +85,9 @@ pub struct Bih {
     tris: Vec<Triangle>,
     ids: Vec<u32>,
     bounds: Aabb,
+    /// Records in no leaf (after every leaf's), copies of another record (`crate::accel::copies`), as
+    /// `(record, record kept)`.
+    copies: Vec<(u32, u32)>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -155,6 +159,7 @@ fn build_rec(
     mut stall: u32,
     o: &BihOptions,
     known: Option<Extents>,
+    coincident: &std::sync::atomic::AtomicBool,
 ) -> Sub {
     let n = refs.len();
     if n <= o.max_leaf.max(1) {
@@ -189,14 +194,14 @@ fn build_rec(
             cand.min[axis] = p;
             let lo = e.bounds[0][axis];
             if lo > p {
-                let r = build_rec(refs, first, cand, stall, o, ext);
+                let r = build_rec(refs, first, cand, stall, o, ext, coincident);
                 return combine(axis, [f32::NEG_INFINITY, lo], Sub { nodes: vec![leaf_node(first, 0)] }, r);
             }
         } else {
             cand.max[axis] = p;
             let hi = e.bounds[1][axis];
             if hi < p {
-                let l = build_rec(refs, first, cand, stall, o, ext);
+                let l = build_rec(refs, first, cand, stall, o, ext, coincident);
                 return combine(axis, [hi, f32::INFINITY], l, Sub { nodes: vec![leaf_node(first + n, 0)] });
             }
         }
@@ -217,6 +222,10 @@ fn build_rec(
             for r in refs.iter() {
                 cb.grow((r.min + r.max) * 0.5);
             }
+            if cb.min == cb.max {
+                // Every centre in one point: copies of one triangle, perhaps (`Bih::build_with` then looks).
+                coincident.store(true, std::sync::atomic::Ordering::Relaxed);
+            }
             let axis = cb.longest_axis();
             let m = n / 2;
             refs.select_nth_unstable_by(m, |a, b| a.center(axis).total_cmp(&b.center(axis)).then(a.idx.cmp(&b.idx)));
@@ -232,9 +241,12 @@ fn build_rec(
     let left_clip = lr.iter().fold(f32::NEG_INFINITY, |a, r| a.max(r.max[axis]));
     let right_clip = rr.iter().fold(f32::INFINITY, |a, r| a.min(r.min[axis]));
     let (l, r) = if n >= o.parallel_threshold {
-        rayon::join(|| build_rec(lr, first, lc, stall, o, None), || build_rec(rr, first + m, rc, stall, o, None))
+        rayon::join(
+            || build_rec(lr, first, lc, stall, o, None, coincident),
+            || build_rec(rr, first + m, rc, stall, o, None, coincident),
+        )
     } else {
-        (build_rec(lr, first, lc, stall, o, None), build_rec(rr, first + m, rc, stall, o, None))
+        (build_rec(lr, first, lc, stall, o, None, coincident), build_rec(rr, first + m, rc, stall, o, None, coincident))
     };
     combine(axis, [left_clip, right_clip], l, r)
 }
@@ -273,12 +285,48 @@ impl Bih {
             return Ok(Bih::default());
         }
         let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
-        let mut refs: Vec<BRef> =
-            boxes.iter().enumerate().map(|(i, b)| BRef { min: b.min, idx: i as u32, max: b.max }).collect();
-        let sub = build_rec(&mut refs, 0, bounds, 0, o, None);
-        let ids: Vec<u32> = refs.iter().map(|r| r.idx).collect();
+        let coincident = std::sync::atomic::AtomicBool::new(false);
+        let first = Bih::build_without(&tris, &boxes, bounds, o, &[], &coincident);
+        // Coincident copies cannot be split apart: they show as a node whose centres all lie in one point. Only then
+        // are they looked for (a pass and a sort, a quarter of a build), and the tree rebuilt over the smallest index
+        // of each group, the copies after the leaves' records.
+        if !coincident.load(std::sync::atomic::Ordering::Relaxed) {
+            return Ok(first);
+        }
+        let copies = super::copies::position_copies(mesh, &tris);
+        if copies.is_empty() {
+            return Ok(first);
+        }
+        Ok(Bih::build_without(&tris, &boxes, bounds, o, &copies, &coincident))
+    }
+
+    /// The tree over every triangle but the copies of `copies` (`(copy, kept)` mesh indices), which follow the
+    /// leaves' records.
+    fn build_without(
+        tris: &[Triangle],
+        boxes: &[Aabb],
+        bounds: Aabb,
+        o: &BihOptions,
+        copies: &[(u32, u32)],
+        coincident: &std::sync::atomic::AtomicBool,
+    ) -> Bih {
+        let is_copy = super::copies::copy_mask(boxes.len(), copies);
+        let mut refs: Vec<BRef> = boxes
+            .iter()
+            .enumerate()
+            .filter(|&(i, _)| !is_copy[i])
+            .map(|(i, b)| BRef { min: b.min, idx: i as u32, max: b.max })
+            .collect();
+        let sub = build_rec(&mut refs, 0, bounds, 0, o, None, coincident);
+        let mut ids: Vec<u32> = refs.iter().map(|r| r.idx).collect();
+        ids.extend(copies.iter().map(|&(c, _)| c));
+        let mut record = vec![0u32; ids.len()];
+        for (r, &i) in ids.iter().enumerate() {
+            record[i as usize] = r as u32;
+        }
+        let copies = copies.iter().map(|&(c, k)| (record[c as usize], record[k as usize])).collect();
         let tris = ids.iter().map(|&i| tris[i as usize]).collect();
-        Ok(Bih { nodes: sub.nodes, tris, ids, bounds })
+        Bih { nodes: sub.nodes, tris, ids, bounds, copies }
     }
 
     /// The nodes (root first).
@@ -410,7 +458,7 @@ impl AccelStructure for Bih {
     }
     traversal_methods!();
     fn memory_bytes(&self) -> usize {
-        bytes_of(&self.nodes) + bytes_of(&self.tris) + bytes_of(&self.ids)
+        bytes_of(&self.nodes) + bytes_of(&self.tris) + bytes_of(&self.ids) + bytes_of(&self.copies)
     }
 
     fn build_work(&self) -> Option<f64> {
@@ -463,6 +511,18 @@ impl AccelStructure for Bih {
                 stack.push((ch, l, depth + 1));
                 stack.push((ch + 1, r, depth + 1));
             }
+        }
+        for &(c, k) in &self.copies {
+            let same = match (self.tris.get(c as usize), self.tris.get(k as usize)) {
+                (Some(tc), Some(tk)) => {
+                    record_bits(tc) == record_bits(tk) && self.ids[k as usize] < self.ids[c as usize]
+                }
+                _ => false,
+            };
+            if !same {
+                return Err(v.invalid(format!("record {c} is no copy of record {k} with a smaller index")));
+            }
+            v.copy(c as usize, k as usize)?;
         }
         v.finish()
     }

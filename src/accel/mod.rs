@@ -67,6 +67,7 @@ pub(crate) mod bounce;
 #[cfg(feature = "eval")]
 pub mod brute;
 pub mod bvh;
+pub(crate) mod copies;
 pub mod device;
 pub mod device_trace;
 pub mod driver;

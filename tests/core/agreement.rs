@@ -287,3 +287,60 @@ fn copies_over_their_own_vertices_are_one_triangle_to_the_bvh_and_the_oracle() {
     refitted.validate().expect("valid after the refit");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// The kd-tree keeps one triangle of each group of coincident copies (bit-identical positions, each copy over
+/// vertices of its own), the smallest index, and the BIH does where copies would overfill a leaf: their statistics
+/// count the copies, `validate` accepts them, every structure agrees with brute force on all three workloads over a
+/// soup with copies scattered through it, and on 20,000 copies of one triangle a ray tests the group once.
+#[test]
+fn the_kd_tree_and_the_bih_keep_one_triangle_of_each_group_of_copies() {
+    // Random triangles grown 15 times about their centroids, so that they overlap and the rays hit them.
+    let mut soup = meshchar::mesh::generate::random_soup(1500, 31);
+    for t in soup.indices.clone() {
+        let c: [f32; 3] = std::array::from_fn(|a| t.iter().map(|&v| soup.positions[v as usize][a]).sum::<f32>() / 3.0);
+        for &v in &t {
+            let p = &mut soup.positions[v as usize];
+            *p = std::array::from_fn(|a| c[a] + 15.0 * (p[a] - c[a]));
+        }
+    }
+    // Copies of every 7th triangle, one to three each, appended over vertices of their own, so that a group's kept
+    // triangle (its smallest index) lies in the soup and its copies far later.
+    let mut mesh = soup.clone();
+    let mut expected = 0;
+    for (i, t) in soup.indices.iter().enumerate().step_by(7) {
+        for _ in 0..1 + i % 3 {
+            let base = mesh.positions.len() as u32;
+            mesh.positions.extend(t.iter().map(|&v| soup.positions[v as usize]));
+            mesh.indices.push([base, base + 1, base + 2]);
+            expected += 1;
+        }
+    }
+    mesh.name = "soup with copies".into();
+    let brute = build_structure(StructureName::Brute, &mesh).expect("brute force");
+    let (bad, hits) = disagreements(&mesh, brute.as_ref(), 24);
+    assert!(bad.is_empty(), "{}", bad.join("\n"));
+    assert!(hits > 0, "no ray hit");
+    let stats = build_structure(StructureName::KdTree, &mesh).expect("build").validate().expect("valid");
+    assert_eq!((stats.triangles, stats.copies), (mesh.triangle_count(), expected));
+    let stats = build_structure(StructureName::Bih, &mesh).expect("build").validate().expect("valid");
+    assert!(stats.triangles == mesh.triangle_count() && stats.copies <= expected, "{stats:?}");
+    // One triangle 20,000 times over vertices of its own: the group is tested once per ray.
+    let mut stack = Mesh { name: "stack".into(), ..Default::default() };
+    for k in 0..20_000u32 {
+        stack.positions.extend([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+        stack.indices.push([3 * k, 3 * k + 1, 3 * k + 2]);
+    }
+    let camera = Camera::frame(&mesh_bounds(&stack));
+    let brute = build_structure(StructureName::Brute, &stack).expect("brute force");
+    let rays = build_workload(WorkloadKind::Primary, &stack, &camera, 16, brute.as_ref());
+    let want = trace(brute.as_ref(), &rays);
+    for s in [StructureName::KdTree, StructureName::Bih] {
+        let accel = build_structure(s, &stack).expect("build");
+        assert_eq!(accel.validate().expect("valid").copies, 19_999, "{s}");
+        let got = trace(accel.as_ref(), &rays);
+        assert!(want.hits.iter().zip(&got.hits).all(|(a, b)| hits_agree(a, b)), "{s}");
+        assert!(got.hits.iter().flatten().all(|h| h.triangle == 0), "{s}: a hit on a later copy");
+        let per_ray = got.counters.prim_tests as f64 / got.rays() as f64;
+        assert!(per_ray <= 2.0, "{s}: {per_ray} triangle tests per ray");
+    }
+}

@@ -30,6 +30,7 @@ pub use sah::{Bvh, BvhOptions};
 use super::{
     bytes_of, check_permutation, sah_cost, triangle_in_box, AccelError, AccelStats, TraversalStack, Validation,
 };
+use crate::accel::copies::record_bits;
 use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCounters};
 use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
@@ -418,11 +419,6 @@ impl BvhTree {
         }
         v.finish()
     }
-}
-
-/// The bits of a triangle record (`v0`, `e1`, `e2`): equal bits give equal hits, to the bit, under the tie rule.
-fn record_bits(t: &Triangle) -> [[u32; 3]; 3] {
-    [t.v0, t.e1, t.e2].map(|x| x.to_array().map(f32::to_bits))
 }
 
 #[cfg(test)]

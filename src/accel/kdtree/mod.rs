@@ -58,6 +58,7 @@ use super::{
     bytes_of, invalid, prepare, sah_cost, AccelError, AccelStats, AccelStructure, StructureName, TraversalStack,
     Validation,
 };
+use crate::accel::copies::record_bits;
 use crate::geom::{closer_hit, cull_bound, tie_margin, Hit, Ray, RayInv, TraceCounters};
 use crate::geom::{Aabb, Triangle};
 use crate::mesh::Mesh;
@@ -162,6 +163,8 @@ pub struct KdTree {
     boxes: Vec<Aabb>,
     ids: Vec<u32>,
     bounds: Aabb,
+    /// Records in no leaf, copies of another record (`crate::accel::copies`), as `(record, record kept)`.
+    copies: Vec<(u32, u32)>,
 }
 
 /// The box a triangle's reference starts from: its bounding box, or the centre of it for a zero-area triangle.
@@ -386,7 +389,11 @@ impl KdTree {
             return Ok(KdTree::default());
         }
         let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(b));
+        // Coincident copies keep their smallest index only: every leaf would hold each copy, and a ray test them all.
+        let copies = super::copies::position_copies(mesh, &tris);
+        let is_copy = super::copies::copy_mask(n, &copies);
         let refs: Vec<KRef> = (0..n)
+            .filter(|&i| !is_copy[i])
             .map(|i| {
                 let b = reference_box(&tris[i], &boxes[i]);
                 KRef { min: b.min, idx: i as u32, max: b.max }
@@ -394,7 +401,8 @@ impl KdTree {
             .collect();
         let max_depth = (8.0 + 1.3 * (n as f64).log2()).round() as u32;
         let b = Build { o, max_depth };
-        let root = Path { depth: 0, chain: 0, bad: 0, allowance: o.reference_budget(n).max(n) };
+        let kept = n - copies.len();
+        let root = Path { depth: 0, chain: 0, bad: 0, allowance: o.reference_budget(kept).max(kept) };
         let mut out = concat(build_rec(refs, bounds, root, &b));
         if out.refs.len() > MAX_INDEX || out.nodes.len() > MAX_INDEX {
             return Err(AccelError::TooLarge {
@@ -411,7 +419,12 @@ impl KdTree {
             .map(|nd| ((nd.flags >> 2) as usize, (nd.flags >> 2) as usize + nd.split_or_count as usize))
             .collect();
         let ids = super::renumber_by_first_use(&mut out.refs, &lists, &mut tris, &mut boxes);
-        Ok(KdTree { nodes: out.nodes, refs: out.refs, tris, boxes, ids, bounds })
+        let mut record = vec![0u32; n];
+        for (r, &i) in ids.iter().enumerate() {
+            record[i as usize] = r as u32;
+        }
+        let copies = copies.iter().map(|&(c, k)| (record[c as usize], record[k as usize])).collect();
+        Ok(KdTree { nodes: out.nodes, refs: out.refs, tris, boxes, ids, bounds, copies })
     }
 
     /// The nodes, depth-first, root first.
@@ -564,7 +577,11 @@ impl AccelStructure for KdTree {
     }
     traversal_methods!();
     fn memory_bytes(&self) -> usize {
-        bytes_of(&self.nodes) + bytes_of(&self.refs) + bytes_of(&self.tris) + bytes_of(&self.ids)
+        bytes_of(&self.nodes)
+            + bytes_of(&self.refs)
+            + bytes_of(&self.tris)
+            + bytes_of(&self.ids)
+            + bytes_of(&self.copies)
     }
 
     /// Checks: every node reached exactly once, splits strictly inside their voxel, leaf ranges inside the
@@ -610,12 +627,35 @@ impl AccelStructure for KdTree {
                 stack.push((right, rv, depth + 1));
             }
         }
-        let stats = v.finish()?;
-        for i in 0..n {
-            if self.check_reference(i)? == 0 {
+        let mut stats = v.finish()?;
+        let mut copy = vec![false; n];
+        let mut referenced = vec![false; n];
+        for &r in &self.refs {
+            if let Some(x) = referenced.get_mut(r as usize) {
+                *x = true;
+            }
+        }
+        for &(c, k) in &self.copies {
+            let (tc, tk) = match (self.tris.get(c as usize), self.tris.get(k as usize)) {
+                (Some(tc), Some(tk)) if c != k => (tc, tk),
+                _ => return Err(invalid("kdtree", format!("copy ({c}, {k}) out of range"))),
+            };
+            if record_bits(tc) != record_bits(tk) || self.ids[k as usize] >= self.ids[c as usize] {
+                return Err(invalid("kdtree", format!("record {c} is no copy of record {k} with a smaller index")));
+            }
+            if std::mem::replace(&mut copy[c as usize], true) || referenced[c as usize] {
+                return Err(invalid("kdtree", format!("copy {c} listed twice or in a leaf")));
+            }
+            if !referenced[k as usize] {
+                return Err(invalid("kdtree", format!("record {k}, kept for copy {c}, in no leaf")));
+            }
+        }
+        for (i, &is_copy) in copy.iter().enumerate() {
+            if !is_copy && self.check_reference(i)? == 0 {
                 return Err(invalid("kdtree", format!("triangle {i} in no leaf")));
             }
         }
+        stats.copies = self.copies.len();
         Ok(stats)
     }
 

@@ -25,6 +25,7 @@
 //! path (3-4x the build time on the bunny).
 
 use super::{BvhNode, BvhTree};
+use crate::accel::copies::position_bits;
 use crate::accel::{
     prepare, AccelError, AccelStats, AccelStructure, StructureName, SAH_INTERSECTION_COST, SAH_TRAVERSAL_COST,
 };
@@ -192,19 +193,6 @@ fn ranks_into(keys: &[u64], order: &mut [usize; EXACT_MAX]) {
         let rank: usize = keys.iter().map(|&kj| (kj < ki) as usize).sum();
         order[rank] = i;
     }
-}
-
-/// The bits of triangle `i`'s three vertex positions in order (all ones past the mesh).
-fn position_bits(mesh: &Mesh, i: u32) -> [u32; 9] {
-    let mut out = [u32::MAX; 9];
-    if let Some(t) = mesh.indices.get(i as usize) {
-        for (k, &v) in t.iter().enumerate() {
-            if let Some(p) = mesh.positions.get(v as usize) {
-                out[3 * k..3 * k + 3].copy_from_slice(&p.map(f32::to_bits));
-            }
-        }
-    }
-    out
 }
 
 /// Sorts `refs` (whose centroids coincide) by the vertex positions of `same`'s triangles and moves every copy of a
