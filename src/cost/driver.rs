@@ -20,7 +20,7 @@
 //! fresh one, which is noise) is clamped to 0.
 //!
 //! For a whole workload ([`DriverModel::predict`]) `rt_update` pays one build and `builds - 1` updates and traces
-//! at the fresh cost; the per-frame plan ([`crate::select::plan_driver_frames`]) charges the drift.
+//! at the fresh cost; the per-frame plan ((`select::driver::plan_driver_frames`)) charges the drift.
 
 use super::{check_number, dot, invalid, phi, CostError, Workload, SAH_GROWTH_RANGE};
 use super::{f64_or_null, vec_f64_or_null, BUILD_EXPONENT_RANGE, BUILD_LN_A_RANGE, COEF_LIMIT, FEATURE_NAMES};
@@ -124,7 +124,7 @@ impl DriverModel {
     }
 
     /// Predicted trace ns per ray for features `d` and rays of `kind`.
-    pub fn trace_ns(&self, d: &Derived, kind: crate::geom::WorkloadKind) -> f64 {
+    pub(crate) fn trace_ns(&self, d: &Derived, kind: crate::geom::WorkloadKind) -> f64 {
         dot(&self.trace_coef, &phi(d, kind)).clamp(-30.0, 30.0).exp()
     }
 

@@ -34,7 +34,7 @@
 //! it was fitted on ([`StructureModel::feature_range`]).
 //!
 //! Two terms bend the straight laws where measurement showed they must (`docs/results/2026-12-06-cost-model-curved-builds-incoherent-price.md`).
-//! `q` ([`curvature_term`]) is `(ln n - 10)^2` over the calibration's sizes and its tangent beyond them, with
+//! `q` (`curvature_term`) is `(ln n - 10)^2` over the calibration's sizes and its tangent beyond them, with
 //! `d_s, d'_s >= 0` ([`StructureModel::build_curvature`]): the build time per triangle is U-shaped in `n` (the
 //! BVH's 0.28, 0.19 and 0.22 us at 2K, 20K and 200K triangles), fixed costs weighing on small builds and cache
 //! misses on large ones, which one power of `n` cannot follow. `c''_s` (`test_incoherent_log`) prices an
@@ -263,7 +263,7 @@ pub(crate) fn price_outside_ln_n(w: &Workload, n: u64) -> f64 {
 }
 
 /// The price row of [`PRICE_NAMES`] for a kind, test counts and the view's term (`price_outside_ln_n`).
-pub fn price_row(kind: WorkloadKind, box_tests: f64, prim_tests: f64, outside_ln_n: f64) -> Vec<f64> {
+pub(crate) fn price_row(kind: WorkloadKind, box_tests: f64, prim_tests: f64, outside_ln_n: f64) -> Vec<f64> {
     let inc = (kind != WorkloadKind::Primary) as u8 as f64;
     let diffuse = (kind == WorkloadKind::Diffuse) as u8 as f64;
     let tests = box_tests + prim_tests;
@@ -317,7 +317,7 @@ pub const BUILD_LN_N_LIMIT: f64 = 27.8;
 /// The curvature terms' shape in `x = ln n`: `(x - BUILD_CURVATURE_CENTER)^2` within `[lo, hi]` (the sizes the law
 /// was fitted on), continued along its tangent beyond them, so that the law keeps the slope it has at the edge of
 /// its sizes instead of bending further. 0 for a range that is not one (`lo > hi`, or a NaN bound).
-pub fn curvature_term(x: f64, lo: f64, hi: f64) -> f64 {
+pub(crate) fn curvature_term(x: f64, lo: f64, hi: f64) -> f64 {
     if lo.is_nan() || hi.is_nan() || lo > hi {
         return 0.0;
     }
@@ -433,7 +433,7 @@ pub struct Workload {
 }
 
 /// The phi row of [`FEATURE_NAMES`] for derived features and a workload kind.
-pub fn phi(d: &Derived, kind: WorkloadKind) -> Vec<f64> {
+pub(crate) fn phi(d: &Derived, kind: WorkloadKind) -> Vec<f64> {
     vec![
         1.0,
         (kind == WorkloadKind::Shadow) as u8 as f64,

@@ -256,7 +256,7 @@ impl CostModel {
     /// Predicted costs from the triangle count `n` alone, before the mesh is characterized: each structure's size
     /// law ([`StructureModel::size`]) with its build law and prices, the framing camera; `None` when the file has no
     /// size laws.
-    pub fn predict_size(&self, n: u64, w: &Workload) -> Option<Vec<Prediction>> {
+    pub(crate) fn predict_size(&self, n: u64, w: &Workload) -> Option<Vec<Prediction>> {
         let d = Derived {
             ln_n: (n.max(1) as f64).ln(),
             fill_at_n: 0.0,

@@ -61,14 +61,14 @@ pub struct StructureModel {
     #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
     pub build_work_coef: Vec<f64>,
     /// `d_s`: the plain build law's curvature in `ln n`, in [`BUILD_CURVATURE_RANGE`]: `ln build` gains
-    /// `d_s * curvature_term(ln n)` ([`curvature_term`]: `(ln n - BUILD_CURVATURE_CENTER)^2` over the calibration's
+    /// `d_s * curvature_term(ln n)` (`curvature_term`: `(ln n - BUILD_CURVATURE_CENTER)^2` over the calibration's
     /// sizes, [`StructureModel::build_ln_n_range`], and its tangent beyond them). The time per triangle is U-shaped
     /// in `n`: fixed costs weigh on small builds, cache misses on large ones. 0 in files written before it, and
     /// where the calibration's sizes span less than [`BUILD_CURVATURE_MIN_SPAN`].
     #[serde(default, skip_serializing_if = "is_zero", deserialize_with = "f64_or_null")]
     pub build_curvature: f64,
     /// `[lo, hi]`: the range of `ln n` over the builds the laws were fitted on, beyond which the curvature terms
-    /// follow their tangent ([`curvature_term`]); required with a curvature, else absent.
+    /// follow their tangent (`curvature_term`); required with a curvature, else absent.
     #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "vec_f64_or_null")]
     pub build_ln_n_range: Vec<f64>,
     /// The prior's own count laws ([`CountLaw`]), read where the caller knows nothing of the scene beyond its
@@ -76,7 +76,7 @@ pub struct StructureModel {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub prior: Option<CountLaw>,
     /// The count laws of the triangle count alone ([`CountLaw`] with every geometric coefficient 0), read before
-    /// the mesh is characterized: the selection's rung below level 0 ([`CostModel::predict_size`]); absent in files
+    /// the mesh is characterized: the selection's rung below level 0 (`CostModel::predict_size`); absent in files
     /// written without them.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub size: Option<CountLaw>,

@@ -80,7 +80,7 @@ impl Aabb {
     }
 
     /// Axis of the largest extent (0, 1 or 2; x on ties).
-    pub fn longest_axis(&self) -> usize {
+    pub(crate) fn longest_axis(&self) -> usize {
         let e = self.extent();
         if e.x >= e.y && e.x >= e.z {
             0

@@ -84,7 +84,7 @@ impl Camera {
 /// the scene diagonal plus `1e-6` of the point's magnitude (so that it stays above f32 rounding far from the
 /// origin). The shadow and diffuse workloads (`trace::workload`) start their rays there, and
 /// [`crate::cost::near_crossings`] counts the boxes holding those origins.
-pub fn surface_offset(bounds: &Aabb, p: Vec3) -> f32 {
+pub(crate) fn surface_offset(bounds: &Aabb, p: Vec3) -> f32 {
     1e-5 * bounds.extent().length() + 1e-6 * p.abs().max_element()
 }
 
@@ -92,7 +92,7 @@ pub fn surface_offset(bounds: &Aabb, p: Vec3) -> f32 {
 /// surface by [`surface_offset`] along the triangle's unit normal facing the incoming ray; the origin and that
 /// normal, or `None` for a zero-area triangle (never hit). The shadow and diffuse workloads (`trace::workload`) and
 /// [`crate::cost::near_crossings`] both place their origins with it, so that the two agree to the bit.
-pub fn secondary_start(tri: &super::Triangle, p: Vec3, dir: Vec3, bounds: &Aabb) -> Option<(Vec3, Vec3)> {
+pub(crate) fn secondary_start(tri: &super::Triangle, p: Vec3, dir: Vec3, bounds: &Aabb) -> Option<(Vec3, Vec3)> {
     let n = tri.e1.cross(tri.e2).try_normalize()?;
     let facing = if n.dot(dir) > 0.0 { -n } else { n };
     Some((p + facing * surface_offset(bounds, p), facing))
@@ -100,7 +100,7 @@ pub fn secondary_start(tri: &super::Triangle, p: Vec3, dir: Vec3, bounds: &Aabb)
 
 /// The shadow ray from `origin` to `light`: unit direction, `tmax` just short of the light (so that the light itself
 /// never occludes); `None` when the two coincide or the distance is not finite.
-pub fn shadow_ray(origin: Vec3, light: Vec3) -> Option<super::Ray> {
+pub(crate) fn shadow_ray(origin: Vec3, light: Vec3) -> Option<super::Ray> {
     let to = light - origin;
     let dist = to.length();
     (dist > 0.0 && dist.is_finite()).then(|| super::Ray {

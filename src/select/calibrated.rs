@@ -206,7 +206,7 @@ impl FrameRule<'_> {
     }
 }
 
-/// The calibrated policy (see the module docs). Needs the scene's features ([`SceneSummary::with_features`]);
+/// The calibrated policy (see the module docs). Needs the scene's features (`SceneSummary::with_features`);
 /// without them it falls back to the thesis policy and says so in the reasons.
 #[derive(Clone, Debug)]
 pub struct CalibratedPolicy {

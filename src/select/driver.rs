@@ -98,7 +98,7 @@ impl DriverFrameRule<'_> {
 
 /// The per-frame plan of the updatable driver structure over an animation's `features` ([`DriverFrameRule`] frame
 /// by frame); empty when the model has no `rt_update` model.
-pub fn plan_driver_frames(
+pub(crate) fn plan_driver_frames(
     model: &CostModel,
     features: &[Features],
     kind: WorkloadKind,

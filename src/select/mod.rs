@@ -27,7 +27,9 @@ pub(crate) use calibrated::planned_total;
 pub use calibrated::{choose, plan_frames, CalibratedPolicy, FrameAction, FrameDecision, FrameRule};
 #[cfg(feature = "eval")]
 pub(crate) use climb::{climb, Knowledge};
-pub use driver::{plan_driver_frames, DriverAction, DriverFrameDecision, DriverFrameRule, DriverSelection};
+#[cfg(test)]
+pub(crate) use driver::plan_driver_frames;
+pub use driver::{DriverAction, DriverFrameDecision, DriverFrameRule, DriverSelection};
 pub use report::{Bounds, Report, SelectionCost, Timings};
 pub use selector::{
     Decision, Inquiry, Level, Policy as PolicyKind, Scene, Selector, SizeRung, Step, DEFAULT_DECISION_BUDGET,
@@ -93,7 +95,7 @@ pub struct SceneSummary<'a> {
     /// Frame-to-frame change, for more than one frame.
     pub change: Option<FrameChange>,
     /// Cost-model features of every frame ([`crate::characterize::features`]); empty unless set with
-    /// [`SceneSummary::with_features`]. [`ThesisPolicy`] ignores them; the calibrated policy needs them.
+    /// `SceneSummary::with_features`. [`ThesisPolicy`] ignores them; the calibrated policy needs them.
     pub features: &'a [Features],
     /// Bounds on the grid's and the kd-tree's references, from the mesh ([`BuildBounds::of_mesh`], set with
     /// `SceneSummary::with_build_bounds`); `None`: the policies bound them from [`SceneSummary::features`] (the
@@ -192,14 +194,14 @@ impl<'a> SceneSummary<'a> {
     }
 
     /// The summary with the cost-model features of every frame.
-    pub fn with_features(mut self, features: &'a [Features]) -> Self {
+    pub(crate) fn with_features(mut self, features: &'a [Features]) -> Self {
         self.features = features;
         self
     }
 
     /// Ratio of the largest to the smallest extent of the union bounds (`f64::INFINITY` for a flat scene, 1 for an
     /// empty summary).
-    pub fn aspect(&self) -> f64 {
+    pub(crate) fn aspect(&self) -> f64 {
         let e: Vec<f64> = (0..3).map(|a| self.hi[a] as f64 - self.lo[a] as f64).collect();
         let max = e.iter().cloned().fold(0.0, f64::max);
         let min = e.iter().cloned().fold(f64::INFINITY, f64::min);

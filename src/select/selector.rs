@@ -398,7 +398,7 @@ pub struct Decision {
 /// triangle count alone.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct SizeRung {
-    /// Each structure's predicted costs by the size laws ([`crate::cost::CostModel::predict_size`]).
+    /// Each structure's predicted costs by the size laws (`CostModel::predict_size`).
     pub predicted: Vec<Prediction>,
     /// The choice on these predictions.
     pub structure: Option<Structure>,

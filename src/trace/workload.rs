@@ -48,7 +48,6 @@ pub fn primary_rays(camera: &Camera, width: u32, height: u32) -> Vec<Ray> {
 
 pub use crate::geom::camera::default_light;
 
-pub use crate::geom::camera::{secondary_start, shadow_ray, surface_offset};
 
 pub use crate::rng::SplitMix64;
 

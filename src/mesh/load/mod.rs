@@ -77,7 +77,7 @@ mod obj;
 mod path;
 mod ply;
 
-pub use path::{frame_files, load_animation, load_mesh, load_path, parse_mesh, sniff_format, MeshFormat};
+pub use path::{load_animation, load_mesh, load_path, parse_mesh, MeshFormat};
 pub use ply::MAX_PLY_HEADER_BYTES;
 
 /// Peak heap bytes a load may have allocated per byte of input file, on top of [`LOAD_BYTES_FIXED`] (see the module

@@ -52,7 +52,7 @@ pub(crate) fn detect_format(path: &Path, bytes: &[u8]) -> Option<MeshFormat> {
 }
 
 /// Content-based half of `detect_format`.
-pub fn sniff_format(bytes: &[u8]) -> Option<MeshFormat> {
+pub(crate) fn sniff_format(bytes: &[u8]) -> Option<MeshFormat> {
     if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n") {
         return Some(MeshFormat::Ply);
     }
@@ -98,7 +98,7 @@ pub fn load_animation(paths: &[PathBuf]) -> Result<Animation, MeshError> {
 ///
 /// In a directory, the frames are the entries whose extension is `.obj` or `.ply` (case-insensitive), sorted by file
 /// name; other entries are ignored. A directory without such entries is an error naming it, and so is a frame entry
-/// that is not a regular file (see [`frame_files`]). The animation is named after the path.
+/// that is not a regular file (see `frame_files`). The animation is named after the path.
 pub fn load_path(path: &Path) -> Result<Animation, MeshError> {
     if path.is_dir() {
         let frames = frame_files(path)?;
@@ -119,7 +119,7 @@ pub fn load_path(path: &Path) -> Result<Animation, MeshError> {
 ///
 /// An entry with one of these extensions that is not a regular file once links are followed (a FIFO, a device, a
 /// directory, a dangling link) is an error naming it ([`MeshError::Io`]), rather than a frame silently left out.
-pub fn frame_files(dir: &Path) -> Result<Vec<PathBuf>, MeshError> {
+pub(crate) fn frame_files(dir: &Path) -> Result<Vec<PathBuf>, MeshError> {
     let io = |source| MeshError::Io { path: dir.to_path_buf(), source };
     let mut files = Vec::new();
     for entry in std::fs::read_dir(dir).map_err(io)? {
