@@ -48,7 +48,6 @@ pub fn primary_rays(camera: &Camera, width: u32, height: u32) -> Vec<Ray> {
 
 pub use crate::geom::camera::default_light;
 
-
 pub use crate::rng::SplitMix64;
 
 /// Secondary rays from the hits of `primary`: shadow rays to `light` (any hit, `tmax` just short of the light) or
