@@ -189,7 +189,7 @@ fn process(
     let mut chosen = decision;
     // Last, so that the policy's own reasons keep their places (docs/spec.md: the first, the margin second).
     if let Some(r) = rays_reason {
-        chosen.selection.reasons.push(r);
+        chosen.selection.reasons.push(meshchar::select::Reason::new(meshchar::select::ReasonKind::Workload, r));
     }
     let select_ms = t1.elapsed().as_secs_f64() * 1e3;
     let frames = if scene.frames.len() > 1 { scene.frames.len() as u64 } else { args.frames };

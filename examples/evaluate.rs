@@ -276,7 +276,7 @@ fn load_scene(path: &Path) -> anyhow::Result<Animation> {
 struct Selected {
     structure: StructureName,
     candidate: &'static str,
-    reasons: Vec<String>,
+    reasons: Vec<meshchar::select::Reason>,
     predicted: Option<Vec<Prediction>>,
     level: Option<meshchar::select::Level>,
     /// The decision as an engine calls it (characterization, features, selection), warm, this process, ms.

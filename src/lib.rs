@@ -74,7 +74,7 @@
 //! let (reports, features) = ([planned.report], [features.ok_or("recorded with features")?]);
 //! let scene = Scene { name: "mesh", characterizations: &reports, features: &features, meshes: &[] };
 //! let decision = selector.select(&scene); // level 0: microseconds on the host, no wait
-//! println!("{}: {}", decision.structure(), decision.selection.reasons.join("; "));
+//! println!("{}: {}", decision.structure(), decision.selection.explain());
 //! # Ok(())
 //! # }
 //! ```

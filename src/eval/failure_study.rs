@@ -209,7 +209,7 @@ pub struct CaseStats {
     /// What [`ThesisPolicy`] selects.
     pub selected: Structure,
     /// Why.
-    pub reasons: Vec<String>,
+    pub reasons: Vec<crate::select::Reason>,
 }
 
 /// Characterizes every frame of `case` with `engine` and lets the default [`ThesisPolicy`] select.

@@ -8,7 +8,7 @@
 //! times `1 + g * drift`, where the drift ([`crate::cost::drift`]) is measured from the features of the frame the
 //! tree was built for to the current frame.
 
-use super::{Policy, SceneSummary, Selection, ThesisPolicy};
+use super::{Level, Policy, Reason, ReasonKind, SceneSummary, Selection, ThesisPolicy};
 use crate::accel::StructureName;
 use crate::characterize::Features;
 use crate::cost::{overlap_floor, priced_floor, CostModel, Prediction, RayCrossings, ViewFeatures, Workload};
@@ -324,7 +324,13 @@ impl Policy for CalibratedPolicy {
     fn select(&self, scene: &SceneSummary<'_>) -> Selection {
         let Some(preds) = self.predictions(scene) else {
             let mut s = ThesisPolicy::default().select(scene);
-            s.reasons.insert(0, "calibrated policy: no features for this scene, the thesis policy decides".into());
+            s.reasons.insert(
+                0,
+                Reason::new(
+                    ReasonKind::Fallback,
+                    "calibrated policy: no features for this scene, the thesis policy decides",
+                ),
+            );
             return s;
         };
         let w = self.workload(scene.features.len());
@@ -338,11 +344,19 @@ impl Policy for CalibratedPolicy {
             .collect();
         let Some(choice) = choose(&preds, self.tie_margin) else {
             let mut s = ThesisPolicy::default().select(scene);
-            s.reasons.insert(0, "calibrated policy: the model predicts nothing, the thesis policy decides".into());
+            s.reasons.insert(
+                0,
+                Reason::new(
+                    ReasonKind::Fallback,
+                    "calibrated policy: the model predicts nothing, the thesis policy decides",
+                ),
+            );
             return s;
         };
         let best = preds.iter().map(|p| p.total_ms).fold(f64::INFINITY, f64::min);
-        let mut reasons = vec![format!(
+        let mut reasons = vec![Reason::new(
+            ReasonKind::Choice { structure: choice },
+            format!(
             "calibrated cost model ({}{}; total fit error {:.0}% RMS) for {} {} rays/frame x {} frame(s), {} build(s), \
              n = {}: {choice} has the smallest predicted total{}",
             self.model.device,
@@ -358,6 +372,7 @@ impl Policy for CalibratedPolicy {
             } else {
                 String::new()
             }
+        ),
         )];
         if let Some(r) = margin_reason(&self.model, &preds, choice) {
             reasons.push(r);
@@ -370,7 +385,9 @@ impl Policy for CalibratedPolicy {
                     format!("{} {:.2} ms, {ns}", p.structure, p.build_ms)
                 })
                 .collect();
-            reasons.push(format!(
+            reasons.push(Reason::new(
+                ReasonKind::Inquiry { level: Level::Timed, taken: true },
+                format!(
                 "timed probes (one build each, the fastest of up to {} single-threaded traces of a {}x{} sample of \
                  {} rays): {}; blended into the predictions (geometric mean of each build and time per ray with \
                  the probe's times the calibration's ratios, fitted on {} records): not deterministic",
@@ -380,24 +397,32 @@ impl Policy for CalibratedPolicy {
                 self.kind.as_str(),
                 timed.join(", "),
                 self.model.timed.as_ref().map_or(0, |r| r.records)
+            ),
             ));
         } else if scene.build_bounds.as_ref().is_some_and(|b| !b.timed.is_empty()) {
-            reasons.push(
+            reasons.push(Reason::new(
+                ReasonKind::Inquiry { level: Level::Timed, taken: true },
                 "timed probes: taken, but not blended in (this calibration has no timed-probe ratios, or the scene \
-                 is an animation)"
-                    .into(),
-            );
+                 is an animation)",
+            ));
         }
         if let Some(c) = &self.camera {
             let f = &scene.features[0];
             let v = ViewFeatures::of(c, f.lo, f.hi);
             let reads = self.model.structures.iter().any(|s| !s.view_box_coef.is_empty());
-            reasons.push(format!(
-                "view: eye {} the bounds, {:.0}% of the image on them, {:.2} half-diagonals from the centre{}",
-                if v.eye_inside { "inside" } else { "outside" },
-                100.0 * v.coverage,
-                v.distance,
-                if reads { "" } else { " (this calibration was fitted without views: the view changes no prediction)" }
+            reasons.push(Reason::new(
+                ReasonKind::View,
+                format!(
+                    "view: eye {} the bounds, {:.0}% of the image on them, {:.2} half-diagonals from the centre{}",
+                    if v.eye_inside { "inside" } else { "outside" },
+                    100.0 * v.coverage,
+                    v.distance,
+                    if reads {
+                        ""
+                    } else {
+                        " (this calibration was fitted without views: the view changes no prediction)"
+                    }
+                ),
             ));
         }
         if let Some(c) = self.crossings(scene) {
@@ -421,7 +446,9 @@ impl Policy for CalibratedPolicy {
                 } else {
                     "each structure's counts below are held there where its laws miss by more than their own error"
                 };
-                reasons.push(format!(
+                reasons.push(Reason::new(
+                    ReasonKind::Inquiry { level: Level::Counted, taken: true },
+                    format!(
                     "probes: built and traced on {rays} sample {} rays of the view: {} (two standard errors; {held}, \
                      and where a hierarchy's are held the {} {} the probed hierarchies' correction; the grid's box \
                      tests are cells)",
@@ -429,6 +456,7 @@ impl Policy for CalibratedPolicy {
                     probed.join(", "),
                     sharing.join(" and "),
                     if sharing.len() == 1 { "takes" } else { "take" }
+                ),
                 ));
             }
             // The probes' builds price the structures' builds where the calibration has a work law.
@@ -440,20 +468,26 @@ impl Policy for CalibratedPolicy {
                 .map(|&s| format!("{s} {:.1}", c.build_work(s) / n_tris.max(1) as f64))
                 .collect();
             if !by_work.is_empty() {
-                reasons.push(format!(
-                    "builds priced by the probes' work (references times the levels they were handled on, per \
-                     triangle): {}",
-                    by_work.join(", ")
+                reasons.push(Reason::new(
+                    ReasonKind::Inquiry { level: Level::Counted, taken: true },
+                    format!(
+                        "builds priced by the probes' work (references times the levels they were handled on, per \
+                         triangle): {}",
+                        by_work.join(", ")
+                    ),
                 ));
             }
         }
         for e in &excluded {
-            reasons.push(format!("excluded before choosing: {}", e.reason));
+            reasons.push(Reason::new(ReasonKind::Excluded, format!("excluded before choosing: {}", e.reason)));
         }
         let mut sorted = all.clone();
         sorted.sort_by(|a, b| a.total_ms.total_cmp(&b.total_ms));
         for p in &sorted {
-            reasons.push(format!(
+            let kind = ReasonKind::Prediction { structure: p.structure, total_ms: p.total_ms };
+            reasons.push(Reason::new(
+                kind,
+                format!(
                 "{}: predicted build {:.2} ms ({} x {:.2}), trace {:.2} ms ({:.1} ns/ray: {:.1} box + {:.2} triangle \
                  tests/ray), total {:.2} ms",
                 p.structure,
@@ -465,19 +499,23 @@ impl Policy for CalibratedPolicy {
                 p.box_tests_per_ray,
                 p.prim_tests_per_ray,
                 p.total_ms
+            ),
             ));
         }
         if scene.features.len() > 1 {
             let plan = self.plan(scene);
             let refits = plan.iter().filter(|d| d.action == FrameAction::Refit).count();
             let total: f64 = plan.iter().map(|d| d.update_ms + d.trace_ms).sum();
-            reasons.push(format!(
-                "per frame: {} rebuild(s), {refits} refit(s), predicted {total:.2} ms in all: {}",
-                plan.len() - refits,
-                plan.iter()
-                    .map(|d| format!("{}:{} {} (drift {:.3})", d.frame, d.action, d.structure, d.drift))
-                    .collect::<Vec<_>>()
-                    .join(", ")
+            reasons.push(Reason::new(
+                ReasonKind::Plan,
+                format!(
+                    "per frame: {} rebuild(s), {refits} refit(s), predicted {total:.2} ms in all: {}",
+                    plan.len() - refits,
+                    plan.iter()
+                        .map(|d| format!("{}:{} {} (drift {:.3})", d.frame, d.action, d.structure, d.drift))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
             ));
         }
         let mut driver = None;
@@ -498,9 +536,13 @@ impl Policy for CalibratedPolicy {
                     reasons.extend(r);
                     driver = Some(d);
                 }
-                None => reasons.push(format!(
-                    "the driver's acceleration structures are not weighed: the cost model ({}) has not calibrated them",
-                    self.model.device
+                None => reasons.push(Reason::new(
+                    ReasonKind::Driver,
+                    format!(
+                        "the driver's acceleration structures are not weighed: the cost model ({}) has not calibrated \
+                         them",
+                        self.model.device
+                    ),
                 )),
             }
         }
@@ -513,7 +555,7 @@ impl Policy for CalibratedPolicy {
 /// structures' fit errors of the total ([`crate::cost::FitError::total`], RMS of `ln(predicted / measured)` on the
 /// calibration records, in sample, so a lower bound of the error on an unseen scene): a close call where the log of
 /// the ratio is below the two errors combined (`sqrt(e1^2 + e2^2)`). `None` with a single candidate.
-pub(crate) fn margin_reason(model: &CostModel, preds: &[Prediction], choice: StructureName) -> Option<String> {
+pub(crate) fn margin_reason(model: &CostModel, preds: &[Prediction], choice: StructureName) -> Option<Reason> {
     let chosen = preds.iter().find(|p| p.structure == choice)?;
     let next = preds
         .iter()
@@ -523,18 +565,23 @@ pub(crate) fn margin_reason(model: &CostModel, preds: &[Prediction], choice: Str
     let err = |s: StructureName| model.get(s).map_or(0.0, |m| m.fit.total);
     let (e1, e2) = (err(choice), err(next.structure));
     let combined = (e1 * e1 + e2 * e2).sqrt();
-    let verdict = if ratio.ln().abs() < combined {
+    let close_call = ratio.ln().abs() < combined;
+    let verdict = if close_call {
         "a close call: the margin is within the two predictions' errors combined"
     } else {
         "the margin exceeds the two predictions' errors combined"
     };
-    Some(format!(
-        "margin: the next, {}, is predicted {ratio:.2}x the {choice}'s total; the calibration's fit errors of the \
+    let kind = ReasonKind::Margin { runner_up: next.structure, ratio, close_call };
+    Some(Reason::new(
+        kind,
+        format!(
+            "margin: the next, {}, is predicted {ratio:.2}x the {choice}'s total; the calibration's fit errors of the \
          total (RMS, in sample) are {:.0}% ({choice}) and {:.0}% ({}): {verdict}",
-        next.structure,
-        100.0 * e1,
-        100.0 * e2,
-        next.structure
+            next.structure,
+            100.0 * e1,
+            100.0 * e2,
+            next.structure
+        ),
     ))
 }
 

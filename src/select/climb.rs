@@ -3,7 +3,7 @@
 use super::budget::BuildBounds;
 use super::ladder::{chance_best, expected_gain, Candidate};
 use super::selector::*;
-use super::Structure;
+use super::{Reason, ReasonKind, Structure};
 use crate::cost::measured::{MeasuredTotal, MEASURED_REPEATS, MEASURED_WARMUP};
 use crate::cost::{InquiryCost, Prediction, PROBED};
 
@@ -39,30 +39,34 @@ pub(crate) struct Climb {
 }
 
 impl Climb {
-    pub(super) fn reasons(&self, s: &Selector<'_>, chosen: Structure) -> Vec<String> {
-        let mut out = vec![format!(
-            "decided at {} ({}){}",
-            self.level,
-            match s.inquiry {
-                Inquiry::Auto => format!(
-                    "climbing only where the expected gain exceeds the predicted cost, within {:.1}% of the \
+    pub(super) fn reasons(&self, s: &Selector<'_>, chosen: Structure) -> Vec<Reason> {
+        let mut out = vec![Reason::new(
+            ReasonKind::Decided { level: self.level },
+            format!(
+                "decided at {} ({}){}",
+                self.level,
+                match s.inquiry {
+                    Inquiry::Auto => format!(
+                        "climbing only where the expected gain exceeds the predicted cost, within {:.1}% of the \
                      predicted frames",
-                    100.0 * s.decision_budget
-                ),
-                Inquiry::Fixed(l) => format!("asked for {l}"),
-            },
-            self.note.as_ref().map(|n| format!("; {n}")).unwrap_or_default()
+                        100.0 * s.decision_budget
+                    ),
+                    Inquiry::Fixed(l) => format!("asked for {l}"),
+                },
+                self.note.as_ref().map(|n| format!("; {n}")).unwrap_or_default()
+            ),
         )];
         for st in &self.steps {
-            out.push(st.to_string());
+            out.push(Reason::new(ReasonKind::Inquiry { level: st.level, taken: st.taken }, st.to_string()));
         }
         // A level asked for and not climbed says why, as the level's own line.
         if let Inquiry::Fixed(asked) = s.inquiry {
             for st in self.steps.iter().filter(|st| !st.taken && st.level <= asked) {
                 let why = st.why_not.as_deref().unwrap_or("");
+                let kind = ReasonKind::Inquiry { level: st.level, taken: false };
                 match st.level {
-                    Level::Timed => out.push(format!("timed probes: none taken: {why}")),
-                    Level::Measured => out.push(format!("measured close call: none: {why}")),
+                    Level::Timed => out.push(Reason::new(kind, format!("timed probes: none taken: {why}"))),
+                    Level::Measured => out.push(Reason::new(kind, format!("measured close call: none: {why}"))),
                     _ => {}
                 }
             }
@@ -80,23 +84,27 @@ impl Climb {
                 .collect();
             let w = &s.workload;
             let measured: Vec<Structure> = self.measured.iter().map(|t| t.structure).collect();
-            out.push(format!(
-                "measured close call ({}: each built and traced over whole frames of {}x{} {} rays, the median of \
+            let kind = ReasonKind::Inquiry { level: Level::Measured, taken: true };
+            out.push(Reason::new(
+                kind,
+                format!(
+                    "measured close call ({}: each built and traced over whole frames of {}x{} {} rays, the median of \
                  {MEASURED_REPEATS} repeats after {MEASURED_WARMUP} untimed, totals over {} frame(s) of {} rays{}; \
                  not deterministic): {}: {chosen} {}",
-                names(&measured),
-                s.resolution,
-                s.resolution,
-                w.kind.as_str(),
-                w.frames.max(1),
-                w.rays_per_frame,
-                if self.scale == 1.0 { String::new() } else { format!(", traces scaled by {:.3}", self.scale) },
-                list.join(", "),
-                if Some(chosen) == self.predicted_choice {
-                    "confirmed"
-                } else {
-                    "taken instead of the predictions' choice"
-                }
+                    names(&measured),
+                    s.resolution,
+                    s.resolution,
+                    w.kind.as_str(),
+                    w.frames.max(1),
+                    w.rays_per_frame,
+                    if self.scale == 1.0 { String::new() } else { format!(", traces scaled by {:.3}", self.scale) },
+                    list.join(", "),
+                    if Some(chosen) == self.predicted_choice {
+                        "confirmed"
+                    } else {
+                        "taken instead of the predictions' choice"
+                    }
+                ),
             ));
         }
         out

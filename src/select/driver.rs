@@ -145,7 +145,7 @@ pub(crate) fn choose_driver(
     features: &[Features],
     w: &Workload,
     own: Option<(crate::accel::StructureName, f64)>,
-) -> Option<(DriverSelection, Vec<String>)> {
+) -> Option<(DriverSelection, Vec<super::Reason>)> {
     let first = features.first()?;
     let preds = model.predict_driver(first, w);
     if preds.is_empty() {
@@ -231,6 +231,7 @@ pub(crate) fn choose_driver(
         )),
         None => {}
     }
+    let reasons = reasons.into_iter().map(|r| super::Reason::new(super::ReasonKind::Driver, r)).collect();
     Some((DriverSelection { flags, predicted_total_ms: total, chosen, plan }, reasons))
 }
 

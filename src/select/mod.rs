@@ -17,6 +17,7 @@ mod calibrated;
 mod climb;
 pub mod driver;
 pub(crate) mod ladder;
+mod reason;
 mod report;
 mod selector;
 mod thesis;
@@ -30,6 +31,7 @@ pub(crate) use climb::{climb, Knowledge};
 #[cfg(test)]
 pub(crate) use driver::plan_driver_frames;
 pub use driver::{DriverAction, DriverFrameDecision, DriverFrameRule, DriverSelection};
+pub use reason::{Reason, ReasonKind};
 pub use report::{Bounds, Report, SelectionCost, Timings};
 pub use selector::{
     Decision, Inquiry, Level, Policy as PolicyKind, Scene, Selector, SizeRung, Step, DEFAULT_DECISION_BUDGET,
@@ -221,7 +223,7 @@ pub struct Selection {
     /// The structure.
     pub structure: Structure,
     /// The rules that fired, each with the numbers that made it fire.
-    pub reasons: Vec<String>,
+    pub reasons: Vec<Reason>,
     /// The structures that were no candidates because their bound exceeds the budget, with the numbers (see
     /// [`budget`]); empty when none was excluded.
     #[serde(skip_serializing_if = "Vec::is_empty")]
@@ -235,8 +237,13 @@ pub struct Selection {
 
 impl Selection {
     /// A selection of `structure` for `reasons`, excluding nothing.
-    pub fn new(structure: Structure, reasons: Vec<String>) -> Self {
+    pub fn new(structure: Structure, reasons: Vec<Reason>) -> Self {
         Selection { structure, reasons, excluded: Vec::new(), driver: None }
+    }
+
+    /// The reasons' sentences, joined by "; ".
+    pub fn explain(&self) -> String {
+        reason::join(&self.reasons, "; ")
     }
 
     /// The overall choice's name: the driver structure's (`rt_fast_trace`, ...) when it was chosen, else the

@@ -257,7 +257,7 @@ impl Report {
         self.kind = kind;
         self.policy = policy.to_string();
         self.selected = sel.structure;
-        self.reasons = sel.reasons.clone();
+        self.reasons = sel.reasons.iter().map(|r| r.text.clone()).collect();
         self.excluded = sel.excluded.clone();
         self.driver = sel.driver.clone();
         self

@@ -160,10 +160,16 @@ impl<'m> Selector<'m> {
             let mut selection = super::ThesisPolicy::default().select(&summary);
             if let Inquiry::Fixed(asked) = self.inquiry {
                 if asked >= Level::Timed {
-                    selection.reasons.push("timed probes: none taken: the thesis policy predicts no times".into());
+                    selection.reasons.push(super::Reason::new(
+                        super::ReasonKind::Inquiry { level: Level::Timed, taken: false },
+                        "timed probes: none taken: the thesis policy predicts no times",
+                    ));
                 }
                 if asked >= Level::Measured {
-                    selection.reasons.push("measured close call: none: the thesis policy predicts no times".into());
+                    selection.reasons.push(super::Reason::new(
+                        super::ReasonKind::Inquiry { level: Level::Measured, taken: false },
+                        "measured close call: none: the thesis policy predicts no times",
+                    ));
                 }
             }
             return Decision {
@@ -293,7 +299,9 @@ impl<'m> Selector<'m> {
             )
         };
         let w = &self.workload;
-        let mut reasons = vec![format!(
+        let mut reasons = vec![super::Reason::new(
+            super::ReasonKind::Choice { structure },
+            format!(
             "calibrated cost model ({}{}) on the triangle count alone for {} {} rays/frame x {} frame(s), n = {n}: \
              {structure} has the smallest predicted total; characterizing the mesh does not pay here: {why}",
             self.model.device,
@@ -301,12 +309,17 @@ impl<'m> Selector<'m> {
             w.rays_per_frame,
             w.kind.as_str(),
             w.frames.max(1),
+        ),
         )];
         reasons.extend(super::calibrated::margin_reason(self.model, &rung.predicted, structure));
         for p in &rung.predicted {
-            reasons.push(format!(
-                "{}: predicted build {:.3} ms, trace {:.3} ms, total {:.3} ms (size laws)",
-                p.structure, p.build_ms, p.trace_ms, p.total_ms
+            let kind = super::ReasonKind::Prediction { structure: p.structure, total_ms: p.total_ms };
+            reasons.push(super::Reason::new(
+                kind,
+                format!(
+                    "{}: predicted build {:.3} ms, trace {:.3} ms, total {:.3} ms (size laws)",
+                    p.structure, p.build_ms, p.trace_ms, p.total_ms
+                ),
             ));
         }
         Some(Decision {

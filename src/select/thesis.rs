@@ -1,6 +1,6 @@
 //! The seed thesis's selection rules, written down with explicit thresholds.
 
-use super::{empty_share, Policy, SceneKind, SceneSummary, Selection, Structure};
+use super::{empty_share, Policy, Reason, ReasonKind, SceneKind, SceneSummary, Selection, Structure};
 use crate::characterize::Characterization;
 
 /// The seed thesis's selection rules (section 3.1.3, Tables 5.1 and 5.2), written down with explicit thresholds.
@@ -152,6 +152,11 @@ impl ThesisPolicy {
     }
 }
 
+/// The thesis policy's lines, each a rule that fired or fell through.
+fn rules(lines: Vec<String>) -> Vec<Reason> {
+    lines.into_iter().map(|l| Reason::new(ReasonKind::Rule, l)).collect()
+}
+
 impl Policy for ThesisPolicy {
     fn name(&self) -> &str {
         "thesis"
@@ -162,8 +167,8 @@ impl Policy for ThesisPolicy {
         let excluded = scene.exclusions_unpriced();
         let mut sel = self.rules(scene, &excluded);
         for e in &excluded {
-            if !sel.reasons.iter().any(|r| r.contains(&e.reason)) {
-                sel.reasons.push(format!("excluded before choosing: {}", e.reason));
+            if !sel.reasons.iter().any(|r| r.text.contains(&e.reason)) {
+                sel.reasons.push(Reason::new(ReasonKind::Excluded, format!("excluded before choosing: {}", e.reason)));
             }
         }
         sel.excluded = excluded;
@@ -179,7 +184,7 @@ impl ThesisPolicy {
         let mut reasons = Vec::new();
         if scene.frames.is_empty() {
             reasons.push("no characterized frame: default to a BVH, which suits any geometry".to_string());
-            return Selection::new(Structure::Bvh, reasons);
+            return Selection::new(Structure::Bvh, rules(reasons));
         }
 
         // Rule 1: distribution (and empty classes) -> grid.
@@ -231,7 +236,7 @@ impl ThesisPolicy {
                     scene.frames.len()
                 ));
             }
-            return Selection::new(Structure::Grid, reasons);
+            return Selection::new(Structure::Grid, rules(reasons));
         }
 
         let (wi, worst) = worst_frame(scene.frames);
@@ -253,7 +258,7 @@ impl ThesisPolicy {
                  its animated scene (Table 5.2)"
                     .to_string(),
             );
-            return Selection::new(Structure::Bvh, reasons);
+            return Selection::new(Structure::Bvh, rules(reasons));
         }
 
         // Static from here on: a single frame.
@@ -278,7 +283,7 @@ impl ThesisPolicy {
                 self.spread_max_v,
                 scene.aspect()
             ));
-            return Selection::new(Structure::KdTree, reasons);
+            return Selection::new(Structure::KdTree, rules(reasons));
         }
 
         // Rule 4: concentration / empty classes -> BVH.
@@ -300,7 +305,7 @@ impl ThesisPolicy {
              nodes: a BVH (thesis 3.1.3; Table 5.1 selects a BVH for its scanned objects)",
             why.join(", ")
         ));
-        Selection::new(Structure::Bvh, reasons)
+        Selection::new(Structure::Bvh, rules(reasons))
     }
 }
 
@@ -353,7 +358,7 @@ mod tests {
     }
 
     fn mentions(sel: &Selection, text: &str) -> bool {
-        sel.reasons.iter().any(|r| r.contains(text))
+        sel.reasons.iter().any(|r| r.text.contains(text))
     }
 
     #[test]

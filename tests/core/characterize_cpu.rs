@@ -320,7 +320,7 @@ fn animation_frames_and_policy() {
         .collect();
     let scene = SceneSummary::new(dir.display().to_string(), &frames);
     let sel = ThesisPolicy::default().select(&scene);
-    assert!(sel.reasons.iter().any(|r| r.contains("dynamic scene: 3 frames")), "{:?}", sel.reasons);
+    assert!(sel.reasons.iter().any(|r| r.text.contains("dynamic scene: 3 frames")), "{:?}", sel.reasons);
     let r = Report::new(dir.display().to_string(), &frames[1])
         .frame(1, files[1].display().to_string())
         .selection(scene.kind, "thesis", &sel);

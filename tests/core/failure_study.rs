@@ -91,7 +91,7 @@ fn large_n_the_test_rejects_while_the_effect_size_stays() {
     for st in [&small, &mid, &large] {
         assert_eq!(st.selected, Structure::Grid, "{:?}", st.reasons);
     }
-    assert!(large.reasons.iter().any(|r| r.contains("rejects uniformity") && r.contains("near uniform")));
+    assert!(large.reasons.iter().any(|r| r.text.contains("rejects uniformity") && r.text.contains("near uniform")));
 }
 
 #[test]
@@ -120,7 +120,7 @@ fn all_centroids_equal_is_a_point_mass_and_gets_a_bvh() {
     let f = &s.frames[0];
     assert_eq!((f.classes, f.code_range[0]), (1, f.code_range[1]));
     assert_eq!(s.selected, Structure::Bvh, "{:?}", s.reasons);
-    assert!(s.reasons.iter().any(|r| r.contains("point mass")), "{:?}", s.reasons);
+    assert!(s.reasons.iter().any(|r| r.text.contains("point mass")), "{:?}", s.reasons);
     // One or two triangles with k = 1 stay trivially uniform (tiny_n test): the exception needs n > 2.
     // What the oracle sees: the BVH keeps one of the copies (bit-identical positions), so a ray tests at most one
     // triangle. The grid stores every copy in each of the cells the triangle covers (half of them), so every ray

@@ -293,7 +293,7 @@ fn no_selection_fails_its_build_over_budget() {
                 for e in &sel.selection.excluded {
                     assert!(e.needed > e.budget, "{e:?}");
                     assert!(
-                        sel.selection.reasons.iter().any(|r| r.contains(&e.reason)),
+                        sel.selection.reasons.iter().any(|r| r.text.contains(&e.reason)),
                         "{}: reason not given",
                         m.name
                     );

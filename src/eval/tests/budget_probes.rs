@@ -7,7 +7,8 @@ use meshchar::geom::{Aabb, Camera, WorkloadKind};
 use meshchar::mesh::{generate, Mesh};
 use meshchar::select::budget::{grid_count_threshold, Bound};
 use meshchar::select::{
-    Budget, BuildBounds, Decision, Inquiry, Level, PolicyKind, Scene, Selection, Selector, Structure, TargetWorkload,
+    Budget, BuildBounds, Decision, Inquiry, Level, PolicyKind, ReasonKind, Scene, Selection, Selector, Structure,
+    TargetWorkload,
 };
 
 use super::budget::*;
@@ -332,7 +333,8 @@ fn on_zero_area_triangles_the_bvhs_runaway_is_counted_not_predicted() {
     // work per triangle is its references per triangle.
     let grid = meshchar::accel::build_structure(StructureName::Grid, &m).expect("grid");
     let per = grid.build_work().expect("work") / m.triangle_count() as f64;
-    let line = sel.reasons.iter().find(|r| r.starts_with("builds priced by the probes' work"));
+    let line =
+        sel.reasons.iter().find(|r| r.text.starts_with("builds priced by the probes' work")).map(|r| r.text.as_str());
     assert!(line.is_some_and(|r| r.contains(&format!("grid {per:.1}"))), "{:?}", sel.reasons);
 }
 
@@ -385,19 +387,31 @@ fn timed_probes_are_blended_into_a_static_scenes_predictions_when_the_model_has_
         let w = workload();
         decide(&m, frames, features, model, policy, w, Inquiry::Fixed(level), budget, with_mesh)
     };
-    let reason = |s: &Decision, what: &str| s.selection.reasons.iter().any(|r| r.contains(what));
+    let reason = |s: &Decision, what: &str| s.selection.reasons.iter().any(|r| r.text.contains(what));
     let plain = run(&model, PolicyKind::Calibrated, Level::Counted, true);
     let blended = run(&model, PolicyKind::Calibrated, Level::Timed, true);
     let unblended = run(&without_ratios, PolicyKind::Calibrated, Level::Timed, true);
     assert!(!reason(&plain, "timed probes"), "{:?}", plain.selection.reasons);
     assert!(reason(&blended, "timed probes (one build each"), "{:?}", blended.selection.reasons);
     assert_eq!(blended.level, Level::Timed);
+    let decided = blended.selection.reasons.iter().find(|r| matches!(r.kind, ReasonKind::Decided { .. }));
+    assert_eq!(decided.map(|r| r.kind), Some(ReasonKind::Decided { level: Level::Timed }), "{:?}", blended.selection);
+    let taken = |s: &Decision, level: Level| {
+        s.selection.reasons.iter().any(|r| r.kind == ReasonKind::Inquiry { level, taken: true })
+    };
+    assert!(taken(&blended, Level::Timed) && !taken(&plain, Level::Timed), "{:?}", plain.selection.reasons);
     let (p, b, u) = (plain.predicted.unwrap(), blended.predicted.unwrap(), unblended.predicted.clone().unwrap());
     assert_eq!(p, u, "no ratios: the predictions are the model's");
     // The flow probes the contenders of the count probes' predictions only, and says which; those are blended.
     let only = meshchar::cost::timed::contenders(&p);
     assert!(!only.is_empty() && only.len() <= p.len());
-    let line = blended.selection.reasons.iter().find(|r| r.starts_with("timed probes (")).expect("timed probes");
+    let line = blended
+        .selection
+        .reasons
+        .iter()
+        .find(|r| r.text.starts_with("timed probes ("))
+        .map(|r| r.text.as_str())
+        .expect("timed probes");
     for st in StructureName::ALL {
         assert_eq!(line.contains(&format!(" {st} ")), only.contains(&st), "{st}: {line}");
     }
@@ -413,7 +427,8 @@ fn timed_probes_are_blended_into_a_static_scenes_predictions_when_the_model_has_
     // With no mesh (nothing to probe with), the thesis policy, a calibration without ratios or an animation: no
     // timed probe, and a reason saying why.
     let none_taken = |s: &Decision, why: &str| {
-        let r: Vec<&String> = s.selection.reasons.iter().filter(|r| r.starts_with("timed probes")).collect();
+        let r: Vec<&str> =
+            s.selection.reasons.iter().map(|r| r.text()).filter(|r| r.starts_with("timed probes")).collect();
         assert!(r.len() == 1 && r[0].starts_with("timed probes: none taken: ") && r[0].contains(why), "{r:?}");
     };
     none_taken(&run(&model, PolicyKind::Calibrated, Level::Timed, false), "no mesh");
@@ -474,7 +489,13 @@ fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
             .copied()
             .collect();
         let close = close_calls(&allowed);
-        let line = s.selection.reasons.iter().find(|r| r.starts_with("measured close call")).expect("a reason");
+        let line = s
+            .selection
+            .reasons
+            .iter()
+            .find(|r| r.text.starts_with("measured close call"))
+            .map(|r| r.text.as_str())
+            .expect("a reason");
         if close.is_empty() {
             assert!(line.contains("none: no close call"), "{line}");
             assert!(s.measured.is_empty());
@@ -500,20 +521,32 @@ fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
         // Over the measuring budget: nothing measured, the predictions' choice stands, and the reason says so.
         let capped = run(64, 1e-6);
         assert!(capped.measured.is_empty());
-        let why = capped.selection.reasons.iter().find(|r| r.starts_with("measured close call")).expect("reason");
+        let why = capped
+            .selection
+            .reasons
+            .iter()
+            .find(|r| r.text.starts_with("measured close call"))
+            .map(|r| r.text.as_str())
+            .expect("reason");
         assert!(why.starts_with("measured close call: none: measuring ") && why.contains("allowed"), "{why}");
         assert_eq!(Some(capped.selection.structure), meshchar::select::choose(&allowed, 0.05));
         // No rays, or more than a measured frame may hold: nothing measured.
         for (res, why) in [(0, "no rays (resolution 0)"), (4097, "4097x4097 rays per frame, over the")] {
             let s = run(res, 1e9);
             assert!(s.measured.is_empty());
-            let r = s.selection.reasons.iter().find(|r| r.starts_with("measured close call")).expect("reason");
+            let r = s
+                .selection
+                .reasons
+                .iter()
+                .find(|r| r.text.starts_with("measured close call"))
+                .map(|r| r.text.as_str())
+                .expect("reason");
             assert!(r.starts_with(&format!("measured close call: none: {why}")), "{r}");
         }
         // The thesis policy and an animation measure nothing.
         let thesis = measured(&m, frames, features, &model, PolicyKind::Thesis, workload(), 64, 1e9);
         assert!(thesis.measured.is_empty());
-        assert!(thesis.selection.reasons.iter().any(|r| r.starts_with("measured close call: none: the thesis")));
+        assert!(thesis.selection.reasons.iter().any(|r| r.text.starts_with("measured close call: none: the thesis")));
         let (two_c, two_f) = ([c.clone(), c.clone()], [f.clone(), f.clone()]);
         let mut sel = Selector::new(&model, workload());
         sel.inquiry = Inquiry::Fixed(Level::Measured);
@@ -521,7 +554,11 @@ fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
         let two = [m.clone(), m.clone()];
         let anim = sel.select(&Scene { name: &m.name, characterizations: &two_c, features: &two_f, meshes: &two });
         assert!(anim.measured.is_empty());
-        assert!(anim.selection.reasons.iter().any(|r| r == "measured close call: none: the scene is an animation"));
+        assert!(anim
+            .selection
+            .reasons
+            .iter()
+            .any(|r| r.text == "measured close call: none: the scene is an animation"));
     }
     assert!(settled > 0, "some family scene at 2K triangles is a close call for the shipped model");
 }
@@ -557,13 +594,25 @@ fn a_measured_close_call_of_secondary_rays_scales_its_traces_by_the_rays_it_trac
                 continue;
             }
             settled += 1;
-            let line = s.selection.reasons.iter().find(|r| r.starts_with("measured close call")).expect("a reason");
+            let line = s
+                .selection
+                .reasons
+                .iter()
+                .find(|r| r.text.starts_with("measured close call"))
+                .map(|r| r.text.as_str())
+                .expect("a reason");
             assert!(s.measured.iter().all(|t| t.rays as u64 == made), "{}: {line}", m.name);
             assert!(!line.contains("traces scaled"), "{}: {line}", m.name);
             let doubled = run(2 * made);
             if !doubled.measured.is_empty() {
                 doubled_settled += 1;
-                let line = doubled.selection.reasons.iter().find(|r| r.starts_with("measured close call")).unwrap();
+                let line = doubled
+                    .selection
+                    .reasons
+                    .iter()
+                    .find(|r| r.text.starts_with("measured close call"))
+                    .map(|r| r.text.as_str())
+                    .unwrap();
                 assert!(line.contains("traces scaled by 2.000"), "{}: {line}", m.name);
             }
         }
@@ -609,8 +658,8 @@ fn the_size_rung_characterizes_only_where_it_pays() {
     assert_eq!(d.characterized, r.characterize);
     if !r.characterize {
         assert_eq!(Some(d.structure()), r.structure);
-        assert!(d.selection.reasons[0].contains("on the triangle count alone"), "{:?}", d.selection.reasons);
-        assert!(d.selection.reasons[1].starts_with("margin"), "{:?}", d.selection.reasons);
+        assert!(d.selection.reasons[0].text.contains("on the triangle count alone"), "{:?}", d.selection.reasons);
+        assert!(d.selection.reasons[1].text.starts_with("margin"), "{:?}", d.selection.reasons);
     }
     // Size laws far less certain than the features': worth knowing over a million frames, not over one (where the
     // characterization is over 1% of the frame).
@@ -624,7 +673,11 @@ fn the_size_rung_characterizes_only_where_it_pays() {
     let r = many.size_rung(n).unwrap();
     assert!(r.characterize && r.gain_ms > r.cost_ms, "{r:?}");
     let d = many.select(&scene);
-    assert!(d.characterized && !d.selection.reasons[0].contains("triangle count alone"), "{:?}", d.selection.reasons);
+    assert!(
+        d.characterized && !d.selection.reasons[0].text.contains("triangle count alone"),
+        "{:?}",
+        d.selection.reasons
+    );
     let mut fixed = Selector::new(&model, w(1));
     fixed.inquiry = Inquiry::Fixed(Level::Prior);
     assert!(fixed.size_rung(n).is_none() && fixed.select(&scene).characterized);

@@ -289,7 +289,7 @@ fn the_policy_weighs_the_driver_structures_only_when_asked_and_says_which_flag()
     let w = Workload { kind: WorkloadKind::Primary, rays_per_frame: 1 << 20, frames: 1, builds: 1, view: None };
     let want = cheap.predict_driver(&feats[0], &w).iter().map(|p| p.total_ms).fold(f64::INFINITY, f64::min);
     assert_eq!(d.predicted_total_ms, want);
-    let text = s.reasons.join("\n");
+    let text = s.reasons.iter().map(|r| r.text()).collect::<Vec<_>>().join("\n");
     assert!(text.contains("PREFER_FAST_BUILD") && text.contains("driver choice: rt_fast_build"), "{text}");
     assert!(text.contains("overall: the driver's rt_fast_build"), "{text}");
     // Driver rays at 1 ms each: never chosen, and the reasons say the project's structure stays.
@@ -297,13 +297,13 @@ fn the_policy_weighs_the_driver_structures_only_when_asked_and_says_which_flag()
     let d = s.driver.clone().expect("weighed");
     assert!(!d.chosen);
     assert_eq!(s.candidate(), s.structure.as_str());
-    assert!(s.reasons.iter().any(|r| r.contains("stays below the driver's")), "{:?}", s.reasons);
+    assert!(s.reasons.iter().any(|r| r.text.contains("stays below the driver's")), "{:?}", s.reasons);
     // A model without driver structures says so.
     let mut none = fitted();
     none.driver.clear();
     let s = select(none, &feats, &chars, true);
     assert!(s.driver.is_none());
-    assert!(s.reasons.iter().any(|r| r.contains("has not calibrated them")), "{:?}", s.reasons);
+    assert!(s.reasons.iter().any(|r| r.text.contains("has not calibrated them")), "{:?}", s.reasons);
 }
 
 #[test]

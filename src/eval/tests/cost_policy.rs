@@ -12,7 +12,7 @@ use meshchar::geom::WorkloadKind;
 use meshchar::mesh::generate;
 use meshchar::select::choose;
 use meshchar::select::CalibratedPolicy;
-use meshchar::select::{Policy, SceneSummary};
+use meshchar::select::{Policy, ReasonKind, SceneSummary};
 
 use super::cost::{known_samples, known_samples_with_rays};
 
@@ -156,7 +156,7 @@ fn the_calibrated_policy_picks_the_cheapest_prediction() {
             chosen.push(expect);
             // One reason per structure with its numbers, plus the verdict and the margin to the next structure.
             assert_eq!(sel.reasons.len(), 8, "{:?}", sel.reasons);
-            assert!(sel.reasons.iter().any(|r| r.starts_with(&format!("{expect}: predicted build"))));
+            assert!(sel.reasons.iter().any(|r| r.text.starts_with(&format!("{expect}: predicted build"))));
             let chosen_total = want.iter().find(|t| t.0 == expect).unwrap().2;
             let next = want.iter().filter(|t| t.0 != expect).min_by(|a, b| a.2.total_cmp(&b.2)).unwrap();
             let margin_line = format!(
@@ -164,10 +164,31 @@ fn the_calibrated_policy_picks_the_cheapest_prediction() {
                 next.0,
                 next.2 / chosen_total
             );
-            assert!(sel.reasons[1].starts_with(&margin_line), "{margin_line} in {:?}", sel.reasons);
+            assert!(sel.reasons[1].text.starts_with(&margin_line), "{margin_line} in {:?}", sel.reasons);
             let errors = [expect, next.0].map(|s| policy.model.get(s).unwrap().fit.total);
             let close = (next.2 / chosen_total).ln().abs() < errors.iter().map(|e| e * e).sum::<f64>().sqrt();
-            assert_eq!(sel.reasons[1].contains("a close call"), close, "{}", sel.reasons[1]);
+            assert_eq!(sel.reasons[1].text.contains("a close call"), close, "{}", sel.reasons[1]);
+            // The same, as typed data: the choice first, the margin second, one prediction per structure.
+            assert_eq!(sel.reasons[0].kind, ReasonKind::Choice { structure: sel.structure });
+            let ReasonKind::Margin { runner_up, ratio, close_call } = sel.reasons[1].kind else {
+                panic!("no margin second: {:?}", sel.reasons[1])
+            };
+            assert_eq!((runner_up, close_call), (next.0, close));
+            assert!((ratio - next.2 / chosen_total).abs() <= 1e-12 * ratio, "{ratio}");
+            let predicted: Vec<_> = sel
+                .reasons
+                .iter()
+                .filter_map(|r| match r.kind {
+                    ReasonKind::Prediction { structure, total_ms } => Some((structure, total_ms)),
+                    _ => None,
+                })
+                .collect();
+            assert_eq!(predicted.len(), 6, "{:?}", sel.reasons);
+            assert!(predicted.windows(2).all(|w| w[0].1 <= w[1].1), "not cheapest first: {predicted:?}");
+            // The JSON holds the sentences, as before the reasons were typed.
+            let json = serde_json::to_value(&sel).unwrap();
+            let texts: Vec<&str> = sel.reasons.iter().map(|r| r.text()).collect();
+            assert_eq!(json["reasons"], serde_json::json!(texts));
         }
     }
     chosen.sort();
@@ -177,7 +198,9 @@ fn the_calibrated_policy_picks_the_cheapest_prediction() {
     let bare = SceneSummary::new("clustered", &chars);
     let policy = CalibratedPolicy::new(CostModel::shipped().unwrap(), WorkloadKind::Primary, 1 << 20, 1);
     let sel = policy.select(&bare);
-    assert!(sel.reasons[0].contains("thesis policy decides"));
+    assert!(sel.reasons[0].text.contains("thesis policy decides"));
+    assert_eq!(sel.reasons[0].kind, ReasonKind::Fallback);
+    assert!(sel.reasons[1..].iter().all(|r| matches!(r.kind, ReasonKind::Rule | ReasonKind::Excluded)));
 }
 
 #[test]
