@@ -49,7 +49,8 @@ pub struct E2eScore {
 /// One policy scored end to end, overall and per workload kind.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct E2ePolicy {
-    /// `thesis`, `best_single`, `always_bvh`, `size_only`, `level0` .. `level3`, `ladder`, `oracle`.
+    /// `thesis`, `best_single`, `always_bvh`, `size_only`, `level0` .. `level3`, `crossings` (level 1 without its
+    /// probes), `ladder`, `oracle`.
     pub policy: String,
     /// How it was fitted (`recorded`, `hindsight`, `none`, `family_out` or `scene_out`).
     pub holdout: String,
@@ -178,18 +179,22 @@ fn base_ms(c: &StageCosts) -> f64 {
     c.characterize_ms + c.features_ms
 }
 
-/// The calibrated policy's choice for `smp` under `model` at `inquiry`, and what the decision cost.
-fn decide(model: &CostModel, smp: &Sample, inquiry: Inquiry, tie_margin: f64, decision_budget: f64) -> Choice {
+/// The workload of a record, as a selector's target.
+fn target_of(smp: &Sample) -> TargetWorkload {
     let w = &smp.workload;
-    let target = TargetWorkload {
+    TargetWorkload {
         kind: w.kind,
         rays_per_frame: w.rays_per_frame,
         frames: w.frames,
         animation_frames: None,
         driver: false,
         camera: None,
-    };
-    let mut s = Selector::new(model, target);
+    }
+}
+
+/// The calibrated policy's choice for `smp` under `model` at `inquiry`, and what the decision cost.
+fn decide(model: &CostModel, smp: &Sample, inquiry: Inquiry, tie_margin: f64, decision_budget: f64) -> Choice {
+    let mut s = Selector::new(model, target_of(smp));
     s.inquiry = inquiry;
     s.tie_margin = tie_margin;
     s.decision_budget = decision_budget;
@@ -207,6 +212,28 @@ fn decide(model: &CostModel, smp: &Sample, inquiry: Inquiry, tie_margin: f64, de
     };
     let own_ms = t.elapsed().as_secs_f64() * 1e3;
     Choice { structure, decision_ms: base_ms(&smp.stage_ms) + k.spent_ms + own_ms, level: c.level, by_size: false }
+}
+
+/// The calibrated policy's choice for `smp` under `model` from the prior and the mesh's crossings alone (level 1
+/// without its probes: an O(n) pass over the triangle boxes, nothing built), and what the decision cost.
+fn decide_on_crossings(model: &CostModel, smp: &Sample, tie_margin: f64) -> Choice {
+    let mut s = Selector::new(model, target_of(smp));
+    s.tie_margin = tie_margin;
+    let t = std::time::Instant::now();
+    if let Some(rung) = s.size_rung(smp.features.scene_triangles()).filter(|r| !r.characterize) {
+        let own_ms = t.elapsed().as_secs_f64() * 1e3;
+        return Choice { structure: rung.structure, decision_ms: own_ms, level: Level::Prior, by_size: true };
+    }
+    let mut k = RecordKnowledge::new(model, smp);
+    let level = if k.climbable(Level::Counted).is_ok() {
+        k.count(&[]);
+        Level::Counted
+    } else {
+        Level::Prior
+    };
+    let structure = choose(&k.predictions(), tie_margin);
+    let own_ms = t.elapsed().as_secs_f64() * 1e3;
+    Choice { structure, decision_ms: base_ms(&smp.stage_ms) + k.spent_ms + own_ms, level, by_size: false }
 }
 
 /// The score of `choices` over `samples` (all of one number of frames).
@@ -359,6 +386,14 @@ pub fn compare_e2e(
             }),
         ));
     }
+    rules.push((
+        "crossings",
+        holdout,
+        Box::new(move |s: &Sample| match model_of(models, s) {
+            Some(m) => decide_on_crossings(&m, s, tie_margin),
+            None => fixed(None, 0.0, Level::Counted),
+        }),
+    ));
     rules.push((
         "ladder",
         holdout,

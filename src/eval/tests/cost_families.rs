@@ -587,3 +587,22 @@ fn a_falling_build_time_fits_the_exponent_at_its_bound() {
     assert!((grid.build_ln_a - mean).abs() < 1e-9, "{} vs {mean}", grid.build_ln_a);
     assert!(CostModel::from_json(&m.to_json()).is_ok());
 }
+
+/// End to end on the rounds of seed 17 (`docs/data/families-rounds-s17-*.jsonl`), held out by family: the crossings
+/// policy (level 1 without its probes) scores every sample level 0 scores, and its decision costs no more than level
+/// 1's, which takes the same bounds pass and crossings and builds the probes besides.
+#[test]
+fn the_crossings_policy_is_scored_end_to_end_at_less_than_the_probes_cost() {
+    let files = family_record_files("families-rounds-s17");
+    let samples = meshchar::eval::record::load_samples(&files, &Params::default(), &|_| {}).unwrap();
+    let e =
+        meshchar::eval::e2e::compare_e2e(&samples, 0.05, meshchar::select::DEFAULT_DECISION_BUDGET, "test").unwrap();
+    let get = |name: &str| e.iter().find(|p| p.policy == name).unwrap_or_else(|| panic!("no {name}"));
+    let (crossings, level0, level1) = (get("crossings"), get("level0"), get("level1"));
+    for ((c, l0), l1) in crossings.overall.iter().zip(&level0.overall).zip(&level1.overall) {
+        assert!(c.scored > 0 && c.scored == l0.scored, "F = {}: {} against {}", c.frames, c.scored, l0.scored);
+        assert!(c.median_decision_ms <= l1.median_decision_ms, "F = {}: {c:?} against {l1:?}", c.frames);
+        // No sample was decided past level 1 (the levels it may report: 0 on the count alone, or 1).
+        assert_eq!(c.levels[2] + c.levels[3], 0, "{c:?}");
+    }
+}
