@@ -71,6 +71,7 @@ pub(crate) fn from_ordered_bits(u: u32) -> f32 {
 }
 
 /// Per-axis minimum in the total order of [`ordered_bits`].
+#[cfg(test)]
 #[inline]
 pub(crate) fn min_total(a: f32, b: f32) -> f32 {
     if ordered_bits(b) < ordered_bits(a) {
@@ -81,6 +82,7 @@ pub(crate) fn min_total(a: f32, b: f32) -> f32 {
 }
 
 /// Per-axis maximum in the total order of [`ordered_bits`].
+#[cfg(test)]
 #[inline]
 pub(crate) fn max_total(a: f32, b: f32) -> f32 {
     if ordered_bits(b) > ordered_bits(a) {

@@ -197,109 +197,209 @@ pub fn features_cpu(mesh: &Mesh, params: &Params) -> Result<Features, CharError>
 /// [`features_cpu`] with the codes of `quantizer` where one is given (a planned run's feature pass counts the cells
 /// of the plan's codes), else of the sample's own quantizer.
 pub(crate) fn features_with(mesh: &Mesh, params: &Params, quantizer: Option<Quantizer>) -> Result<Features, CharError> {
+    features_from(mesh, params, quantizer, None)
+}
+
+/// The Morton codes of a mesh's sample, in sample order, as a characterization computed them.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum SampleCodes<'a> {
+    /// 30-bit codes.
+    Bits30(&'a [u32]),
+    /// Codes of any width, in `u64`.
+    Wide(&'a [u64]),
+}
+
+/// [`features_cpu`] from the sample's codes computed already by a characterization of `mesh` with `params` that
+/// succeeded (so the mesh is valid, and is not checked again): no key pass, and the triangles are read once. The
+/// same features. Codes of another length than the sample's are ignored (the codes are then computed).
+pub(crate) fn features_of_codes(mesh: &Mesh, params: &Params, codes: SampleCodes<'_>) -> Result<Features, CharError> {
+    features_from(mesh, params, None, Some(codes))
+}
+
+/// Where the feature pass takes the sample's codes from.
+enum CodeSource<'a> {
+    /// A characterization's.
+    Given(SampleCodes<'a>),
+    /// Computed from the keys by this quantizer.
+    Quantized(Quantizer),
+}
+
+/// Biased f32 exponent fields: the triangles' extents are counted by this field in one pass, and binned once the
+/// scene's exponent is known.
+const EXPONENT_FIELDS: usize = 256;
+
+/// What one pass over a run of the sample gathers: the vertex bounds as [`keys::ordered_bits`] (whose unsigned
+/// minimum and maximum are those of the IEEE total order), the extents' exponent fields, the occupied depth-7
+/// cells.
+struct Partial {
+    lo: [u32; 3],
+    hi: [u32; 3],
+    fields: Vec<u64>,
+    mask: Vec<u64>,
+}
+
+impl Partial {
+    fn new(words: usize) -> Self {
+        Partial { lo: [u32::MAX; 3], hi: [0; 3], fields: vec![0; EXPONENT_FIELDS], mask: vec![0; words] }
+    }
+
+    fn merge(mut self, o: Partial) -> Partial {
+        for a in 0..3 {
+            self.lo[a] = self.lo[a].min(o.lo[a]);
+            self.hi[a] = self.hi[a].max(o.hi[a]);
+        }
+        self.fields.iter_mut().zip(&o.fields).for_each(|(x, y)| *x += y);
+        self.mask.iter_mut().zip(&o.mask).for_each(|(x, y)| *x |= y);
+        self
+    }
+}
+
+/// Triangles per block of the feature pass: their vertices are gathered by axis into arrays of this length.
+const BLOCK: usize = 256;
+
+/// [`keys::ordered_bits`] without a branch.
+#[inline]
+fn ordered(x: f32) -> u32 {
+    let b = x.to_bits();
+    b ^ (((b as i32) >> 31) as u32 | 0x8000_0000)
+}
+
+/// The largest of the three extents `hi - lo` (f32), `0` when all are zero.
+fn largest_extent(lo: &[f32; 3], hi: &[f32; 3]) -> f32 {
+    let mut m = 0.0f32;
+    for a in 0..3 {
+        m = m.max(hi[a] - lo[a]);
+    }
+    m
+}
+
+fn features_from(
+    mesh: &Mesh,
+    params: &Params,
+    quantizer: Option<Quantizer>,
+    codes: Option<SampleCodes<'_>>,
+) -> Result<Features, CharError> {
     params.validate()?;
-    mesh.validate()?;
     let stride = params.sample_stride.max(1) as usize;
     let total = mesh.triangle_count();
-    let ids: Vec<usize> = (0..total).step_by(stride).collect();
-    if ids.is_empty() {
+    let n = total.div_ceil(stride);
+    let bits = params.morton_bits;
+    let codes = codes.filter(|c| match c {
+        SampleCodes::Bits30(c) => c.len() == n && bits == keys::MortonBits::Bits30,
+        SampleCodes::Wide(c) => c.len() == n,
+    });
+    // Codes come from a characterization of this mesh, which validated it.
+    if codes.is_none() {
+        mesh.validate()?;
+    }
+    if n == 0 {
         return Err(CharError::Empty { mesh: mesh.name.clone() });
     }
-    let bits = params.morton_bits;
     let p = &mesh.positions;
-    let tri = |i: usize| {
-        let [a, b, c] = mesh.indices[i];
+    let tri = |j: usize| {
+        let [a, b, c] = mesh.indices[j * stride];
         [p[a as usize], p[b as usize], p[c as usize]]
     };
-    // Key bounds and scale (docs/spec.md steps 1-3), as the characterization; vertex bounds.
-    let key = |i: usize| {
-        let [v0, v1, v2] = tri(i);
-        keys::centroid_key(v0, v1, v2)
-    };
-    let q = match quantizer {
-        Some(q) => q,
-        None => Quantizer::of_keys(ids.len(), |j| key(ids[j]), bits)
+    // Key bounds and scale (docs/spec.md steps 1-3), as the characterization, unless its codes are at hand.
+    let source = match (quantizer, codes) {
+        (Some(q), _) => CodeSource::Quantized(q),
+        (None, Some(c)) => CodeSource::Given(c),
+        (None, None) => CodeSource::Quantized(
+            Quantizer::of_keys(
+                n,
+                |j| {
+                    let [v0, v1, v2] = tri(j);
+                    keys::centroid_key(v0, v1, v2)
+                },
+                bits,
+            )
             .map_err(|e| CharError::of_keys(&mesh.name, stride, e))?,
+        ),
     };
-    // Vertex bounds in the IEEE total order (min/max of the total order are associative and commutative: any
-    // split of the work gives the same bits).
-    let (vlo, vhi) = crate::in_pool(|| {
-        ids.par_chunks(CHUNK)
-            .map(|chunk| {
-                let mut lo = [f32::INFINITY; 3];
-                let mut hi = [f32::NEG_INFINITY; 3];
-                for &i in chunk {
-                    for v in tri(i) {
-                        for a in 0..3 {
-                            lo[a] = keys::min_total(lo[a], v[a]);
-                            hi[a] = keys::max_total(hi[a], v[a]);
-                        }
-                    }
-                }
-                (lo, hi)
-            })
-            .reduce(
-                || ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]),
-                |(l0, h0), (l1, h1)| {
-                    (
-                        std::array::from_fn(|a| keys::min_total(l0[a], l1[a])),
-                        std::array::from_fn(|a| keys::max_total(h0[a], h1[a])),
-                    )
-                },
-            )
-    });
     let shift = bits.total() - 3 * OCCUPANCY_DEPTHS as u32;
-    let extent = |lo: &[f32; 3], hi: &[f32; 3]| -> f32 {
-        let mut m = 0.0f32;
-        for a in 0..3 {
-            m = m.max(hi[a] - lo[a]);
-        }
-        m
-    };
-    let scene_exp = exponent(extent(&vlo, &vhi));
-    // Per chunk: the occupied deepest cells and the size histogram; ORs and sums of integers merge exactly in any
-    // order.
+    // One pass: the vertex bounds, the extents' exponent fields and the occupied cells, per run of the sample. Every
+    // merge is a minimum, a maximum, a sum or an OR of integers, so the split does not change the result.
     let words = (1usize << (3 * OCCUPANCY_DEPTHS)) / 64;
-    let (mask, size_histogram, zero_extent) = crate::in_pool(|| {
-        ids.par_chunks(CHUNK.max(ids.len().div_ceil(rayon::current_num_threads().max(1))))
-            .map(|chunk| {
-                let mut mask = vec![0u64; words];
-                let mut hist = vec![0u64; SIZE_BINS];
-                let mut zero = 0u64;
-                for &i in chunk {
-                    let [v0, v1, v2] = tri(i);
-                    let code = q.code(keys::centroid_key(v0, v1, v2));
-                    let prefix = (code >> shift) as usize;
-                    mask[prefix / 64] |= 1u64 << (prefix % 64);
-                    let mut tlo = v0;
-                    let mut thi = v0;
-                    for v in [v1, v2] {
-                        for a in 0..3 {
-                            tlo[a] = tlo[a].min(v[a]);
-                            thi[a] = thi[a].max(v[a]);
-                        }
-                    }
-                    match (exponent(extent(&tlo, &thi)), scene_exp) {
-                        (Some(t), Some(s)) => hist[((s - t).max(0) as usize).min(SIZE_BINS - 1)] += 1,
-                        _ => zero += 1,
+    let run = CHUNK.max(n.div_ceil(rayon::current_num_threads().max(1)));
+    let gather = |r: usize| {
+        let mut out = Partial::new(words);
+        // Blocks of triangles gathered by axis (`v[3 k + a]`: vertex `k`, axis `a`), so that the loops over a block
+        // vectorize.
+        let mut v = Box::new([[0f32; BLOCK]; 9]);
+        let mut extent = [0f32; BLOCK];
+        let (first, end) = (r * run, ((r + 1) * run).min(n));
+        for j0 in (first..end).step_by(BLOCK) {
+            let len = BLOCK.min(end - j0);
+            for k in 0..len {
+                let t = tri(j0 + k);
+                for (c, vertex) in t.iter().enumerate() {
+                    for a in 0..3 {
+                        v[3 * c + a][k] = vertex[a];
                     }
                 }
-                (mask, hist, zero)
-            })
-            .reduce(
-                || (vec![0u64; words], vec![0u64; SIZE_BINS], 0),
-                |(mut m, mut h, z), (m1, h1, z1)| {
-                    m.iter_mut().zip(&m1).for_each(|(a, b)| *a |= b);
-                    h.iter_mut().zip(&h1).for_each(|(a, b)| *a += b);
-                    (m, h, z + z1)
-                },
-            )
+            }
+            extent[..len].fill(0.0);
+            for a in 0..3 {
+                let (x0, x1, x2) = (&v[a][..len], &v[3 + a][..len], &v[6 + a][..len]);
+                let (mut lo, mut hi) = (out.lo[a], out.hi[a]);
+                for k in 0..len {
+                    let (o0, o1, o2) = (ordered(x0[k]), ordered(x1[k]), ordered(x2[k]));
+                    lo = lo.min(o0.min(o1).min(o2));
+                    hi = hi.max(o0.max(o1).max(o2));
+                    // The triangle's box extent along `a`, as `largest_extent` computes it.
+                    let e = x0[k].max(x1[k]).max(x2[k]) - x0[k].min(x1[k]).min(x2[k]);
+                    extent[k] = extent[k].max(e);
+                }
+                (out.lo[a], out.hi[a]) = (lo, hi);
+            }
+            for &e in &extent[..len] {
+                out.fields[((e.to_bits() >> 23) & 0xff) as usize] += 1;
+            }
+            for k in 0..len {
+                let j = j0 + k;
+                let code = match &source {
+                    CodeSource::Given(SampleCodes::Bits30(c)) => u64::from(c[j]),
+                    CodeSource::Given(SampleCodes::Wide(c)) => c[j],
+                    CodeSource::Quantized(q) => {
+                        let at = |c: usize| [v[3 * c][k], v[3 * c + 1][k], v[3 * c + 2][k]];
+                        q.code(keys::centroid_key(at(0), at(1), at(2)))
+                    }
+                };
+                let prefix = (code >> shift) as usize;
+                out.mask[prefix / 64] |= 1u64 << (prefix % 64);
+            }
+        }
+        out
+    };
+    let part = crate::in_pool(|| {
+        (0..n.div_ceil(run))
+            .into_par_iter()
+            .map(gather)
+            .reduce_with(Partial::merge)
+            .unwrap_or_else(|| Partial::new(words))
     });
+    let vlo = part.lo.map(keys::from_ordered_bits);
+    let vhi = part.hi.map(keys::from_ordered_bits);
+    // The size histogram: bin `e(S) - e(t)` of every normal extent `t`; zero and subnormal extents (fields 0 and
+    // 255, which the vertices' finiteness leaves to zero and subnormal ones), and every extent of a scene whose own
+    // extent is not normal, apart.
+    let mut size_histogram = vec![0u64; SIZE_BINS];
+    let mut zero_extent = 0u64;
+    let scene_exp = exponent(largest_extent(&vlo, &vhi));
+    for (field, &count) in part.fields.iter().enumerate() {
+        match (field, scene_exp) {
+            (1..=254, Some(s)) => {
+                let t = field as i32 - 127;
+                size_histogram[((s - t).max(0) as usize).min(SIZE_BINS - 1)] += count;
+            }
+            _ => zero_extent += count,
+        }
+    }
     Ok(Features {
-        triangles: ids.len() as u64,
+        triangles: n as u64,
         total_triangles: total as u64,
         morton_bits: bits.total(),
-        occupied_cells: occupancy_from_mask(&mask),
+        occupied_cells: occupancy_from_mask(&part.mask),
         size_histogram,
         zero_extent,
         extent_exponents: extent_exponents(&vlo, &vhi),

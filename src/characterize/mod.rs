@@ -279,9 +279,23 @@ impl Characterizer {
         mesh: &Mesh,
         params: &Params,
     ) -> Result<(Characterization, Features), CharError> {
-        match &mut self.vulkan {
-            Some(vk) => vk.characterize_with_features(mesh, params),
-            None => Ok((self.characterize(mesh, params)?, features_cpu(mesh, params)?)),
+        match (&mut self.vulkan, self.backend) {
+            (Some(vk), _) => vk.characterize_with_features(mesh, params),
+            (None, Backend::Naive) => Ok((cpu::naive(mesh, params)?, features_cpu(mesh, params)?)),
+            // The fast path's codes, kept in its working memory or returned per triangle, feed the feature pass.
+            (None, _) => {
+                let c = cpu::fast_with(mesh, params, &mut self.scratch)?;
+                let n = c.triangles as usize;
+                let codes = match &c.per_triangle {
+                    Some(p) => Some(features::SampleCodes::Wide(&p.codes)),
+                    None => self.scratch.sample_codes(n, params.morton_bits),
+                };
+                let f = match codes {
+                    Some(codes) => features::features_of_codes(mesh, params, codes)?,
+                    None => features_cpu(mesh, params)?,
+                };
+                Ok((c, f))
+            }
         }
     }
 

@@ -146,6 +146,20 @@ pub struct Scratch {
 }
 
 impl Scratch {
+    /// The codes of the last [`fast_with`] run's `n` sampled triangles with `bits` codes, when it kept them here (it
+    /// returns them per triangle under `keep_per_triangle` instead).
+    pub(crate) fn sample_codes(
+        &self,
+        n: usize,
+        bits: MortonBits,
+    ) -> Option<crate::characterize::features::SampleCodes<'_>> {
+        use crate::characterize::features::SampleCodes;
+        match bits {
+            MortonBits::Bits30 => self.codes30.get(..n).map(SampleCodes::Bits30),
+            MortonBits::Bits63 => self.codes63.get(..n).map(SampleCodes::Wide),
+        }
+    }
+
     /// Bytes held.
     pub fn bytes(&self) -> usize {
         4 * (self.keys.x.capacity() + self.keys.y.capacity() + self.keys.z.capacity() + self.codes30.capacity())

@@ -2,5 +2,6 @@
 //! the device passes against a direct CPU computation of the same exact quantities (`gpu_passes`).
 
 pub(crate) mod exact;
+mod features_definition;
 mod gpu_passes;
 mod host_math;
