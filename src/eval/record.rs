@@ -734,7 +734,7 @@ pub fn load_samples_admitted(
 
 /// The features of `mesh` and what its characterization and features take on this machine, warm (the median of
 /// three timed runs after an untimed one; the characterization on the CPU path with its scratch kept, as an engine
-/// keeps it across frames).
+/// keeps it across frames, and the features from its codes).
 fn time_scene_stages(mesh: &crate::mesh::Mesh, params: &Params) -> Result<(Features, StageCosts), String> {
     use std::time::Instant;
     const RUNS: usize = 3;
@@ -744,10 +744,16 @@ fn time_scene_stages(mesh: &crate::mesh::Mesh, params: &Params) -> Result<(Featu
     let mut features = None;
     for run in 0..=RUNS {
         let t = Instant::now();
-        crate::characterize::cpu::fast_with(mesh, params, &mut scratch).map_err(|e| format!("characterize: {e}"))?;
+        let ch = crate::characterize::cpu::fast_with(mesh, params, &mut scratch)
+            .map_err(|e| format!("characterize: {e}"))?;
         let c = t.elapsed().as_secs_f64() * 1e3;
+        // The features from the characterization's codes, as `Characterizer::characterize_with_features` takes them.
         let t = Instant::now();
-        let f = features_cpu(mesh, params).map_err(|e| format!("features: {e}"))?;
+        let f = match (&ch.per_triangle, scratch.sample_codes(ch.triangles as usize, params.morton_bits)) {
+            (None, Some(codes)) => crate::characterize::features::features_of_codes(mesh, params, codes),
+            _ => features_cpu(mesh, params),
+        }
+        .map_err(|e| format!("features: {e}"))?;
         let fm = t.elapsed().as_secs_f64() * 1e3;
         if run > 0 {
             char_ms.push(c);
