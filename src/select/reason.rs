@@ -69,11 +69,6 @@ impl Reason {
     pub fn new(kind: ReasonKind, text: impl Into<String>) -> Self {
         Reason { kind, text: text.into() }
     }
-
-    /// The sentence.
-    pub fn text(&self) -> &str {
-        &self.text
-    }
 }
 
 impl std::fmt::Display for Reason {
@@ -96,5 +91,5 @@ impl serde::Serialize for Reason {
 
 /// The sentences of `reasons` joined by `sep`.
 pub(crate) fn join(reasons: &[Reason], sep: &str) -> String {
-    reasons.iter().map(Reason::text).collect::<Vec<_>>().join(sep)
+    reasons.iter().map(|r| r.text.as_str()).collect::<Vec<_>>().join(sep)
 }

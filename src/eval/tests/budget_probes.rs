@@ -428,7 +428,7 @@ fn timed_probes_are_blended_into_a_static_scenes_predictions_when_the_model_has_
     // timed probe, and a reason saying why.
     let none_taken = |s: &Decision, why: &str| {
         let r: Vec<&str> =
-            s.selection.reasons.iter().map(|r| r.text()).filter(|r| r.starts_with("timed probes")).collect();
+            s.selection.reasons.iter().map(|r| r.text.as_str()).filter(|r| r.starts_with("timed probes")).collect();
         assert!(r.len() == 1 && r[0].starts_with("timed probes: none taken: ") && r[0].contains(why), "{r:?}");
     };
     none_taken(&run(&model, PolicyKind::Calibrated, Level::Timed, false), "no mesh");

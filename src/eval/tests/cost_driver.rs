@@ -289,7 +289,7 @@ fn the_policy_weighs_the_driver_structures_only_when_asked_and_says_which_flag()
     let w = Workload { kind: WorkloadKind::Primary, rays_per_frame: 1 << 20, frames: 1, builds: 1, view: None };
     let want = cheap.predict_driver(&feats[0], &w).iter().map(|p| p.total_ms).fold(f64::INFINITY, f64::min);
     assert_eq!(d.predicted_total_ms, want);
-    let text = s.reasons.iter().map(|r| r.text()).collect::<Vec<_>>().join("\n");
+    let text = s.reasons.iter().map(|r| r.text.as_str()).collect::<Vec<_>>().join("\n");
     assert!(text.contains("PREFER_FAST_BUILD") && text.contains("driver choice: rt_fast_build"), "{text}");
     assert!(text.contains("overall: the driver's rt_fast_build"), "{text}");
     // Driver rays at 1 ms each: never chosen, and the reasons say the project's structure stays.

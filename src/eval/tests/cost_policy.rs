@@ -187,7 +187,7 @@ fn the_calibrated_policy_picks_the_cheapest_prediction() {
             assert!(predicted.windows(2).all(|w| w[0].1 <= w[1].1), "not cheapest first: {predicted:?}");
             // The JSON holds the sentences, as before the reasons were typed.
             let json = serde_json::to_value(&sel).unwrap();
-            let texts: Vec<&str> = sel.reasons.iter().map(|r| r.text()).collect();
+            let texts: Vec<&str> = sel.reasons.iter().map(|r| r.text.as_str()).collect();
             assert_eq!(json["reasons"], serde_json::json!(texts));
         }
     }
