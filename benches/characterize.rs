@@ -10,8 +10,13 @@
 //! keeps it: what a caller that characterizes every frame pays); it prints the medians, the bytes per second each
 //! achieves and the ratio of the reused path's time to the copy's.
 //!
+//! The `features` group sets the scene features beside the characterization, in interleaved rounds of one run on a
+//! CPU `Characterizer` (its scratch kept): the characterization alone, `features_cpu` alone, and both as
+//! `characterize_with_features` takes them (the features from the characterization's codes); it prints the medians
+//! and the ratio of both to the characterization alone.
+//!
 //! `cargo bench --bench characterize` (all), `-- whole` (only the meshes), `-- scaling` (only the scaling run),
-//! `-- speed` (only the bandwidth comparison). Set `MESHCHAR_BENCH_NAIVE=0` to skip the slow naive path and
+//! `-- speed` (only the bandwidth comparison), `-- features` (only the features). Set `MESHCHAR_BENCH_NAIVE=0` to skip the slow naive path and
 //! `MESHCHAR_BENCH_ROUNDS=N` to change the rounds of `speed` (default 30).
 
 mod common;
@@ -29,7 +34,7 @@ use std::time::{Duration, Instant};
 /// begins with the group's name, or one that begins with no group's name (criterion then matches it against every
 /// benchmark's id).
 fn selected(name: &str) -> bool {
-    const GROUPS: [&str; 3] = ["whole", "scaling", "speed"];
+    const GROUPS: [&str; 4] = ["whole", "scaling", "speed", "features"];
     let filters: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with('-')).collect();
     filters.is_empty() || filters.iter().any(|f| f.starts_with(name) || !GROUPS.iter().any(|g| f.starts_with(g)))
 }
@@ -345,5 +350,51 @@ fn speed(crit: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, speed, whole, scaling);
+fn features(_: &mut Criterion) {
+    if !selected("features") || std::env::args().any(|a| a == "--list") {
+        return;
+    }
+    let rounds: usize = std::env::var("MESHCHAR_BENCH_ROUNDS").ok().and_then(|v| v.parse().ok()).unwrap_or(30);
+    let mut meshes: Vec<(String, Mesh)> = [
+        ("bunny", "stanford-bunny/bun_zipper.ply"),
+        ("dragon", "stanford-dragon/dragon_vrip.ply"),
+        ("sponza", "dabrovic-sponza/sponza.obj"),
+    ]
+    .into_iter()
+    .map(|(name, rel)| (name.to_string(), load(rel)))
+    .collect();
+    for n in [20_000, 500_000] {
+        let city = meshchar::mesh::families::generate(meshchar::mesh::families::Family::City, n, 1).expect("city");
+        meshes.push((format!("city {n}"), city));
+    }
+    let params = Params::default();
+    let mut engine = meshchar::characterize::Characterizer::new(Some(meshchar::characterize::Backend::Cpu))
+        .expect("the CPU characterizer");
+    println!(
+        "
+the scene features beside the characterization ({}; medians of {rounds} interleaved rounds, ms)",
+        cpu::cpu_device_name(rayon::current_num_threads())
+    );
+    println!("| mesh | triangles | characterize | features_cpu | characterize_with_features | both / characterize |");
+    println!("|---|---:|---:|---:|---:|---:|");
+    for (name, mesh) in &meshes {
+        let (mut alone, mut feats, mut both) = (Vec::new(), Vec::new(), Vec::new());
+        for _ in 0..rounds {
+            let t = Instant::now();
+            let c = engine.characterize(mesh, &params).expect("characterize");
+            alone.push(ms(t));
+            let t = Instant::now();
+            let f = meshchar::characterize::features_cpu(mesh, &params).expect("features");
+            feats.push(ms(t));
+            let t = Instant::now();
+            let (c2, f2) = engine.characterize_with_features(mesh, &params).expect("both");
+            both.push(ms(t));
+            assert!(c.same_result(&c2) && f == f2, "{name}: the paths differ");
+        }
+        let (a, f, b) = (median(&mut alone), median(&mut feats), median(&mut both));
+        println!("| {name} | {} | {a:.3} | {f:.3} | {b:.3} | {:.2}x |", mesh.triangle_count(), b / a);
+    }
+}
+
+criterion_group!(benches, speed, whole, scaling, features);
 criterion_main!(benches);
