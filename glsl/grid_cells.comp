@@ -34,6 +34,7 @@ layout(push_constant) uniform Push {
     uint64_t payload; // Address of the sort payload: the triangles (MODE 1).
     uint64_t count;   // Triangles.
     uint64_t limit;   // Largest total MODE 1 works on.
+    uint64_t skip;    // Address of one u32 per triangle, nonzero for a coincident copy, in no cell (0: none).
 } pc;
 
 #include "geometry.glsl"
@@ -170,7 +171,8 @@ void main() {
         vec3 bmin = min(min(a, b), c);
         vec3 bmax = max(max(a, b), c);
         if (MODE == 1u) g_slot = uint64_t(ld_u32(pc.counts, i));
-        uint cells = grid_visit(g, uint(i), a, e1, e2, bmin, bmax);
+        bool copy = pc.skip != 0ul && ld_u32(pc.skip, i) != 0u;
+        uint cells = copy ? 0u : grid_visit(g, uint(i), a, e1, e2, bmin, bmax);
         if (MODE == 0u) {
             TriRecord r;
             r.v0 = a;

@@ -26,7 +26,6 @@ pub(crate) fn record_bits(t: &Triangle) -> [[u32; 3]; 3] {
 
 /// A 64-bit hash of `bits` (a multiply-rotate mix; equal bits give equal hashes, and the groups are confirmed on the
 /// bits themselves).
-#[cfg(feature = "eval")]
 fn hash(bits: &[u32; 9]) -> u64 {
     bits.iter()
         .fold(0x9e37_79b9_7f4a_7c15u64, |h, &b| (h ^ u64::from(b)).wrapping_mul(0xff51_afd7_ed55_8ccd).rotate_left(29))
@@ -41,7 +40,6 @@ fn hash(bits: &[u32; 9]) -> u64 {
 /// `tris` are the mesh's triangle records in mesh order (`crate::accel::prepare`): the hash reads them, which lie in
 /// order in memory, instead of the vertices through the indices; copies have equal records, and the groups are
 /// confirmed on the positions.
-#[cfg(feature = "eval")]
 pub(crate) fn position_copies(mesh: &Mesh, tris: &[Triangle]) -> Vec<(u32, u32)> {
     use rayon::prelude::*;
     use std::sync::atomic::{AtomicU64, Ordering};
@@ -93,7 +91,6 @@ pub(crate) fn position_copies(mesh: &Mesh, tris: &[Triangle]) -> Vec<(u32, u32)>
 }
 
 /// Whether triangle `i` of a mesh with `copies` ([`position_copies`]) is a copy, as a mask over the triangles.
-#[cfg(feature = "eval")]
 pub(crate) fn copy_mask(n: usize, copies: &[(u32, u32)]) -> Vec<bool> {
     let mut mask = vec![false; n];
     for &(c, _) in copies {

@@ -29,8 +29,13 @@
 //! counters (which copies of one triangle would all contend for), and the same grid on every thread count. Storage
 //! is compressed rows: `cell_start[c] .. cell_start[c + 1]` indexes the reference array.
 //!
+//! Coincident copies (triangles whose positions are bit-identical, `crate::accel::copies`) are stored once, as the
+//! smallest index of their group: the others are in no cell and listed apart, so that 50,000 copies of one triangle
+//! cost one triangle's references, not 50,000 times them. The frame and the budget still count every triangle.
+//!
 //! The device builder ([`crate::accel::gpu::grid`]) makes the same cell lists from the same [`GridFrame`] (the
-//! frame's constants are computed once, in [`GridFrame::new`], for both).
+//! frame's constants are computed once, in [`GridFrame::new`], for both), given the copies' flags ([`copy_flags`],
+//! `GridBuilder::build_with_copies`); without them it stores every copy.
 //!
 //! # Budget
 //!
@@ -68,6 +73,10 @@ pub struct Grid {
     refs: Vec<u32>,
     tris: Vec<Triangle>,
     boxes: Vec<Aabb>,
+    /// Triangles in no cell, coincident copies of another (`crate::accel::copies`), as `(copy, kept)`.
+    copies: Vec<(u32, u32)>,
+    /// Whether each triangle is one of `copies`.
+    is_copy: Vec<bool>,
 }
 
 use super::grid_rule::WIDEN;
@@ -75,6 +84,19 @@ use super::grid_rule::WIDEN;
 /// Resolution by the density heuristic, and the padded bounds.
 pub fn grid_resolution(bounds: &Aabb, n: usize, o: &GridOptions) -> (Aabb, [u32; 3]) {
     super::grid_rule::resolution(bounds, n, o.density, o.max_resolution, o.max_cells)
+}
+
+/// One `u32` per triangle of `mesh`, 1 for a coincident copy of a triangle of smaller index (bit-identical
+/// positions), 0 otherwise: the grid stores such copies once, and [`crate::accel::gpu::grid::GridBuilder::build_with_copies`]
+/// takes these flags to build the same lists on the device.
+///
+/// # Errors
+///
+/// [`AccelError`] for a mesh the grid cannot be built over.
+pub fn copy_flags(mesh: &Mesh) -> Result<Vec<u32>, AccelError> {
+    let (tris, _) = prepare(mesh, "grid")?;
+    let copies = super::copies::position_copies(mesh, &tris);
+    Ok(super::copies::copy_mask(tris.len(), &copies).into_iter().map(u32::from).collect())
 }
 
 impl Grid {
@@ -99,7 +121,12 @@ impl Grid {
         }
         let frame = GridFrame::new(&scene, n, o);
         let res = frame.res;
-        let mut g = Grid { frame, cell_start: Vec::new(), refs: Vec::new(), tris, boxes };
+        // Coincident copies are stored once, as the smallest index of their group: every copy would cover the
+        // same cells, and a ray would test them all (the frame and the budget still count every triangle, as the
+        // device builder's do).
+        let copies = super::copies::position_copies(mesh, &tris);
+        let is_copy = super::copies::copy_mask(n, &copies);
+        let mut g = Grid { frame, cell_start: Vec::new(), refs: Vec::new(), tris, boxes, copies, is_copy };
         let ncells = res.iter().map(|&x| x as usize).product::<usize>();
         if ncells >= u32::MAX as usize {
             let limit = u32::MAX as usize;
@@ -200,6 +227,9 @@ impl Grid {
 
     /// An upper bound of the cells triangle `i` is stored in: its box's cells (1 for a zero-area triangle).
     fn box_cell_count(&self, i: usize) -> u64 {
+        if self.is_copy.get(i) == Some(&true) {
+            return 0;
+        }
         if self.tris[i].is_degenerate() {
             return 1;
         }
@@ -210,6 +240,9 @@ impl Grid {
     /// Calls `f` with every cell triangle `i` is stored in (the rule of the module docs,
     /// [`GridFrame::for_each_run`]), slab by slab, row by row, until `f` returns `false`.
     fn for_each_cell(&self, i: usize, mut f: impl FnMut(usize) -> bool) {
+        if self.is_copy.get(i) == Some(&true) {
+            return;
+        }
         self.frame.for_each_run(&self.tris[i], &self.boxes[i], |run| {
             (run.from..=run.to).all(|k| {
                 let [x, y, z] = run.cell(k);
@@ -393,15 +426,16 @@ impl AccelStructure for Grid {
     }
     traversal_methods!();
     fn memory_bytes(&self) -> usize {
-        bytes_of(&self.cell_start) + bytes_of(&self.refs) + bytes_of(&self.tris)
+        bytes_of(&self.cell_start) + bytes_of(&self.refs) + bytes_of(&self.tris) + bytes_of(&self.copies)
     }
 
     fn build_work(&self) -> Option<f64> {
         (!self.refs.is_empty()).then_some(self.refs.len() as f64)
     }
     /// Checks: row starts monotone and ending at the reference count, reference ids in range, each reference's
-    /// triangle box overlapping its (widened) cell, and every triangle present in exactly the cells the build rule
-    /// assigns it (so none is lost and none is stray).
+    /// triangle box overlapping its (widened) cell, every triangle present in exactly the cells the build rule
+    /// assigns it (so none is lost and none is stray), and every listed copy in no cell, with the records' bits of
+    /// a kept triangle of smaller index that is in some.
     fn validate(&self) -> Result<AccelStats, AccelError> {
         let n = self.tris.len();
         let bytes = self.memory_bytes();
@@ -453,12 +487,30 @@ impl AccelStructure for Grid {
             if let Some(c) = lost {
                 return Err(invalid("grid", format!("triangle {i} lost from cell {c}")));
             }
-            if count == 0 || count != seen_i {
+            let copy = self.is_copy.get(i) == Some(&true);
+            if (count == 0) != copy || count != seen_i {
                 return Err(invalid("grid", format!("triangle {i}: {seen_i} references, {count} expected")));
             }
         }
+        if self.is_copy.len() != n || self.is_copy.iter().filter(|&&c| c).count() != self.copies.len() {
+            return Err(invalid("grid", "the copy flags do not match the copies"));
+        }
+        for &(c, k) in &self.copies {
+            let (tc, tk) = match (self.tris.get(c as usize), self.tris.get(k as usize)) {
+                (Some(tc), Some(tk)) if k < c => (tc, tk),
+                _ => return Err(invalid("grid", format!("copy ({c}, {k}) out of range or of a larger index"))),
+            };
+            if super::copies::record_bits(tc) != super::copies::record_bits(tk) || self.is_copy[k as usize] {
+                return Err(invalid("grid", format!("triangle {c} is no copy of a kept triangle {k}")));
+            }
+            if self.is_copy.get(c as usize) != Some(&true) {
+                return Err(invalid("grid", format!("copy {c} not flagged")));
+            }
+        }
         // Each triangle's references are the cells the build rule gives it, so the references are all of them.
-        v.finish()
+        let mut stats = v.finish()?;
+        stats.copies = self.copies.len();
+        Ok(stats)
     }
 
     fn sah_cost(&self) -> Option<f64> {

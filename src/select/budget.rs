@@ -138,7 +138,15 @@ fn span_cells(frame: &GridFrame, t: f64, a: usize) -> u64 {
 /// their slab bounds (`upper`), and the figure is an upper bound. A chunk holds triangles whose slab bounds, each
 /// capped at what is left of `cap`, sum to no more than that (as the grid's builder sizes its own), so no chunk
 /// counts much past the cap.
-fn exact_references(frame: &GridFrame, tris: &[Triangle], boxes: &[Aabb], upper: &[u64], cap: u64) -> (u64, Bound) {
+/// A triangle flagged in `copy` (a coincident copy, which the grid stores once) counts nothing.
+fn exact_references(
+    frame: &GridFrame,
+    tris: &[Triangle],
+    boxes: &[Aabb],
+    upper: &[u64],
+    copy: &[bool],
+    cap: u64,
+) -> (u64, Bound) {
     use rayon::prelude::*;
     let mut prefix = 0u64;
     let mut i = 0;
@@ -156,6 +164,9 @@ fn exact_references(frame: &GridFrame, tris: &[Triangle], boxes: &[Aabb], upper:
         let counted = (i..j)
             .into_par_iter()
             .map(|k| {
+                if copy.get(k) == Some(&true) {
+                    return 0;
+                }
                 let c = frame.cell_count(&tris[k], &boxes[k], left);
                 if c >= left {
                     upper[k]
@@ -376,11 +387,23 @@ impl BuildBounds {
             return Ok(BuildBounds::empty(n as u64, "mesh"));
         }
         let grid = rule.frame(&scene, n);
-        let upper: Vec<u64> = tris.par_iter().zip(&boxes).map(|(t, b)| grid.slab_bound(t, b)).collect();
+        // Coincident copies: the grid and the kd-tree store each group once.
+        let copy = crate::accel::copies::copy_mask(n, &crate::accel::copies::position_copies(mesh, &tris));
+        let upper: Vec<u64> = tris
+            .par_iter()
+            .zip(&boxes)
+            .zip(&copy)
+            .map(|((t, b), &c)| if c { 0 } else { grid.slab_bound(t, b) })
+            .collect();
         let (g, k) = tris
             .par_iter()
             .zip(&upper)
-            .map(|(t, &c)| (c, if t.is_degenerate() { 1 } else { c.saturating_mul(KD_FACTOR) }))
+            .zip(&copy)
+            .map(|((t, &c), &dup)| match (dup, t.is_degenerate()) {
+                (true, _) => (0, 0),
+                (false, true) => (c, 1),
+                (false, false) => (c, c.saturating_mul(KD_FACTOR)),
+            })
             .reduce(|| (0u64, 0u64), |a, b| (a.0.saturating_add(b.0), a.1.saturating_add(b.1)));
         // Where the slab bound exceeds the count threshold or the caller's grid budget (references or bytes), the
         // budget's verdict and the grid's priced build rest on it, and the bound can be several times the grid's
@@ -391,7 +414,7 @@ impl BuildBounds {
         let bytes_allowed = budget.max_bytes.min(Budget::default().max_bytes);
         let over = |g: u64| g > refs_allowed || BuildBounds::grid_bytes(&grid, nu, g) > bytes_allowed;
         let (g, kind) = if over(g) {
-            exact_references(&grid, &tris, &boxes, &upper, Budget::BUILDERS.grid_references(nu))
+            exact_references(&grid, &tris, &boxes, &upper, &copy, Budget::BUILDERS.grid_references(nu))
         } else {
             (g, Bound::Upper)
         };
@@ -742,9 +765,17 @@ mod tests {
     }
 
     #[test]
-    fn coincident_copies_are_excluded_and_the_reason_says_why() {
-        // 30,000 copies of one triangle: the grid puts every copy in every cell along its hypotenuse.
-        let m = generate::all_equal(30_000);
+    fn near_copies_are_excluded_and_the_reason_says_why_and_copies_are_not() {
+        // 30,000 copies of one triangle: the grid stores the group once, a triangle's cells, and keeps the grid.
+        let copies = BuildBounds::of_mesh(&generate::all_equal(30_000)).expect("bounds");
+        let cells: u64 = copies.grid_resolution.iter().map(|&r| u64::from(r)).product();
+        assert!(copies.grid_references <= cells, "{copies:?}");
+        assert!(Budget::default().check(&copies).iter().all(|e| e.structure != Structure::Grid), "{copies:?}");
+        // 30,000 near copies (the third vertex moved by 2^-20 each): every one in the cells along its hypotenuse.
+        let positions =
+            (0..30_000).flat_map(|i| [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0 + i as f32 / 1_048_576.0, 0.0]]);
+        let indices = (0..30_000u32).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect();
+        let m = Mesh::new("near copies", positions.collect(), indices).expect("mesh");
         let b = BuildBounds::of_mesh(&m).expect("bounds");
         let ex = Budget::default().check(&b);
         assert!(ex.iter().any(|e| e.structure == Structure::Grid && e.what == "references"), "{b:?} {ex:?}");

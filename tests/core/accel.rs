@@ -497,13 +497,14 @@ fn bounded_build(mesh: &Mesh, name: StructureName) -> Result<meshchar::accel::Ac
 #[test]
 fn degenerate_scenes_build_with_bounded_work() {
     use meshchar::mesh::generate;
-    // Coincident copies (a fan of a polygon over three points, all-equal triangles) cannot fit a grid: every copy
-    // fills half its cells. The kd-tree's chains of splits that keep every reference on one side are cut (18
-    // references per triangle on the fan without the cut, 135 with zero-area triangles carried as boxes). The BIH
-    // stops halving towards the fan's zero-area legs (depth 164 before).
+    // Coincident copies (a fan of a polygon over three points, all-equal triangles) fit a grid because it stores
+    // each group once (before, every copy filled half its cells, over the budget). The kd-tree's chains of splits
+    // that keep every reference on one side are cut (18 references per triangle on the fan without the cut, 135
+    // with zero-area triangles carried as boxes). The BIH stops halving towards the fan's zero-area legs (depth 164
+    // before).
     for (mesh, grid_fits) in [
-        (generate::fan_polygon(100_000), false),
-        (generate::all_equal(100_000), false),
+        (generate::fan_polygon(100_000), true),
+        (generate::all_equal(100_000), true),
         (generate::collinear_centroids(30_000), true),
         (generate::flat(30_000, 5), true),
         (generate::zero_area(30_000, 13), true),
@@ -521,6 +522,7 @@ fn degenerate_scenes_build_with_bounded_work() {
                     StructureName::Bih => assert!(s.is_some_and(|s| s.max_depth <= 64), "{s:?}"),
                     // The unit triangle and its two zero-area legs, each kept once.
                     StructureName::Bvh => assert!(s.is_some_and(|s| s.references == 3), "{s:?}"),
+                    StructureName::Grid => assert!(s.is_some_and(|s| s.copies == n - 3), "{s:?}"),
                     _ => {}
                 }
             }

@@ -28,7 +28,15 @@ fn host_lists(grid: &Grid) -> ([u32; 3], Vec<u32>, Vec<u32>) {
 fn compare(ctx: &Context, builder: &GridBuilder, what: &str, mesh: &Mesh, o: &GridOptions) -> Result<u64, String> {
     let buffers = MeshBuffers::upload(ctx, &mesh.positions, &mesh.indices).unwrap();
     let host = Grid::build_with(mesh, o);
-    let device = builder.build(&buffers.view(), &triangle_bounds(mesh), o);
+    // The host finds the coincident copies; the device build skips them (tested without copies too: the flags are
+    // then all zero, and a build without them must give the same lists).
+    let flags = meshchar::accel::grid::copy_flags(mesh).expect("copy flags");
+    let device = if flags.contains(&1) {
+        let copies = ctx.upload("copy flags", &flags).unwrap();
+        builder.build_with_copies(&buffers.view(), &triangle_bounds(mesh), o, &copies)
+    } else {
+        builder.build(&buffers.view(), &triangle_bounds(mesh), o)
+    };
     match (host, device) {
         (Ok(h), Ok(d)) => {
             let (res, starts, refs) = host_lists(&h);
@@ -102,6 +110,22 @@ fn device_grid_equals_the_host_grid_on_degenerate_and_random_scenes() {
     for (k, n) in [1usize, 2, 3, 17, 255, 1000, 4099].into_iter().enumerate() {
         scenes.push(("random soup", generate::random_soup(n, 100 + k as u64)));
     }
+    // Coincident copies over vertices of their own: 5,000 of one large triangle (each would cover about half the
+    // cells), and a soup with every 5th triangle copied at the end; both grids store each group once.
+    let mut stack = Mesh { name: "copies".into(), ..Default::default() };
+    for k in 0..5_000u32 {
+        stack.positions.extend([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+        stack.indices.push([3 * k, 3 * k + 1, 3 * k + 2]);
+    }
+    scenes.push(("copies of one triangle", stack));
+    let mut soup = generate::random_soup(600, 9);
+    for t in soup.indices.clone().into_iter().step_by(5) {
+        let base = soup.positions.len() as u32;
+        let v: Vec<[f32; 3]> = t.iter().map(|&i| soup.positions[i as usize]).collect();
+        soup.positions.extend(v);
+        soup.indices.push([base, base + 1, base + 2]);
+    }
+    scenes.push(("soup with copies", soup));
     for (name, mesh) in &scenes {
         for (label, o) in [("default", GridOptions::default()), ("coarse", coarse), ("fine", fine)] {
             let what = format!("{name} ({} triangles, {label})", mesh.triangle_count());

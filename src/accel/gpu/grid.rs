@@ -270,6 +270,8 @@ pub struct GpuGrid {
     pending: Option<(Timer, CompletionFlag)>,
     references: Option<u64>,
     timings: Vec<(String, f64)>,
+    /// Address of the copy flags the build skips (0: none; [`GridBuilder::build_with_copies`]).
+    copies: u64,
 }
 
 impl std::fmt::Debug for GpuGrid {
@@ -451,12 +453,26 @@ impl GridBuilder {
     }
 
     /// The buffers of a build of `plan` over `view`, without the lists' (see [`GridBuilder::allocate_lists`]).
-    fn allocate(&self, view: &GeometryView<'_>, plan: &GridPlan) -> Result<GpuGrid, GridBuildError> {
+    fn allocate(
+        &self,
+        view: &GeometryView<'_>,
+        plan: &GridPlan,
+        copies: Option<&Buffer>,
+    ) -> Result<GpuGrid, GridBuildError> {
         if view.triangle_count() != plan.triangles {
             return Err(GpuError::Buffer(format!(
                 "device grid: the view has {} triangles, the plan {}",
                 view.triangle_count(),
                 plan.triangles
+            ))
+            .into());
+        }
+        if let Some(c) = copies.filter(|c| c.size() < 4 * plan.triangles) {
+            return Err(GpuError::Buffer(format!(
+                "device grid: the copy flags hold {} bytes, {} triangles need {}",
+                c.size(),
+                plan.triangles,
+                4 * plan.triangles
             ))
             .into());
         }
@@ -478,6 +494,7 @@ impl GridBuilder {
             pending: None,
             references: None,
             timings: Vec::new(),
+            copies: copies.map_or(0, Buffer::address),
         })
     }
 
@@ -508,6 +525,7 @@ impl GridBuilder {
             payload: payload,
             count: g.plan.triangles,
             limit: limit,
+            skip: g.copies,
         })
     }
 
@@ -595,7 +613,7 @@ impl GridBuilder {
         view: &GeometryView<'_>,
         plan: &GridPlan,
     ) -> Result<GpuGrid, GridBuildError> {
-        let mut g = self.allocate(view, plan)?;
+        let mut g = self.allocate(view, plan, None)?;
         self.allocate_lists(&mut g, plan.capacity)?;
         let mut timer = Timer::new(&self.ctx, 8)?;
         rec.reset_timer(&mut timer);
@@ -615,9 +633,37 @@ impl GridBuilder {
     ///
     /// Those of [`GridPlan::new`] and [`GpuGrid::finish`] (never [`GridBuildError::Capacity`]), or a device error.
     pub fn build(&self, view: &GeometryView<'_>, scene: &Aabb, o: &GridOptions) -> Result<GpuGrid, GridBuildError> {
+        self.build_skipping(view, scene, o, None)
+    }
+
+    /// [`GridBuilder::build`] with the view's coincident copies stored once: `copies` holds one `u32` per triangle,
+    /// nonzero for a triangle that is a copy of one of smaller index (bit-identical positions, as
+    /// `crate::accel::grid::copy_flags` finds them on the host), which is then in no cell. With the host grid's
+    /// flags the lists are the host grid's.
+    ///
+    /// # Errors
+    ///
+    /// Those of [`GridBuilder::build`], and [`GpuError::Buffer`] when `copies` holds fewer than 4 bytes per triangle.
+    pub fn build_with_copies(
+        &self,
+        view: &GeometryView<'_>,
+        scene: &Aabb,
+        o: &GridOptions,
+        copies: &Buffer,
+    ) -> Result<GpuGrid, GridBuildError> {
+        self.build_skipping(view, scene, o, Some(copies))
+    }
+
+    fn build_skipping(
+        &self,
+        view: &GeometryView<'_>,
+        scene: &Aabb,
+        o: &GridOptions,
+        copies: Option<&Buffer>,
+    ) -> Result<GpuGrid, GridBuildError> {
         let plan = GridPlan::new(scene, view.triangle_count(), o)?;
         let ctx = &self.ctx;
-        let mut g = self.allocate(view, &plan)?;
+        let mut g = self.allocate(view, &plan, copies)?;
         let mut timer = Timer::new(ctx, 4)?;
         ctx.submit_and_wait(|rec| {
             rec.reset_timer(&mut timer);

@@ -233,7 +233,7 @@ fn floor_of(bounds: &CountBounds, structure: StructureName, kind: WorkloadKind, 
         };
     }
     let x = match structure {
-        StructureName::Bvh => c.distinct,
+        StructureName::Bvh | StructureName::Grid => c.distinct,
         StructureName::KdTree => c.nondegenerate,
         _ => c.all,
     };
@@ -243,10 +243,11 @@ fn floor_of(bounds: &CountBounds, structure: StructureName, kind: WorkloadKind, 
     if let (Some(near), Some(leaf)) = (c.near, near_leaf(structure)) {
         // Every triangle whose box a closest-hit ray enters before its first hit is tested, and every triangle whose
         // box an unoccluded any-hit ray crosses ([`near_crossings`]: for primary rays the boxes entered, for diffuse
-        // rays those holding the origin, for shadow rays those the unoccluded ones cross); the binned-SAH BVH keeps
-        // one of coincident copies, so its count is scaled by the distinct share. Each such triangle's leaf box is
-        // tested too, and a leaf holds at most `leaf` triangles.
-        let near = if structure == StructureName::Bvh && c.all > 0.0 { near * c.distinct / c.all } else { near };
+        // rays those holding the origin, for shadow rays those the unoccluded ones cross); the binned-SAH BVH and
+        // the grid keep one of coincident copies, so their counts are scaled by the distinct share. Each such
+        // triangle's leaf box is tested too, and a leaf holds at most `leaf` triangles.
+        let merges = matches!(structure, StructureName::Bvh | StructureName::Grid);
+        let near = if merges && c.all > 0.0 { near * c.distinct / c.all } else { near };
         // The secondary counts are means over every ray, those that leave the scene at once (which cross nothing)
         // included; the floor bounds the others' counts (`predict_floored` applies it to them alone).
         let stay = 1.0 - leave_share;

@@ -179,7 +179,20 @@ impl<'a> DeviceOracle<'a> {
                 DeviceTraceError::Layout(crate::accel::AccelError::Invalid { structure: "grid", reason })
             };
             let scene = crate::accel::gpu::grid::triangle_bounds(host.1);
-            let g = match self.grids.build(&view, &scene, &Default::default()) {
+            // The coincident copies are found on the host (as the host grid finds them) and skipped on the device;
+            // the host pass counts in the build.
+            let t = std::time::Instant::now();
+            let flags = crate::accel::grid::copy_flags(host.1).map_err(|e| bad(e.to_string()))?;
+            let copies = match flags.contains(&1) {
+                true => Some(self.ctx.upload("grid copy flags", &flags).map_err(DeviceTraceError::Gpu)?),
+                false => None,
+            };
+            let flags_ms = t.elapsed().as_secs_f64() * 1e3;
+            let built = match &copies {
+                Some(c) => self.grids.build_with_copies(&view, &scene, &Default::default(), c),
+                None => self.grids.build(&view, &scene, &Default::default()),
+            };
+            let g = match built {
                 Ok(g) => g,
                 Err(GridBuildError::LoopLimit { .. }) => return Ok(None),
                 Err(GridBuildError::Gpu(e)) => return Err(DeviceTraceError::Gpu(e)),
@@ -191,7 +204,7 @@ impl<'a> DeviceOracle<'a> {
                     if cell_start == starts.as_slice() && want == refs.as_slice() => {}
                 _ => return Err(bad("the device-built grid's cell lists differ from the host grid's".into())),
             }
-            let build_ms = g.gpu_ms();
+            let build_ms = g.gpu_ms() + flags_ms;
             let mut d = g.into_device_structure(self.ctx).map_err(|e| bad(e.to_string()))?;
             return Ok(Some((build_ms, self.trace_on(&mut d, rays, on_device)?)));
         }
