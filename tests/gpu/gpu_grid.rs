@@ -187,6 +187,25 @@ fn recorded_device_grid_reports_its_capacity_and_then_fits() {
     let (dstarts, drefs) = g.read_back(&ctx).unwrap();
     assert_eq!((dstarts, drefs), (starts, refs));
     assert!(g.timings().iter().any(|(n, _)| n == "grid_sort"), "{:?}", g.timings());
+    // Recorded with the copies' flags, a mesh of copies gives the host grid's lists, one triangle's references.
+    let mut copies = Mesh { name: "copies".into(), ..Default::default() };
+    for k in 0..2_000u32 {
+        copies.positions.extend([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+        copies.indices.push([3 * k, 3 * k + 1, 3 * k + 2]);
+    }
+    let host = Grid::build_with(&copies, &o).unwrap();
+    let (_, starts, refs) = host_lists(&host);
+    assert!(refs.iter().all(|&r| r == 0), "only the first copy is in a cell");
+    let flags = ctx.upload("copy flags", &meshchar::accel::grid::copy_flags(&copies).unwrap()).unwrap();
+    let buffers = MeshBuffers::upload(&ctx, &copies.positions, &copies.indices).unwrap();
+    let view = buffers.view();
+    let plan =
+        GridPlan::new(&triangle_bounds(&copies), view.triangle_count(), &o).unwrap().with_capacity(refs.len() as u64);
+    let mut g =
+        gpu_support::in_caller_command_buffer(&ctx, |rec| builder.record_with_copies(rec, &view, &plan, &flags))
+            .unwrap();
+    g.finish().unwrap();
+    assert_eq!(g.read_back(&ctx).unwrap(), (starts, refs));
     gpu_support::assert_no_validation_messages(&ctx);
 }
 

@@ -613,7 +613,34 @@ impl GridBuilder {
         view: &GeometryView<'_>,
         plan: &GridPlan,
     ) -> Result<GpuGrid, GridBuildError> {
-        let mut g = self.allocate(view, plan, None)?;
+        self.record_skipping(rec, view, plan, None)
+    }
+
+    /// [`GridBuilder::record`] with the view's coincident copies stored once, as [`GridBuilder::build_with_copies`]
+    /// takes them; `copies` is read by the recorded passes and stays alive until the command buffer completes.
+    ///
+    /// # Errors
+    ///
+    /// Those of [`GridBuilder::record`], and [`GpuError::Buffer`] when `copies` holds fewer than 4 bytes per
+    /// triangle.
+    pub fn record_with_copies(
+        &self,
+        rec: &mut Recorder<'_>,
+        view: &GeometryView<'_>,
+        plan: &GridPlan,
+        copies: &Buffer,
+    ) -> Result<GpuGrid, GridBuildError> {
+        self.record_skipping(rec, view, plan, Some(copies))
+    }
+
+    fn record_skipping(
+        &self,
+        rec: &mut Recorder<'_>,
+        view: &GeometryView<'_>,
+        plan: &GridPlan,
+        copies: Option<&Buffer>,
+    ) -> Result<GpuGrid, GridBuildError> {
+        let mut g = self.allocate(view, plan, copies)?;
         self.allocate_lists(&mut g, plan.capacity)?;
         let mut timer = Timer::new(&self.ctx, 8)?;
         rec.reset_timer(&mut timer);
