@@ -192,6 +192,13 @@ fn target_of(smp: &Sample) -> TargetWorkload {
     }
 }
 
+/// The size rung's choice for `smp` when it decides on the triangle count alone, its cost timed from `t`.
+fn by_size(s: &Selector<'_>, smp: &Sample, t: std::time::Instant) -> Option<Choice> {
+    let rung = s.size_rung(smp.features.scene_triangles()).filter(|r| !r.characterize)?;
+    let own_ms = t.elapsed().as_secs_f64() * 1e3;
+    Some(Choice { structure: rung.structure, decision_ms: own_ms, level: Level::Prior, by_size: true })
+}
+
 /// The calibrated policy's choice for `smp` under `model` at `inquiry`, and what the decision cost.
 fn decide(model: &CostModel, smp: &Sample, inquiry: Inquiry, tie_margin: f64, decision_budget: f64) -> Choice {
     let mut s = Selector::new(model, target_of(smp));
@@ -199,9 +206,8 @@ fn decide(model: &CostModel, smp: &Sample, inquiry: Inquiry, tie_margin: f64, de
     s.tie_margin = tie_margin;
     s.decision_budget = decision_budget;
     let t = std::time::Instant::now();
-    if let Some(rung) = s.size_rung(smp.features.scene_triangles()).filter(|r| !r.characterize) {
-        let own_ms = t.elapsed().as_secs_f64() * 1e3;
-        return Choice { structure: rung.structure, decision_ms: own_ms, level: Level::Prior, by_size: true };
+    if let Some(c) = by_size(&s, smp, t) {
+        return c;
     }
     let mut k = RecordKnowledge::new(model, smp);
     let c = climb(&s, &mut k);
@@ -220,9 +226,8 @@ fn decide_on_crossings(model: &CostModel, smp: &Sample, tie_margin: f64) -> Choi
     let mut s = Selector::new(model, target_of(smp));
     s.tie_margin = tie_margin;
     let t = std::time::Instant::now();
-    if let Some(rung) = s.size_rung(smp.features.scene_triangles()).filter(|r| !r.characterize) {
-        let own_ms = t.elapsed().as_secs_f64() * 1e3;
-        return Choice { structure: rung.structure, decision_ms: own_ms, level: Level::Prior, by_size: true };
+    if let Some(c) = by_size(&s, smp, t) {
+        return c;
     }
     let mut k = RecordKnowledge::new(model, smp);
     let level = if k.climbable(Level::Counted).is_ok() {

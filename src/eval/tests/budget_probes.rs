@@ -13,6 +13,11 @@ use meshchar::select::{
 
 use super::budget::*;
 
+/// The sentence of the first reason of `d` that starts with `prefix`.
+fn reason_line<'a>(d: &'a Decision, prefix: &str) -> Option<&'a str> {
+    d.selection.reasons.iter().map(|r| r.text.as_str()).find(|r| r.starts_with(prefix))
+}
+
 #[test]
 fn a_probe_counts_the_structures_own_tests_on_its_sample() {
     // A probe builds the structure the oracle builds and traces the sample of `near_crossings`: on those primary
@@ -400,18 +405,13 @@ fn timed_probes_are_blended_into_a_static_scenes_predictions_when_the_model_has_
         s.selection.reasons.iter().any(|r| r.kind == ReasonKind::Inquiry { level, taken: true })
     };
     assert!(taken(&blended, Level::Timed) && !taken(&plain, Level::Timed), "{:?}", plain.selection.reasons);
-    let (p, b, u) = (plain.predicted.unwrap(), blended.predicted.unwrap(), unblended.predicted.clone().unwrap());
+    let (p, b, u) =
+        (plain.predicted.unwrap(), blended.predicted.clone().unwrap(), unblended.predicted.clone().unwrap());
     assert_eq!(p, u, "no ratios: the predictions are the model's");
     // The flow probes the contenders of the count probes' predictions only, and says which; those are blended.
     let only = meshchar::cost::timed::contenders(&p);
     assert!(!only.is_empty() && only.len() <= p.len());
-    let line = blended
-        .selection
-        .reasons
-        .iter()
-        .find(|r| r.text.starts_with("timed probes ("))
-        .map(|r| r.text.as_str())
-        .expect("timed probes");
+    let line = reason_line(&blended, "timed probes (").expect("timed probes");
     for st in StructureName::ALL {
         assert_eq!(line.contains(&format!(" {st} ")), only.contains(&st), "{st}: {line}");
     }
@@ -489,13 +489,7 @@ fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
             .copied()
             .collect();
         let close = close_calls(&allowed);
-        let line = s
-            .selection
-            .reasons
-            .iter()
-            .find(|r| r.text.starts_with("measured close call"))
-            .map(|r| r.text.as_str())
-            .expect("a reason");
+        let line = reason_line(&s, "measured close call").expect("a reason");
         if close.is_empty() {
             assert!(line.contains("none: no close call"), "{line}");
             assert!(s.measured.is_empty());
@@ -521,26 +515,14 @@ fn a_close_call_is_settled_by_measuring_whole_frames_of_its_structures() {
         // Over the measuring budget: nothing measured, the predictions' choice stands, and the reason says so.
         let capped = run(64, 1e-6);
         assert!(capped.measured.is_empty());
-        let why = capped
-            .selection
-            .reasons
-            .iter()
-            .find(|r| r.text.starts_with("measured close call"))
-            .map(|r| r.text.as_str())
-            .expect("reason");
+        let why = reason_line(&capped, "measured close call").expect("reason");
         assert!(why.starts_with("measured close call: none: measuring ") && why.contains("allowed"), "{why}");
         assert_eq!(Some(capped.selection.structure), meshchar::select::choose(&allowed, 0.05));
         // No rays, or more than a measured frame may hold: nothing measured.
         for (res, why) in [(0, "no rays (resolution 0)"), (4097, "4097x4097 rays per frame, over the")] {
             let s = run(res, 1e9);
             assert!(s.measured.is_empty());
-            let r = s
-                .selection
-                .reasons
-                .iter()
-                .find(|r| r.text.starts_with("measured close call"))
-                .map(|r| r.text.as_str())
-                .expect("reason");
+            let r = reason_line(&s, "measured close call").expect("reason");
             assert!(r.starts_with(&format!("measured close call: none: {why}")), "{r}");
         }
         // The thesis policy and an animation measure nothing.
@@ -594,25 +576,13 @@ fn a_measured_close_call_of_secondary_rays_scales_its_traces_by_the_rays_it_trac
                 continue;
             }
             settled += 1;
-            let line = s
-                .selection
-                .reasons
-                .iter()
-                .find(|r| r.text.starts_with("measured close call"))
-                .map(|r| r.text.as_str())
-                .expect("a reason");
+            let line = reason_line(&s, "measured close call").expect("a reason");
             assert!(s.measured.iter().all(|t| t.rays as u64 == made), "{}: {line}", m.name);
             assert!(!line.contains("traces scaled"), "{}: {line}", m.name);
             let doubled = run(2 * made);
             if !doubled.measured.is_empty() {
                 doubled_settled += 1;
-                let line = doubled
-                    .selection
-                    .reasons
-                    .iter()
-                    .find(|r| r.text.starts_with("measured close call"))
-                    .map(|r| r.text.as_str())
-                    .unwrap();
+                let line = reason_line(&doubled, "measured close call").expect("a reason");
                 assert!(line.contains("traces scaled by 2.000"), "{}: {line}", m.name);
             }
         }
